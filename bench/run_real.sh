@@ -1,0 +1,255 @@
+#!/usr/bin/env bash
+# run_real.sh DATA_DIR [OUT_DIR]
+#
+# Compares uavmosaic-onboard with OpenCV's cv::Stitcher (uavm-stitcher-bench) on the real
+# full-resolution flights DATA_DIR/{brighton_beach,caliterra}/images and prints one markdown
+# table (also saved to OUT_DIR/table.md and $RESULTS_DIR/<date>-<hostname>.md).
+#
+# Environment:
+#   UAVM_BUILD_DIR     build tree (default <repo>/build)
+#   STITCHER_TIMEOUT_S wall-time cap for cv::Stitcher, s (default 600)
+#   STITCHER_MEM_GB    RSS cap for cv::Stitcher, GiB, may be fractional (default 12)
+#   OURS_TIMEOUT_S     wall-time cap for uavmosaic-onboard, s (default 0 = none)
+#   FLIGHTS            space-separated flight folders (default "brighton_beach caliterra")
+#   UAVM_RESULTS_DIR   where the dated copy of the table goes (default bench/results)
+#
+# Wall time is measured here, outside both processes (load + work + write), so the two tools
+# are timed the same way. Peak RSS is the largest VmHWM/VmRSS seen in /proc/PID/status,
+# polled every 0.2 s (VmHWM is the kernel's own high-water mark, so short spikes between
+# polls are still counted; only growth in the last <0.2 s before exit could be missed).
+set -euo pipefail
+export LC_ALL=C  # "." as decimal point for printf/awk
+
+SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+REPO=$(dirname "$SCRIPT_DIR")
+
+if [[ $# -lt 1 || $# -gt 2 || $1 == -h || $1 == --help ]]; then
+  sed -n '2,19p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  exit 2
+fi
+
+DATA_DIR=$(cd "$1" && pwd)
+STAMP=$(date +%Y%m%d-%H%M%S)
+RESULTS_DIR=${UAVM_RESULTS_DIR:-$SCRIPT_DIR/results}
+OUT_DIR=${2:-$RESULTS_DIR/real-$STAMP}
+BUILD=${UAVM_BUILD_DIR:-$REPO/build}
+OURS_BIN=$BUILD/firmware_app/uavmosaic-onboard
+STITCHER_BIN=$BUILD/bench/uavm-stitcher-bench
+STITCHER_TIMEOUT_S=${STITCHER_TIMEOUT_S:-600}
+STITCHER_MEM_GB=${STITCHER_MEM_GB:-12}
+OURS_TIMEOUT_S=${OURS_TIMEOUT_S:-0}
+FLIGHTS=${FLIGHTS:-brighton_beach caliterra}
+
+log() { echo "[run_real] $*" >&2; }
+
+if ! command -v jq >/dev/null 2>&1; then
+  log "jq missing, installing it"
+  if ! { apt-get update -qq && apt-get install -y -qq jq; } >&2; then
+    log "cannot install jq"
+    exit 1
+  fi
+fi
+
+mkdir -p "$OUT_DIR" "$RESULTS_DIR"
+OUT_DIR=$(cd "$OUT_DIR" && pwd)
+
+now_us() { echo "${EPOCHREALTIME//[.,]/}"; }
+
+# read_status PID: sets S_STATE S_RSS S_HWM (kB); fails once /proc/PID is gone.
+read_status() {
+  S_STATE="" S_RSS=0 S_HWM=0
+  local key val _rest
+  {
+    while read -r key val _rest; do
+      case $key in
+        State:) S_STATE=$val ;;
+        VmRSS:) S_RSS=$val ;;
+        VmHWM:) S_HWM=$val ;;
+      esac
+    done <"/proc/$1/status"
+  } 2>/dev/null || return 1
+}
+
+# run_watched PREFIX CAP_KB TIMEOUT_S CMD...: runs CMD with stdout/stderr to PREFIX.{stdout,stderr}
+# under the watchdog (CAP_KB / TIMEOUT_S of 0 = no cap). Sets W_RC, W_WALL_S, W_PEAK_KB,
+# W_KILLED ("" | mem | timeout), W_KILL_RSS_KB. Never fails, so one tool cannot abort the table.
+run_watched() {
+  local prefix=$1 cap_kb=$2 timeout_s=$3
+  shift 3
+  local t0 t1 pid
+  W_RC=0 W_PEAK_KB=0 W_KILLED="" W_KILL_RSS_KB=0
+  t0=$(now_us)
+  "$@" >"$prefix.stdout" 2>"$prefix.stderr" &
+  pid=$!
+  while read_status "$pid"; do
+    # A zombie still answers kill -0 and has no Vm* lines: it has finished.
+    [[ -z $S_STATE || $S_STATE == Z* ]] && break
+    ((S_HWM > W_PEAK_KB)) && W_PEAK_KB=$S_HWM
+    ((S_RSS > W_PEAK_KB)) && W_PEAK_KB=$S_RSS
+    if ((cap_kb > 0 && S_RSS > cap_kb)); then
+      kill -KILL "$pid" 2>/dev/null || true
+      W_KILLED=mem W_KILL_RSS_KB=$S_RSS
+      break
+    fi
+    if ((timeout_s > 0 && $(now_us) - t0 > timeout_s * 1000000)); then
+      kill -KILL "$pid" 2>/dev/null || true
+      W_KILLED=timeout
+      break
+    fi
+    sleep 0.2
+  done
+  # Braces: silence bash's own "Killed" job notice; the table says what happened.
+  { wait "$pid"; } 2>/dev/null || W_RC=$?
+  t1=$(now_us)
+  W_WALL_S=$(awk -v d=$((t1 - t0)) 'BEGIN { printf "%.2f", d / 1e6 }')
+}
+
+# peak_mib: the watchdog's peak in MiB; "—" when the process ended before a useful poll.
+peak_mib() {
+  if ((W_PEAK_KB >= 1024)); then fmt "$W_PEAK_KB" 0 1024; else echo "—"; fi
+}
+
+# fmt VALUE DECIMALS [DIVISOR]: number formatting, "—" for empty/non-numeric.
+fmt() {
+  local v=$1 dec=$2 div=${3:-1}
+  if [[ $v =~ ^-?[0-9]+(\.[0-9]+)?([eE][-+]?[0-9]+)?$ ]]; then
+    awk -v v="$v" -v d="$div" -v p="$dec" 'BEGIN { printf "%.*f", p, v / d }'
+  else
+    echo "—"
+  fi
+}
+
+# cell TEXT: safe inside a markdown table cell (no pipes/newlines, bounded length).
+cell() {
+  local s=${1//$'\n'/ }
+  s=${s//|/\\|}
+  ((${#s} > 140)) && s="${s:0:137}..."
+  echo "$s"
+}
+
+count_images() {  # -L: test data folders are often symlink farms
+  [[ -d $1 ]] || { echo 0; return 0; }
+  find -L "$1" -maxdepth 1 -type f \( -iname '*.jpg' -o -iname '*.jpeg' -o -iname '*.png' \) | wc -l
+}
+
+rc_text() {  # exit status -> "exit N" / "signal N"
+  if (($1 > 128)); then echo "signal $(($1 - 128))"; else echo "exit $1"; fi
+}
+
+STAGES=(decode features matching adjust frame_total)
+ROWS=()
+mem_cap_kb=$(awk -v g="$STITCHER_MEM_GB" 'BEGIN { printf "%d", g * 1048576 }')
+
+for flight in $FLIGHTS; do
+  img_dir=$DATA_DIR/$flight/images
+  fdir=$OUT_DIR/$flight
+  mkdir -p "$fdir/uavmosaic"
+  n_img=$(count_images "$img_dir")
+
+  # ---- ours -------------------------------------------------------------------------------
+  o_frames=$n_img o_reg="—" o_rms="—" o_wall="" o_stages="—" o_comp="—" o_rss="—"
+  o_ok=0
+  report=$fdir/uavmosaic/report.json
+  rm -f "$report"  # never read a stale report from an earlier run into this OUT_DIR
+  if [[ ! -d $img_dir ]]; then
+    o_wall="failed: no $flight/images"
+  elif [[ ! -x $OURS_BIN ]]; then
+    o_wall="failed: not built ($OURS_BIN)"
+  else
+    log "$flight: uavmosaic-onboard ($n_img frames)"
+    run_watched "$fdir/uavmosaic" 0 "$OURS_TIMEOUT_S" \
+      "$OURS_BIN" --source "replay:$img_dir" --out "$fdir/uavmosaic"
+    o_rss=$(peak_mib)
+    if [[ $W_KILLED == timeout ]]; then
+      o_wall="timeout at $OURS_TIMEOUT_S s"
+    elif ((W_RC != 0)); then
+      o_wall="failed: $(rc_text "$W_RC")"
+    elif [[ ! -s $report ]]; then
+      o_wall="failed: no report.json"
+    elif ! jq -e 'type == "object"' "$report" >/dev/null 2>&1; then
+      o_wall="failed: report.json is not a JSON object"
+    else
+      o_wall=$W_WALL_S o_ok=1
+    fi
+    ours_wall_s=$W_WALL_S
+  fi
+  r_frames="" r_reg="" r_rms="" r_comp="" r_rss="" r_st=""
+  if [[ -s $report ]] && jq -e . "$report" >/dev/null 2>&1; then
+    # \x1f as separator: unlike tab it is not IFS whitespace, so empty fields are not collapsed.
+    IFS=$'\x1f' read -r r_frames r_reg r_rms r_comp r_rss r_st < <(jq -r --arg st "${STAGES[*]}" '
+      [ (.frames_in // ""), (.registered // ""), (.residual_rms_px // ""), (.composite_ms // ""),
+        (.peak_rss_mib // ""),
+        ([ ($st | split(" "))[] as $k | (.stages_ms[$k].median // "-") | tostring ] | join(" ")) ]
+      | map(tostring) | join("\u001f")' "$report") || true
+    [[ -n ${r_frames:-} ]] && o_frames=$r_frames
+    o_reg=$(cell "${r_reg:-—}")
+    [[ -z $o_reg ]] && o_reg="—"
+    o_rms=$(fmt "${r_rms:-}" 2)
+    o_comp=$(fmt "${r_comp:-}" 2 1000)
+    # The watchdog may miss a process that lives < 0.2 s; fall back to the program's own figure.
+    [[ $o_rss == "—" ]] && o_rss=$(fmt "${r_rss:-}" 0)
+    IFS=' ' read -r -a med <<<"$r_st"  # a missing stage is "-", so positions stay aligned
+    parts=()
+    for i in "${!STAGES[@]}"; do parts+=("$(fmt "${med[$i]:-}" 1)"); done
+    o_stages=$(IFS=/; echo "${parts[*]}")
+    o_stages=${o_stages//\// \/ }
+  fi
+  ROWS+=("| $flight | uavmosaic-onboard | $o_frames | $o_reg | $o_rms | $(cell "$o_wall") | $o_stages | $o_comp | $o_rss | — |")
+
+  # ---- cv::Stitcher -----------------------------------------------------------------------
+  s_frames=$n_img s_reg="—" s_wall="" s_rss="—" ratio="—"
+  if [[ ! -d $img_dir ]]; then
+    s_wall="failed: no $flight/images"
+  elif [[ ! -x $STITCHER_BIN ]]; then
+    s_wall="failed: not built ($STITCHER_BIN)"
+  else
+    log "$flight: cv::Stitcher SCANS (cap ${STITCHER_MEM_GB} GiB, ${STITCHER_TIMEOUT_S} s)"
+    run_watched "$fdir/stitcher" "$mem_cap_kb" "$STITCHER_TIMEOUT_S" \
+      "$STITCHER_BIN" --images "$img_dir" --out "$fdir/stitcher.png"
+    s_rss=$(peak_mib)
+    json=$(grep '^{' "$fdir/stitcher.stdout" | tail -n 1 || true)
+    s_status=""
+    if [[ -n $json ]] && IFS=$'\x1f' read -r s_status j_frames j_reg < <(
+      jq -r '[.status, .frames, .frames_in_result] | map(tostring) | join("\u001f")' <<<"$json" 2>/dev/null); then
+      s_frames=$j_frames s_reg=$j_reg
+    fi
+    if [[ $W_KILLED == mem ]]; then
+      s_wall="killed at $(fmt "$W_KILL_RSS_KB" 1 1048576) GB (after $W_WALL_S s)"
+    elif [[ $W_KILLED == timeout ]]; then
+      s_wall="timeout at $STITCHER_TIMEOUT_S s"
+    elif [[ $s_status == ok ]]; then
+      s_wall=$W_WALL_S
+    elif [[ -n $s_status ]]; then
+      s_wall="failed: ${s_status#failed: }"
+    else
+      s_wall="failed: $(rc_text "$W_RC"), no JSON"
+    fi
+    # The ratio only means something against a successful run of ours; a killed/timed-out
+    # stitcher ran at least that long, so it is a lower bound.
+    if ((o_ok)); then
+      r=$(awk -v a="$W_WALL_S" -v b="$ours_wall_s" 'BEGIN { if (b > 0) printf "%.2f", a / b }')
+      if [[ -n $r ]]; then
+        if [[ $s_status == ok ]]; then ratio="${r}x"
+        elif [[ -n $W_KILLED ]]; then ratio="≥ ${r}x"
+        fi
+      fi
+    fi
+  fi
+  ROWS+=("| $flight | cv::Stitcher SCANS | $s_frames | $s_reg | — | $(cell "$s_wall") | — | — | $s_rss | $ratio |")
+done
+
+cpu=$(awk -F': ' '/^model name/ { print $2; exit }' /proc/cpuinfo)
+{
+  echo "Real-flight benchmark, $(date '+%Y-%m-%d %H:%M:%S %z'), nproc $(nproc), CPU: ${cpu:-unknown}"
+  echo
+  echo "| flight | tool | frames | registered | residual RMS px | wall s | per-frame ms (median: decode / features / matching / adjust / frame_total) | composite s | peak RSS MiB | stitcher wall / ours wall |"
+  echo "|---|---|---:|---:|---:|---:|---|---:|---:|---:|"
+  printf '%s\n' "${ROWS[@]}"
+  echo
+  echo "wall s: measured outside the process (load + work + write). peak RSS: max VmHWM polled every 0.2 s." \
+    "cv::Stitcher caps: ${STITCHER_TIMEOUT_S} s, ${STITCHER_MEM_GB} GiB RSS (SIGKILL). 'registered' for cv::Stitcher = frames in its largest component."
+} >"$OUT_DIR/table.md"
+
+cp "$OUT_DIR/table.md" "$RESULTS_DIR/$STAMP-$(hostname).md"
+cat "$OUT_DIR/table.md"
+log "table: $OUT_DIR/table.md and $RESULTS_DIR/$STAMP-$(hostname).md"

@@ -1,0 +1,18 @@
+# Shared compile settings for every uavmosaic target.
+add_library(uavm_warnings INTERFACE)
+target_compile_options(uavm_warnings INTERFACE -Wall -Wextra -Wconversion -Wno-sign-conversion)
+if(UAVM_WERROR)
+  target_compile_options(uavm_warnings INTERFACE -Werror)
+endif()
+if(UAVM_SANITIZE)
+  target_compile_options(uavm_warnings INTERFACE -fsanitize=address,undefined -fno-omit-frame-pointer)
+  target_link_options(uavm_warnings INTERFACE -fsanitize=address,undefined)
+endif()
+
+# uavm_library(NAME SOURCES ... DEPS ...): one static library per folder, include root = project root.
+function(uavm_library name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS" ${ARGN})
+  add_library(${name} STATIC ${ARG_SOURCES})
+  target_include_directories(${name} PUBLIC ${PROJECT_SOURCE_DIR})
+  target_link_libraries(${name} PUBLIC ${ARG_DEPS} PRIVATE uavm_warnings)
+endfunction()

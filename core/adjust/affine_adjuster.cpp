@@ -1,0 +1,209 @@
+#include "core/adjust/affine_adjuster.h"
+
+#include <Eigen/Sparse>
+#include <Eigen/SparseCholesky>
+#include <algorithm>
+#include <cmath>
+
+namespace uavm {
+
+bool AdjustOptions::Check(std::string* why) const {
+  if (!(rigidity_weight >= 0) || !(relative_linear_weight >= 0) || !(huber_px > 0) || robust_iterations < 0) {
+    if (why != nullptr) *why = "adjust: weights must be >= 0, huber_px > 0, robust_iterations >= 0";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+// Parameter layout of one frame: a00 a01 a02 a10 a11 a12.
+constexpr int kDof = 6;
+
+struct RowBuilder {
+  std::vector<Eigen::Triplet<double>> triplets;
+  std::vector<double> rhs;
+  int rows = 0;
+
+  int NewRow(double b) {
+    rhs.push_back(b);
+    return rows++;
+  }
+  void Add(int row, int col, double v) {
+    if (v != 0.0) triplets.emplace_back(row, col, v);
+  }
+};
+
+}  // namespace
+
+AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
+                          const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
+                          std::unordered_map<int, Mat3>* mosaic_from_frame) {
+  AdjustResult result;
+  auto& T = *mosaic_from_frame;
+  std::unordered_map<int, int> column;  // frame id -> first column
+  std::vector<int> variable_ids(variable.begin(), variable.end());
+  std::sort(variable_ids.begin(), variable_ids.end());
+  for (int id : variable_ids) {
+    if (T.find(id) == T.end()) {
+      result.failure = "variable frame without initial transform";
+      return result;
+    }
+    column.emplace(id, static_cast<int>(column.size()) * kDof);
+  }
+  result.num_variables = variable_ids.size();
+  if (variable_ids.empty()) {
+    result.ok = true;
+    return result;
+  }
+  std::vector<const Edge*> used;
+  for (const Edge* e : edges) {
+    if (T.count(e->src) == 0 || T.count(e->tgt) == 0) continue;
+    if (column.count(e->src) == 0 && column.count(e->tgt) == 0) continue;
+    used.push_back(e);
+  }
+  const int num_cols = static_cast<int>(column.size()) * kDof;
+  std::vector<double> weights;  // IRLS weight per correspondence of `used`, in order
+  for (int iteration = 0; iteration <= options.robust_iterations; ++iteration) {
+    RowBuilder rb;
+    size_t corr_index = 0;
+    // Correspondence rows: T_src p - T_tgt q = 0, one row per coordinate.
+    for (const Edge* e : used) {
+      const auto cs = column.find(e->src);
+      const auto ct = column.find(e->tgt);
+      const Mat3& Ts = T.at(e->src);
+      const Mat3& Tt = T.at(e->tgt);
+      for (size_t k = 0; k < e->src_points.size(); ++k, ++corr_index) {
+        const double w = iteration == 0 ? 1.0 : weights[corr_index];
+        const Vec2& p = e->src_points[k];
+        const Vec2& q = e->tgt_points[k];
+        for (int r = 0; r < 2; ++r) {
+          double b = 0.0;
+          const int row = rb.NewRow(0.0);
+          if (cs != column.end()) {
+            rb.Add(row, cs->second + 3 * r + 0, w * p.x());
+            rb.Add(row, cs->second + 3 * r + 1, w * p.y());
+            rb.Add(row, cs->second + 3 * r + 2, w);
+          } else {
+            b -= w * (Ts(r, 0) * p.x() + Ts(r, 1) * p.y() + Ts(r, 2));
+          }
+          if (ct != column.end()) {
+            rb.Add(row, ct->second + 3 * r + 0, -w * q.x());
+            rb.Add(row, ct->second + 3 * r + 1, -w * q.y());
+            rb.Add(row, ct->second + 3 * r + 2, -w);
+          } else {
+            b += w * (Tt(r, 0) * q.x() + Tt(r, 1) * q.y() + Tt(r, 2));
+          }
+          rb.rhs[static_cast<size_t>(row)] = b;
+        }
+      }
+    }
+    // Rigidity: a00 - a11 = 0 and a01 + a10 = 0, in pixels at the frame's half-diagonal.
+    for (const auto& [id, col] : column) {
+      const auto hd = half_diagonal.find(id);
+      const double scale = options.rigidity_weight * (hd != half_diagonal.end() ? hd->second : 1.0);
+      if (scale <= 0) continue;
+      int row = rb.NewRow(0.0);
+      rb.Add(row, col + 0, scale);
+      rb.Add(row, col + 4, -scale);
+      row = rb.NewRow(0.0);
+      rb.Add(row, col + 1, scale);
+      rb.Add(row, col + 3, scale);
+    }
+    // Relative linear part: L_src - L_tgt * R = 0 with R the edge's measured linear part.
+    if (options.relative_linear_weight > 0) {
+      for (const Edge* e : used) {
+        const auto cs = column.find(e->src);
+        const auto ct = column.find(e->tgt);
+        const auto hd = half_diagonal.find(cs != column.end() ? e->src : e->tgt);
+        const double scale = options.relative_linear_weight * (hd != half_diagonal.end() ? hd->second : 1.0);
+        const Mat3& Ts = T.at(e->src);
+        const Mat3& Tt = T.at(e->tgt);
+        for (int r = 0; r < 2; ++r) {
+          for (int c = 0; c < 2; ++c) {
+            double b = 0.0;
+            const int row = rb.NewRow(0.0);
+            if (cs != column.end()) rb.Add(row, cs->second + 3 * r + c, scale);
+            else b -= scale * Ts(r, c);
+            for (int k = 0; k < 2; ++k) {
+              const double coeff = -scale * e->tgt_from_src(k, c);
+              if (ct != column.end()) rb.Add(row, ct->second + 3 * r + k, coeff);
+              else b -= coeff * Tt(r, k);
+            }
+            rb.rhs[static_cast<size_t>(row)] = b;
+          }
+        }
+      }
+    }
+    // A faint pull to the current value keeps frames without constraints solvable (gauge of a detached frame).
+    constexpr double kDamping = 1e-6;
+    for (const auto& [id, col] : column) {
+      const Mat3& t = T.at(id);
+      for (int r = 0; r < 2; ++r)
+        for (int c = 0; c < 3; ++c) {
+          const int row = rb.NewRow(kDamping * t(r, c));
+          rb.Add(row, col + 3 * r + c, kDamping);
+        }
+    }
+    Eigen::SparseMatrix<double> A(rb.rows, num_cols);
+    A.setFromTriplets(rb.triplets.begin(), rb.triplets.end());
+    const Eigen::Map<const Eigen::VectorXd> b(rb.rhs.data(), rb.rows);
+    const Eigen::SparseMatrix<double> AtA = A.transpose() * A;
+    const Eigen::VectorXd Atb = A.transpose() * b;
+    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(AtA);
+    if (solver.info() != Eigen::Success) {
+      result.failure = "normal equations are singular";
+      return result;
+    }
+    const Eigen::VectorXd x = solver.solve(Atb);
+    if (solver.info() != Eigen::Success || !x.allFinite()) {
+      result.failure = "solve failed";
+      return result;
+    }
+    for (const auto& [id, col] : column) {
+      Mat3& t = T[id];
+      for (int r = 0; r < 2; ++r)
+        for (int c = 0; c < 3; ++c) t(r, c) = x(col + 3 * r + c);
+      t.row(2) << 0, 0, 1;
+    }
+    // Huber weights for the next pass (sqrt of the IRLS weight, since rows are scaled, not squared).
+    weights.clear();
+    for (const Edge* e : used) {
+      const Mat3& Ts = T.at(e->src);
+      const Mat3& Tt = T.at(e->tgt);
+      for (size_t k = 0; k < e->src_points.size(); ++k) {
+        const double r = (Apply(Ts, e->src_points[k]) - Apply(Tt, e->tgt_points[k])).norm();
+        weights.push_back(r <= options.huber_px ? 1.0 : std::sqrt(options.huber_px / r));
+      }
+    }
+  }
+  const ResidualStats stats = EdgeResiduals(used, T);
+  result.num_residuals = stats.count;
+  result.rms_px = stats.rms;
+  result.median_px = stats.median;
+  result.ok = true;
+  return result;
+}
+
+ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::unordered_map<int, Mat3>& T) {
+  ResidualStats s;
+  std::vector<double> r;
+  for (const Edge* e : edges) {
+    const auto ts = T.find(e->src);
+    const auto tt = T.find(e->tgt);
+    if (ts == T.end() || tt == T.end()) continue;
+    for (size_t k = 0; k < e->src_points.size(); ++k)
+      r.push_back((Apply(ts->second, e->src_points[k]) - Apply(tt->second, e->tgt_points[k])).norm());
+  }
+  s.count = r.size();
+  if (r.empty()) return s;
+  double sq = 0.0;
+  for (double v : r) sq += v * v;
+  s.rms = std::sqrt(sq / static_cast<double>(r.size()));
+  std::nth_element(r.begin(), r.begin() + static_cast<long>(r.size() / 2), r.end());
+  s.median = r[r.size() / 2];
+  s.max = *std::max_element(r.begin(), r.end());
+  return s;
+}
+
+}  // namespace uavm

@@ -1,0 +1,44 @@
+#pragma once
+#include <Eigen/Core>
+#include <Eigen/LU>  // inverse() and determinant() of the 3x3 maps
+#include <array>
+#include <opencv2/core.hpp>
+#include <vector>
+
+namespace uavm {
+
+// Every map between image planes is a 3x3 matrix `tgt_from_src`, acting on pixel centres ((0,0) = centre of the
+// top-left pixel). Affine maps have a last row (0, 0, 1); the projective refinement fills the rest.
+using Mat3 = Eigen::Matrix3d;
+using Vec2 = Eigen::Vector2d;
+
+[[nodiscard]] Vec2 Apply(const Mat3& tgt_from_src, const Vec2& p);
+[[nodiscard]] bool IsAffine(const Mat3& m, double tol = 1e-12);
+
+// Map from pixel centres of an image to pixel centres of the same image resized by `scale`
+// (cv::resize convention: x' = (x + 0.5) * scale - 0.5).
+[[nodiscard]] Mat3 ResizeMap(double scale_x, double scale_y);
+[[nodiscard]] Mat3 Translation(double tx, double ty);
+
+// The four corner pixel centres of a w x h image, clockwise from top-left.
+[[nodiscard]] std::array<Vec2, 4> ImageCorners(int width, int height);
+// Corners of a w x h image mapped by tgt_from_src.
+[[nodiscard]] std::vector<cv::Point2f> Footprint(const Mat3& tgt_from_src, int width, int height);
+[[nodiscard]] double PolygonArea(const std::vector<cv::Point2f>& polygon);
+// Area of the intersection of two convex polygons (0 when disjoint or degenerate).
+[[nodiscard]] double ConvexOverlapArea(const std::vector<cv::Point2f>& a, const std::vector<cv::Point2f>& b);
+
+// Linear part diagnostics of an affine map: mean axis scale, shear-like anisotropy (0 for a similarity), rotation (rad).
+struct LinearPart {
+  double scale = 1.0;
+  double anisotropy = 0.0;
+  double rotation = 0.0;
+  double det = 1.0;
+};
+[[nodiscard]] LinearPart Decompose(const Mat3& affine);
+
+[[nodiscard]] cv::Matx23d ToCvAffine(const Mat3& m);
+[[nodiscard]] cv::Matx33d ToCv(const Mat3& m);
+[[nodiscard]] Mat3 FromCv(const cv::Matx23d& m);
+
+}  // namespace uavm

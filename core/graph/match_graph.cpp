@@ -1,0 +1,73 @@
+#include "core/graph/match_graph.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <unordered_map>
+
+namespace uavm {
+
+int UnionFind::Add() {
+  parent_.push_back(static_cast<int>(parent_.size()));
+  size_.push_back(1);
+  return parent_.back();
+}
+
+int UnionFind::Find(int x) {
+  auto ux = static_cast<size_t>(x);
+  while (parent_[ux] != static_cast<int>(ux)) {
+    parent_[ux] = parent_[static_cast<size_t>(parent_[ux])];  // path halving
+    ux = static_cast<size_t>(parent_[ux]);
+  }
+  return static_cast<int>(ux);
+}
+
+int UnionFind::Unite(int a, int b) {
+  int ra = Find(a);
+  int rb = Find(b);
+  if (ra == rb) return ra;
+  if (size_[static_cast<size_t>(ra)] < size_[static_cast<size_t>(rb)]) std::swap(ra, rb);
+  parent_[static_cast<size_t>(rb)] = ra;
+  size_[static_cast<size_t>(ra)] += size_[static_cast<size_t>(rb)];
+  return ra;
+}
+
+void MatchGraph::AddNode(int id) { nodes_.push_back(id); }
+
+void MatchGraph::AddEdge(Edge edge) { edges_.push_back(std::move(edge)); }
+
+int MatchGraph::MaxInliers() const {
+  int best = 0;
+  for (const auto& e : edges_) best = std::max(best, e.num_inliers);
+  return best;
+}
+
+bool MatchGraph::EdgeCounts(const Edge& e, double relative, int absolute_floor) const {
+  const double threshold = std::max(static_cast<double>(absolute_floor), relative * MaxInliers());
+  return e.num_inliers >= threshold;
+}
+
+std::vector<int> MatchGraph::LargestComponent(double relative, int absolute_floor) const {
+  std::unordered_map<int, int> dense;
+  for (int id : nodes_) dense.emplace(id, static_cast<int>(dense.size()));
+  UnionFind uf;
+  for (size_t i = 0; i < dense.size(); ++i) uf.Add();
+  const double threshold = std::max(static_cast<double>(absolute_floor), relative * MaxInliers());
+  for (const auto& e : edges_) {
+    if (e.num_inliers < threshold) continue;
+    auto a = dense.find(e.src);
+    auto b = dense.find(e.tgt);
+    if (a != dense.end() && b != dense.end()) uf.Unite(a->second, b->second);
+  }
+  std::map<int, std::vector<int>> groups;
+  for (int id : nodes_) groups[uf.Find(dense[id])].push_back(id);
+  std::vector<int> best;
+  for (auto& [root, members] : groups) {
+    std::sort(members.begin(), members.end());
+    if (members.size() > best.size() || (members.size() == best.size() && !best.empty() && members[0] < best[0]))
+      best = members;
+  }
+  return best;
+}
+
+}  // namespace uavm

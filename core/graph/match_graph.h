@@ -1,0 +1,52 @@
+#pragma once
+#include <cstddef>
+#include <vector>
+
+#include "core/geometry/transform.h"
+
+namespace uavm {
+
+// A verified pair. Points are at working resolution of each frame.
+struct Edge {
+  int src = -1;
+  int tgt = -1;
+  int num_matches = 0;
+  int num_inliers = 0;
+  Mat3 tgt_from_src = Mat3::Identity();
+  std::vector<Vec2> src_points;
+  std::vector<Vec2> tgt_points;
+};
+
+class UnionFind {
+ public:
+  int Add();  // returns the new element's id (ids are dense, 0..n-1)
+  [[nodiscard]] int Find(int x);
+  // Returns the root of the merged set.
+  int Unite(int a, int b);
+  [[nodiscard]] int SizeOf(int x) { return size_[static_cast<size_t>(Find(x))]; }
+  [[nodiscard]] size_t size() const { return parent_.size(); }
+
+ private:
+  std::vector<int> parent_;
+  std::vector<int> size_;
+};
+
+class MatchGraph {
+ public:
+  void AddNode(int id);
+  void AddEdge(Edge edge);
+  [[nodiscard]] const std::vector<Edge>& edges() const { return edges_; }
+  [[nodiscard]] const std::vector<int>& nodes() const { return nodes_; }
+  [[nodiscard]] int MaxInliers() const;
+  // An edge counts when its inliers reach both the absolute floor and `relative` x the best edge's count
+  // (the seed method's 5 % rule). Returns the node ids of the largest connected component over counting edges,
+  // sorted ascending; ties go to the component with the smallest frame id.
+  [[nodiscard]] std::vector<int> LargestComponent(double relative, int absolute_floor) const;
+  [[nodiscard]] bool EdgeCounts(const Edge& e, double relative, int absolute_floor) const;
+
+ private:
+  std::vector<int> nodes_;
+  std::vector<Edge> edges_;
+};
+
+}  // namespace uavm

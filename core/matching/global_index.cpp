@@ -1,0 +1,94 @@
+#include "core/matching/global_index.h"
+
+#include <algorithm>
+#include <map>
+
+#include "core/matching/pair_matcher.h"
+
+namespace uavm {
+
+bool GlobalIndexOptions::Check(std::string* why) const {
+  if (descriptors_per_frame < 8 || max_descriptors < descriptors_per_frame * 4) {
+    if (why != nullptr) *why = "relocalization: need descriptors_per_frame >= 8 and max_descriptors >= 4x that";
+    return false;
+  }
+  if (!(ratio > 0 && ratio <= 1) || min_votes < 1) {
+    if (why != nullptr) *why = "relocalization: ratio must be in (0,1], min_votes >= 1";
+    return false;
+  }
+  return true;
+}
+
+GlobalIndex::GlobalIndex(const GlobalIndexOptions& options)
+    : options_(options), quota_(options.descriptors_per_frame) {
+  descriptors_.reserve(static_cast<size_t>(options.max_descriptors));
+}
+
+void GlobalIndex::Add(int frame_id, const Features& features) {
+  const int n = features.descriptors.rows;
+  if (n == 0) return;
+  const int take = std::min(n, quota_);
+  const cv::Mat q = features.descriptors.type() == CV_8U ? features.descriptors
+                                                         : QuantizeDescriptors(features.descriptors);
+  while (descriptors_.rows + take > options_.max_descriptors && quota_ > 1) Thin();
+  const int take_now = std::min(take, quota_);
+  for (int k = 0; k < take_now; ++k) {
+    const int row = static_cast<int>(static_cast<long>(k) * n / take_now);  // evenly spread over the frame's list
+    descriptors_.push_back(q.row(row));
+    frame_of_row_.push_back(frame_id);
+    rank_in_frame_.push_back(k);
+  }
+  dirty_ = true;
+}
+
+void GlobalIndex::Thin() {
+  cv::Mat kept;
+  std::vector<int> frames;
+  std::vector<int> ranks;
+  for (int r = 0; r < descriptors_.rows; ++r) {
+    if (rank_in_frame_[static_cast<size_t>(r)] % 2 != 0) continue;
+    kept.push_back(descriptors_.row(r));
+    frames.push_back(frame_of_row_[static_cast<size_t>(r)]);
+    ranks.push_back(rank_in_frame_[static_cast<size_t>(r)] / 2);
+  }
+  descriptors_ = kept;
+  frame_of_row_ = std::move(frames);
+  rank_in_frame_ = std::move(ranks);
+  quota_ = std::max(1, quota_ / 2);
+  dirty_ = true;
+}
+
+std::vector<int> GlobalIndex::Query(const Features& features, int max_results) {
+  std::vector<int> out;
+  if (descriptors_.rows < 2 || features.descriptors.rows == 0) return out;
+  if (dirty_) {
+    // Rebuilt lazily: relocalisation is rare, adding frames is not.
+    index_data_ = DequantizeDescriptors(descriptors_);
+    index_ = std::make_unique<cv::flann::Index>(index_data_, cv::flann::KDTreeIndexParams(4), cvflann::FLANN_DIST_L2);
+    dirty_ = false;
+  }
+  const cv::Mat query = features.descriptors.type() == CV_32F ? features.descriptors
+                                                               : DequantizeDescriptors(features.descriptors);
+  cv::Mat indices(query.rows, 2, CV_32S);
+  cv::Mat dists(query.rows, 2, CV_32F);
+  index_->knnSearch(query, indices, dists, 2, cv::flann::SearchParams(64));
+  const float ratio_sq = static_cast<float>(options_.ratio * options_.ratio);
+  std::map<int, int> votes;
+  for (int q = 0; q < query.rows; ++q) {
+    const int t0 = indices.at<int>(q, 0);
+    const int t1 = indices.at<int>(q, 1);
+    if (t0 < 0 || t0 >= descriptors_.rows) continue;
+    const int f0 = frame_of_row_[static_cast<size_t>(t0)];
+    // Two neighbours from the same frame do not make the match ambiguous.
+    const bool same_frame = t1 >= 0 && t1 < descriptors_.rows && frame_of_row_[static_cast<size_t>(t1)] == f0;
+    if (same_frame || dists.at<float>(q, 0) < ratio_sq * dists.at<float>(q, 1)) ++votes[f0];
+  }
+  std::vector<std::pair<int, int>> ranked;
+  for (const auto& [frame, v] : votes)
+    if (v >= options_.min_votes) ranked.emplace_back(v, frame);
+  std::sort(ranked.rbegin(), ranked.rend());
+  for (size_t i = 0; i < ranked.size() && static_cast<int>(i) < max_results; ++i) out.push_back(ranked[i].second);
+  return out;
+}
+
+}  // namespace uavm

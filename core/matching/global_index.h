@@ -1,0 +1,44 @@
+#pragma once
+#include <memory>
+#include <opencv2/flann.hpp>
+#include <string>
+#include <vector>
+
+#include "core/features/sift.h"
+
+namespace uavm {
+
+struct GlobalIndexOptions {
+  int descriptors_per_frame = 256;  // a spread sample of each frame's descriptors
+  int max_descriptors = 131072;     // hard cap (8-bit storage: 16 MiB); when reached, every frame keeps half
+  int min_votes = 8;
+  double ratio = 0.85;
+
+  [[nodiscard]] bool Check(std::string* why) const;
+};
+
+// Bounded relocalisation index over all earlier frames: a lost frame's descriptors vote for the frames they resemble.
+// Memory is fixed by max_descriptors; old frames are thinned, never forgotten.
+class GlobalIndex {
+ public:
+  explicit GlobalIndex(const GlobalIndexOptions& options);
+  void Add(int frame_id, const Features& features);
+  // Frames ranked by votes (most first), at most `max_results`, each with at least min_votes.
+  [[nodiscard]] std::vector<int> Query(const Features& features, int max_results);
+  [[nodiscard]] size_t size() const { return static_cast<size_t>(descriptors_.rows); }
+  [[nodiscard]] int per_frame_quota() const { return quota_; }
+
+ private:
+  void Thin();
+
+  GlobalIndexOptions options_;
+  int quota_;
+  cv::Mat descriptors_;           // CV_8U rows
+  std::vector<int> frame_of_row_;
+  std::vector<int> rank_in_frame_;  // 0..quota-1, used to thin evenly
+  std::unique_ptr<cv::flann::Index> index_;
+  cv::Mat index_data_;  // CV_32F copy the FLANN index borrows
+  bool dirty_ = true;
+};
+
+}  // namespace uavm

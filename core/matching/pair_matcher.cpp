@@ -1,0 +1,174 @@
+#include "core/matching/pair_matcher.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <unordered_map>
+
+#include "core/estimators/affine.h"
+
+namespace uavm {
+
+namespace {
+constexpr double kQuantScale = 512.0;
+
+cv::Mat AsFloat(const cv::Mat& d) {
+  if (d.type() == CV_32F) return d;
+  return DequantizeDescriptors(d);
+}
+}  // namespace
+
+bool MatchOptions::Check(std::string* why) const {
+  auto fail = [&](const char* msg) {
+    if (why != nullptr) *why = msg;
+    return false;
+  };
+  if (!(ratio > 0.0 && ratio <= 1.0)) return fail("matching.ratio must be in (0,1]");
+  if (flann_trees < 1 || flann_checks < 1) return fail("matching.flann_trees and flann_checks must be >= 1");
+  if (min_inliers < 6) return fail("matching.min_inliers must be >= 6");
+  if (!(max_scale_change > 1.0)) return fail("matching.max_scale_change must be > 1");
+  if (!(max_anisotropy > 0.0)) return fail("matching.max_anisotropy must be > 0");
+  if (max_edge_correspondences < 3) return fail("matching.max_edge_correspondences must be >= 3");
+  if (correspondence_grid < 1) return fail("matching.correspondence_grid must be >= 1");
+  return ransac.Check(why);
+}
+
+cv::Mat QuantizeDescriptors(const cv::Mat& f) {
+  cv::Mat out;
+  f.convertTo(out, CV_8U, kQuantScale);  // saturating
+  return out;
+}
+
+cv::Mat DequantizeDescriptors(const cv::Mat& q) {
+  cv::Mat out;
+  q.convertTo(out, CV_32F, 1.0 / kQuantScale);
+  return out;
+}
+
+DescriptorIndex::DescriptorIndex(const Features& features, const MatchOptions& options)
+    : descriptors_(AsFloat(features.descriptors).clone()), rows_(features.descriptors.rows), options_(options) {
+  if (rows_ >= 2) {
+    index_ = std::make_unique<cv::flann::Index>(descriptors_, cv::flann::KDTreeIndexParams(options.flann_trees),
+                                                 cvflann::FLANN_DIST_L2);
+  }
+}
+
+std::vector<cv::DMatch> DescriptorIndex::Match(const cv::Mat& query_descriptors) const {
+  std::vector<cv::DMatch> out;
+  if (!index_ || query_descriptors.rows < 1) return out;
+  const cv::Mat query = AsFloat(query_descriptors);
+  cv::Mat indices(query.rows, 2, CV_32S);
+  cv::Mat dists(query.rows, 2, CV_32F);
+  index_->knnSearch(query, indices, dists, 2, cv::flann::SearchParams(options_.flann_checks));
+  const float ratio_sq = static_cast<float>(options_.ratio * options_.ratio);  // FLANN L2 returns squared distances
+  std::unordered_map<int, size_t> best_for_train;
+  for (int q = 0; q < query.rows; ++q) {
+    const int t = indices.at<int>(q, 0);
+    const float d0 = dists.at<float>(q, 0);
+    const float d1 = dists.at<float>(q, 1);
+    if (t < 0 || t >= rows_ || !(d0 < ratio_sq * d1)) continue;
+    auto it = best_for_train.find(t);
+    if (it == best_for_train.end()) {
+      best_for_train.emplace(t, out.size());
+      out.emplace_back(q, t, d0);
+    } else if (d0 < out[it->second].distance) {
+      out[it->second] = cv::DMatch(q, t, d0);
+    }
+  }
+  return out;
+}
+
+void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int max_points) {
+  const size_t n = src->size();
+  if (n <= static_cast<size_t>(max_points)) return;
+  Vec2 lo = (*src)[0];
+  Vec2 hi = lo;
+  for (const auto& p : *src) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  const Vec2 extent = (hi - lo).cwiseMax(Vec2(1e-6, 1e-6));
+  std::vector<std::vector<size_t>> cells(static_cast<size_t>(grid * grid));
+  for (size_t i = 0; i < n; ++i) {
+    const Vec2 r = ((*src)[i] - lo).cwiseQuotient(extent);
+    const int cx = std::min(grid - 1, static_cast<int>(r.x() * grid));
+    const int cy = std::min(grid - 1, static_cast<int>(r.y() * grid));
+    cells[static_cast<size_t>(cy * grid + cx)].push_back(i);
+  }
+  // Round-robin over cells: every occupied cell is represented before any cell gets a second point.
+  std::vector<size_t> keep;
+  keep.reserve(static_cast<size_t>(max_points));
+  for (size_t round = 0; keep.size() < static_cast<size_t>(max_points); ++round) {
+    bool any = false;
+    for (const auto& cell : cells) {
+      if (round < cell.size()) {
+        any = true;
+        // Spread picks inside a cell rather than taking its first points (which cluster by detection order).
+        keep.push_back(cell[(round * 7919) % cell.size()]);
+        if (keep.size() == static_cast<size_t>(max_points)) break;
+      }
+    }
+    if (!any) break;
+  }
+  std::sort(keep.begin(), keep.end());
+  keep.erase(std::unique(keep.begin(), keep.end()), keep.end());
+  std::vector<Vec2> s;
+  std::vector<Vec2> t;
+  s.reserve(keep.size());
+  t.reserve(keep.size());
+  for (size_t i : keep) {
+    s.push_back((*src)[i]);
+    t.push_back((*tgt)[i]);
+  }
+  *src = std::move(s);
+  *tgt = std::move(t);
+}
+
+PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, const Features& src,
+                     const MatchOptions& options) {
+  PairResult result;
+  if (tgt_index.empty() || src.size() < 3) {
+    result.failure = "too few features";
+    return result;
+  }
+  const std::vector<cv::DMatch> matches = tgt_index.Match(src.descriptors);
+  result.num_matches = static_cast<int>(matches.size());
+  if (result.num_matches < options.min_inliers) {
+    result.failure = "too few descriptor matches";
+    return result;
+  }
+  std::vector<Vec2> xs;
+  std::vector<Vec2> ys;
+  xs.reserve(matches.size());
+  ys.reserve(matches.size());
+  for (const auto& m : matches) {
+    const cv::Point2f& a = src.points[static_cast<size_t>(m.queryIdx)];
+    const cv::Point2f& b = tgt.points[static_cast<size_t>(m.trainIdx)];
+    xs.emplace_back(a.x, a.y);
+    ys.emplace_back(b.x, b.y);
+  }
+  RANSAC<AffineEstimator> ransac(options.ransac);
+  const auto report = ransac.Estimate(xs, ys);
+  result.num_inliers = static_cast<int>(report.num_inliers);
+  if (!report.success || result.num_inliers < options.min_inliers) {
+    result.failure = "too few RANSAC inliers";
+    return result;
+  }
+  const LinearPart lin = Decompose(report.model);
+  if (lin.det <= 0 || lin.scale > options.max_scale_change || lin.scale < 1.0 / options.max_scale_change ||
+      lin.anisotropy > options.max_anisotropy) {
+    result.failure = "implausible relative affine";
+    return result;
+  }
+  for (size_t i = 0; i < xs.size(); ++i) {
+    if (report.inlier_mask[i] == 0) continue;
+    result.src_points.push_back(xs[i]);
+    result.tgt_points.push_back(ys[i]);
+  }
+  GridSubsample(&result.src_points, &result.tgt_points, options.correspondence_grid, options.max_edge_correspondences);
+  result.tgt_from_src = report.model;
+  result.ok = true;
+  return result;
+}
+
+}  // namespace uavm

@@ -1,0 +1,69 @@
+#pragma once
+#include <memory>
+#include <opencv2/flann.hpp>
+#include <string>
+#include <vector>
+
+#include "core/estimators/ransac.h"
+#include "core/features/sift.h"
+#include "core/geometry/transform.h"
+
+namespace uavm {
+
+struct MatchOptions {
+  double ratio = 0.8;  // Lowe's ratio test (RootSIFT distances)
+  int flann_trees = 4;
+  int flann_checks = 64;
+  RansacOptions ransac;
+  // A verified pair becomes a graph edge only with at least this many inliers (the seed method's relative 5 %
+  // threshold is applied on top, in the graph).
+  int min_inliers = 20;
+  // Reject relative affines no drone flight produces (scale jump, strong shear, mirror).
+  double max_scale_change = 2.0;
+  double max_anisotropy = 0.25;
+  // Inlier correspondences kept per edge for the adjustment, spread over a grid of the source frame.
+  int max_edge_correspondences = 64;
+  int correspondence_grid = 8;
+
+  [[nodiscard]] bool Check(std::string* why) const;
+};
+
+// FLANN kd-tree over one frame's descriptors; built once per frame, queried by every candidate.
+class DescriptorIndex {
+ public:
+  DescriptorIndex(const Features& features, const MatchOptions& options);
+  // For each row of `query`, its nearest neighbour here when it passes the ratio test; one-to-one (each point here
+  // keeps its best query). DMatch.queryIdx indexes `query`, trainIdx this index's features.
+  [[nodiscard]] std::vector<cv::DMatch> Match(const cv::Mat& query_descriptors) const;
+  [[nodiscard]] bool empty() const { return rows_ < 2; }
+
+ private:
+  cv::Mat descriptors_;  // CV_32F copy owned by the index (FLANN borrows it)
+  std::unique_ptr<cv::flann::Index> index_;
+  int rows_ = 0;
+  MatchOptions options_;
+};
+
+// A verified pair: tgt_from_src maps pixels of the source frame to the target frame (working resolution).
+struct PairResult {
+  bool ok = false;
+  int num_matches = 0;
+  int num_inliers = 0;
+  Mat3 tgt_from_src = Mat3::Identity();
+  std::vector<Vec2> src_points;  // grid-subsampled inliers
+  std::vector<Vec2> tgt_points;
+  std::string failure;
+};
+
+// Matches `src` against the indexed target and verifies with RANSAC affine.
+[[nodiscard]] PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, const Features& src,
+                                   const MatchOptions& options);
+
+// Keeps at most `max_points` pairs, spread over a grid x grid partition of the source points' bounding box.
+void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int max_points);
+
+// Descriptor storage helpers: RootSIFT values lie in [0,1]; 8-bit storage quarters memory at no matching cost.
+[[nodiscard]] cv::Mat QuantizeDescriptors(const cv::Mat& float_descriptors);
+[[nodiscard]] cv::Mat DequantizeDescriptors(const cv::Mat& u8_descriptors);
+
+}  // namespace uavm

@@ -1,0 +1,59 @@
+#pragma once
+#include <functional>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "core/geometry/transform.h"
+
+namespace uavm {
+
+class GdalTiffWriter;
+
+struct CompositorOptions {
+  int tile_size = 1024;           // canvas pixels per composited tile (a multiple of tiff_block)
+  int tiff_block = 512;
+  int num_bands = 5;              // multi-band levels; 0 = hard seams only
+  double max_covered_fraction = 0.9;  // overlap-based frame selection (see SelectByOverlap)
+  int quicklook_long_side = 2000;
+  size_t image_cache_bytes = size_t{512} << 20;  // decoded frames kept between tiles
+  bool build_overviews = true;
+
+  [[nodiscard]] bool Check(std::string* why) const;
+  // Margin around each tile so that the pyramid of the blend does not see the tile border.
+  [[nodiscard]] int Margin() const { return num_bands > 0 ? 3 << num_bands : 2; }
+};
+
+// A frame to composite: canvas_from_image acts on the pixel grid of the image that `load` returns.
+struct CompositeInput {
+  int id = -1;
+  Mat3 canvas_from_image = Mat3::Identity();
+  cv::Size image_size;
+};
+
+using ImageLoadFn = std::function<cv::Mat(int id)>;  // BGR8 image of a frame; empty = unreadable
+
+struct CompositeResult {
+  bool ok = false;
+  std::string error;
+  cv::Size canvas;
+  int frames_used = 0;
+  int frames_dropped_by_overlap = 0;
+  int frames_unreadable = 0;
+  int tiles_written = 0;
+  double ms = 0.0;
+  cv::Mat quicklook;  // BGRA, transparent outside the flown area
+};
+
+// Composites `frames` onto a canvas of size `canvas` tile by tile: per tile, each pixel is owned by the frame whose
+// border is farthest (distance-to-border seams, in canvas pixels), owners are warped and blended with multi-band
+// blending over the tile plus a margin, and the tile goes to `tiff` (may be null) and the quick-look.
+[[nodiscard]] CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas,
+                                        const ImageLoadFn& load, const CompositorOptions& options,
+                                        GdalTiffWriter* tiff);
+
+// Renders one ROI of the canvas (for tests and previews), with the same seams and blending as Composite.
+[[nodiscard]] bool RenderRoi(const std::vector<CompositeInput>& frames, const std::vector<cv::Mat>& images,
+                             const cv::Rect& roi, int num_bands, cv::Mat* image, cv::Mat* mask);
+
+}  // namespace uavm

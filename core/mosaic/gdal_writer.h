@@ -1,0 +1,27 @@
+#pragma once
+#include <memory>
+#include <opencv2/core.hpp>
+#include <string>
+
+namespace uavm {
+
+// Tiled RGBA GeoTIFF / BigTIFF written block by block through GDAL: the canvas never exists whole in memory.
+class GdalTiffWriter {
+ public:
+  GdalTiffWriter();
+  ~GdalTiffWriter();
+  GdalTiffWriter(const GdalTiffWriter&) = delete;
+  GdalTiffWriter& operator=(const GdalTiffWriter&) = delete;
+
+  [[nodiscard]] bool Open(const std::string& path, cv::Size canvas, int block_size, std::string* error);
+  // image CV_8UC3 (BGR), mask CV_8U (alpha); top_left in canvas pixels, region inside the canvas.
+  [[nodiscard]] bool Write(const cv::Mat& image, const cv::Mat& mask, cv::Point top_left, std::string* error);
+  // Builds internal overviews (so viewers open a large mosaic fast) and closes. Returns false on an I/O error.
+  [[nodiscard]] bool Close(bool build_overviews, std::string* error);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace uavm

@@ -1,0 +1,80 @@
+#include "core/mosaic/live_preview.h"
+
+#include <cstdio>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace uavm {
+
+LivePreview::LivePreview(int canvas_side) : side_(canvas_side), canvas_(canvas_side, canvas_side, CV_8UC3, cv::Scalar::all(0)) {}
+
+void LivePreview::Add(const cv::Mat& thumb, const Mat3& mosaic_from_thumb) {
+  if (thumb.empty()) return;
+  const cv::Rect2d fp = cv::boundingRect(Footprint(mosaic_from_thumb, thumb.cols, thumb.rows));
+  const cv::Rect2d wanted = empty_ ? fp : (content_ | fp);
+  const cv::Rect2d view_rect(0, 0, side_, side_);
+  const auto in_view = [&](const cv::Rect2d& r) {
+    const Vec2 a = Apply(view_from_mosaic_, Vec2(r.x, r.y));
+    const Vec2 b = Apply(view_from_mosaic_, Vec2(r.x + r.width, r.y + r.height));
+    return a.x() >= 0 && a.y() >= 0 && b.x() < side_ && b.y() < side_;
+  };
+  if (empty_ || !in_view(wanted)) {
+    // Refit with 25 % room to grow, so the picture is not rescaled on every frame.
+    const double extent = std::max(wanted.width, wanted.height) * 1.25;
+    const double s = std::min(empty_ ? 1.0 : 1e9, side_ / extent);
+    const double cx = wanted.x + wanted.width / 2;
+    const double cy = wanted.y + wanted.height / 2;
+    Mat3 next = Mat3::Identity();
+    next(0, 0) = next(1, 1) = s;
+    next(0, 2) = side_ / 2.0 - s * cx;
+    next(1, 2) = side_ / 2.0 - s * cy;
+    if (!empty_) {
+      const Mat3 new_from_old = next * view_from_mosaic_.inverse();
+      cv::Mat moved;
+      cv::warpAffine(canvas_, moved, cv::Mat(ToCvAffine(new_from_old)), canvas_.size(), cv::INTER_AREA);
+      canvas_ = moved;
+    }
+    view_from_mosaic_ = next;
+  }
+  const Mat3 view_from_thumb = view_from_mosaic_ * mosaic_from_thumb;
+  cv::Mat mask(thumb.size(), CV_8U, cv::Scalar(255));
+  cv::Mat warped;
+  cv::Mat warped_mask;
+  if (IsAffine(view_from_thumb, 1e-12)) {
+    cv::warpAffine(thumb, warped, cv::Mat(ToCvAffine(view_from_thumb)), canvas_.size(), cv::INTER_LINEAR);
+    cv::warpAffine(mask, warped_mask, cv::Mat(ToCvAffine(view_from_thumb)), canvas_.size(), cv::INTER_NEAREST);
+  } else {
+    cv::warpPerspective(thumb, warped, cv::Mat(ToCv(view_from_thumb)), canvas_.size(), cv::INTER_LINEAR);
+    cv::warpPerspective(mask, warped_mask, cv::Mat(ToCv(view_from_thumb)), canvas_.size(), cv::INTER_NEAREST);
+  }
+  warped.copyTo(canvas_, warped_mask);
+  content_ = wanted;
+  empty_ = false;
+}
+
+bool LivePreview::Write(const std::string& path, std::string* error) const {
+  const std::string tmp = path + ".tmp";
+  std::vector<uchar> bytes;
+  if (!cv::imencode(".jpg", canvas_, bytes, {cv::IMWRITE_JPEG_QUALITY, 85})) {
+    *error = "JPEG encode failed";
+    return false;
+  }
+  FILE* f = std::fopen(tmp.c_str(), "wb");
+  if (f == nullptr) {
+    *error = "cannot write " + tmp;
+    return false;
+  }
+  const bool ok = std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+  if (std::fclose(f) != 0 || !ok) {
+    std::remove(tmp.c_str());
+    *error = "write failed: " + tmp;
+    return false;
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    *error = "rename failed: " + path;
+    return false;
+  }
+  return true;
+}
+
+}  // namespace uavm

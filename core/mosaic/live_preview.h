@@ -1,0 +1,27 @@
+#pragma once
+#include <opencv2/core.hpp>
+#include <string>
+
+#include "core/geometry/transform.h"
+
+namespace uavm {
+
+// The operator's progress picture: a fixed-size canvas (memory does not grow with the flight) onto which each newly
+// registered frame's thumbnail is pasted with its transform at the time. When the flight leaves the canvas, the
+// picture is shrunk to make room. Written atomically (temp file + rename) so a viewer never sees half a JPEG.
+class LivePreview {
+ public:
+  explicit LivePreview(int canvas_side = 1024);
+  void Add(const cv::Mat& thumbnail_bgr, const Mat3& mosaic_from_thumbnail);
+  [[nodiscard]] bool Write(const std::string& path, std::string* error) const;
+  [[nodiscard]] const cv::Mat& image() const { return canvas_; }
+
+ private:
+  int side_;
+  cv::Mat canvas_;
+  Mat3 view_from_mosaic_ = Mat3::Identity();
+  bool empty_ = true;
+  cv::Rect2d content_;  // mosaic coordinates covered so far
+};
+
+}  // namespace uavm

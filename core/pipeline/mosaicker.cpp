@@ -1,0 +1,367 @@
+#include "core/pipeline/mosaicker.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <unordered_set>
+
+#include "core/adjust/affine_adjuster.h"
+#include "core/matching/pair_matcher.h"
+#include "core/mosaic/gdal_writer.h"
+#include "core/util/clock.h"
+#include "core/util/memory.h"
+
+namespace uavm {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr int kThumbLongSide = 320;
+
+std::string StoredName(int id, const std::string& name) {
+  char prefix[16];
+  std::snprintf(prefix, sizeof(prefix), "%06d_", id);
+  std::string safe = name;
+  for (char& c : safe)
+    if (c == '/' || c == ':' || c == '\\') c = '_';
+  return prefix + safe;
+}
+
+}  // namespace
+
+Mosaicker::Mosaicker(const PipelineOptions& options, SessionPaths paths)
+    : options_(options),
+      paths_(std::move(paths)),
+      extractor_(options.features),
+      feature_store_(paths_.features(), static_cast<size_t>(options.feature_cache_mib) << 20),
+      global_index_(options.relocalization),
+      preview_(options.preview_side),
+      start_ns_(MonotonicNs()) {}
+
+Mosaicker::~Mosaicker() = default;
+
+void Mosaicker::RecordSkipped(const std::string& file, const std::string& reason) {
+  spdlog::warn("skipped {}: {}", file, reason);
+  skipped_.push_back({file, reason});
+}
+
+bool Mosaicker::StoreFrameBytes(const hal::Frame& frame, FrameState* state, std::string* error) {
+  state->stored_file = paths_.frames() + "/" + StoredName(state->id, frame.source_name);
+  std::error_code ec;
+  if (!frame.source_path.empty()) {
+    // The original bytes, EXIF included: the ground tool and the final composite read them at full resolution.
+    fs::copy_file(frame.source_path, state->stored_file, fs::copy_options::overwrite_existing, ec);
+    if (ec) {
+      *error = "cannot store frame " + frame.source_name + ": " + ec.message();
+      return false;
+    }
+    return true;
+  }
+  if (fs::path(state->stored_file).extension() != ".jpg") state->stored_file += ".jpg";
+  if (!cv::imwrite(state->stored_file, frame.image, {cv::IMWRITE_JPEG_QUALITY, 95})) {
+    *error = "cannot store frame " + frame.source_name;
+    return false;
+  }
+  return true;
+}
+
+std::vector<int> Mosaicker::MembersOf(int root) {
+  std::vector<int> out;
+  for (const auto& f : frames_)
+    if (f.in_graph && components_.Find(f.id) == root) out.push_back(f.id);
+  return out;
+}
+
+std::vector<const Edge*> Mosaicker::EdgesWithin(int root) {
+  std::vector<const Edge*> out;
+  for (const auto& e : graph_.edges())
+    if (components_.Find(e.src) == root && components_.Find(e.tgt) == root) out.push_back(&e);
+  return out;
+}
+
+void Mosaicker::AddEdge(Edge edge) {
+  best_inliers_ = std::max(best_inliers_, edge.num_inliers);
+  const size_t index = graph_.edges().size();
+  adjacency_[static_cast<size_t>(edge.src)].push_back(index);
+  adjacency_[static_cast<size_t>(edge.tgt)].push_back(index);
+  graph_.AddEdge(std::move(edge));
+}
+
+// Re-expresses every frame of `other_root`'s component by `other_fix` (new = fix * old) and unites the two.
+void Mosaicker::MergeInto(int keep_root, int other_root, const Mat3& other_fix) {
+  for (int id : MembersOf(other_root)) mosaic_from_work_[id] = other_fix * mosaic_from_work_[id];
+  const int merged = components_.Unite(keep_root, other_root);
+  (void)merged;
+  ++merges_;
+}
+
+void Mosaicker::FullSolve(int root) {
+  const std::vector<int> members = MembersOf(root);
+  if (members.size() < 2) return;
+  const int anchor = *std::min_element(members.begin(), members.end());
+  std::unordered_set<int> variable(members.begin(), members.end());
+  variable.erase(anchor);
+  std::unordered_map<int, double> half_diag;
+  for (int id : members) half_diag[id] = frames_[static_cast<size_t>(id)].half_diagonal;
+  const auto result = AdjustAffine(EdgesWithin(root), variable, half_diag, options_.adjust, &mosaic_from_work_);
+  if (!result.ok) spdlog::warn("full adjustment failed: {}", result.failure);
+  registered_since_full_ = 0;
+}
+
+void Mosaicker::UpdatePreview(int id, const cv::Mat& work_bgr) {
+  if (options_.preview_every <= 0) return;
+  const double s = std::min(1.0, kThumbLongSide / static_cast<double>(std::max(work_bgr.cols, work_bgr.rows)));
+  cv::Mat thumb;
+  cv::resize(work_bgr, thumb, cv::Size(), s, s, cv::INTER_AREA);
+  const Mat3 work_from_thumb =
+      ResizeMap(static_cast<double>(thumb.cols) / work_bgr.cols, static_cast<double>(thumb.rows) / work_bgr.rows)
+          .inverse();
+  preview_.Add(thumb, mosaic_from_work_[id] * work_from_thumb);
+  if (static_cast<int>(frames_.size()) % options_.preview_every == 0) {
+    std::string err;
+    if (!preview_.Write(paths_.Join("live.jpg"), &err)) spdlog::warn("live preview: {}", err);
+  }
+}
+
+void Mosaicker::TryRetries(int new_id, const DescriptorIndex& index, const Features& feats) {
+  const int budget = std::min<int>(options_.retry_per_frame, static_cast<int>(retry_.size()));
+  for (int k = 0; k < budget; ++k) {
+    auto [id, attempts] = retry_.front();
+    retry_.pop_front();
+    if (components_.Find(id) == components_.Find(new_id)) continue;  // already joined through another frame
+    auto other = feature_store_.Get(id);
+    if (!other) continue;
+    PairResult r = MatchPair(index, feats, *other, options_.matching);
+    if (r.ok && r.num_inliers >= options_.relative_inlier_fraction * best_inliers_) {
+      Edge e{id, new_id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points), std::move(r.tgt_points)};
+      // mosaic_from_work(id) should become T_new * new_from_id.
+      const Mat3 fix = mosaic_from_work_[new_id] * e.tgt_from_src * mosaic_from_work_[id].inverse();
+      AddEdge(std::move(e));
+      MergeInto(components_.Find(new_id), components_.Find(id), fix);
+      FullSolve(components_.Find(new_id));
+      ++retried_ok_;
+      spdlog::info("frame {} joined the mosaic on retry (via frame {})", frames_[static_cast<size_t>(id)].name,
+                   frames_[static_cast<size_t>(new_id)].name);
+      continue;
+    }
+    if (attempts + 1 < options_.retry_max_attempts) retry_.emplace_back(id, attempts + 1);
+  }
+}
+
+FrameOutcome Mosaicker::AddFrame(hal::Frame frame) {
+  StageTimer frame_timer;
+  StageTimer t;
+  const int id = static_cast<int>(frames_.size());
+  frames_.emplace_back();
+  adjacency_.emplace_back();
+  components_.Add();
+  graph_.AddNode(id);
+  FrameState& st = frames_.back();
+  st.id = id;
+  st.name = frame.source_name;
+  st.original_size = frame.original_size;
+  st.metadata = frame.metadata;
+
+  // Working-resolution copy.
+  const int long_side = std::max(frame.original_size.width, frame.original_size.height);
+  const double s = std::min(1.0, options_.work_long_side / static_cast<double>(long_side));
+  st.work_size = cv::Size(std::max(1, static_cast<int>(std::lround(frame.original_size.width * s))),
+                          std::max(1, static_cast<int>(std::lround(frame.original_size.height * s))));
+  st.work_from_original = ResizeMap(static_cast<double>(st.work_size.width) / frame.original_size.width,
+                                    static_cast<double>(st.work_size.height) / frame.original_size.height);
+  st.half_diagonal = 0.5 * std::hypot(st.work_size.width, st.work_size.height);
+  cv::Mat work_bgr;
+  if (frame.image.size() == st.work_size) work_bgr = frame.image;
+  else cv::resize(frame.image, work_bgr, st.work_size, 0, 0, cv::INTER_AREA);
+  cv::Mat gray;
+  cv::cvtColor(work_bgr, gray, cv::COLOR_BGR2GRAY);
+  std::string error;
+  if (!StoreFrameBytes(frame, &st, &error)) {
+    st.failure = error;
+    spdlog::error("{}", error);
+    return FrameOutcome::kFailed;
+  }
+  stats_.Add("prepare", t.ElapsedMs());
+
+  t.Restart();
+  Features feats = extractor_.Extract(gray);
+  stats_.Add("features", t.ElapsedMs());
+  t.Restart();
+  if (!feature_store_.Put(id, feats, &error)) {
+    st.failure = error;
+    spdlog::error("{}", error);
+    return FrameOutcome::kFailed;
+  }
+  st.has_features = true;
+  // Match on the 8-bit values, exactly what later queries from the store will see.
+  feats.descriptors = DequantizeDescriptors(QuantizeDescriptors(feats.descriptors));
+  const DescriptorIndex index(feats, options_.matching);
+
+  std::unordered_set<int> tried;
+  struct Found {
+    Edge edge;
+  };
+  std::vector<Found> found;
+  auto try_candidate = [&](int cand) {
+    if (!tried.insert(cand).second) return;
+    auto other = feature_store_.Get(cand);
+    if (!other) return;
+    PairResult r = MatchPair(index, feats, *other, options_.matching);
+    if (!r.ok) return;
+    if (r.num_inliers < options_.relative_inlier_fraction * best_inliers_) return;
+    found.push_back({Edge{cand, id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points),
+                          std::move(r.tgt_points)}});
+  };
+
+  // 1) the last K frames that are in the graph.
+  int taken = 0;
+  for (int c = id - 1; c >= 0 && taken < options_.recent_candidates; --c) {
+    if (!frames_[static_cast<size_t>(c)].has_features || !frames_[static_cast<size_t>(c)].in_graph) continue;
+    try_candidate(c);
+    ++taken;
+  }
+  // 2) relocalisation through the global index when the recent frames gave nothing.
+  if (found.empty() && options_.relocalization_candidates > 0) {
+    for (int c : global_index_.Query(feats, options_.relocalization_candidates)) try_candidate(c);
+    if (!found.empty()) {
+      ++relocalized_;
+      spdlog::info("frame {} relocalised against frame {}", st.name, frames_[static_cast<size_t>(found[0].edge.src)].name);
+    }
+  }
+  int root = -1;
+  bool loop_closure = false;
+  if (!found.empty()) {
+    // Base component: the largest one touched; the new frame's first estimate comes from its strongest edge there.
+    std::map<int, int> size_of_root;
+    for (const auto& f : found) size_of_root[components_.Find(f.edge.src)] = components_.SizeOf(f.edge.src);
+    root = std::max_element(size_of_root.begin(), size_of_root.end(),
+                            [](const auto& a, const auto& b) { return a.second < b.second; })->first;
+    const Edge* best = nullptr;
+    for (const auto& f : found)
+      if (components_.Find(f.edge.src) == root && (best == nullptr || f.edge.num_inliers > best->num_inliers))
+        best = &f.edge;
+    mosaic_from_work_[id] = mosaic_from_work_[best->src] * best->tgt_from_src.inverse();
+    // 3) frames of that component whose footprint overlaps the estimate: closes loops between strips.
+    if (options_.overlap_candidates > 0) {
+      const auto fp_new = Footprint(mosaic_from_work_[id], st.work_size.width, st.work_size.height);
+      const cv::Rect2d box_new = cv::boundingRect(fp_new);
+      const double area_new = PolygonArea(fp_new);
+      std::vector<std::pair<double, int>> overlaps;
+      for (const auto& f : frames_) {
+        if (f.id == id || !f.in_graph || tried.count(f.id) != 0 || components_.Find(f.id) != root) continue;
+        const auto fp = Footprint(mosaic_from_work_[f.id], f.work_size.width, f.work_size.height);
+        if ((cv::Rect2d(cv::boundingRect(fp)) & box_new).area() <= 0) continue;
+        const double a = ConvexOverlapArea(fp_new, fp);
+        if (area_new > 0 && a / area_new >= options_.min_overlap_fraction) overlaps.emplace_back(a, f.id);
+      }
+      std::sort(overlaps.rbegin(), overlaps.rend());
+      const size_t before = found.size();
+      for (size_t k = 0; k < overlaps.size() && static_cast<int>(k) < options_.overlap_candidates; ++k)
+        try_candidate(overlaps[k].second);
+      loop_closure = found.size() > before;
+    }
+  }
+  stats_.Add("matching", t.ElapsedMs());
+
+  t.Restart();
+  FrameOutcome outcome = FrameOutcome::kRegistered;
+  if (found.empty()) {
+    // A component of its own until a later frame connects it.
+    mosaic_from_work_[id] = Mat3::Identity();
+    st.in_graph = true;
+    st.failure = "no verified match with any candidate";
+    if (options_.retry_list_size > 0) {
+      if (static_cast<int>(retry_.size()) >= options_.retry_list_size) retry_.pop_front();  // oldest gives way
+      retry_.emplace_back(id, 0);
+    }
+    spdlog::info("frame {} matched none of {} candidates; kept for retry", st.name, tried.size());
+    outcome = id == 0 ? FrameOutcome::kRegistered : FrameOutcome::kNewComponent;
+  } else {
+    st.in_graph = true;
+    std::vector<Edge> edges;
+    for (auto& f : found) edges.push_back(std::move(f.edge));
+    // Merge every other touched component into the base one, through the new frame.
+    bool merged = false;
+    for (const auto& e : edges) {
+      const int other = components_.Find(e.src);
+      if (other == components_.Find(root) || other == components_.Find(id)) continue;
+      const Mat3 fix = mosaic_from_work_[id] * e.tgt_from_src * mosaic_from_work_[e.src].inverse();
+      MergeInto(components_.Find(root), other, fix);
+      merged = true;
+    }
+    components_.Unite(root, id);
+    for (auto& e : edges) AddEdge(std::move(e));
+    // Local update: only the new frame moves.
+    std::unordered_map<int, double> half_diag{{id, st.half_diagonal}};
+    std::vector<const Edge*> local;
+    for (size_t ei : adjacency_[static_cast<size_t>(id)]) local.push_back(&graph_.edges()[ei]);
+    const auto r = AdjustAffine(local, {id}, half_diag, options_.adjust, &mosaic_from_work_);
+    if (!r.ok) spdlog::warn("local adjustment of {} failed: {}", st.name, r.failure);
+    st.failure.clear();
+    if (++registered_since_full_ >= options_.full_solve_every || loop_closure || merged)
+      FullSolve(components_.Find(id));
+    TryRetries(id, index, feats);
+  }
+  global_index_.Add(id, feats);
+  stats_.Add("adjust", t.ElapsedMs());
+  t.Restart();
+  if (st.failure.empty() || id == 0) UpdatePreview(id, work_bgr);
+  stats_.Add("preview", t.ElapsedMs());
+  stats_.Add("frame_total", frame_timer.ElapsedMs());
+  return outcome;
+}
+
+bool Mosaicker::Finish(std::string* error) {
+  StageTimer t;
+  // Largest component over edges that pass both thresholds against the final best pair.
+  std::vector<int> component =
+      graph_.LargestComponent(options_.relative_inlier_fraction, options_.matching.min_inliers);
+  if (frames_.empty()) component.clear();
+  std::unordered_set<int> in_component(component.begin(), component.end());
+  std::vector<Edge> pruned_out;
+  std::vector<const Edge*> edges;
+  for (const auto& e : graph_.edges())
+    if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 &&
+        graph_.EdgeCounts(e, options_.relative_inlier_fraction, options_.matching.min_inliers))
+      edges.push_back(&e);
+  double rms = 0.0;
+  double median = 0.0;
+  if (component.size() >= 2) {
+    // Re-anchor on the first frame (identity), then one full solve.
+    const int anchor = component.front();
+    const Mat3 fix = mosaic_from_work_[anchor].inverse();
+    for (int id : component) mosaic_from_work_[id] = fix * mosaic_from_work_[id];
+    std::unordered_set<int> variable(component.begin() + 1, component.end());
+    std::unordered_map<int, double> half_diag;
+    for (int id : component) half_diag[id] = frames_[static_cast<size_t>(id)].half_diagonal;
+    const auto r = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+    if (!r.ok) {
+      *error = "final adjustment failed: " + r.failure;
+      return false;
+    }
+    rms = r.rms_px;
+    median = r.median_px;
+  } else if (component.size() == 1) {
+    mosaic_from_work_[component.front()] = Mat3::Identity();
+  }
+  stats_.Add("final_adjust", t.ElapsedMs());
+  for (auto& f : frames_) {
+    if (in_component.count(f.id) != 0) continue;
+    if (f.failure.empty()) f.failure = f.has_features ? "not in the largest connected component" : "not processed";
+  }
+  final_registered_ = static_cast<int>(component.size());
+  final_rms_ = rms;
+  spdlog::info("registered {}/{} frames, residual RMS {:.3f} px (median {:.3f}) at working resolution",
+               final_registered_, frames_.size(), rms, median);
+  residual_median_ = median;
+  return WriteOutputs(component, error);
+}
+
+}  // namespace uavm

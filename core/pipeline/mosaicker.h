@@ -1,0 +1,99 @@
+#pragma once
+#include <deque>
+#include <memory>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "core/graph/match_graph.h"
+#include "core/matching/global_index.h"
+#include "core/mosaic/live_preview.h"
+#include "core/pipeline/options.h"
+#include "core/session/feature_store.h"
+#include "core/session/session_dir.h"
+#include "core/util/stats.h"
+#include "hal/common/frame_source.h"
+
+namespace uavm {
+
+// Outcome of one frame in the loop.
+enum class FrameOutcome { kRegistered, kNewComponent, kFailed };
+
+struct SkippedInput {
+  std::string file;
+  std::string reason;
+};
+
+// The onboard registration: each frame is registered as it arrives (features -> bounded candidate matching ->
+// RANSAC affine -> match graph -> local / periodic full adjustment); Finish() keeps the largest connected component,
+// solves it fully, writes the session files and composites the mosaic.
+class Mosaicker {
+ public:
+  Mosaicker(const PipelineOptions& options, SessionPaths paths);
+  ~Mosaicker();
+
+  [[nodiscard]] FrameOutcome AddFrame(hal::Frame frame);
+  // An input the source could not turn into a frame (corrupt, empty, not an image).
+  void RecordSkipped(const std::string& file, const std::string& reason);
+  void RecordDropped(size_t count) { dropped_frames_ = count; }
+  // Final solve, session files and mosaic. Returns false on an output failure (message in `error`).
+  [[nodiscard]] bool Finish(std::string* error);
+
+  [[nodiscard]] size_t frames_in() const { return frames_.size(); }
+  [[nodiscard]] int registered_count() const { return final_registered_; }
+  [[nodiscard]] double residual_rms_px() const { return final_rms_; }
+  [[nodiscard]] const StageStats& stage_stats() const { return stats_; }
+
+ private:
+  struct FrameState {
+    int id = -1;
+    std::string name;
+    std::string stored_file;  // path inside the session's frames/
+    cv::Size original_size;
+    cv::Size work_size;
+    Mat3 work_from_original = Mat3::Identity();
+    double half_diagonal = 1.0;
+    bool has_features = false;
+    bool in_graph = false;   // has at least one edge or anchors its own component
+    std::string failure;     // why it is not registered (so far)
+    hal::FrameMetadata metadata;
+  };
+
+  [[nodiscard]] bool StoreFrameBytes(const hal::Frame& frame, FrameState* state, std::string* error);
+  [[nodiscard]] std::vector<const Edge*> EdgesWithin(int root);
+  [[nodiscard]] std::vector<int> MembersOf(int root);
+  void AddEdge(Edge edge);
+  void MergeInto(int keep_root, int other_root, const Mat3& other_fix);
+  void FullSolve(int root);
+  void TryRetries(int new_id, const class DescriptorIndex& index, const Features& feats);
+  void UpdatePreview(int id, const cv::Mat& work_bgr);
+  [[nodiscard]] bool WriteOutputs(const std::vector<int>& component, std::string* error);
+
+  PipelineOptions options_;
+  SessionPaths paths_;
+  SiftExtractor extractor_;
+  FeatureStore feature_store_;
+  GlobalIndex global_index_;
+  MatchGraph graph_;
+  UnionFind components_;
+  std::vector<FrameState> frames_;
+  std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
+  std::unordered_map<int, Mat3> mosaic_from_work_;  // per frame, in its component's coordinates
+  std::deque<std::pair<int, int>> retry_;           // (frame id, attempts)
+  std::vector<SkippedInput> skipped_;
+  LivePreview preview_;
+  StageStats stats_;
+  int best_inliers_ = 0;
+  int registered_since_full_ = 0;
+  size_t dropped_frames_ = 0;
+  int relocalized_ = 0;
+  int retried_ok_ = 0;
+  int merges_ = 0;
+  int64_t start_ns_ = 0;
+  int final_registered_ = 0;
+  double final_rms_ = 0.0;
+  double residual_median_ = 0.0;
+  double composite_ms_ = 0.0;
+};
+
+}  // namespace uavm

@@ -1,0 +1,199 @@
+// Session outputs of the Mosaicker: transforms, graph, correspondences, mosaic and report.
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <sstream>
+#include <unordered_set>
+
+#include "core/mosaic/gdal_writer.h"
+#include "core/pipeline/mosaicker.h"
+#include "core/util/clock.h"
+#include "core/util/memory.h"
+
+namespace uavm {
+
+namespace {
+
+// Decodes a stored frame no larger than needed: JPEG DCT scaling by 1/f when the canvas samples it that coarsely.
+cv::Mat LoadForCanvas(const std::string& path, int reduce) {
+  const int flag = reduce >= 8 ? cv::IMREAD_REDUCED_COLOR_8
+                   : reduce >= 4 ? cv::IMREAD_REDUCED_COLOR_4
+                   : reduce >= 2 ? cv::IMREAD_REDUCED_COLOR_2
+                                 : cv::IMREAD_COLOR;
+  try {
+    return cv::imread(path, flag | cv::IMREAD_IGNORE_ORIENTATION);
+  } catch (const cv::Exception&) {
+    return {};
+  }
+}
+
+nlohmann::json SummaryJson(const Summary& s) {
+  return {{"median", s.median}, {"p95", s.p95}, {"max", s.max}, {"total", s.total}, {"count", s.count}};
+}
+
+}  // namespace
+
+bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* error) {
+  std::unordered_set<int> in_component(component.begin(), component.end());
+  // Canvas: the reference frame's original pixel grid scaled by mosaic_scale, shifted so the flight starts at (0,0).
+  std::vector<Mat3> canvas_from_original(frames_.size(), Mat3::Identity());
+  cv::Size canvas(0, 0);
+  double scale = options_.mosaic_scale;
+  if (!component.empty()) {
+    const FrameState& ref = frames_[static_cast<size_t>(component.front())];
+    for (int attempt = 0; attempt < 2; ++attempt) {
+      const Mat3 out_from_mosaic_work = ResizeMap(scale, scale) * ref.work_from_original.inverse();
+      double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
+      for (int id : component) {
+        const FrameState& f = frames_[static_cast<size_t>(id)];
+        canvas_from_original[static_cast<size_t>(id)] = out_from_mosaic_work * mosaic_from_work_[id] * f.work_from_original;
+        for (const auto& p : Footprint(canvas_from_original[static_cast<size_t>(id)], f.original_size.width,
+                                       f.original_size.height)) {
+          minx = std::min<double>(minx, p.x);
+          miny = std::min<double>(miny, p.y);
+          maxx = std::max<double>(maxx, p.x);
+          maxy = std::max<double>(maxy, p.y);
+        }
+      }
+      const double w = std::ceil(maxx) - std::floor(minx) + 1;
+      const double h = std::ceil(maxy) - std::floor(miny) + 1;
+      if (std::max(w, h) > options_.max_canvas_side && attempt == 0) {
+        const double shrink = options_.max_canvas_side / std::max(w, h);
+        spdlog::warn("canvas {:.0f}x{:.0f} exceeds max_canvas_side {}; mosaic_scale {:.3f} -> {:.3f}", w, h,
+                     options_.max_canvas_side, scale, scale * shrink);
+        scale *= shrink * 0.999;
+        continue;
+      }
+      const Mat3 shift = Translation(-std::floor(minx), -std::floor(miny));
+      for (int id : component)
+        canvas_from_original[static_cast<size_t>(id)] = shift * canvas_from_original[static_cast<size_t>(id)];
+      canvas = cv::Size(static_cast<int>(w), static_cast<int>(h));
+      break;
+    }
+  }
+
+  // transforms.csv
+  std::vector<TransformRow> rows;
+  for (const auto& f : frames_) {
+    TransformRow r;
+    r.index = f.id;
+    r.filename = f.name;
+    r.registered = in_component.count(f.id) != 0;
+    r.mosaic_from_frame = canvas_from_original[static_cast<size_t>(f.id)];
+    rows.push_back(r);
+  }
+  if (!WriteFileAtomic(paths_.Join("transforms.csv"), FormatTransformsCsv(rows), error)) return false;
+
+  // graph.csv and correspondences.csv (original-resolution pixels, so the ground tool needs no working sizes).
+  std::ostringstream graph_csv;
+  std::ostringstream corr_csv;
+  graph_csv << "src,tgt,src_file,tgt_file,matches,inliers,used\n";
+  corr_csv << "src,tgt,x_src,y_src,x_tgt,y_tgt\n";
+  corr_csv.precision(7);
+  for (const auto& e : graph_.edges()) {
+    const bool used = in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 &&
+                      graph_.EdgeCounts(e, options_.relative_inlier_fraction, options_.matching.min_inliers);
+    graph_csv << e.src << ',' << e.tgt << ',' << frames_[static_cast<size_t>(e.src)].name << ','
+              << frames_[static_cast<size_t>(e.tgt)].name << ',' << e.num_matches << ',' << e.num_inliers << ','
+              << (used ? 1 : 0) << '\n';
+    const Mat3 src_orig = frames_[static_cast<size_t>(e.src)].work_from_original.inverse();
+    const Mat3 tgt_orig = frames_[static_cast<size_t>(e.tgt)].work_from_original.inverse();
+    for (size_t k = 0; k < e.src_points.size(); ++k) {
+      const Vec2 a = Apply(src_orig, e.src_points[k]);
+      const Vec2 b = Apply(tgt_orig, e.tgt_points[k]);
+      corr_csv << e.src << ',' << e.tgt << ',' << a.x() << ',' << a.y() << ',' << b.x() << ',' << b.y() << '\n';
+    }
+  }
+  if (!WriteFileAtomic(paths_.Join("graph.csv"), graph_csv.str(), error)) return false;
+  if (!WriteFileAtomic(paths_.Join("correspondences.csv"), corr_csv.str(), error)) return false;
+  if (!WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error)) return false;
+
+  // Mosaic, tile by tile.
+  CompositeResult composite;
+  if (!component.empty()) {
+    std::vector<CompositeInput> inputs;
+    std::unordered_map<int, int> reduce_of;
+    for (int id : component) {
+      const FrameState& f = frames_[static_cast<size_t>(id)];
+      const Mat3& c = canvas_from_original[static_cast<size_t>(id)];
+      const double local_scale = std::sqrt(std::abs(c.topLeftCorner<2, 2>().determinant()));
+      int reduce = 1;
+      while (reduce < 8 && local_scale * reduce * 2 <= 1.0) reduce *= 2;
+      reduce_of[id] = reduce;
+      CompositeInput in;
+      in.id = id;
+      const cv::Size reduced((f.original_size.width + reduce - 1) / reduce, (f.original_size.height + reduce - 1) / reduce);
+      in.image_size = reduced;
+      in.canvas_from_image = c * ResizeMap(1.0 / reduce, 1.0 / reduce).inverse();
+      inputs.push_back(in);
+    }
+    auto load = [&](int id) {
+      return LoadForCanvas(frames_[static_cast<size_t>(id)].stored_file, reduce_of[id]);
+    };
+    GdalTiffWriter tiff;
+    const bool write_tiff = options_.write_tiff;
+    if (write_tiff && !tiff.Open(paths_.Join("mosaic.tif"), canvas, options_.mosaic.tiff_block, error)) return false;
+    composite = Composite(inputs, canvas, load, options_.mosaic, write_tiff ? &tiff : nullptr);
+    if (!composite.ok) {
+      *error = "composite failed: " + composite.error;
+      return false;
+    }
+    if (write_tiff && !tiff.Close(options_.mosaic.build_overviews, error)) return false;
+    composite_ms_ = composite.ms;
+    std::vector<uchar> png;
+    if (!cv::imencode(".png", composite.quicklook, png) ||
+        !WriteFileAtomic(paths_.Join("mosaic.png"), std::string(png.begin(), png.end()), error))
+      return false;
+    spdlog::info("mosaic {}x{} px (scale {:.3f}), {} frames blended, {} dropped by overlap, {} tiles, {:.0f} ms",
+                 canvas.width, canvas.height, scale, composite.frames_used, composite.frames_dropped_by_overlap,
+                 composite.tiles_written, composite.ms);
+  }
+  {
+    std::string err;
+    if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err)) spdlog::warn("live preview: {}", err);
+  }
+
+  // report.json
+  nlohmann::json report;
+  report["version"] = "0.1.0";
+  report["frames_in"] = frames_.size() + skipped_.size();
+  report["frames_decoded"] = frames_.size();
+  report["registered"] = final_registered_;
+  report["dropped_by_queue"] = dropped_frames_;
+  report["residual_rms_px"] = final_rms_;
+  report["residual_median_px"] = residual_median_;
+  report["residual_units"] = "pixels of the reference frame at working resolution";
+  report["wall_s"] = static_cast<double>(MonotonicNs() - start_ns_) * 1e-9;
+  report["peak_rss_mib"] = PeakRssMiB();
+  report["reference_frame"] = component.empty() ? -1 : component.front();
+  report["relocalized"] = relocalized_;
+  report["joined_on_retry"] = retried_ok_;
+  report["component_merges"] = merges_;
+  report["edges"] = graph_.edges().size();
+  report["feature_store"] = {{"resident_mib", static_cast<double>(feature_store_.resident_bytes()) / (1 << 20)},
+                             {"disk_loads", feature_store_.disk_loads()}};
+  nlohmann::json skipped = nlohmann::json::array();
+  for (const auto& s : skipped_) skipped.push_back({{"file", s.file}, {"reason", s.reason}});
+  report["skipped"] = skipped;
+  nlohmann::json unregistered = nlohmann::json::array();
+  for (const auto& f : frames_)
+    if (in_component.count(f.id) == 0) unregistered.push_back({{"index", f.id}, {"file", f.name}, {"reason", f.failure}});
+  report["unregistered"] = unregistered;
+  nlohmann::json stages;
+  for (const auto& name : stats_.Stages()) stages[name] = SummaryJson(stats_.Get(name));
+  report["stages_ms"] = stages;
+  report["composite_ms"] = composite_ms_;
+  report["mosaic"] = {{"width", canvas.width},
+                      {"height", canvas.height},
+                      {"scale", scale},
+                      {"frames_blended", composite.frames_used},
+                      {"frames_dropped_by_overlap", composite.frames_dropped_by_overlap},
+                      {"frames_unreadable", composite.frames_unreadable},
+                      {"tiles", composite.tiles_written}};
+  return WriteFileAtomic(paths_.Join("report.json"), report.dump(2) + "\n", error);
+}
+
+}  // namespace uavm

@@ -1,0 +1,167 @@
+#include "core/pipeline/options.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <functional>
+#include <set>
+#include <sstream>
+#include <variant>
+#include <vector>
+
+namespace uavm {
+
+namespace {
+
+using FieldPtr = std::variant<int*, double*, bool*, size_t*>;
+struct Field {
+  std::string section;  // "" = top level
+  std::string key;
+  FieldPtr ptr;
+};
+
+// One table drives loading, dumping and the unknown-key check, so they cannot disagree.
+std::vector<Field> Fields(PipelineOptions& o) {
+  return {
+      {"", "work_long_side", &o.work_long_side},
+      {"", "recent_candidates", &o.recent_candidates},
+      {"", "overlap_candidates", &o.overlap_candidates},
+      {"", "min_overlap_fraction", &o.min_overlap_fraction},
+      {"", "relative_inlier_fraction", &o.relative_inlier_fraction},
+      {"", "relocalization_candidates", &o.relocalization_candidates},
+      {"", "retry_list_size", &o.retry_list_size},
+      {"", "retry_per_frame", &o.retry_per_frame},
+      {"", "retry_max_attempts", &o.retry_max_attempts},
+      {"", "full_solve_every", &o.full_solve_every},
+      {"", "preview_every", &o.preview_every},
+      {"", "preview_side", &o.preview_side},
+      {"", "mosaic_scale", &o.mosaic_scale},
+      {"", "max_canvas_side", &o.max_canvas_side},
+      {"", "feature_cache_mib", &o.feature_cache_mib},
+      {"", "queue_capacity", &o.queue_capacity},
+      {"", "write_tiff", &o.write_tiff},
+      {"features", "max_features", &o.features.max_features},
+      {"features", "contrast_threshold", &o.features.contrast_threshold},
+      {"features", "target_min_features", &o.features.target_min_features},
+      {"features", "min_contrast_threshold", &o.features.min_contrast_threshold},
+      {"features", "octave_layers", &o.features.octave_layers},
+      {"features", "root_sift", &o.features.root_sift},
+      {"matching", "ratio", &o.matching.ratio},
+      {"matching", "flann_trees", &o.matching.flann_trees},
+      {"matching", "flann_checks", &o.matching.flann_checks},
+      {"matching", "min_inliers", &o.matching.min_inliers},
+      {"matching", "max_scale_change", &o.matching.max_scale_change},
+      {"matching", "max_anisotropy", &o.matching.max_anisotropy},
+      {"matching", "max_edge_correspondences", &o.matching.max_edge_correspondences},
+      {"matching", "correspondence_grid", &o.matching.correspondence_grid},
+      {"matching", "ransac_max_error_px", &o.matching.ransac.max_error},
+      {"matching", "ransac_confidence", &o.matching.ransac.confidence},
+      {"matching", "ransac_min_iterations", &o.matching.ransac.min_iterations},
+      {"matching", "ransac_max_iterations", &o.matching.ransac.max_iterations},
+      {"relocalization", "descriptors_per_frame", &o.relocalization.descriptors_per_frame},
+      {"relocalization", "max_descriptors", &o.relocalization.max_descriptors},
+      {"relocalization", "min_votes", &o.relocalization.min_votes},
+      {"relocalization", "ratio", &o.relocalization.ratio},
+      {"adjust", "rigidity_weight", &o.adjust.rigidity_weight},
+      {"adjust", "relative_linear_weight", &o.adjust.relative_linear_weight},
+      {"adjust", "huber_px", &o.adjust.huber_px},
+      {"adjust", "robust_iterations", &o.adjust.robust_iterations},
+      {"mosaic", "tile_size", &o.mosaic.tile_size},
+      {"mosaic", "tiff_block", &o.mosaic.tiff_block},
+      {"mosaic", "num_bands", &o.mosaic.num_bands},
+      {"mosaic", "max_covered_fraction", &o.mosaic.max_covered_fraction},
+      {"mosaic", "quicklook_long_side", &o.mosaic.quicklook_long_side},
+      {"mosaic", "image_cache_bytes", &o.mosaic.image_cache_bytes},
+      {"mosaic", "build_overviews", &o.mosaic.build_overviews},
+  };
+}
+
+bool Fail(std::string* why, const std::string& msg) {
+  if (why != nullptr) *why = msg;
+  return false;
+}
+
+}  // namespace
+
+bool PipelineOptions::Check(std::string* why) const {
+  if (work_long_side < 64 || work_long_side > 16384) return Fail(why, "work_long_side must be in [64,16384]");
+  if (recent_candidates < 1 || overlap_candidates < 0) return Fail(why, "recent_candidates >= 1, overlap_candidates >= 0");
+  if (!(min_overlap_fraction > 0 && min_overlap_fraction < 1)) return Fail(why, "min_overlap_fraction must be in (0,1)");
+  if (!(relative_inlier_fraction >= 0 && relative_inlier_fraction < 1))
+    return Fail(why, "relative_inlier_fraction must be in [0,1)");
+  if (relocalization_candidates < 0 || retry_list_size < 0 || retry_per_frame < 0 || retry_max_attempts < 1)
+    return Fail(why, "relocalization/retry settings must be >= 0");
+  if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
+  if (preview_every < 0 || preview_side < 64) return Fail(why, "preview_every >= 0 and preview_side >= 64");
+  if (!(mosaic_scale > 0 && mosaic_scale <= 4)) return Fail(why, "mosaic_scale must be in (0,4]");
+  if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");
+  if (feature_cache_mib < 1) return Fail(why, "feature_cache_mib must be >= 1");
+  if (queue_capacity < 1 || queue_capacity > 1024) return Fail(why, "queue_capacity must be in [1,1024]");
+  return features.Check(why) && matching.Check(why) && relocalization.Check(why) && adjust.Check(why) &&
+         mosaic.Check(why);
+}
+
+bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const std::exception& e) {
+    return Fail(error, "config " + path + ": " + e.what());
+  }
+  if (root.IsNull()) return true;  // an empty file means defaults
+  if (!root.IsMap()) return Fail(error, "config " + path + ": top level must be a mapping");
+  PipelineOptions o = *options;
+  auto fields = Fields(o);
+  std::set<std::string> known_sections;
+  std::set<std::string> known_keys;
+  for (const auto& f : fields) {
+    if (!f.section.empty()) known_sections.insert(f.section);
+    known_keys.insert(f.section.empty() ? f.key : f.section + "." + f.key);
+  }
+  for (const auto& kv : root) {
+    const std::string k = kv.first.as<std::string>();
+    if (known_sections.count(k) != 0) {
+      if (!kv.second.IsMap()) return Fail(error, "config " + path + ": '" + k + "' must be a mapping");
+      for (const auto& sub : kv.second) {
+        const std::string full = k + "." + sub.first.as<std::string>();
+        if (known_keys.count(full) == 0) return Fail(error, "config " + path + ": unknown key '" + full + "'");
+      }
+    } else if (known_keys.count(k) == 0) {
+      return Fail(error, "config " + path + ": unknown key '" + k + "'");
+    }
+  }
+  for (const auto& f : fields) {
+    const YAML::Node node = f.section.empty() ? root[f.key] : root[f.section][f.key];
+    if (!node) continue;
+    const std::string name = f.section.empty() ? f.key : f.section + "." + f.key;
+    try {
+      std::visit([&](auto* p) { *p = node.as<std::remove_pointer_t<decltype(p)>>(); }, f.ptr);
+    } catch (const std::exception&) {
+      return Fail(error, "config " + path + ": '" + name + "' has the wrong type");
+    }
+  }
+  std::string why;
+  if (!o.Check(&why)) return Fail(error, "config " + path + ": " + why);
+  *options = o;
+  return true;
+}
+
+std::string ToYaml(const PipelineOptions& options) {
+  PipelineOptions copy = options;
+  YAML::Emitter out;
+  out << YAML::BeginMap;
+  std::string open_section;
+  for (const auto& f : Fields(copy)) {
+    if (f.section != open_section) {
+      if (!open_section.empty()) out << YAML::EndMap;
+      out << YAML::Key << f.section << YAML::Value << YAML::BeginMap;
+      open_section = f.section;
+    }
+    out << YAML::Key << f.key << YAML::Value;
+    std::visit([&](auto* p) { out << *p; }, f.ptr);
+  }
+  if (!open_section.empty()) out << YAML::EndMap;
+  out << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
+}
+
+}  // namespace uavm

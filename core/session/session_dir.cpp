@@ -1,0 +1,117 @@
+#include "core/session/session_dir.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+namespace uavm {
+
+namespace fs = std::filesystem;
+
+bool PrepareSessionDir(const std::string& root, SessionPaths* paths, std::string* error) {
+  std::error_code ec;
+  paths->root = root;
+  for (const std::string& d : {root, paths->frames(), paths->features()}) {
+    fs::create_directories(d, ec);
+    if (ec || !fs::is_directory(d)) {
+      *error = "cannot create output directory " + d + (ec ? ": " + ec.message() : "");
+      return false;
+    }
+  }
+  const std::string probe = paths->Join(".write_probe");
+  if (!WriteFileAtomic(probe, "ok\n", error)) {
+    *error = "output directory is not writable: " + root;
+    return false;
+  }
+  fs::remove(probe, ec);
+  return true;
+}
+
+bool WriteFileAtomic(const std::string& path, const std::string& contents, std::string* error) {
+  const std::string tmp = path + ".tmp";
+  FILE* f = std::fopen(tmp.c_str(), "wb");
+  if (f == nullptr) {
+    *error = "cannot write " + tmp;
+    return false;
+  }
+  const bool wrote = std::fwrite(contents.data(), 1, contents.size(), f) == contents.size();
+  const bool closed = std::fclose(f) == 0;
+  if (!wrote || !closed || std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    *error = "write failed (disk full?): " + path;
+    return false;
+  }
+  return true;
+}
+
+std::string FormatTransformsCsv(const std::vector<TransformRow>& rows) {
+  std::string out = std::string(kTransformsHeader) + "\n";
+  char buf[512];
+  for (const auto& r : rows) {
+    if (!r.registered) {
+      std::snprintf(buf, sizeof(buf), "%d,%s,0,,,,,,,,\n", r.index, r.filename.c_str());
+    } else {
+      // Normalised so the projective part's constant term is 1, as the header's formula assumes.
+      const Mat3 m = r.mosaic_from_frame / r.mosaic_from_frame(2, 2);
+      std::snprintf(buf, sizeof(buf), "%d,%s,1,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g\n", r.index,
+                    r.filename.c_str(), m(0, 0), m(0, 1), m(0, 2), m(1, 0), m(1, 1), m(1, 2), m(2, 0), m(2, 1));
+    }
+    out += buf;
+  }
+  return out;
+}
+
+bool ParseTransformsCsv(const std::string& text, std::vector<TransformRow>* rows, std::string* error) {
+  std::istringstream in(text);
+  std::string line;
+  if (!std::getline(in, line) || line != kTransformsHeader) {
+    *error = "transforms.csv: unexpected header";
+    return false;
+  }
+  rows->clear();
+  int line_no = 1;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (line.empty()) continue;
+    std::vector<std::string> cells;
+    std::stringstream ss(line);
+    std::string cell;
+    while (std::getline(ss, cell, ',')) cells.push_back(cell);
+    if (!line.empty() && line.back() == ',') cells.emplace_back();
+    if (cells.size() != 11) {
+      *error = "transforms.csv line " + std::to_string(line_no) + ": expected 11 columns";
+      return false;
+    }
+    TransformRow r;
+    try {
+      r.index = std::stoi(cells[0]);
+      r.filename = cells[1];
+      r.registered = cells[2] == "1";
+      if (r.registered) {
+        double v[8];
+        for (int k = 0; k < 8; ++k) v[k] = std::stod(cells[static_cast<size_t>(3 + k)]);
+        r.mosaic_from_frame << v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], 1.0;
+      }
+    } catch (const std::exception&) {
+      *error = "transforms.csv line " + std::to_string(line_no) + ": not a number";
+      return false;
+    }
+    rows->push_back(r);
+  }
+  return true;
+}
+
+bool ReadTextFile(const std::string& path, std::string* text, std::string* error) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    *error = "cannot read " + path;
+    return false;
+  }
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  *text = ss.str();
+  return true;
+}
+
+}  // namespace uavm

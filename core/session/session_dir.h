@@ -1,0 +1,41 @@
+#pragma once
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/geometry/transform.h"
+
+namespace uavm {
+
+// Layout of a session directory (documented in README.md):
+//   transforms.csv  graph.csv  correspondences.csv  report.json  config.yaml  live.jpg  mosaic.png  mosaic.tif
+//   frames/   the original bytes of every accepted frame (EXIF kept), named <index>_<source name>
+//   features/ per-frame keypoints and 8-bit RootSIFT descriptors (working resolution)
+struct SessionPaths {
+  std::string root;
+  [[nodiscard]] std::string Join(const std::string& name) const { return root + "/" + name; }
+  [[nodiscard]] std::string frames() const { return Join("frames"); }
+  [[nodiscard]] std::string features() const { return Join("features"); }
+};
+
+// Creates the directory tree and proves it is writable. On failure: false and a one-line reason.
+[[nodiscard]] bool PrepareSessionDir(const std::string& root, SessionPaths* paths, std::string* error);
+
+// Writes via a temp file and rename, so a reader never sees a half-written file.
+[[nodiscard]] bool WriteFileAtomic(const std::string& path, const std::string& contents, std::string* error);
+
+inline constexpr const char* kTransformsHeader = "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21";
+
+struct TransformRow {
+  int index = -1;
+  std::string filename;
+  bool registered = false;
+  Mat3 mosaic_from_frame = Mat3::Identity();  // original-resolution frame pixels -> mosaic.tif pixels
+};
+
+[[nodiscard]] std::string FormatTransformsCsv(const std::vector<TransformRow>& rows);
+// Parses transforms.csv; rejects a wrong header or malformed registered rows.
+[[nodiscard]] bool ParseTransformsCsv(const std::string& text, std::vector<TransformRow>* rows, std::string* error);
+[[nodiscard]] bool ReadTextFile(const std::string& path, std::string* text, std::string* error);
+
+}  // namespace uavm

@@ -1,0 +1,115 @@
+#include "firmware_app/app.h"
+
+#include <spdlog/spdlog.h>
+
+#include <memory>
+#include <thread>
+
+#include "core/pipeline/mosaicker.h"
+#include "core/session/session_dir.h"
+#include "core/util/bounded_queue.h"
+#include "core/util/memory.h"
+#include "hal/replay/replay_source.h"
+
+namespace uavm::app {
+
+namespace {
+
+std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::string* error) {
+  const std::string& s = config.source;
+  const auto colon = s.find(':');
+  const std::string scheme = colon == std::string::npos ? "" : s.substr(0, colon);
+  const std::string arg = colon == std::string::npos ? s : s.substr(colon + 1);
+  if (scheme == "replay") {
+    hal::ReplayOptions o;
+    o.path = arg;
+    o.stride = config.stride;
+    return std::make_unique<hal::ReplaySource>(o);
+  }
+  *error = "unknown source '" + s + "' (expected replay:PATH)";
+  return nullptr;
+}
+
+// One captured item: a frame, or the record of an input the source skipped.
+struct Item {
+  hal::Status status = hal::Status::kOk;
+  hal::Frame frame;
+  std::string message;
+};
+
+}  // namespace
+
+int Run(const RunConfig& config) {
+  std::string error;
+  auto source = MakeSource(config, &error);
+  if (!source) {
+    spdlog::error("{}", error);
+    return kExitUsage;
+  }
+  if (source->Open(&error) != hal::Status::kOk) {
+    spdlog::error("cannot open source: {}", error);
+    return kExitSourceError;
+  }
+  SessionPaths paths;
+  if (!PrepareSessionDir(config.out_dir, &paths, &error)) {
+    spdlog::error("{}", error);
+    return kExitOutputError;
+  }
+  // Decode no more than the working resolution needs (JPEG DCT scaling); the compositor re-reads at its own scale.
+  source->SetDecodeHint({config.pipeline.work_long_side});
+  spdlog::info("source {}, output {}", source->Describe(), config.out_dir);
+
+  Mosaicker mosaicker(config.pipeline, paths);
+  BoundedQueue<Item> queue(static_cast<size_t>(config.pipeline.queue_capacity),
+                           source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock
+                                              : BoundedQueue<Item>::Policy::kDropOldest);
+  bool source_failed = false;
+  std::string source_error;
+  std::thread capture([&] {
+    int delivered = 0;
+    for (;;) {
+      if (config.max_frames > 0 && delivered >= config.max_frames) break;
+      Item item;
+      std::string err;
+      item.status = source->Next(&item.frame, &err);
+      if (item.status == hal::Status::kEndOfStream) break;
+      if (item.status == hal::Status::kError) {
+        source_failed = true;
+        source_error = err;
+        break;
+      }
+      item.message = err;
+      if (item.status == hal::Status::kOk) ++delivered;
+      if (!queue.Push(std::move(item))) break;
+    }
+    queue.Close();
+  });
+
+  while (auto item = queue.Pop()) {
+    if (item->status == hal::Status::kSkipped) {
+      mosaicker.RecordSkipped(item->frame.source_name, item->message);
+      continue;
+    }
+    const auto outcome = mosaicker.AddFrame(std::move(item->frame));
+    (void)outcome;
+    const auto& stats = mosaicker.stage_stats();
+    if (mosaicker.frames_in() % 10 == 0)
+      spdlog::info("{} frames, median {:.0f} ms/frame, RSS {:.0f} MiB", mosaicker.frames_in(),
+                   stats.Get("frame_total").median, CurrentRssMiB());
+  }
+  capture.join();
+  source->Close();
+  mosaicker.RecordDropped(queue.dropped());
+  if (source_failed) spdlog::error("source stopped: {} (finishing with what was received)", source_error);
+
+  if (!mosaicker.Finish(&error)) {
+    spdlog::error("{}", error);
+    return kExitOutputError;
+  }
+  spdlog::info("done: {}/{} registered, residual RMS {:.2f} px, peak RSS {:.0f} MiB", mosaicker.registered_count(),
+               mosaicker.frames_in(), mosaicker.residual_rms_px(), PeakRssMiB());
+  if (mosaicker.registered_count() == 0) return kExitNothingRegistered;
+  return source_failed ? kExitSourceError : kExitOk;
+}
+
+}  // namespace uavm::app

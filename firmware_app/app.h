@@ -1,0 +1,28 @@
+#pragma once
+#include <string>
+
+#include "core/pipeline/options.h"
+
+namespace uavm::app {
+
+// Documented exit codes of uavmosaic-onboard.
+enum ExitCode : int {
+  kExitOk = 0,
+  kExitUsage = 2,          // bad command line or config
+  kExitSourceError = 3,    // the source cannot be opened (missing folder, no device)
+  kExitOutputError = 4,    // the output directory cannot be created or written (incl. disk full)
+  kExitNothingRegistered = 5,  // the run completed but no frame could be registered
+};
+
+struct RunConfig {
+  std::string source;  // replay:PATH (folder or video)
+  std::string out_dir;
+  int max_frames = 0;  // 0 = all
+  int stride = 1;
+  PipelineOptions pipeline;
+};
+
+// The onboard loop: capture thread -> bounded queue -> registration -> outputs. Returns an ExitCode.
+[[nodiscard]] int Run(const RunConfig& config);
+
+}  // namespace uavm::app

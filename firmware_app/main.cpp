@@ -1,0 +1,63 @@
+// uavmosaic-onboard: thin entry point; the loop lives in app.cpp.
+#include <CLI/CLI.hpp>
+#include <spdlog/spdlog.h>
+
+#include "firmware_app/app.h"
+
+int main(int argc, char** argv) {
+  using namespace uavm;
+  app::RunConfig config;
+  std::string config_file;
+  std::string log_level = "info";
+  bool print_config = false;
+  auto& p = config.pipeline;
+  CLI::App cli{
+      "uavmosaic-onboard: registers a drone's frames as they arrive and writes a mosaic, without camera poses.\n"
+      "Exit codes: 0 ok; 2 bad command line or config; 3 source cannot be opened or failed mid-run; "
+      "4 output directory not creatable/writable or disk full; 5 no frame could be registered."};
+  cli.add_option("--source", config.source, "Frame source: replay:DIR (images, natural filename order) or "
+                                            "replay:FILE.mp4 (video)")->required();
+  cli.add_option("--out", config.out_dir, "Session directory to write (created if missing)")->required();
+  cli.add_option("--config", config_file, "YAML config; command-line options override it")->check(CLI::ExistingFile);
+  cli.add_option("--max-frames", config.max_frames, "Stop after N frames (0 = all)")->check(CLI::NonNegativeNumber);
+  cli.add_option("--stride", config.stride, "Take every N-th input of the replay (video frames or files)")
+      ->check(CLI::PositiveNumber);
+  cli.add_option("--work-size", p.work_long_side, "Long side of the working copy used for registration, px");
+  cli.add_option("--max-features", p.features.max_features, "Keypoints kept per frame");
+  cli.add_option("--mosaic-scale", p.mosaic_scale,
+                 "mosaic.tif resolution relative to the reference frame's original pixels (1 = full resolution)");
+  cli.add_option("--quicklook-size", p.mosaic.quicklook_long_side, "Longest side of mosaic.png, px");
+  cli.add_option("--bands", p.mosaic.num_bands, "Multi-band blending levels (0 = hard seams)");
+  cli.add_option("--preview-every", p.preview_every, "Write live.jpg every N frames (0 = off)");
+  cli.add_option("--recent", p.recent_candidates, "Recent frames matched against each new frame (K)");
+  cli.add_option("--overlap-candidates", p.overlap_candidates, "Extra frames chosen by footprint overlap (M)");
+  cli.add_flag("--no-tiff", [&](std::int64_t) { p.write_tiff = false; }, "Do not write mosaic.tif");
+  cli.add_option("--log-level", log_level, "trace|debug|info|warn|error");
+  cli.add_flag("--print-config", print_config, "Print the effective configuration as YAML and exit");
+
+  // The config file is applied first, then the command line again on top of it.
+  try {
+    cli.parse(argc, argv);
+    if (!config_file.empty()) {
+      std::string error;
+      if (!LoadOptionsYaml(config_file, &p, &error)) {
+        spdlog::error("{}", error);
+        return app::kExitUsage;
+      }
+      cli.parse(argc, argv);
+    }
+  } catch (const CLI::ParseError& e) {
+    return e.get_exit_code() == 0 ? cli.exit(e) : (cli.exit(e), app::kExitUsage);
+  }
+  spdlog::set_level(spdlog::level::from_str(log_level));
+  std::string why;
+  if (!p.Check(&why)) {
+    spdlog::error("invalid configuration: {}", why);
+    return app::kExitUsage;
+  }
+  if (print_config) {
+    std::fputs(ToYaml(p).c_str(), stdout);
+    return app::kExitOk;
+  }
+  return app::Run(config);
+}
