@@ -33,8 +33,9 @@ std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::strin
 // One captured item: a frame, or the record of an input the source skipped.
 struct Item {
   hal::Status status = hal::Status::kOk;
-  hal::Frame frame;
+  std::string name;
   std::string message;
+  Mosaicker::Prepared prepared;
 };
 
 }  // namespace
@@ -71,7 +72,9 @@ int Run(const RunConfig& config) {
       if (config.max_frames > 0 && delivered >= config.max_frames) break;
       Item item;
       std::string err;
-      item.status = source->Next(&item.frame, &err);
+      hal::Frame frame;
+      item.status = source->Next(&frame, &err);
+      item.name = frame.source_name;
       if (item.status == hal::Status::kEndOfStream) break;
       if (item.status == hal::Status::kError) {
         source_failed = true;
@@ -79,7 +82,11 @@ int Run(const RunConfig& config) {
         break;
       }
       item.message = err;
-      if (item.status == hal::Status::kOk) ++delivered;
+      if (item.status == hal::Status::kOk) {
+        // Features are computed here, on the capture side, overlapping the previous frame's matching.
+        item.prepared = mosaicker.Prepare(std::move(frame));
+        ++delivered;
+      }
       if (!queue.Push(std::move(item))) break;
     }
     queue.Close();
@@ -87,10 +94,10 @@ int Run(const RunConfig& config) {
 
   while (auto item = queue.Pop()) {
     if (item->status == hal::Status::kSkipped) {
-      mosaicker.RecordSkipped(item->frame.source_name, item->message);
+      mosaicker.RecordSkipped(item->name, item->message);
       continue;
     }
-    const auto outcome = mosaicker.AddFrame(std::move(item->frame));
+    const auto outcome = mosaicker.AddFrame(std::move(item->prepared));
     (void)outcome;
     const auto& stats = mosaicker.stage_stats();
     if (mosaicker.frames_in() % 10 == 0)

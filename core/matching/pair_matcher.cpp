@@ -125,13 +125,34 @@ void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int
 }
 
 PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, const Features& src,
-                     const MatchOptions& options) {
+                     const MatchOptions& options, const MatchGuide* guide) {
   PairResult result;
   if (tgt_index.empty() || src.size() < 3) {
     result.failure = "too few features";
     return result;
   }
-  const std::vector<cv::DMatch> matches = tgt_index.Match(src.descriptors);
+  std::vector<cv::DMatch> matches;
+  if (guide == nullptr) {
+    matches = tgt_index.Match(src.descriptors);
+  } else {
+    const double mx = guide->margin * guide->tgt_size.width;
+    const double my = guide->margin * guide->tgt_size.height;
+    std::vector<int> rows;
+    rows.reserve(src.size());
+    for (size_t i = 0; i < src.size(); ++i) {
+      const Vec2 p = Apply(guide->tgt_from_src, Vec2(src.points[i].x, src.points[i].y));
+      if (p.x() >= -mx && p.y() >= -my && p.x() <= guide->tgt_size.width + mx && p.y() <= guide->tgt_size.height + my)
+        rows.push_back(static_cast<int>(i));
+    }
+    if (static_cast<int>(rows.size()) < options.min_inliers) {
+      result.failure = "predicted overlap too small";
+      return result;
+    }
+    cv::Mat query(static_cast<int>(rows.size()), src.descriptors.cols, src.descriptors.type());
+    for (size_t k = 0; k < rows.size(); ++k) src.descriptors.row(rows[k]).copyTo(query.row(static_cast<int>(k)));
+    matches = tgt_index.Match(query);
+    for (auto& m : matches) m.queryIdx = rows[static_cast<size_t>(m.queryIdx)];
+  }
   result.num_matches = static_cast<int>(matches.size());
   if (result.num_matches < options.min_inliers) {
     result.failure = "too few descriptor matches";

@@ -133,10 +133,17 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
     if (cv::countNonZero(mask) == 0) continue;
     const cv::Mat* img = image_of(candidates[k]);
     if (img == nullptr || img->empty()) continue;
-    ComputeMaps(geometry[candidates[k]], roi, &map_x, &map_y);
+    // Only the owned area plus the pyramid's reach is warped and fed: each pixel is blended about once, not once
+    // per overlapping frame.
+    const int reach = num_bands > 0 ? (3 << num_bands) : 0;
+    cv::Rect owned = cv::boundingRect(mask);
+    owned = cv::Rect(owned.x - reach, owned.y - reach, owned.width + 2 * reach, owned.height + 2 * reach) &
+            cv::Rect(0, 0, roi.width, roi.height);
+    const cv::Rect sub(roi.x + owned.x, roi.y + owned.y, owned.width, owned.height);
+    ComputeMaps(geometry[candidates[k]], sub, &map_x, &map_y);
     // Reflect beyond the frame edge: the pyramid then sees image texture, not black, next to the seam.
     cv::remap(*img, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REFLECT);
-    blender->Feed(warped, mask, roi.tl());
+    blender->Feed(warped, mask(owned), sub.tl());
     fed = true;
   }
   if (!fed) return false;

@@ -155,9 +155,29 @@ void Mosaicker::TryRetries(int new_id, const DescriptorIndex& index, const Featu
   }
 }
 
-FrameOutcome Mosaicker::AddFrame(hal::Frame frame) {
+Mosaicker::Prepared Mosaicker::Prepare(hal::Frame frame) const {
+  StageTimer t;
+  Prepared p;
+  const int long_side = std::max(frame.original_size.width, frame.original_size.height);
+  const double s = std::min(1.0, options_.work_long_side / static_cast<double>(long_side));
+  const cv::Size work_size(std::max(1, static_cast<int>(std::lround(frame.original_size.width * s))),
+                           std::max(1, static_cast<int>(std::lround(frame.original_size.height * s))));
+  if (frame.image.size() == work_size) p.work_bgr = frame.image;
+  else cv::resize(frame.image, p.work_bgr, work_size, 0, 0, cv::INTER_AREA);
+  cv::cvtColor(p.work_bgr, p.work_gray, cv::COLOR_BGR2GRAY);
+  frame.image.release();  // the decoded original is not needed any more: keep queued frames small
+  p.prepare_ms = t.ElapsedMs();
+  t.Restart();
+  p.features = extractor_.Extract(p.work_gray);
+  p.features_ms = t.ElapsedMs();
+  p.frame = std::move(frame);
+  return p;
+}
+
+FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   StageTimer frame_timer;
   StageTimer t;
+  hal::Frame& frame = prepared.frame;
   const int id = static_cast<int>(frames_.size());
   frames_.emplace_back();
   adjacency_.emplace_back();
@@ -168,32 +188,21 @@ FrameOutcome Mosaicker::AddFrame(hal::Frame frame) {
   st.name = frame.source_name;
   st.original_size = frame.original_size;
   st.metadata = frame.metadata;
-
-  // Working-resolution copy.
-  const int long_side = std::max(frame.original_size.width, frame.original_size.height);
-  const double s = std::min(1.0, options_.work_long_side / static_cast<double>(long_side));
-  st.work_size = cv::Size(std::max(1, static_cast<int>(std::lround(frame.original_size.width * s))),
-                          std::max(1, static_cast<int>(std::lround(frame.original_size.height * s))));
+  st.work_size = prepared.work_bgr.size();
   st.work_from_original = ResizeMap(static_cast<double>(st.work_size.width) / frame.original_size.width,
                                     static_cast<double>(st.work_size.height) / frame.original_size.height);
   st.half_diagonal = 0.5 * std::hypot(st.work_size.width, st.work_size.height);
-  cv::Mat work_bgr;
-  if (frame.image.size() == st.work_size) work_bgr = frame.image;
-  else cv::resize(frame.image, work_bgr, st.work_size, 0, 0, cv::INTER_AREA);
-  cv::Mat gray;
-  cv::cvtColor(work_bgr, gray, cv::COLOR_BGR2GRAY);
+  const cv::Mat& work_bgr = prepared.work_bgr;
   std::string error;
   if (!StoreFrameBytes(frame, &st, &error)) {
     st.failure = error;
     spdlog::error("{}", error);
     return FrameOutcome::kFailed;
   }
-  stats_.Add("prepare", t.ElapsedMs());
-
+  stats_.Add("prepare", prepared.prepare_ms + t.ElapsedMs());
+  stats_.Add("features", prepared.features_ms);
   t.Restart();
-  Features feats = extractor_.Extract(gray);
-  stats_.Add("features", t.ElapsedMs());
-  t.Restart();
+  Features& feats = prepared.features;
   if (!feature_store_.Put(id, feats, &error)) {
     st.failure = error;
     spdlog::error("{}", error);
@@ -209,15 +218,26 @@ FrameOutcome Mosaicker::AddFrame(hal::Frame frame) {
     Edge edge;
   };
   std::vector<Found> found;
+  bool have_estimate = false;  // mosaic_from_work_[id] holds a first estimate once a candidate matched
   auto try_candidate = [&](int cand) {
     if (!tried.insert(cand).second) return;
     auto other = feature_store_.Get(cand);
     if (!other) return;
-    PairResult r = MatchPair(index, feats, *other, options_.matching);
+    MatchGuide guide;
+    const bool guided = have_estimate && components_.Find(cand) == components_.Find(found.front().edge.src);
+    if (guided) {
+      guide.tgt_from_src = mosaic_from_work_[id].inverse() * mosaic_from_work_[cand];
+      guide.tgt_size = st.work_size;
+    }
+    PairResult r = MatchPair(index, feats, *other, options_.matching, guided ? &guide : nullptr);
     if (!r.ok) return;
     if (r.num_inliers < options_.relative_inlier_fraction * best_inliers_) return;
     found.push_back({Edge{cand, id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points),
                           std::move(r.tgt_points)}});
+    if (!have_estimate) {
+      mosaic_from_work_[id] = mosaic_from_work_[cand] * found.back().edge.tgt_from_src.inverse();
+      have_estimate = true;
+    }
   };
 
   // 1) the last K frames that are in the graph.

@@ -32,7 +32,19 @@ class Mosaicker {
   Mosaicker(const PipelineOptions& options, SessionPaths paths);
   ~Mosaicker();
 
-  [[nodiscard]] FrameOutcome AddFrame(hal::Frame frame);
+  // A frame made ready for registration: working copy and features. Prepare() touches no Mosaicker state, so the
+  // capture thread runs it while the previous frame is being matched (two cores, two stages).
+  struct Prepared {
+    hal::Frame frame;
+    cv::Mat work_bgr;
+    cv::Mat work_gray;
+    Features features;
+    double prepare_ms = 0.0;
+    double features_ms = 0.0;
+  };
+  [[nodiscard]] Prepared Prepare(hal::Frame frame) const;
+  [[nodiscard]] FrameOutcome AddFrame(Prepared prepared);
+  [[nodiscard]] FrameOutcome AddFrame(hal::Frame frame) { return AddFrame(Prepare(std::move(frame))); }
   // An input the source could not turn into a frame (corrupt, empty, not an image).
   void RecordSkipped(const std::string& file, const std::string& reason);
   void RecordDropped(size_t count) { dropped_frames_ = count; }
