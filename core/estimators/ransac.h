@@ -90,7 +90,9 @@ class RANSAC {
     }
     report.iterations = it;
     if (best_count < static_cast<size_t>(kMin)) return report;
-    // Local optimisation: refit on all inliers, which also removes the minimal sample's noise.
+    // Local optimisation: refit on all inliers of the current model, which removes the minimal sample's noise.
+    // The refit is kept unless it loses a noticeable share of the support (inlier counts at a hard threshold are
+    // noisy; a least-squares model that drops 1 % of borderline points is still the better estimate).
     for (int step = 0; step < options_.local_optimization_steps; ++step) {
       std::vector<X> xi;
       std::vector<Y> yi;
@@ -103,9 +105,11 @@ class RANSAC {
       Model refined;
       if (!Estimator::Fit(xi, yi, &refined)) break;
       const size_t count = CountInliers(x, y, refined, max_sq);
-      if (count < best_count) break;
+      if (static_cast<double>(count) < 0.95 * static_cast<double>(best_count)) break;
       best = refined;
+      const bool converged = count == best_count;
       best_count = count;
+      if (converged) break;
     }
     report.model = best;
     report.inlier_mask.resize(n);

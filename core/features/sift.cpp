@@ -35,8 +35,12 @@ Features SiftExtractor::Extract(const cv::Mat& gray) const {
     if (next < options_.min_contrast_threshold) break;
     threshold = next;
   }
+  // OpenCV's SIFT doubles the image first and reports positions as doubled-image index / 2, while pixel centres of
+  // the doubled image sit at (i + 0.5) / 2 - 0.5: every keypoint is 0.25 px too far right and down. Harmless for a
+  // pure translation, but with rotation or scale it biases the fitted transform by (I - L) * 0.25 px.
+  constexpr float kSiftCentreShift = 0.25f;
   out.points.reserve(keypoints.size());
-  for (const auto& kp : keypoints) out.points.push_back(kp.pt);
+  for (const auto& kp : keypoints) out.points.emplace_back(kp.pt.x - kSiftCentreShift, kp.pt.y - kSiftCentreShift);
   if (options_.root_sift && !out.descriptors.empty()) {
     for (int r = 0; r < out.descriptors.rows; ++r) {
       cv::Mat row = out.descriptors.row(r);

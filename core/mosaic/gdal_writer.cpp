@@ -37,7 +37,6 @@ bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_si
   opts = CSLSetNameValue(opts, "BIGTIFF", "IF_SAFER");
   opts = CSLSetNameValue(opts, "PHOTOMETRIC", "RGB");
   opts = CSLSetNameValue(opts, "ALPHA", "YES");
-  opts = CSLSetNameValue(opts, "SPARSE_OK", "TRUE");
   impl_->ds = driver->Create(path.c_str(), canvas.width, canvas.height, 4, GDT_Byte, opts);
   CSLDestroy(opts);
   if (impl_->ds == nullptr) {

@@ -39,18 +39,21 @@ std::optional<double> ExifNumber(const Exiv2::ExifData& exif, const char* key) {
   return v;
 }
 
-std::optional<double> XmpNumber(const Exiv2::XmpData& xmp, const char* key) {
-  try {
-    const auto it = xmp.findKey(Exiv2::XmpKey(key));
-    if (it == xmp.end()) return std::nullopt;
-    const std::string s = it->toString();
-    size_t used = 0;
-    const double v = std::stod(s, &used);
-    if (used == 0 || !std::isfinite(v)) return std::nullopt;
-    return v;
-  } catch (...) {
-    return std::nullopt;
+std::optional<double> XmpNumber(const Exiv2::XmpData& xmp, const std::string& key) {
+  // Matched by key string: no dependence on the namespace prefix being registered in Exiv2's global table.
+  for (const auto& datum : xmp) {
+    if (datum.key() != key) continue;
+    try {
+      const std::string s = datum.toString();
+      size_t used = 0;
+      const double v = std::stod(s, &used);
+      if (used == 0 || !std::isfinite(v)) return std::nullopt;
+      return v;
+    } catch (...) {
+      return std::nullopt;
+    }
   }
+  return std::nullopt;
 }
 
 std::string ExifString(const Exiv2::ExifData& exif, const char* key) {
@@ -66,11 +69,6 @@ FrameMetadata ReadMetadata(const std::string& path, std::string* warning) {
     static const bool kXmpReady = [] {
       Exiv2::XmpParser::initialize();
       Exiv2::LogMsg::setLevel(Exiv2::LogMsg::mute);  // bad metadata is reported by us, once, not spammed
-      // DJI writes its tags in this namespace; Exiv2 needs it registered to expose them by name.
-      try {
-        Exiv2::XmpProperties::registerNs("http://www.dji.com/drone-dji/1.0/", "drone-dji");
-      } catch (...) {
-      }
       return true;
     }();
     (void)kXmpReady;

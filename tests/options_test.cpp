@@ -1,0 +1,56 @@
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "core/pipeline/options.h"
+
+namespace uavm {
+namespace {
+
+std::string WriteTemp(const std::string& name, const std::string& text) {
+  const auto p = std::filesystem::temp_directory_path() / ("uavm_opt_" + name + std::to_string(::getpid()) + ".yaml");
+  std::ofstream(p) << text;
+  return p.string();
+}
+
+TEST(OptionsTest, DefaultsAreValid) {
+  std::string why;
+  EXPECT_TRUE(PipelineOptions{}.Check(&why)) << why;
+}
+
+TEST(OptionsTest, YamlOverridesAndRoundTrips) {
+  PipelineOptions o;
+  std::string err;
+  ASSERT_TRUE(LoadOptionsYaml(WriteTemp("ok", "work_long_side: 800\nmatching:\n  ratio: 0.7\n"), &o, &err)) << err;
+  EXPECT_EQ(o.work_long_side, 800);
+  EXPECT_DOUBLE_EQ(o.matching.ratio, 0.7);
+  PipelineOptions back;
+  ASSERT_TRUE(LoadOptionsYaml(WriteTemp("rt", ToYaml(o)), &back, &err)) << err;
+  EXPECT_EQ(ToYaml(back), ToYaml(o));
+}
+
+TEST(OptionsTest, BadConfigsGiveClearErrors) {
+  struct Case {
+    const char* text;
+    const char* expect;
+  };
+  for (const Case& c : {Case{"work_long_sid: 800\n", "unknown key 'work_long_sid'"},
+                        Case{"matching:\n  ratoi: 0.7\n", "unknown key 'matching.ratoi'"},
+                        Case{"work_long_side: big\n", "wrong type"},
+                        Case{"work_long_side: -5\n", "work_long_side"},
+                        Case{"matching: 3\n", "must be a mapping"},
+                        Case{"[1, 2\n", "config"}}) {
+    PipelineOptions o;
+    std::string err;
+    EXPECT_FALSE(LoadOptionsYaml(WriteTemp("bad", c.text), &o, &err)) << c.text;
+    EXPECT_NE(err.find(c.expect), std::string::npos) << err;
+    EXPECT_EQ(o.work_long_side, PipelineOptions{}.work_long_side);  // a failed load changes nothing
+  }
+  PipelineOptions o;
+  std::string err;
+  EXPECT_TRUE(LoadOptionsYaml(WriteTemp("empty", ""), &o, &err)) << err;  // empty = defaults
+}
+
+}  // namespace
+}  // namespace uavm

@@ -1,0 +1,112 @@
+#include <gtest/gtest.h>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/persistence.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "core/matching/pair_matcher.h"
+
+namespace uavm {
+namespace {
+
+const std::string kGraf = std::string(UAVM_TEST_DATA) + "/opencv_samples/";
+
+// OpenCV's graf pair with its exact homography: our RootSIFT + ratio-test matches must agree with it.
+TEST(PairMatcherTest, GrafMatchesAgreeWithGroundTruthHomography) {
+  const cv::Mat img1 = cv::imread(kGraf + "graf1.png", cv::IMREAD_GRAYSCALE);
+  const cv::Mat img3 = cv::imread(kGraf + "graf3.png", cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(img1.empty());
+  ASSERT_FALSE(img3.empty());
+  cv::FileStorage fs(kGraf + "H1to3p.xml", cv::FileStorage::READ);
+  cv::Mat H;
+  fs["H13"] >> H;
+  ASSERT_EQ(H.rows, 3);
+  FeatureOptions fo;
+  const SiftExtractor sift(fo);
+  const Features f1 = sift.Extract(img1);
+  const Features f3 = sift.Extract(img3);
+  ASSERT_GT(f1.size(), 1000u);
+  MatchOptions mo;
+  const DescriptorIndex index3(f3, mo);
+  const auto matches = index3.Match(f1.descriptors);
+  ASSERT_GT(matches.size(), 200u);
+  std::vector<cv::Point2f> p1;
+  std::vector<cv::Point2f> p3;
+  int consistent = 0;
+  for (const auto& m : matches) {
+    const cv::Point2f a = f1.points[static_cast<size_t>(m.queryIdx)];
+    const cv::Point2f b = f3.points[static_cast<size_t>(m.trainIdx)];
+    const cv::Mat x = H * (cv::Mat_<double>(3, 1) << a.x, a.y, 1.0);
+    const double ex = x.at<double>(0) / x.at<double>(2) - b.x;
+    const double ey = x.at<double>(1) / x.at<double>(2) - b.y;
+    consistent += std::hypot(ex, ey) < 3.0 ? 1 : 0;
+    p1.push_back(a);
+    p3.push_back(b);
+  }
+  // graf 1->3 is a 40 degree viewpoint change: most ratio-test matches must still be right.
+  EXPECT_GT(consistent, 0.6 * static_cast<double>(matches.size())) << consistent << "/" << matches.size();
+  // RANSAC on our matches keeps almost only true matches, and they sit on the ground truth with sub-pixel error.
+  cv::Mat inlier_mask;
+  const cv::Mat Hest = cv::findHomography(p1, p3, cv::RANSAC, 2.0, inlier_mask);
+  ASSERT_FALSE(Hest.empty());
+  std::vector<double> errors;
+  for (size_t i = 0; i < p1.size(); ++i) {
+    if (inlier_mask.at<uchar>(static_cast<int>(i)) == 0) continue;
+    const cv::Mat a = H * (cv::Mat_<double>(3, 1) << p1[i].x, p1[i].y, 1.0);
+    errors.push_back(std::hypot(a.at<double>(0) / a.at<double>(2) - p3[i].x, a.at<double>(1) / a.at<double>(2) - p3[i].y));
+  }
+  std::sort(errors.begin(), errors.end());
+  ASSERT_GT(errors.size(), 200u);
+  EXPECT_LT(errors[errors.size() / 2], 1.0);
+  // 3 of 4 within 3 px. (The rest cluster in graf1's bottom-left corner, x < 30, y > 530, where every homography
+  // fitted to these matches departs from H1to3p by 6-8 px; the matches there agree with each other.)
+  EXPECT_LT(errors[errors.size() * 3 / 4], 3.0);
+}
+
+// A real aerial frame against a known affine warp of itself: the verified pair recovers the warp.
+TEST(PairMatcherTest, RecoversKnownAffineOnAerialFrame) {
+  const cv::Mat img = cv::imread(std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg", cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(img.empty());
+  Mat3 truth;
+  truth << 0.9 * std::cos(0.5), -0.9 * std::sin(0.5), 250, 0.9 * std::sin(0.5), 0.9 * std::cos(0.5), -120, 0, 0, 1;
+  cv::Mat warped;
+  cv::warpAffine(img, warped, cv::Mat(ToCvAffine(truth)), img.size(), cv::INTER_LINEAR);
+  const SiftExtractor sift{FeatureOptions{}};
+  const Features src = sift.Extract(img);
+  const Features tgt = sift.Extract(warped);
+  MatchOptions mo;
+  const DescriptorIndex index(tgt, mo);
+  const PairResult r = MatchPair(index, tgt, src, mo);
+  ASSERT_TRUE(r.ok) << r.failure;
+  EXPECT_GT(r.num_inliers, 200);
+  EXPECT_LE(r.src_points.size(), static_cast<size_t>(mo.max_edge_correspondences));
+  for (const Vec2& c : ImageCorners(img.cols, img.rows)) EXPECT_LT((Apply(r.tgt_from_src, c) - Apply(truth, c)).norm(), 1.0);
+  // Guided by the truth, the same pair still verifies, from fewer queries.
+  MatchGuide guide{truth, warped.size(), 0.1};
+  const PairResult g = MatchPair(index, tgt, src, mo, &guide);
+  ASSERT_TRUE(g.ok);
+  for (const Vec2& c : ImageCorners(img.cols, img.rows)) EXPECT_LT((Apply(g.tgt_from_src, c) - Apply(truth, c)).norm(), 1.0);
+}
+
+TEST(PairMatcherTest, GridSubsampleSpreadsPoints) {
+  std::vector<Vec2> src;
+  std::vector<Vec2> tgt;
+  for (int i = 0; i < 1000; ++i) {  // 90 % of the points crowd one corner
+    const double x = i < 900 ? (i % 30) : 100.0 * (i % 10);
+    const double y = i < 900 ? (i / 30) : 100.0 * ((i / 10) % 10);
+    src.emplace_back(x, y);
+    tgt.emplace_back(x + 1, y + 1);
+  }
+  GridSubsample(&src, &tgt, 8, 64);
+  ASSERT_EQ(src.size(), 64u);
+  int far = 0;
+  for (size_t i = 0; i < src.size(); ++i) {
+    far += (src[i].x() > 200 || src[i].y() > 200) ? 1 : 0;
+    EXPECT_EQ(tgt[i], src[i] + Vec2(1, 1));
+  }
+  EXPECT_GT(far, 30);  // the sparse part is represented, not drowned by the crowd
+}
+
+}  // namespace
+}  // namespace uavm

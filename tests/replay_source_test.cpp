@@ -1,0 +1,78 @@
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "hal/replay/natural_order.h"
+#include "hal/replay/replay_source.h"
+
+namespace uavm::hal {
+namespace {
+
+namespace fs = std::filesystem;
+const std::string kFlight = std::string(UAVM_TEST_DATA) + "/brighton_beach_small/images";
+
+TEST(NaturalOrderTest, NumbersCompareAsNumbers) {
+  std::vector<std::string> v{"img10.jpg", "img2.jpg", "img1.jpg", "IMG_0100.jpg", "IMG_0099.jpg"};
+  std::sort(v.begin(), v.end(), NaturalLess);
+  EXPECT_EQ(v, (std::vector<std::string>{"IMG_0099.jpg", "IMG_0100.jpg", "img1.jpg", "img2.jpg", "img10.jpg"}));
+}
+
+TEST(ReplaySourceTest, ReadsAFolderInOrderWithReducedDecoding) {
+  ReplaySource src({kFlight, 1, true});
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  src.SetDecodeHint({400});  // 1000 px frames: a 1/2 decode (500 px) still covers 400 px
+  Frame f;
+  ASSERT_EQ(src.Next(&f, &err), Status::kOk) << err;
+  EXPECT_EQ(f.source_name, "DJI_0018.JPG");
+  EXPECT_EQ(f.original_size, cv::Size(1000, 562));
+  EXPECT_EQ(f.image.cols, 500);
+  EXPECT_DOUBLE_EQ(f.decode_scale, 0.5);
+  EXPECT_TRUE(f.metadata.HasGps());
+  int64_t last_ts = f.timestamp_ns;
+  int count = 1;
+  while (src.Next(&f, &err) == Status::kOk) {
+    EXPECT_GT(f.timestamp_ns, last_ts);
+    last_ts = f.timestamp_ns;
+    ++count;
+  }
+  EXPECT_EQ(count, 18);
+}
+
+TEST(ReplaySourceTest, BadFilesAreSkippedWithAReason) {
+  const fs::path dir = fs::temp_directory_path() / ("uavm_replay_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  fs::copy_file(kFlight + "/DJI_0018.JPG", dir / "a_01.jpg");
+  std::ofstream(dir / "a_02.jpg").close();                                 // zero bytes
+  std::ofstream(dir / "a_03.jpg") << "this is not an image";               // garbage
+  {
+    std::ifstream in(kFlight + "/DJI_0019.JPG", std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::ofstream(dir / "a_04.jpg", std::ios::binary) << bytes.substr(0, bytes.size() / 2);  // truncated
+  }
+  ReplaySource src({dir.string(), 1, false});
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk);
+  Frame f;
+  EXPECT_EQ(src.Next(&f, &err), Status::kOk);
+  EXPECT_EQ(src.Next(&f, &err), Status::kSkipped);
+  EXPECT_NE(err.find("0 bytes"), std::string::npos) << err;
+  EXPECT_EQ(src.Next(&f, &err), Status::kSkipped);
+  EXPECT_EQ(f.source_name, "a_03.jpg");
+  EXPECT_EQ(src.Next(&f, &err), Status::kSkipped);
+  EXPECT_NE(err.find("truncated"), std::string::npos) << err;
+  EXPECT_EQ(src.Next(&f, &err), Status::kEndOfStream);
+  fs::remove_all(dir);
+}
+
+TEST(ReplaySourceTest, MissingFolderIsASourceError) {
+  ReplaySource src({"/nonexistent/uavm/flight", 1, true});
+  std::string err;
+  EXPECT_EQ(src.Open(&err), Status::kError);
+  EXPECT_NE(err.find("/nonexistent/uavm/flight"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace uavm::hal
