@@ -16,8 +16,9 @@ struct CompositorOptions {
   int num_bands = 5;              // multi-band levels; 0 = hard seams only
   double max_covered_fraction = 0.9;  // overlap-based frame selection (see SelectByOverlap)
   int quicklook_long_side = 2000;
-  size_t image_cache_bytes = size_t{512} << 20;  // decoded frames kept between tiles
+  size_t image_cache_bytes = size_t{256} << 20;  // decoded frames kept between tiles
   bool build_overviews = true;
+  int threads = 2;  // tile workers
 
   [[nodiscard]] bool Check(std::string* why) const;
   // Margin around each tile so that the pyramid of the blend does not see the tile border.
@@ -41,6 +42,7 @@ struct CompositeResult {
   int frames_dropped_by_overlap = 0;
   int frames_unreadable = 0;
   int tiles_written = 0;
+  int image_loads = 0;  // decodes, counting reloads after cache eviction
   double ms = 0.0;
   cv::Mat quicklook;  // BGRA, transparent outside the flown area
 };

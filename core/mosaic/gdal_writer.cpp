@@ -21,6 +21,8 @@ GdalTiffWriter::~GdalTiffWriter() {
 bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_size, std::string* error) {
   GDALAllRegister();
   CPLSetConfigOption("CPL_LOG_ERRORS", "OFF");
+  // GDAL's block cache defaults to 5 % of RAM; tiles are written once, so a small cache is enough.
+  GDALSetCacheMax64(int64_t{64} << 20);
   GDALDriver* driver = GetGDALDriverManager()->GetDriverByName("GTiff");
   if (driver == nullptr) {
     *error = "GDAL has no GTiff driver";

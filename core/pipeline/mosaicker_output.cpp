@@ -5,6 +5,7 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <unordered_set>
 
@@ -18,16 +19,28 @@ namespace uavm {
 namespace {
 
 // Decodes a stored frame no larger than needed: JPEG DCT scaling by 1/f when the canvas samples it that coarsely.
-cv::Mat LoadForCanvas(const std::string& path, int reduce) {
-  const int flag = reduce >= 8 ? cv::IMREAD_REDUCED_COLOR_8
-                   : reduce >= 4 ? cv::IMREAD_REDUCED_COLOR_4
-                   : reduce >= 2 ? cv::IMREAD_REDUCED_COLOR_2
-                                 : cv::IMREAD_COLOR;
+// How a stored frame is read for the canvas: JPEG DCT-scaled decode by 1/reduce, then resized to `size` (the
+// canvas's own sampling of the frame), so cached images are no larger than the canvas needs.
+struct CanvasLoad {
+  int reduce = 1;
+  cv::Size size;
+};
+
+cv::Mat LoadForCanvas(const std::string& path, const CanvasLoad& how) {
+  const int flag = how.reduce >= 8 ? cv::IMREAD_REDUCED_COLOR_8
+                   : how.reduce >= 4 ? cv::IMREAD_REDUCED_COLOR_4
+                   : how.reduce >= 2 ? cv::IMREAD_REDUCED_COLOR_2
+                                     : cv::IMREAD_COLOR;
+  cv::Mat img;
   try {
-    return cv::imread(path, flag | cv::IMREAD_IGNORE_ORIENTATION);
+    img = cv::imread(path, flag | cv::IMREAD_IGNORE_ORIENTATION);
   } catch (const cv::Exception&) {
     return {};
   }
+  if (img.empty() || img.size() == how.size) return img;
+  cv::Mat out;
+  cv::resize(img, out, how.size, 0, 0, cv::INTER_AREA);
+  return out;
 }
 
 nlohmann::json SummaryJson(const Summary& s) {
@@ -115,24 +128,28 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   CompositeResult composite;
   if (!component.empty()) {
     std::vector<CompositeInput> inputs;
-    std::unordered_map<int, int> reduce_of;
+    std::unordered_map<int, CanvasLoad> load_of;
     for (int id : component) {
       const FrameState& f = frames_[static_cast<size_t>(id)];
       const Mat3& c = canvas_from_original[static_cast<size_t>(id)];
+      // Canvas pixels per original pixel; the frame is loaded at that sampling (never above its own resolution).
       const double local_scale = std::sqrt(std::abs(c.topLeftCorner<2, 2>().determinant()));
-      int reduce = 1;
-      while (reduce < 8 && local_scale * reduce * 2 <= 1.0) reduce *= 2;
-      reduce_of[id] = reduce;
+      const double keep = std::min(1.0, local_scale);
+      CanvasLoad how;
+      // DCT-scaled decoding is 2-3x cheaper than full; allow the final resize to enlarge by up to 1.25x for it.
+      while (how.reduce < 8 && 1.25 / (how.reduce * 2) >= keep) how.reduce *= 2;
+      how.size = cv::Size(std::max(1, static_cast<int>(std::lround(f.original_size.width * keep))),
+                          std::max(1, static_cast<int>(std::lround(f.original_size.height * keep))));
+      load_of[id] = how;
       CompositeInput in;
       in.id = id;
-      const cv::Size reduced((f.original_size.width + reduce - 1) / reduce, (f.original_size.height + reduce - 1) / reduce);
-      in.image_size = reduced;
-      in.canvas_from_image = c * ResizeMap(1.0 / reduce, 1.0 / reduce).inverse();
+      in.image_size = how.size;
+      in.canvas_from_image = c * ResizeMap(static_cast<double>(how.size.width) / f.original_size.width,
+                                           static_cast<double>(how.size.height) / f.original_size.height)
+                                     .inverse();
       inputs.push_back(in);
     }
-    auto load = [&](int id) {
-      return LoadForCanvas(frames_[static_cast<size_t>(id)].stored_file, reduce_of[id]);
-    };
+    auto load = [&](int id) { return LoadForCanvas(frames_[static_cast<size_t>(id)].stored_file, load_of[id]); };
     GdalTiffWriter tiff;
     const bool write_tiff = options_.write_tiff;
     if (write_tiff && !tiff.Open(paths_.Join("mosaic.tif"), canvas, options_.mosaic.tiff_block, error)) return false;
@@ -192,7 +209,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
                       {"frames_blended", composite.frames_used},
                       {"frames_dropped_by_overlap", composite.frames_dropped_by_overlap},
                       {"frames_unreadable", composite.frames_unreadable},
-                      {"tiles", composite.tiles_written}};
+                      {"tiles", composite.tiles_written},
+                      {"image_loads", composite.image_loads}};
   return WriteFileAtomic(paths_.Join("report.json"), report.dump(2) + "\n", error);
 }
 

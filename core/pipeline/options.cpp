@@ -72,6 +72,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"mosaic", "quicklook_long_side", &o.mosaic.quicklook_long_side},
       {"mosaic", "image_cache_bytes", &o.mosaic.image_cache_bytes},
       {"mosaic", "build_overviews", &o.mosaic.build_overviews},
+      {"mosaic", "threads", &o.mosaic.threads},
   };
 }
 
