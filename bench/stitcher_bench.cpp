@@ -3,11 +3,6 @@
 // exactly one JSON line on stdout, so run_real.sh can compare it with uavmosaic-onboard.
 
 #include <CLI/CLI.hpp>
-#include <opencv2/core.hpp>
-#include <opencv2/core/utils/logger.hpp>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/stitching.hpp>
-
 #include <algorithm>
 #include <cctype>
 #include <chrono>
@@ -16,6 +11,10 @@
 #include <exception>
 #include <filesystem>
 #include <iostream>
+#include <opencv2/core.hpp>
+#include <opencv2/core/utils/logger.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/stitching.hpp>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -25,7 +24,9 @@ namespace fs = std::filesystem;
 
 namespace {
 
-bool is_digit(char c) { return c >= '0' && c <= '9'; }
+bool is_digit(char c) {
+  return c >= '0' && c <= '9';
+}
 
 // Natural order: digit runs compare as numbers, so frame_2 < frame_10 (plain string order
 // would put frame_10 first and feed the stitcher a scrambled flight).
@@ -80,10 +81,14 @@ std::vector<fs::path> list_images(const fs::path& dir) {
 
 const char* status_name(cv::Stitcher::Status s) {
   switch (s) {
-    case cv::Stitcher::OK: return "OK";
-    case cv::Stitcher::ERR_NEED_MORE_IMGS: return "ERR_NEED_MORE_IMGS";
-    case cv::Stitcher::ERR_HOMOGRAPHY_EST_FAIL: return "ERR_HOMOGRAPHY_EST_FAIL";
-    case cv::Stitcher::ERR_CAMERA_PARAMS_ADJUST_FAIL: return "ERR_CAMERA_PARAMS_ADJUST_FAIL";
+    case cv::Stitcher::OK:
+      return "OK";
+    case cv::Stitcher::ERR_NEED_MORE_IMGS:
+      return "ERR_NEED_MORE_IMGS";
+    case cv::Stitcher::ERR_HOMOGRAPHY_EST_FAIL:
+      return "ERR_HOMOGRAPHY_EST_FAIL";
+    case cv::Stitcher::ERR_CAMERA_PARAMS_ADJUST_FAIL:
+      return "ERR_CAMERA_PARAMS_ADJUST_FAIL";
   }
   return "UNKNOWN_STATUS";
 }
@@ -95,11 +100,21 @@ std::string json_escape(std::string_view s) {
   for (const char ch : s) {
     const auto c = static_cast<unsigned char>(ch);
     switch (ch) {
-      case '"': out += "\\\""; break;
-      case '\\': out += "\\\\"; break;
-      case '\n': out += "\\n"; break;
-      case '\r': out += "\\r"; break;
-      case '\t': out += "\\t"; break;
+      case '"':
+        out += "\\\"";
+        break;
+      case '\\':
+        out += "\\\\";
+        break;
+      case '\n':
+        out += "\\n";
+        break;
+      case '\r':
+        out += "\\r";
+        break;
+      case '\t':
+        out += "\\t";
+        break;
       default:
         if (c < 0x20) {
           char buf[8];
@@ -128,11 +143,9 @@ int main(int argc, char** argv) {
   std::string images_dir;
   std::string out_file;
   int max_frames = 0;
-  app.add_option("--images", images_dir, "folder of .jpg/.JPG/.png frames (natural filename order)")
-      ->required();
+  app.add_option("--images", images_dir, "folder of .jpg/.JPG/.png frames (natural filename order)")->required();
   app.add_option("--out", out_file, "panorama output file (.png)")->required();
-  app.add_option("--max-frames", max_frames, "use only the first N frames (0 = all)")
-      ->check(CLI::NonNegativeNumber);
+  app.add_option("--max-frames", max_frames, "use only the first N frames (0 = all)")->check(CLI::NonNegativeNumber);
   CLI11_PARSE(app, argc, argv);
 
   // Keep stdout for the single JSON line; OpenCV's info chatter would go to stderr anyway,
@@ -185,10 +198,9 @@ int main(int argc, char** argv) {
     rc = 1;
   }
 
-  const double wall_s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::cout << "{\"status\":\"" << json_escape(status) << "\",\"frames\":" << frames
-            << ",\"frames_in_result\":" << in_result << ",\"wall_s\":" << wall_s
-            << ",\"width\":" << width << ",\"height\":" << height << "}" << std::endl;
+            << ",\"frames_in_result\":" << in_result << ",\"wall_s\":" << wall_s << ",\"width\":" << width
+            << ",\"height\":" << height << "}" << std::endl;
   return rc;
 }

@@ -61,9 +61,9 @@ int Run(const RunConfig& config) {
   spdlog::info("source {}, output {}", source->Describe(), config.out_dir);
 
   Mosaicker mosaicker(config.pipeline, paths);
-  BoundedQueue<Item> queue(static_cast<size_t>(config.pipeline.queue_capacity),
-                           source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock
-                                              : BoundedQueue<Item>::Policy::kDropOldest);
+  BoundedQueue<Item> queue(
+      static_cast<size_t>(config.pipeline.queue_capacity),
+      source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock : BoundedQueue<Item>::Policy::kDropOldest);
   bool source_failed = false;
   std::string source_error;
   std::thread capture([&] {

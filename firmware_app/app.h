@@ -8,9 +8,9 @@ namespace uavm::app {
 // Documented exit codes of uavmosaic-onboard.
 enum ExitCode : int {
   kExitOk = 0,
-  kExitUsage = 2,          // bad command line or config
-  kExitSourceError = 3,    // the source cannot be opened (missing folder, no device)
-  kExitOutputError = 4,    // the output directory cannot be created or written (incl. disk full)
+  kExitUsage = 2,              // bad command line or config
+  kExitSourceError = 3,        // the source cannot be opened (missing folder, no device)
+  kExitOutputError = 4,        // the output directory cannot be created or written (incl. disk full)
   kExitNothingRegistered = 5,  // the run completed but no frame could be registered
 };
 

@@ -1,6 +1,7 @@
 // uavmosaic-onboard: thin entry point; the loop lives in app.cpp.
-#include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
+
+#include <CLI/CLI.hpp>
 
 #include "firmware_app/app.h"
 
@@ -15,8 +16,10 @@ int main(int argc, char** argv) {
       "uavmosaic-onboard: registers a drone's frames as they arrive and writes a mosaic, without camera poses.\n"
       "Exit codes: 0 ok; 2 bad command line or config; 3 source cannot be opened or failed mid-run; "
       "4 output directory not creatable/writable or disk full; 5 no frame could be registered."};
-  cli.add_option("--source", config.source, "Frame source: replay:DIR (images, natural filename order) or "
-                                            "replay:FILE.mp4 (video)")->required();
+  cli.add_option("--source", config.source,
+                 "Frame source: replay:DIR (images, natural filename order) or "
+                 "replay:FILE.mp4 (video)")
+      ->required();
   cli.add_option("--out", config.out_dir, "Session directory to write (created if missing)")->required();
   cli.add_option("--config", config_file, "YAML config; command-line options override it")->check(CLI::ExistingFile);
   cli.add_option("--max-frames", config.max_frames, "Stop after N frames (0 = all)")->check(CLI::NonNegativeNumber);
@@ -31,7 +34,8 @@ int main(int argc, char** argv) {
   cli.add_option("--preview-every", p.preview_every, "Write live.jpg every N frames (0 = off)");
   cli.add_option("--recent", p.recent_candidates, "Recent frames matched against each new frame (K)");
   cli.add_option("--overlap-candidates", p.overlap_candidates, "Extra frames chosen by footprint overlap (M)");
-  cli.add_flag("--no-tiff", [&](std::int64_t) { p.write_tiff = false; }, "Do not write mosaic.tif");
+  cli.add_flag(
+      "--no-tiff", [&](std::int64_t) { p.write_tiff = false; }, "Do not write mosaic.tif");
   cli.add_option("--log-level", log_level, "trace|debug|info|warn|error");
   cli.add_flag("--print-config", print_config, "Print the effective configuration as YAML and exit");
 

@@ -1,10 +1,10 @@
+#include "core/adjust/affine_adjuster.h"
+
 #include <gtest/gtest.h>
 
-#include <cmath>
 #include <Eigen/QR>
+#include <cmath>
 #include <random>
-
-#include "core/adjust/affine_adjuster.h"
 
 namespace uavm {
 namespace {
@@ -107,7 +107,8 @@ TEST(AffineAdjusterTest, ClosedLoopOf50FramesReturnsToItsStart) {
   for (const Edge& e : scene.edges) {
     const Mat3 est = T.at(e.tgt).inverse() * T.at(e.src);
     const Mat3 truth = scene.truth[static_cast<size_t>(e.tgt)].inverse() * scene.truth[static_cast<size_t>(e.src)];
-    for (const Vec2& p : e.src_points) worst_overlap = std::max(worst_overlap, (Apply(est, p) - Apply(truth, p)).norm());
+    for (const Vec2& p : e.src_points)
+      worst_overlap = std::max(worst_overlap, (Apply(est, p) - Apply(truth, p)).norm());
   }
   double worst_pair_alone = 0;  // the pair's own least-squares estimate, for reference
   for (const Edge& e : scene.edges) {

@@ -1,8 +1,8 @@
+#include "core/util/bounded_queue.h"
+
 #include <gtest/gtest.h>
 
 #include <thread>
-
-#include "core/util/bounded_queue.h"
 
 namespace uavm {
 namespace {

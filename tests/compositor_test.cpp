@@ -1,16 +1,17 @@
+#include "core/mosaic/compositor.h"
+
 #include <gtest/gtest.h>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "core/mosaic/compositor.h"
 #include "core/mosaic/selection.h"
 
 namespace uavm {
 namespace {
 
 struct Scene {
-  cv::Mat ground;                 // the "true" map
+  cv::Mat ground;  // the "true" map
   std::vector<CompositeInput> inputs;
   std::vector<cv::Mat> images;
 };
@@ -41,7 +42,8 @@ TEST(CompositorTest, RebuildsTheGroundFromCrops) {
   o.max_covered_fraction = 1.0;
   o.quicklook_long_side = 4096;  // quick-look at full size, so it can be compared pixel for pixel
   const cv::Size canvas(s.ground.cols, s.ground.rows);
-  const auto r = Composite(s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  const auto r = Composite(
+      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
   ASSERT_TRUE(r.ok) << r.error;
   ASSERT_EQ(r.quicklook.size(), canvas);
   cv::Mat bgr;
@@ -58,7 +60,8 @@ TEST(CompositorTest, RebuildsTheGroundFromCrops) {
   EXPECT_LT((mean_err[0] + mean_err[1] + mean_err[2]) / 3, 2.5);
   // With hard seams the crops must come back bit for bit: the geometry and the seams are exact.
   o.num_bands = 0;
-  const auto hard = Composite(s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  const auto hard = Composite(
+      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
   ASSERT_TRUE(hard.ok);
   cv::cvtColor(hard.quicklook, bgr, cv::COLOR_BGRA2BGR);
   cv::absdiff(bgr, s.ground, diff);
@@ -77,11 +80,13 @@ TEST(CompositorTest, TilesMatchAWholeCanvasBlend) {
   o.max_covered_fraction = 1.0;
   o.quicklook_long_side = 4096;
   const cv::Size canvas(s.ground.cols, s.ground.rows);
-  const auto tiled = Composite(s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  const auto tiled = Composite(
+      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
   ASSERT_TRUE(tiled.ok);
   cv::Mat whole;
   cv::Mat whole_mask;
-  ASSERT_TRUE(RenderRoi(s.inputs, s.images, cv::Rect(0, 0, canvas.width, canvas.height), o.num_bands, &whole, &whole_mask));
+  ASSERT_TRUE(
+      RenderRoi(s.inputs, s.images, cv::Rect(0, 0, canvas.width, canvas.height), o.num_bands, &whole, &whole_mask));
   cv::Mat tiled_bgr;
   cv::cvtColor(tiled.quicklook, tiled_bgr, cv::COLOR_BGRA2BGR);
   cv::Mat diff;

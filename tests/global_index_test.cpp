@@ -1,9 +1,9 @@
+#include "core/matching/global_index.h"
+
 #include <gtest/gtest.h>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-
-#include "core/matching/global_index.h"
 
 namespace uavm {
 namespace {

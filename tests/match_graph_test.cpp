@@ -1,6 +1,6 @@
-#include <gtest/gtest.h>
-
 #include "core/graph/match_graph.h"
+
+#include <gtest/gtest.h>
 
 namespace uavm {
 namespace {

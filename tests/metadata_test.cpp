@@ -1,9 +1,9 @@
+#include "hal/common/metadata.h"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <fstream>
-
-#include "hal/common/metadata.h"
 
 namespace uavm::hal {
 namespace {

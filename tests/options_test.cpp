@@ -1,9 +1,9 @@
+#include "core/pipeline/options.h"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <fstream>
-
-#include "core/pipeline/options.h"
 
 namespace uavm {
 namespace {
@@ -37,10 +37,8 @@ TEST(OptionsTest, BadConfigsGiveClearErrors) {
   };
   for (const Case& c : {Case{"work_long_sid: 800\n", "unknown key 'work_long_sid'"},
                         Case{"matching:\n  ratoi: 0.7\n", "unknown key 'matching.ratoi'"},
-                        Case{"work_long_side: big\n", "wrong type"},
-                        Case{"work_long_side: -5\n", "work_long_side"},
-                        Case{"matching: 3\n", "must be a mapping"},
-                        Case{"[1, 2\n", "config"}}) {
+                        Case{"work_long_side: big\n", "wrong type"}, Case{"work_long_side: -5\n", "work_long_side"},
+                        Case{"matching: 3\n", "must be a mapping"}, Case{"[1, 2\n", "config"}}) {
     PipelineOptions o;
     std::string err;
     EXPECT_FALSE(LoadOptionsYaml(WriteTemp("bad", c.text), &o, &err)) << c.text;

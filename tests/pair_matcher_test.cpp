@@ -1,11 +1,11 @@
+#include "core/matching/pair_matcher.h"
+
 #include <gtest/gtest.h>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/persistence.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-
-#include "core/matching/pair_matcher.h"
 
 namespace uavm {
 namespace {
@@ -54,7 +54,8 @@ TEST(PairMatcherTest, GrafMatchesAgreeWithGroundTruthHomography) {
   for (size_t i = 0; i < p1.size(); ++i) {
     if (inlier_mask.at<uchar>(static_cast<int>(i)) == 0) continue;
     const cv::Mat a = H * (cv::Mat_<double>(3, 1) << p1[i].x, p1[i].y, 1.0);
-    errors.push_back(std::hypot(a.at<double>(0) / a.at<double>(2) - p3[i].x, a.at<double>(1) / a.at<double>(2) - p3[i].y));
+    errors.push_back(
+        std::hypot(a.at<double>(0) / a.at<double>(2) - p3[i].x, a.at<double>(1) / a.at<double>(2) - p3[i].y));
   }
   std::sort(errors.begin(), errors.end());
   ASSERT_GT(errors.size(), 200u);
@@ -66,7 +67,8 @@ TEST(PairMatcherTest, GrafMatchesAgreeWithGroundTruthHomography) {
 
 // A real aerial frame against a known affine warp of itself: the verified pair recovers the warp.
 TEST(PairMatcherTest, RecoversKnownAffineOnAerialFrame) {
-  const cv::Mat img = cv::imread(std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg", cv::IMREAD_GRAYSCALE);
+  const cv::Mat img =
+      cv::imread(std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg", cv::IMREAD_GRAYSCALE);
   ASSERT_FALSE(img.empty());
   Mat3 truth;
   truth << 0.9 * std::cos(0.5), -0.9 * std::sin(0.5), 250, 0.9 * std::sin(0.5), 0.9 * std::cos(0.5), -120, 0, 0, 1;
@@ -81,12 +83,14 @@ TEST(PairMatcherTest, RecoversKnownAffineOnAerialFrame) {
   ASSERT_TRUE(r.ok) << r.failure;
   EXPECT_GT(r.num_inliers, 200);
   EXPECT_LE(r.src_points.size(), static_cast<size_t>(mo.max_edge_correspondences));
-  for (const Vec2& c : ImageCorners(img.cols, img.rows)) EXPECT_LT((Apply(r.tgt_from_src, c) - Apply(truth, c)).norm(), 1.0);
+  for (const Vec2& c : ImageCorners(img.cols, img.rows))
+    EXPECT_LT((Apply(r.tgt_from_src, c) - Apply(truth, c)).norm(), 1.0);
   // Guided by the truth, the same pair still verifies, from fewer queries.
   MatchGuide guide{truth, warped.size(), 0.1};
   const PairResult g = MatchPair(index, tgt, src, mo, &guide);
   ASSERT_TRUE(g.ok);
-  for (const Vec2& c : ImageCorners(img.cols, img.rows)) EXPECT_LT((Apply(g.tgt_from_src, c) - Apply(truth, c)).norm(), 1.0);
+  for (const Vec2& c : ImageCorners(img.cols, img.rows))
+    EXPECT_LT((Apply(g.tgt_from_src, c) - Apply(truth, c)).norm(), 1.0);
 }
 
 TEST(PairMatcherTest, GridSubsampleSpreadsPoints) {

@@ -32,14 +32,15 @@ TEST(RansacAffineTest, RecoversKnownAffineWith40PercentOutliers) {
   int inliers_found = 0;
   int outliers_accepted = 0;
   for (size_t i = 0; i < x.size(); ++i) {
-    if (is_outlier[i]) outliers_accepted += report.inlier_mask[i];
-    else inliers_found += report.inlier_mask[i];
+    if (is_outlier[i])
+      outliers_accepted += report.inlier_mask[i];
+    else
+      inliers_found += report.inlier_mask[i];
   }
   EXPECT_GE(inliers_found, 295);
   EXPECT_LE(outliers_accepted, 3);
   // The model maps the corners of a 1200 px frame within 0.2 px of the truth.
-  for (const Vec2& c : ImageCorners(1201, 1201))
-    EXPECT_LT((Apply(report.model, c) - Apply(truth, c)).norm(), 0.2);
+  for (const Vec2& c : ImageCorners(1201, 1201)) EXPECT_LT((Apply(report.model, c) - Apply(truth, c)).norm(), 0.2);
 }
 
 TEST(RansacAffineTest, FailsOnPureNoise) {

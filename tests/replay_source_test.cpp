@@ -1,10 +1,11 @@
+#include "hal/replay/replay_source.h"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <fstream>
 
 #include "hal/replay/natural_order.h"
-#include "hal/replay/replay_source.h"
 
 namespace uavm::hal {
 namespace {
@@ -45,8 +46,8 @@ TEST(ReplaySourceTest, BadFilesAreSkippedWithAReason) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   fs::copy_file(kFlight + "/DJI_0018.JPG", dir / "a_01.jpg");
-  std::ofstream(dir / "a_02.jpg").close();                                 // zero bytes
-  std::ofstream(dir / "a_03.jpg") << "this is not an image";               // garbage
+  std::ofstream(dir / "a_02.jpg").close();                    // zero bytes
+  std::ofstream(dir / "a_03.jpg") << "this is not an image";  // garbage
   {
     std::ifstream in(kFlight + "/DJI_0019.JPG", std::ios::binary);
     std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());

@@ -123,12 +123,16 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
           for (int c = 0; c < 2; ++c) {
             double b = 0.0;
             const int row = rb.NewRow(0.0);
-            if (cs != column.end()) rb.Add(row, cs->second + 3 * r + c, scale);
-            else b -= scale * Ts(r, c);
+            if (cs != column.end())
+              rb.Add(row, cs->second + 3 * r + c, scale);
+            else
+              b -= scale * Ts(r, c);
             for (int k = 0; k < 2; ++k) {
               const double coeff = -scale * e->tgt_from_src(k, c);
-              if (ct != column.end()) rb.Add(row, ct->second + 3 * r + k, coeff);
-              else b -= coeff * Tt(r, k);
+              if (ct != column.end())
+                rb.Add(row, ct->second + 3 * r + k, coeff);
+              else
+                b -= coeff * Tt(r, k);
             }
             rb.rhs[static_cast<size_t>(row)] = b;
           }

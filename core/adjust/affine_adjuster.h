@@ -27,7 +27,7 @@ struct AdjustResult {
   std::string failure;
   size_t num_variables = 0;
   size_t num_residuals = 0;
-  double rms_px = 0.0;     // correspondence residuals, mosaic pixels
+  double rms_px = 0.0;  // correspondence residuals, mosaic pixels
   double median_px = 0.0;
 };
 
@@ -42,11 +42,9 @@ struct ResidualStats {
 // `variable`; frames not in `variable` (the reference, or everything else in a local update) stay fixed.
 // `mosaic_from_frame` must hold every frame that an edge touches; only variable frames are written.
 // `half_diagonal` gives each variable frame's half-diagonal in pixels (weights the rigidity terms).
-[[nodiscard]] AdjustResult AdjustAffine(const std::vector<const Edge*>& edges,
-                                        const std::unordered_set<int>& variable,
+[[nodiscard]] AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                         const std::unordered_map<int, double>& half_diagonal,
-                                        const AdjustOptions& options,
-                                        std::unordered_map<int, Mat3>* mosaic_from_frame);
+                                        const AdjustOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame);
 
 // Residuals |T_src p - T_tgt q| over all edge correspondences whose frames both have transforms.
 [[nodiscard]] ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges,

@@ -10,7 +10,8 @@ bool FeatureOptions::Check(std::string* why) const {
     return false;
   };
   if (max_features < 16) return fail("features.max_features must be >= 16");
-  if (!(contrast_threshold > 0.0 && contrast_threshold < 1.0)) return fail("features.contrast_threshold must be in (0,1)");
+  if (!(contrast_threshold > 0.0 && contrast_threshold < 1.0))
+    return fail("features.contrast_threshold must be in (0,1)");
   if (!(min_contrast_threshold > 0.0 && min_contrast_threshold <= contrast_threshold))
     return fail("features.min_contrast_threshold must be in (0, contrast_threshold]");
   if (target_min_features < 0) return fail("features.target_min_features must be >= 0");

@@ -7,7 +7,7 @@ namespace uavm {
 
 struct FeatureOptions {
   // Keep at most this many keypoints (strongest first).
-  int max_features = 4000;
+  int max_features = 3000;
   // Start threshold. OpenCV's default 0.04 finds only tens of keypoints on soft aerial frames.
   double contrast_threshold = 0.01;
   // When fewer keypoints than this are found, the threshold is lowered (x1/3) down to min_contrast_threshold.

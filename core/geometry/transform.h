@@ -28,7 +28,8 @@ using Vec2 = Eigen::Vector2d;
 // Area of the intersection of two convex polygons (0 when disjoint or degenerate).
 [[nodiscard]] double ConvexOverlapArea(const std::vector<cv::Point2f>& a, const std::vector<cv::Point2f>& b);
 
-// Linear part diagnostics of an affine map: mean axis scale, shear-like anisotropy (0 for a similarity), rotation (rad).
+// Linear part diagnostics of an affine map: mean axis scale, shear-like anisotropy (0 for a similarity), rotation
+// (rad).
 struct LinearPart {
   double scale = 1.0;
   double anisotropy = 0.0;

@@ -32,9 +32,13 @@ int UnionFind::Unite(int a, int b) {
   return ra;
 }
 
-void MatchGraph::AddNode(int id) { nodes_.push_back(id); }
+void MatchGraph::AddNode(int id) {
+  nodes_.push_back(id);
+}
 
-void MatchGraph::AddEdge(Edge edge) { edges_.push_back(std::move(edge)); }
+void MatchGraph::AddEdge(Edge edge) {
+  edges_.push_back(std::move(edge));
+}
 
 int MatchGraph::MaxInliers() const {
   int best = 0;

@@ -19,8 +19,7 @@ bool GlobalIndexOptions::Check(std::string* why) const {
   return true;
 }
 
-GlobalIndex::GlobalIndex(const GlobalIndexOptions& options)
-    : options_(options), quota_(options.descriptors_per_frame) {
+GlobalIndex::GlobalIndex(const GlobalIndexOptions& options) : options_(options), quota_(options.descriptors_per_frame) {
   descriptors_.reserve(static_cast<size_t>(options.max_descriptors));
 }
 
@@ -28,8 +27,8 @@ void GlobalIndex::Add(int frame_id, const Features& features) {
   const int n = features.descriptors.rows;
   if (n == 0) return;
   const int take = std::min(n, quota_);
-  const cv::Mat q = features.descriptors.type() == CV_8U ? features.descriptors
-                                                         : QuantizeDescriptors(features.descriptors);
+  const cv::Mat q =
+      features.descriptors.type() == CV_8U ? features.descriptors : QuantizeDescriptors(features.descriptors);
   while (descriptors_.rows + take > options_.max_descriptors && quota_ > 1) Thin();
   const int take_now = std::min(take, quota_);
   for (int k = 0; k < take_now; ++k) {
@@ -67,8 +66,8 @@ std::vector<int> GlobalIndex::Query(const Features& features, int max_results) {
     index_ = std::make_unique<cv::flann::Index>(index_data_, cv::flann::KDTreeIndexParams(4), cvflann::FLANN_DIST_L2);
     dirty_ = false;
   }
-  const cv::Mat query = features.descriptors.type() == CV_32F ? features.descriptors
-                                                               : DequantizeDescriptors(features.descriptors);
+  const cv::Mat query =
+      features.descriptors.type() == CV_32F ? features.descriptors : DequantizeDescriptors(features.descriptors);
   cv::Mat indices(query.rows, 2, CV_32S);
   cv::Mat dists(query.rows, 2, CV_32F);
   index_->knnSearch(query, indices, dists, 2, cv::flann::SearchParams(64));

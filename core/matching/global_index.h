@@ -33,7 +33,7 @@ class GlobalIndex {
 
   GlobalIndexOptions options_;
   int quota_;
-  cv::Mat descriptors_;           // CV_8U rows
+  cv::Mat descriptors_;  // CV_8U rows
   std::vector<int> frame_of_row_;
   std::vector<int> rank_in_frame_;  // 0..quota-1, used to thin evenly
   std::unique_ptr<cv::flann::Index> index_;

@@ -49,7 +49,7 @@ DescriptorIndex::DescriptorIndex(const Features& features, const MatchOptions& o
     : descriptors_(AsFloat(features.descriptors).clone()), rows_(features.descriptors.rows), options_(options) {
   if (rows_ >= 2) {
     index_ = std::make_unique<cv::flann::Index>(descriptors_, cv::flann::KDTreeIndexParams(options.flann_trees),
-                                                 cvflann::FLANN_DIST_L2);
+                                                cvflann::FLANN_DIST_L2);
   }
 }
 

@@ -3,12 +3,12 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <cmath>
 #include <atomic>
+#include <cmath>
 #include <list>
 #include <mutex>
-#include <thread>
 #include <opencv2/imgproc.hpp>
+#include <thread>
 #include <unordered_map>
 
 #include "core/mosaic/gdal_writer.h"
@@ -24,10 +24,12 @@ bool CompositorOptions::Check(std::string* why) const {
     return false;
   };
   if (tiff_block < 16 || tiff_block % 16 != 0) return fail("mosaic.tiff_block must be a multiple of 16");
-  if (tile_size < tiff_block || tile_size % tiff_block != 0) return fail("mosaic.tile_size must be a multiple of tiff_block");
+  if (tile_size < tiff_block || tile_size % tiff_block != 0)
+    return fail("mosaic.tile_size must be a multiple of tiff_block");
   if (num_bands < 0 || num_bands > 10) return fail("mosaic.num_bands must be in [0,10]");
   if (threads < 1 || threads > 64) return fail("mosaic.threads must be in [1,64]");
-  if (!(max_covered_fraction > 0.0 && max_covered_fraction <= 1.0)) return fail("mosaic.max_covered_fraction must be in (0,1]");
+  if (!(max_covered_fraction > 0.0 && max_covered_fraction <= 1.0))
+    return fail("mosaic.max_covered_fraction must be in (0,1]");
   if (quicklook_long_side < 16) return fail("mosaic.quicklook_long_side must be >= 16");
   return true;
 }
@@ -244,7 +246,8 @@ bool RenderRoi(const std::vector<CompositeInput>& frames, const std::vector<cv::
     geometry.push_back(MakeGeometry(frames[i]));
     if ((geometry.back().bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
   }
-  return BlendRoi(geometry, candidates, [&](size_t i) { return &images[i]; }, roi, num_bands, image, mask);
+  return BlendRoi(
+      geometry, candidates, [&](size_t i) { return &images[i]; }, roi, num_bands, image, mask);
 }
 
 CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas, const ImageLoadFn& load,
@@ -260,14 +263,17 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
       SelectByOverlap(footprints, cv::Rect2d(0, 0, canvas.width, canvas.height), options.max_covered_fraction);
   std::vector<CompositeInput> used;
   for (size_t i = 0; i < frames.size(); ++i) {
-    if (keep[i]) used.push_back(frames[i]);
-    else ++result.frames_dropped_by_overlap;
+    if (keep[i])
+      used.push_back(frames[i]);
+    else
+      ++result.frames_dropped_by_overlap;
   }
   result.frames_used = static_cast<int>(used.size());
   std::vector<FrameGeometry> geometry;
   for (const auto& f : used) geometry.push_back(MakeGeometry(f));
 
-  const double q = std::min(1.0, options.quicklook_long_side / static_cast<double>(std::max(canvas.width, canvas.height)));
+  const double q =
+      std::min(1.0, options.quicklook_long_side / static_cast<double>(std::max(canvas.width, canvas.height)));
   result.quicklook = cv::Mat(std::max(1, static_cast<int>(std::lround(canvas.height * q))),
                              std::max(1, static_cast<int>(std::lround(canvas.width * q))), CV_8UC4, cv::Scalar::all(0));
   ImageCache cache(load, options.image_cache_bytes);
@@ -289,8 +295,8 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
       const size_t t = next_tile.fetch_add(1);
       if (t >= tiles.size()) return;
       const cv::Rect tile = tiles[t];
-      const cv::Rect roi = cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin,
-                                    tile.height + 2 * margin) & canvas_rect;
+      const cv::Rect roi =
+          cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & canvas_rect;
       std::vector<size_t> candidates;
       for (size_t i = 0; i < geometry.size(); ++i)
         if ((geometry[i].bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);

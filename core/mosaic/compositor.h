@@ -11,9 +11,9 @@ namespace uavm {
 class GdalTiffWriter;
 
 struct CompositorOptions {
-  int tile_size = 1024;           // canvas pixels per composited tile (a multiple of tiff_block)
+  int tile_size = 1024;  // canvas pixels per composited tile (a multiple of tiff_block)
   int tiff_block = 512;
-  int num_bands = 5;              // multi-band levels; 0 = hard seams only
+  int num_bands = 5;                  // multi-band levels; 0 = hard seams only
   double max_covered_fraction = 0.9;  // overlap-based frame selection (see SelectByOverlap)
   int quicklook_long_side = 2000;
   size_t image_cache_bytes = size_t{256} << 20;  // decoded frames kept between tiles

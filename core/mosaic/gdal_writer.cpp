@@ -10,7 +10,37 @@ namespace uavm {
 struct GdalTiffWriter::Impl {
   GDALDataset* ds = nullptr;
   cv::Size canvas;
+  std::vector<int> overview_factors;  // written tile by tile, alongside the full resolution
 };
+
+namespace {
+
+bool WriteRgba(GDALDataset* ds, int overview, const cv::Mat& image, const cv::Mat& mask, cv::Point tl,
+               std::string* error) {
+  cv::Mat rgb;
+  cv::cvtColor(image, rgb, cv::COLOR_BGR2RGB);
+  cv::Mat rgba;
+  cv::cvtColor(rgb, rgba, cv::COLOR_RGB2RGBA);
+  cv::insertChannel(mask, rgba, 3);
+  CPLErr err = CE_None;
+  for (int b = 1; b <= 4 && err == CE_None; ++b) {
+    GDALRasterBand* band = ds->GetRasterBand(b);
+    if (overview >= 0) band = band->GetOverview(overview);
+    if (band == nullptr) {
+      *error = "GDAL: missing overview band";
+      return false;
+    }
+    err = band->RasterIO(GF_Write, tl.x, tl.y, image.cols, image.rows, rgba.data + (b - 1), image.cols, image.rows,
+                         GDT_Byte, 4, static_cast<GSpacing>(rgba.step[0]), nullptr);
+  }
+  if (err != CE_None) {
+    *error = std::string("GDAL write failed (disk full?): ") + CPLGetLastErrorMsg();
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
 
 GdalTiffWriter::GdalTiffWriter() : impl_(std::make_unique<Impl>()) {}
 
@@ -18,7 +48,8 @@ GdalTiffWriter::~GdalTiffWriter() {
   if (impl_->ds != nullptr) GDALClose(impl_->ds);
 }
 
-bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_size, std::string* error) {
+bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_size, int tile_size,
+                          bool overviews, std::string* error) {
   GDALAllRegister();
   CPLSetConfigOption("CPL_LOG_ERRORS", "OFF");
   // GDAL's block cache defaults to 5 % of RAM; tiles are written once, so a small cache is enough.
@@ -46,44 +77,47 @@ bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_si
     return false;
   }
   impl_->canvas = canvas;
+  if (overviews) {
+    // Levels down to ~256 px, each a divisor of the tile size so that tiles map to whole overview blocks.
+    for (int f = 2; f <= tile_size && std::max(canvas.width, canvas.height) / f >= 256; f *= 2)
+      impl_->overview_factors.push_back(f);
+    if (!impl_->overview_factors.empty() &&
+        impl_->ds->BuildOverviews("NONE", static_cast<int>(impl_->overview_factors.size()),
+                                  impl_->overview_factors.data(), 0, nullptr, nullptr, nullptr) != CE_None) {
+      *error = std::string("cannot create overviews: ") + CPLGetLastErrorMsg();
+      return false;
+    }
+  }
   return true;
 }
 
 bool GdalTiffWriter::Write(const cv::Mat& image, const cv::Mat& mask, cv::Point tl, std::string* error) {
   if (impl_->ds == nullptr) return false;
-  cv::Mat rgba;
-  cv::Mat rgb;
-  cv::cvtColor(image, rgb, cv::COLOR_BGR2RGB);
-  std::vector<cv::Mat> planes;
-  cv::split(rgb, planes);
-  planes.push_back(mask);
-  cv::merge(planes, rgba);
-  int bands[4] = {1, 2, 3, 4};
-  const CPLErr err = impl_->ds->RasterIO(GF_Write, tl.x, tl.y, image.cols, image.rows, rgba.data, image.cols,
-                                         image.rows, GDT_Byte, 4, bands, 4, static_cast<GSpacing>(rgba.step[0]), 1,
-                                         nullptr);
-  if (err != CE_None) {
-    *error = std::string("GDAL write failed: ") + CPLGetLastErrorMsg();
-    return false;
+  if (!WriteRgba(impl_->ds, -1, image, mask, tl, error)) return false;
+  // Overviews from the tile in hand: tiles start at multiples of every factor, so each level gets exact blocks and
+  // nothing is read back at the end.
+  for (size_t level = 0; level < impl_->overview_factors.size(); ++level) {
+    const int f = impl_->overview_factors[level];
+    const cv::Size ov((impl_->canvas.width + f - 1) / f, (impl_->canvas.height + f - 1) / f);
+    const cv::Point otl(tl.x / f, tl.y / f);
+    const cv::Size osz(std::min((image.cols + f - 1) / f, ov.width - otl.x),
+                       std::min((image.rows + f - 1) / f, ov.height - otl.y));
+    if (osz.width <= 0 || osz.height <= 0) continue;
+    cv::Mat small;
+    cv::Mat small_mask;
+    cv::resize(image, small, osz, 0, 0, cv::INTER_AREA);
+    cv::resize(mask, small_mask, osz, 0, 0, cv::INTER_AREA);
+    if (!WriteRgba(impl_->ds, static_cast<int>(level), small, small_mask, otl, error)) return false;
   }
   return true;
 }
 
-bool GdalTiffWriter::Close(bool build_overviews, std::string* error) {
+bool GdalTiffWriter::Close(std::string* error) {
   if (impl_->ds == nullptr) return true;
   bool ok = true;
-  if (build_overviews) {
-    std::vector<int> levels;
-    for (int f = 2; std::max(impl_->canvas.width, impl_->canvas.height) / f >= 256; f *= 2) levels.push_back(f);
-    if (!levels.empty() &&
-        impl_->ds->BuildOverviews("AVERAGE", static_cast<int>(levels.size()), levels.data(), 0, nullptr, nullptr,
-                                  nullptr) != CE_None) {
-      *error = std::string("overviews failed: ") + CPLGetLastErrorMsg();
-      ok = false;
-    }
-  }
+  CPLErrorReset();
   impl_->ds->FlushCache();
-  if (CPLGetLastErrorType() == CE_Failure && ok) {
+  if (CPLGetLastErrorType() == CE_Failure) {
     *error = std::string("GDAL: ") + CPLGetLastErrorMsg();
     ok = false;
   }

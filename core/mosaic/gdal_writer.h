@@ -13,11 +13,13 @@ class GdalTiffWriter {
   GdalTiffWriter(const GdalTiffWriter&) = delete;
   GdalTiffWriter& operator=(const GdalTiffWriter&) = delete;
 
-  [[nodiscard]] bool Open(const std::string& path, cv::Size canvas, int block_size, std::string* error);
+  // With `overviews`, internal overview levels (2, 4, ... down to ~256 px) are written from each tile as it comes.
+  [[nodiscard]] bool Open(const std::string& path, cv::Size canvas, int block_size, int tile_size, bool overviews,
+                          std::string* error);
   // image CV_8UC3 (BGR), mask CV_8U (alpha); top_left in canvas pixels, region inside the canvas.
   [[nodiscard]] bool Write(const cv::Mat& image, const cv::Mat& mask, cv::Point top_left, std::string* error);
-  // Builds internal overviews (so viewers open a large mosaic fast) and closes. Returns false on an I/O error.
-  [[nodiscard]] bool Close(bool build_overviews, std::string* error);
+  // Flushes and closes. Returns false on an I/O error.
+  [[nodiscard]] bool Close(std::string* error);
 
  private:
   struct Impl;

@@ -6,7 +6,8 @@
 
 namespace uavm {
 
-LivePreview::LivePreview(int canvas_side) : side_(canvas_side), canvas_(canvas_side, canvas_side, CV_8UC3, cv::Scalar::all(0)) {}
+LivePreview::LivePreview(int canvas_side)
+    : side_(canvas_side), canvas_(canvas_side, canvas_side, CV_8UC3, cv::Scalar::all(0)) {}
 
 void LivePreview::Add(const cv::Mat& thumb, const Mat3& mosaic_from_thumb) {
   if (thumb.empty()) return;

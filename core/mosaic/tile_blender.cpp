@@ -56,7 +56,11 @@ class SeamOnly final : public TileBlender {
 
 }  // namespace
 
-std::unique_ptr<TileBlender> MakeMultiBandBlender(int num_bands) { return std::make_unique<MultiBand>(num_bands); }
-std::unique_ptr<TileBlender> MakeSeamOnlyBlender() { return std::make_unique<SeamOnly>(); }
+std::unique_ptr<TileBlender> MakeMultiBandBlender(int num_bands) {
+  return std::make_unique<MultiBand>(num_bands);
+}
+std::unique_ptr<TileBlender> MakeSeamOnlyBlender() {
+  return std::make_unique<SeamOnly>();
+}
 
 }  // namespace uavm

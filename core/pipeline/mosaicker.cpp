@@ -140,7 +140,8 @@ void Mosaicker::TryRetries(int new_id, const DescriptorIndex& index, const Featu
     if (!other) continue;
     PairResult r = MatchPair(index, feats, *other, options_.matching);
     if (r.ok && r.num_inliers >= options_.relative_inlier_fraction * best_inliers_) {
-      Edge e{id, new_id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points), std::move(r.tgt_points)};
+      Edge e{
+          id, new_id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points), std::move(r.tgt_points)};
       // mosaic_from_work(id) should become T_new * new_from_id.
       const Mat3 fix = mosaic_from_work_[new_id] * e.tgt_from_src * mosaic_from_work_[id].inverse();
       AddEdge(std::move(e));
@@ -162,8 +163,10 @@ Mosaicker::Prepared Mosaicker::Prepare(hal::Frame frame) const {
   const double s = std::min(1.0, options_.work_long_side / static_cast<double>(long_side));
   const cv::Size work_size(std::max(1, static_cast<int>(std::lround(frame.original_size.width * s))),
                            std::max(1, static_cast<int>(std::lround(frame.original_size.height * s))));
-  if (frame.image.size() == work_size) p.work_bgr = frame.image;
-  else cv::resize(frame.image, p.work_bgr, work_size, 0, 0, cv::INTER_AREA);
+  if (frame.image.size() == work_size)
+    p.work_bgr = frame.image;
+  else
+    cv::resize(frame.image, p.work_bgr, work_size, 0, 0, cv::INTER_AREA);
   cv::cvtColor(p.work_bgr, p.work_gray, cv::COLOR_BGR2GRAY);
   frame.image.release();  // the decoded original is not needed any more: keep queued frames small
   p.prepare_ms = t.ElapsedMs();
@@ -252,7 +255,8 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     for (int c : global_index_.Query(feats, options_.relocalization_candidates)) try_candidate(c);
     if (!found.empty()) {
       ++relocalized_;
-      spdlog::info("frame {} relocalised against frame {}", st.name, frames_[static_cast<size_t>(found[0].edge.src)].name);
+      spdlog::info("frame {} relocalised against frame {}", st.name,
+                   frames_[static_cast<size_t>(found[0].edge.src)].name);
     }
   }
   int root = -1;
@@ -261,8 +265,9 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     // Base component: the largest one touched; the new frame's first estimate comes from its strongest edge there.
     std::map<int, int> size_of_root;
     for (const auto& f : found) size_of_root[components_.Find(f.edge.src)] = components_.SizeOf(f.edge.src);
-    root = std::max_element(size_of_root.begin(), size_of_root.end(),
-                            [](const auto& a, const auto& b) { return a.second < b.second; })->first;
+    root = std::max_element(size_of_root.begin(), size_of_root.end(), [](const auto& a, const auto& b) {
+             return a.second < b.second;
+           })->first;
     const Edge* best = nullptr;
     for (const auto& f : found)
       if (components_.Find(f.edge.src) == root && (best == nullptr || f.edge.num_inliers > best->num_inliers))

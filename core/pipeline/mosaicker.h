@@ -66,8 +66,8 @@ class Mosaicker {
     Mat3 work_from_original = Mat3::Identity();
     double half_diagonal = 1.0;
     bool has_features = false;
-    bool in_graph = false;   // has at least one edge or anchors its own component
-    std::string failure;     // why it is not registered (so far)
+    bool in_graph = false;  // has at least one edge or anchors its own component
+    std::string failure;    // why it is not registered (so far)
     hal::FrameMetadata metadata;
   };
 

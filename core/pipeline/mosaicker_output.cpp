@@ -27,7 +27,7 @@ struct CanvasLoad {
 };
 
 cv::Mat LoadForCanvas(const std::string& path, const CanvasLoad& how) {
-  const int flag = how.reduce >= 8 ? cv::IMREAD_REDUCED_COLOR_8
+  const int flag = how.reduce >= 8   ? cv::IMREAD_REDUCED_COLOR_8
                    : how.reduce >= 4 ? cv::IMREAD_REDUCED_COLOR_4
                    : how.reduce >= 2 ? cv::IMREAD_REDUCED_COLOR_2
                                      : cv::IMREAD_COLOR;
@@ -62,9 +62,10 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
       double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
       for (int id : component) {
         const FrameState& f = frames_[static_cast<size_t>(id)];
-        canvas_from_original[static_cast<size_t>(id)] = out_from_mosaic_work * mosaic_from_work_[id] * f.work_from_original;
-        for (const auto& p : Footprint(canvas_from_original[static_cast<size_t>(id)], f.original_size.width,
-                                       f.original_size.height)) {
+        canvas_from_original[static_cast<size_t>(id)] =
+            out_from_mosaic_work * mosaic_from_work_[id] * f.work_from_original;
+        for (const auto& p :
+             Footprint(canvas_from_original[static_cast<size_t>(id)], f.original_size.width, f.original_size.height)) {
           minx = std::min<double>(minx, p.x);
           miny = std::min<double>(miny, p.y);
           maxx = std::max<double>(maxx, p.x);
@@ -152,13 +153,14 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     auto load = [&](int id) { return LoadForCanvas(frames_[static_cast<size_t>(id)].stored_file, load_of[id]); };
     GdalTiffWriter tiff;
     const bool write_tiff = options_.write_tiff;
-    if (write_tiff && !tiff.Open(paths_.Join("mosaic.tif"), canvas, options_.mosaic.tiff_block, error)) return false;
+    if (write_tiff && !tiff.Open(paths_.Join("mosaic.tif"), canvas, options_.mosaic.tiff_block, options_.mosaic.tile_size,
+                                options_.mosaic.build_overviews, error)) return false;
     composite = Composite(inputs, canvas, load, options_.mosaic, write_tiff ? &tiff : nullptr);
     if (!composite.ok) {
       *error = "composite failed: " + composite.error;
       return false;
     }
-    if (write_tiff && !tiff.Close(options_.mosaic.build_overviews, error)) return false;
+    if (write_tiff && !tiff.Close(error)) return false;
     composite_ms_ = composite.ms;
     std::vector<uchar> png;
     if (!cv::imencode(".png", composite.quicklook, png) ||
@@ -170,7 +172,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   }
   {
     std::string err;
-    if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err)) spdlog::warn("live preview: {}", err);
+    if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err))
+      spdlog::warn("live preview: {}", err);
   }
 
   // report.json
@@ -197,7 +200,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   report["skipped"] = skipped;
   nlohmann::json unregistered = nlohmann::json::array();
   for (const auto& f : frames_)
-    if (in_component.count(f.id) == 0) unregistered.push_back({{"index", f.id}, {"file", f.name}, {"reason", f.failure}});
+    if (in_component.count(f.id) == 0)
+      unregistered.push_back({{"index", f.id}, {"file", f.name}, {"reason", f.failure}});
   report["unregistered"] = unregistered;
   nlohmann::json stages;
   for (const auto& name : stats_.Stages()) stages[name] = SummaryJson(stats_.Get(name));

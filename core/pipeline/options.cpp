@@ -85,8 +85,10 @@ bool Fail(std::string* why, const std::string& msg) {
 
 bool PipelineOptions::Check(std::string* why) const {
   if (work_long_side < 64 || work_long_side > 16384) return Fail(why, "work_long_side must be in [64,16384]");
-  if (recent_candidates < 1 || overlap_candidates < 0) return Fail(why, "recent_candidates >= 1, overlap_candidates >= 0");
-  if (!(min_overlap_fraction > 0 && min_overlap_fraction < 1)) return Fail(why, "min_overlap_fraction must be in (0,1)");
+  if (recent_candidates < 1 || overlap_candidates < 0)
+    return Fail(why, "recent_candidates >= 1, overlap_candidates >= 0");
+  if (!(min_overlap_fraction > 0 && min_overlap_fraction < 1))
+    return Fail(why, "min_overlap_fraction must be in (0,1)");
   if (!(relative_inlier_fraction >= 0 && relative_inlier_fraction < 1))
     return Fail(why, "relative_inlier_fraction must be in [0,1)");
   if (relocalization_candidates < 0 || retry_list_size < 0 || retry_per_frame < 0 || retry_max_attempts < 1)

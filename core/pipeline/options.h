@@ -10,20 +10,20 @@
 namespace uavm {
 
 struct PipelineOptions {
-  int work_long_side = 1200;         // working resolution for features and registration (never upscaled)
-  int recent_candidates = 3;         // K: the last K frames are always candidates
-  int overlap_candidates = 6;        // M: plus up to M frames whose footprint overlaps (closes loops between strips)
+  int work_long_side = 1000;           // working resolution for features and registration (never upscaled)
+  int recent_candidates = 2;           // K: the last K frames are always candidates
+  int overlap_candidates = 3;          // M: plus up to M frames whose footprint overlaps (closes loops between strips)
   double min_overlap_fraction = 0.15;  // of the new frame's area, for an overlap candidate
   double relative_inlier_fraction = 0.05;  // seed method: an edge needs 5 % of the best pair's inliers
   int relocalization_candidates = 4;
-  int retry_list_size = 16;          // frames that matched nothing, retried against later frames
+  int retry_list_size = 16;  // frames that matched nothing, retried against later frames
   int retry_per_frame = 2;
   int retry_max_attempts = 60;
-  int full_solve_every = 10;         // full adjustment every N registered frames (and on loop closure / merge)
-  int preview_every = 5;             // live.jpg every N frames; 0 = off
+  int full_solve_every = 10;  // full adjustment every N registered frames (and on loop closure / merge)
+  int preview_every = 5;      // live.jpg every N frames; 0 = off
   int preview_side = 1024;
-  double mosaic_scale = 0.5;         // mosaic.tif GSD relative to the reference frame's original resolution
-  int max_canvas_side = 60000;       // guards against a runaway transform making a giant canvas
+  double mosaic_scale = 0.5;    // mosaic.tif GSD relative to the reference frame's original resolution
+  int max_canvas_side = 60000;  // guards against a runaway transform making a giant canvas
   int feature_cache_mib = 192;
   int queue_capacity = 4;
   bool write_tiff = true;

@@ -13,8 +13,10 @@ constexpr double kQuant = 512.0;  // RootSIFT components are in [0,1]; x512 satu
 
 bool WriteFeatures(const std::string& path, const Features& f, std::string* error) {
   cv::Mat q;
-  if (f.descriptors.type() == CV_8U) q = f.descriptors;
-  else f.descriptors.convertTo(q, CV_8U, kQuant);
+  if (f.descriptors.type() == CV_8U)
+    q = f.descriptors;
+  else
+    f.descriptors.convertTo(q, CV_8U, kQuant);
   const std::string tmp = path + ".tmp";
   FILE* fp = std::fopen(tmp.c_str(), "wb");
   if (fp == nullptr) {
@@ -47,8 +49,8 @@ bool ReadFeatures(const std::string& path, Features* f, std::string* error) {
   char magic[8];
   uint32_t n = 0;
   uint32_t dims = 0;
-  bool ok = std::fread(magic, 1, 8, fp) == 8 && std::memcmp(magic, kMagic, 8) == 0 &&
-            std::fread(&n, 4, 1, fp) == 1 && std::fread(&dims, 4, 1, fp) == 1 && n <= (1u << 22) && dims <= 1024;
+  bool ok = std::fread(magic, 1, 8, fp) == 8 && std::memcmp(magic, kMagic, 8) == 0 && std::fread(&n, 4, 1, fp) == 1 &&
+            std::fread(&dims, 4, 1, fp) == 1 && n <= (1u << 22) && dims <= 1024;
   if (ok) {
     f->points.resize(n);
     f->descriptors.create(static_cast<int>(n), static_cast<int>(dims), CV_8U);
@@ -71,8 +73,10 @@ std::string FeatureStore::PathOf(int id) const {
 bool FeatureStore::Put(int id, const Features& features, std::string* error) {
   auto q = std::make_shared<Features>();
   q->points = features.points;
-  if (features.descriptors.type() == CV_8U) q->descriptors = features.descriptors.clone();
-  else features.descriptors.convertTo(q->descriptors, CV_8U, kQuant);
+  if (features.descriptors.type() == CV_8U)
+    q->descriptors = features.descriptors.clone();
+  else
+    features.descriptors.convertTo(q->descriptors, CV_8U, kQuant);
   q->contrast_threshold_used = features.contrast_threshold_used;
   if (!WriteFeatures(PathOf(id), *q, error)) return false;
   Insert(id, std::move(q));

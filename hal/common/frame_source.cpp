@@ -4,10 +4,14 @@ namespace uavm::hal {
 
 const char* ToString(Status s) {
   switch (s) {
-    case Status::kOk: return "ok";
-    case Status::kEndOfStream: return "end of stream";
-    case Status::kSkipped: return "skipped";
-    case Status::kError: return "error";
+    case Status::kOk:
+      return "ok";
+    case Status::kEndOfStream:
+      return "end of stream";
+    case Status::kSkipped:
+      return "skipped";
+    case Status::kError:
+      return "error";
   }
   return "unknown";
 }

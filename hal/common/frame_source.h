@@ -11,21 +11,21 @@ namespace uavm::hal {
 // Results of the capture path: status codes, never exceptions.
 enum class Status {
   kOk,
-  kEndOfStream,   // no more frames
-  kSkipped,       // this input was bad (corrupt, empty, not an image): logged and reported, the stream goes on
-  kError,         // the source itself failed (device gone, folder vanished)
+  kEndOfStream,  // no more frames
+  kSkipped,      // this input was bad (corrupt, empty, not an image): logged and reported, the stream goes on
+  kError,        // the source itself failed (device gone, folder vanished)
 };
 
 [[nodiscard]] const char* ToString(Status s);
 
 struct Frame {
-  uint64_t index = 0;           // position in the stream, counting skipped inputs too
-  int64_t timestamp_ns = 0;     // monotonic, ns
-  std::string source_name;      // file name for replay, "video:N" for video frames, device name for cameras
-  std::string source_path;      // full path of the original file when there is one (its bytes go into the session)
-  cv::Size original_size;       // size of the sensor image, before any reduced decoding
-  cv::Mat image;                // BGR8; may be reduced (see decode_scale) when the consumer asked for less
-  double decode_scale = 1.0;    // image.cols / original_size.width (exactly 1, 1/2, 1/4 or 1/8 for JPEG DCT scaling)
+  uint64_t index = 0;         // position in the stream, counting skipped inputs too
+  int64_t timestamp_ns = 0;   // monotonic, ns
+  std::string source_name;    // file name for replay, "video:N" for video frames, device name for cameras
+  std::string source_path;    // full path of the original file when there is one (its bytes go into the session)
+  cv::Size original_size;     // size of the sensor image, before any reduced decoding
+  cv::Mat image;              // BGR8; may be reduced (see decode_scale) when the consumer asked for less
+  double decode_scale = 1.0;  // image.cols / original_size.width (exactly 1, 1/2, 1/4 or 1/8 for JPEG DCT scaling)
   FrameMetadata metadata;
 };
 

@@ -17,7 +17,8 @@ namespace {
 
 bool LooksLikeVideo(const fs::path& p) {
   std::string ext = p.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   return ext == ".mp4" || ext == ".mov" || ext == ".avi" || ext == ".mkv" || ext == ".mjpeg" || ext == ".webm";
 }
 
@@ -60,7 +61,9 @@ bool ProbeSize(const std::vector<uchar>& bytes, cv::Size* size) {
 
 ReplaySource::ReplaySource(ReplayOptions options) : options_(std::move(options)) {}
 
-std::string ReplaySource::Describe() const { return "replay:" + options_.path; }
+std::string ReplaySource::Describe() const {
+  return "replay:" + options_.path;
+}
 
 Status ReplaySource::Open(std::string* error) {
   std::error_code ec;
