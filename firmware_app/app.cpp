@@ -8,6 +8,7 @@
 #include "core/pipeline/mosaicker.h"
 #include "core/session/session_dir.h"
 #include "core/util/bounded_queue.h"
+#include "core/util/clock.h"
 #include "core/util/memory.h"
 #include "hal/replay/replay_source.h"
 
@@ -73,7 +74,9 @@ int Run(const RunConfig& config) {
       Item item;
       std::string err;
       hal::Frame frame;
+      StageTimer decode_timer;
       item.status = source->Next(&frame, &err);
+      const double decode_ms = decode_timer.ElapsedMs();
       item.name = frame.source_name;
       if (item.status == hal::Status::kEndOfStream) break;
       if (item.status == hal::Status::kError) {
@@ -85,6 +88,7 @@ int Run(const RunConfig& config) {
       if (item.status == hal::Status::kOk) {
         // Features are computed here, on the capture side, overlapping the previous frame's matching.
         item.prepared = mosaicker.Prepare(std::move(frame));
+        item.prepared.decode_ms = decode_ms;
         ++delivered;
       }
       if (!queue.Push(std::move(item))) break;

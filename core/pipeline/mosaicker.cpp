@@ -204,6 +204,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   }
   stats_.Add("prepare", prepared.prepare_ms + t.ElapsedMs());
   stats_.Add("features", prepared.features_ms);
+  if (prepared.decode_ms > 0) stats_.Add("decode", prepared.decode_ms);
   t.Restart();
   Features& feats = prepared.features;
   if (!feature_store_.Put(id, feats, &error)) {

@@ -39,6 +39,7 @@ class Mosaicker {
     cv::Mat work_bgr;
     cv::Mat work_gray;
     Features features;
+    double decode_ms = 0.0;  // measured by the caller around the source's Next()
     double prepare_ms = 0.0;
     double features_ms = 0.0;
   };
