@@ -64,6 +64,9 @@ void ExpectCompleteSession(const fs::path& out, int frames, double max_rms) {
     EXPECT_LT(c.x(), tif.cols);
   }
   EXPECT_TRUE(fs::exists(out / "graph.csv"));
+  std::string frames_csv;
+  ASSERT_TRUE(ReadTextFile((out / "frames.csv").string(), &frames_csv, &err));
+  EXPECT_EQ(std::count(frames_csv.begin(), frames_csv.end(), '\n'), frames + 1);
   EXPECT_TRUE(fs::exists(out / "correspondences.csv"));
   EXPECT_TRUE(fs::exists(out / "config.yaml"));
   EXPECT_TRUE(fs::exists(out / "live.jpg"));
@@ -75,6 +78,11 @@ TEST(OnboardE2ETest, BrightonBeachSmallRegistersEveryFrame) {
   ASSERT_EQ(RunOnboard("--source replay:" + kData + "/brighton_beach_small/images --out " + out.string()), 0);
   // A reference affine implementation reached ~2.4 px here at working resolution.
   ExpectCompleteSession(out, 18, 3.0);
+  // EXIF GPS made it into frames.csv (DJI_0018: 46.8426070833333 N).
+  std::string frames_csv;
+  std::string err;
+  ASSERT_TRUE(ReadTextFile((out / "frames.csv").string(), &frames_csv, &err));
+  EXPECT_NE(frames_csv.find("46.842607083"), std::string::npos);
   fs::remove_all(out);
 }
 

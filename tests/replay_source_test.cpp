@@ -4,6 +4,9 @@
 
 #include <filesystem>
 #include <fstream>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "hal/replay/natural_order.h"
 
@@ -66,6 +69,31 @@ TEST(ReplaySourceTest, BadFilesAreSkippedWithAReason) {
   EXPECT_NE(err.find("truncated"), std::string::npos) << err;
   EXPECT_EQ(src.Next(&f, &err), Status::kEndOfStream);
   fs::remove_all(dir);
+}
+
+TEST(ReplaySourceTest, VideoWithStride) {
+  const fs::path video = fs::temp_directory_path() / ("uavm_replay_" + std::to_string(::getpid()) + ".avi");
+  {
+    cv::VideoWriter writer(video.string(), cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 10.0, cv::Size(500, 282));
+    ASSERT_TRUE(writer.isOpened());
+    for (const char* name : {"DJI_0018.JPG", "DJI_0019.JPG", "DJI_0020.JPG", "DJI_0021.JPG", "DJI_0022.JPG"}) {
+      cv::Mat img = cv::imread(kFlight + "/" + name);
+      cv::resize(img, img, cv::Size(500, 282));
+      writer.write(img);
+    }
+  }
+  ReplaySource src({video.string(), 2, true});
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  EXPECT_FALSE(src.IsReplay() == false);
+  std::vector<std::string> names;
+  Frame f;
+  while (src.Next(&f, &err) == Status::kOk) {
+    EXPECT_EQ(f.original_size, cv::Size(500, 282));
+    names.push_back(f.source_name);
+  }
+  EXPECT_EQ(names, (std::vector<std::string>{"video:0", "video:2", "video:4"}));  // stride 2 of 5 frames
+  fs::remove(video);
 }
 
 TEST(ReplaySourceTest, MissingFolderIsASourceError) {

@@ -190,6 +190,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   st.id = id;
   st.name = frame.source_name;
   st.original_size = frame.original_size;
+  st.timestamp_ns = frame.timestamp_ns;
   st.metadata = frame.metadata;
   st.work_size = prepared.work_bgr.size();
   st.work_from_original = ResizeMap(static_cast<double>(st.work_size.width) / frame.original_size.width,

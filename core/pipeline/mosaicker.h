@@ -63,6 +63,7 @@ class Mosaicker {
     std::string name;
     std::string stored_file;  // path inside the session's frames/
     cv::Size original_size;
+    int64_t timestamp_ns = 0;
     cv::Size work_size;
     Mat3 work_from_original = Mat3::Identity();
     double half_diagonal = 1.0;

@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <filesystem>
 #include <sstream>
 #include <unordered_set>
 
@@ -122,6 +123,28 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     }
   }
   if (!WriteFileAtomic(paths_.Join("graph.csv"), graph_csv.str(), error)) return false;
+
+  // frames.csv: what the ground tool and georeferencing need per frame; empty cells where metadata is absent.
+  std::ostringstream frames_csv;
+  frames_csv.precision(12);
+  frames_csv << "index,filename,stored_file,width,height,timestamp_ns,registered,latitude_deg,longitude_deg,"
+                "altitude_m,relative_altitude_m,flight_yaw_deg,gimbal_yaw_deg,gimbal_pitch_deg,focal_length_mm\n";
+  const auto cell = [](const std::optional<double>& v) {
+    std::ostringstream c;
+    c.precision(12);
+    if (v) c << *v;
+    return c.str();
+  };
+  for (const auto& f : frames_) {
+    const auto& m = f.metadata;
+    frames_csv << f.id << ',' << f.name << ',' << std::filesystem::path(f.stored_file).filename().string() << ','
+               << f.original_size.width << ',' << f.original_size.height << ',' << f.timestamp_ns << ','
+               << (in_component.count(f.id) != 0 ? 1 : 0) << ',' << cell(m.latitude_deg) << ','
+               << cell(m.longitude_deg) << ',' << cell(m.altitude_m) << ',' << cell(m.relative_altitude_m) << ','
+               << cell(m.flight_yaw_deg) << ',' << cell(m.gimbal_yaw_deg) << ',' << cell(m.gimbal_pitch_deg) << ','
+               << cell(m.focal_length_mm) << '\n';
+  }
+  if (!WriteFileAtomic(paths_.Join("frames.csv"), frames_csv.str(), error)) return false;
   if (!WriteFileAtomic(paths_.Join("correspondences.csv"), corr_csv.str(), error)) return false;
   if (!WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error)) return false;
 

@@ -165,17 +165,15 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
 
 Status ReplaySource::NextVideo(Frame* frame, std::string* error) {
   cv::Mat image;
-  for (int skip = 0; skip < options_.stride - 1; ++skip) {
-    if (!video_->grab()) return Status::kEndOfStream;
-    ++video_frame_;
-  }
   if (!video_->read(image) || image.empty()) return Status::kEndOfStream;
   *frame = Frame{};
   frame->index = next_index_++;
   frame->source_name = "video:" + std::to_string(video_frame_++);
   frame->timestamp_ns = MonotonicNs();
-  frame->original_size = image.size();
+  // Skip to the next frame to deliver now, so that the frame numbers in the names are the video's own.
+  for (int skip = 0; skip < options_.stride - 1 && video_->grab(); ++skip) ++video_frame_;
   if (image.channels() == 1) cv::cvtColor(image, image, cv::COLOR_GRAY2BGR);
+  frame->original_size = image.size();
   frame->image = std::move(image);
   (void)error;
   return Status::kOk;

@@ -1,0 +1,279 @@
+#include "hal/sim/sim_plan.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <random>
+#include <sstream>
+#include <variant>
+
+namespace uavm::hal {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+double Rad(double deg) { return deg * kPi / 180.0; }
+
+bool Fail(std::string* error, const std::string& msg) {
+  *error = msg;
+  return false;
+}
+
+using FieldPtr = std::variant<int*, double*, uint64_t*, std::string*>;
+
+std::map<std::string, FieldPtr> Fields(SimPlan& p) {
+  return {{"canvas", &p.canvas},
+          {"frame_width", &p.frame_width},
+          {"frame_height", &p.frame_height},
+          {"focal_px", &p.focal_px},
+          {"gsd", &p.gsd},
+          {"strips", &p.strips},
+          {"strip_length", &p.strip_length},
+          {"strip_spacing", &p.strip_spacing},
+          {"forward_overlap", &p.forward_overlap},
+          {"side_overlap", &p.side_overlap},
+          {"yaw_jitter_deg", &p.yaw_jitter_deg},
+          {"altitude_change", &p.altitude_change},
+          {"altitude_drift", &p.altitude_drift},
+          {"tilt_deg", &p.tilt_deg},
+          {"exposure_gain", &p.exposure_gain},
+          {"exposure_offset", &p.exposure_offset},
+          {"noise_sigma", &p.noise_sigma},
+          {"blur_px", &p.blur_px},
+          {"jpeg_quality", &p.jpeg_quality},
+          {"passes", &p.passes},
+          {"pass_shift", &p.pass_shift},
+          {"margin", &p.margin},
+          {"seed", &p.seed}};
+}
+
+// Portable draws: std::normal_distribution differs between standard libraries, and the flight must not.
+class Draws {
+ public:
+  explicit Draws(uint64_t seed) : gen_(seed) {}
+  double Uniform() { return static_cast<double>(gen_() >> 11) * 0x1.0p-53; }  // [0, 1)
+  double Symmetric() { return 2.0 * Uniform() - 1.0; }                       // [-1, 1)
+  double Normal() {
+    const double u1 = 1.0 - Uniform();  // (0, 1]: log is finite
+    const double u2 = Uniform();
+    return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPi * u2);
+  }
+
+ private:
+  std::mt19937_64 gen_;
+};
+
+}  // namespace
+
+bool SimPlan::Check(std::string* error) const {
+  if (frame_width < 16 || frame_height < 16) return Fail(error, "frame_width and frame_height must be >= 16");
+  if (focal_px < 0) return Fail(error, "focal_px must be >= 0");
+  if (!(gsd > 0)) return Fail(error, "gsd must be > 0");
+  if (strips < 0 || strip_length < 0 || strip_spacing < 0) return Fail(error, "strips/strip_length/spacing must be >= 0");
+  if (forward_overlap < 0 || forward_overlap > 0.95) return Fail(error, "forward_overlap must be in [0, 0.95]");
+  if (side_overlap < 0 || side_overlap > 0.95) return Fail(error, "side_overlap must be in [0, 0.95]");
+  if (yaw_jitter_deg < 0) return Fail(error, "yaw_jitter_deg must be >= 0");
+  if (std::abs(altitude_change) + std::abs(altitude_drift) > 0.8)
+    return Fail(error, "|altitude_change| + |altitude_drift| must be <= 0.8");
+  if (tilt_deg < 0 || tilt_deg > 30) return Fail(error, "tilt_deg must be in [0, 30]");
+  if (exposure_gain < 0 || exposure_gain >= 1 || exposure_offset < 0)
+    return Fail(error, "exposure_gain must be in [0, 1), exposure_offset >= 0");
+  if (noise_sigma < 0 || blur_px < 0) return Fail(error, "noise_sigma and blur_px must be >= 0");
+  if (jpeg_quality < 0 || jpeg_quality > 100) return Fail(error, "jpeg_quality must be in [0, 100]");
+  if (passes < 1) return Fail(error, "passes must be >= 1");
+  if (margin < 0) return Fail(error, "margin must be >= 0");
+  return true;
+}
+
+bool ParseSimPlan(const std::string& yaml_text, const std::string& base_dir, SimPlan* plan, std::string* error) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(yaml_text);
+  } catch (const std::exception& e) {
+    return Fail(error, std::string("sim plan: ") + e.what());
+  }
+  SimPlan p;
+  if (!root.IsNull()) {
+    if (!root.IsMap()) return Fail(error, "sim plan: top level must be a mapping");
+    auto fields = Fields(p);
+    for (const auto& kv : root) {
+      const std::string key = kv.first.as<std::string>();
+      const auto it = fields.find(key);
+      if (it == fields.end()) {
+        std::string known;
+        for (const auto& f : fields) known += (known.empty() ? "" : ", ") + f.first;
+        return Fail(error, "sim plan: unknown key '" + key + "' (known: " + known + ")");
+      }
+      try {
+        std::visit([&](auto* ptr) { *ptr = kv.second.as<std::remove_pointer_t<decltype(ptr)>>(); }, it->second);
+      } catch (const std::exception&) {
+        return Fail(error, "sim plan: '" + key + "' has the wrong type");
+      }
+    }
+  }
+  if (!p.Check(error)) return Fail(error, "sim plan: " + *error);
+  if (!p.canvas.empty() && !base_dir.empty() && std::filesystem::path(p.canvas).is_relative())
+    p.canvas = (std::filesystem::path(base_dir) / p.canvas).string();
+  *plan = p;
+  return true;
+}
+
+bool LoadSimPlanFile(const std::string& path, SimPlan* plan, std::string* error) {
+  std::ifstream in(path);
+  if (!in) return Fail(error, "cannot read sim plan " + path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (!ParseSimPlan(ss.str(), std::filesystem::path(path).parent_path().string(), plan, error)) {
+    *error = path + ": " + *error;
+    return false;
+  }
+  return true;
+}
+
+std::string ToYaml(const SimPlan& plan) {
+  SimPlan copy = plan;
+  YAML::Emitter out;
+  out.SetDoublePrecision(17);
+  out << YAML::BeginMap;
+  for (const auto& [key, ptr] : Fields(copy)) {
+    out << YAML::Key << key << YAML::Value;
+    std::visit([&](auto* v) { out << *v; }, ptr);
+  }
+  out << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
+}
+
+Mat3 CanvasFromFrame(const SimPlan& plan, const SimPose& pose) {
+  const double f = plan.Focal();
+  Mat3 k_inv = Mat3::Identity();
+  k_inv(0, 0) = 1.0 / f;
+  k_inv(1, 1) = 1.0 / f;
+  k_inv(0, 2) = -(plan.frame_width - 1.0) / 2.0 / f;
+  k_inv(1, 2) = -(plan.frame_height - 1.0) / 2.0 / f;
+  const double cz = std::cos(Rad(pose.yaw_deg)), sz = std::sin(Rad(pose.yaw_deg));
+  const double cr = std::cos(Rad(pose.roll_deg)), sr = std::sin(Rad(pose.roll_deg));
+  const double cp = std::cos(Rad(pose.pitch_deg)), sp = std::sin(Rad(pose.pitch_deg));
+  Mat3 rz, rx, ry;
+  rz << cz, -sz, 0, sz, cz, 0, 0, 0, 1;
+  rx << 1, 0, 0, 0, cr, -sr, 0, sr, cr;
+  ry << cp, 0, sp, 0, 1, 0, -sp, 0, cp;
+  // Ray d (world, z down) from the camera at height h hits the ground at position + h * d.xy / d.z.
+  const double h = plan.gsd * f * pose.altitude;
+  Mat3 ground;
+  ground << h, 0, pose.position.x(), 0, h, pose.position.y(), 0, 0, 1;
+  const Mat3 m = ground * rz * rx * ry * k_inv;
+  return m / m(2, 2);
+}
+
+bool BuildFlight(const SimPlan& plan, cv::Size canvas_size, std::vector<SimPose>* poses, std::string* note,
+                 std::string* error) {
+  poses->clear();
+  note->clear();
+  const double w = plan.frame_width, ht = plan.frame_height, g = plan.gsd;
+  const double fwd = std::max(w * g * (1.0 - plan.forward_overlap), 1.0);
+  const double spacing = plan.strip_spacing > 0 ? plan.strip_spacing : std::max(ht * g * (1.0 - plan.side_overlap), 1.0);
+  // Rough footprint extent, only to size the automatic strip length and count; the fit below is exact.
+  const double amax = 1.0 + std::abs(plan.altitude_change) + std::abs(plan.altitude_drift);
+  const double yaw3 = Rad(std::min(3.0 * plan.yaw_jitter_deg, 90.0));
+  const double tilt_shift = 2.0 * plan.Focal() * g * amax * std::tan(Rad(plan.tilt_deg));
+  const double bw = (w * std::cos(yaw3) + ht * std::sin(yaw3)) * g * amax * 1.05 + tilt_shift;
+  const double bh = (w * std::sin(yaw3) + ht * std::cos(yaw3)) * g * amax * 1.05 + tilt_shift;
+  const double usable_w = canvas_size.width - 1.0 - 2.0 * plan.margin;
+  const double usable_h = canvas_size.height - 1.0 - 2.0 * plan.margin;
+  const double length = plan.strip_length > 0 ? plan.strip_length : std::max(0.0, usable_w - bw);
+  const int per_strip = static_cast<int>(std::floor(length / fwd + 1e-9)) + 1;
+  const int strips =
+      plan.strips > 0 ? plan.strips : std::max(1, static_cast<int>(std::floor((usable_h - bh) / spacing + 1e-9)) + 1);
+  const int total = per_strip * strips * plan.passes;
+
+  Draws draws(plan.seed);
+  for (int pass = 0; pass < plan.passes; ++pass) {
+    for (int s = 0; s < strips; ++s) {
+      for (int k = 0; k < per_strip; ++k) {
+        SimPose pose;
+        pose.strip = s;
+        pose.pass = pass;
+        const bool back = s % 2 == 1;
+        const double shift = pass * plan.pass_shift;
+        pose.position = Vec2((back ? per_strip - 1 - k : k) * fwd + shift * fwd, s * spacing + shift * spacing);
+        // Fixed draw order per frame, all drawn even when unused: one option never reshuffles another's draws.
+        const double yaw_noise = draws.Normal();
+        const double tilt_dir = draws.Uniform() * 2.0 * kPi;
+        const double gain = draws.Symmetric();
+        const double offset = draws.Symmetric();
+        pose.yaw_deg = (back ? 180.0 : 0.0) + plan.yaw_jitter_deg * yaw_noise;
+        pose.roll_deg = plan.tilt_deg * std::cos(tilt_dir);
+        pose.pitch_deg = plan.tilt_deg * std::sin(tilt_dir);
+        pose.gain = 1.0 + plan.exposure_gain * gain;
+        pose.offset = plan.exposure_offset * offset;
+        const double t = total > 1 ? static_cast<double>(poses->size()) / (total - 1) : 0.0;
+        pose.altitude = 1.0 + plan.altitude_change * std::sin(2.0 * kPi * t) + plan.altitude_drift * t;
+        poses->push_back(pose);
+      }
+    }
+  }
+
+  // Fit: footprints depend on the position only by a translation, so with relative footprint boxes [lo, hi] and
+  // path offsets d from the pattern centre, scale s and centre c fit when margin <= c + s*d + lo and
+  // c + s*d + hi <= size - 1 - margin for every frame. Take the largest s <= 1 (bisection) and the middle c.
+  const size_t n = poses->size();
+  std::vector<Vec2> lo(n), hi(n), d(n);
+  Vec2 pmin(1e300, 1e300), pmax(-1e300, -1e300);
+  for (const auto& p : *poses) {
+    pmin = pmin.cwiseMin(p.position);
+    pmax = pmax.cwiseMax(p.position);
+  }
+  const Vec2 pc = (pmin + pmax) / 2.0;
+  for (size_t i = 0; i < n; ++i) {
+    SimPose rel = (*poses)[i];
+    rel.position = Vec2::Zero();
+    const auto fp = Footprint(CanvasFromFrame(plan, rel), plan.frame_width, plan.frame_height);
+    lo[i] = Vec2(1e300, 1e300);
+    hi[i] = Vec2(-1e300, -1e300);
+    for (const auto& q : fp) {
+      lo[i] = lo[i].cwiseMin(Vec2(q.x, q.y));
+      hi[i] = hi[i].cwiseMax(Vec2(q.x, q.y));
+    }
+    d[i] = (*poses)[i].position - pc;
+  }
+  const Vec2 size(canvas_size.width - 1.0, canvas_size.height - 1.0);
+  auto place = [&](double s, Vec2* centre) {
+    for (int a = 0; a < 2; ++a) {
+      double low = -1e300, high = 1e300;
+      for (size_t i = 0; i < n; ++i) {
+        low = std::max(low, plan.margin - lo[i](a) - s * d[i](a));
+        high = std::min(high, size(a) - plan.margin - hi[i](a) - s * d[i](a));
+      }
+      if (low > high) return false;
+      (*centre)(a) = (low + high) / 2.0;
+    }
+    return true;
+  };
+  Vec2 centre;
+  double scale = 1.0;
+  if (!place(1.0, &centre)) {
+    if (!place(0.0, &centre))
+      return Fail(error, "sim: a frame footprint does not fit in the " + std::to_string(canvas_size.width) + "x" +
+                             std::to_string(canvas_size.height) + " canvas (lower gsd or frame size)");
+    double a = 0.0, b = 1.0;
+    for (int it = 0; it < 50; ++it) {
+      const double mid = (a + b) / 2.0;
+      Vec2 c;
+      (place(mid, &c) ? a : b) = mid;
+    }
+    scale = a;
+    if (!place(scale, &centre)) return Fail(error, "sim: plan fit failed");
+    std::ostringstream os;
+    os << "sim plan shrunk to " << scale * 100.0 << "% to keep every footprint inside the canvas (frame spacing "
+       << fwd * scale << " px, strip spacing " << spacing * scale << " px: overlaps are larger than planned)";
+    *note = os.str();
+  }
+  for (size_t i = 0; i < n; ++i) (*poses)[i].position = centre + scale * d[i];
+  return true;
+}
+
+}  // namespace uavm::hal

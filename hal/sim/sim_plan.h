@@ -1,0 +1,94 @@
+#pragma once
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "core/geometry/transform.h"
+
+namespace uavm::hal {
+
+// Flight plan and camera of a simulated flight, one flat YAML mapping. Unknown keys and wrong types are errors.
+// Lengths are canvas pixels unless noted. Defaults in brackets.
+//   canvas: image to fly over; relative paths are relative to the plan file [""; the caller may supply it]
+//   frame_width, frame_height: frame size in pixels [400, 300]
+//   focal_px: pinhole focal length in frame pixels, 0 = frame_width (about 53 deg horizontal field of view) [0]
+//   gsd: canvas pixels per frame pixel at nominal altitude, nadir [1.5]
+//   strips: number of lawn-mower strips along canvas +x, stacked along +y; 0 = as many as fit [0]
+//   strip_length: distance flown by the frame centre along one strip; 0 = as long as fits [0]
+//   strip_spacing: distance between strips; 0 = from side_overlap [0]
+//   forward_overlap, side_overlap: fractions of the nominal footprint shared by neighbours; they set the frame
+//     spacing (frame_width * gsd * (1 - forward_overlap)) and the default strip spacing [0.7, 0.3]
+//   yaw_jitter_deg: sigma of a Gaussian yaw error. Yaw follows the flight: frame +x points along the flight,
+//     return strips are turned 180 deg [0]
+//   altitude_change: amplitude of a sinusoidal altitude change over the flight, fraction of nominal [0]
+//   altitude_drift: linear altitude change from the first to the last frame, fraction of nominal [0]
+//   tilt_deg: camera tilt off nadir (every frame, random direction): a perspective view of the flat canvas [0]
+//   exposure_gain, exposure_offset: per-frame gain uniform in 1 +- gain, offset uniform in +- offset grey levels [0, 0]
+//   noise_sigma: Gaussian sensor noise, grey levels [0]
+//   blur_px: motion blur length along the flight direction, frame pixels [0]
+//   jpeg_quality: JPEG encode + decode round trip, 1..100; 0 = off [0]
+//   passes: repeat the whole pattern this many times [1]
+//   pass_shift: each repeat is shifted by this fraction of the frame and strip spacing [0.5]
+//   margin: canvas pixels kept free around every footprint [2]
+//   seed: every random draw derives from it; same seed, same frames [1]
+// The plan is fitted inside the canvas: the pattern is centred, and shrunk (spacings scaled down, logged as a
+// warning) when footprints would leave it.
+struct SimPlan {
+  std::string canvas;
+  int frame_width = 400;
+  int frame_height = 300;
+  double focal_px = 0.0;
+  double gsd = 1.5;
+  int strips = 0;
+  double strip_length = 0.0;
+  double strip_spacing = 0.0;
+  double forward_overlap = 0.7;
+  double side_overlap = 0.3;
+  double yaw_jitter_deg = 0.0;
+  double altitude_change = 0.0;
+  double altitude_drift = 0.0;
+  double tilt_deg = 0.0;
+  double exposure_gain = 0.0;
+  double exposure_offset = 0.0;
+  double noise_sigma = 0.0;
+  double blur_px = 0.0;
+  int jpeg_quality = 0;
+  int passes = 1;
+  double pass_shift = 0.5;
+  double margin = 2.0;
+  uint64_t seed = 1;
+
+  [[nodiscard]] double Focal() const { return focal_px > 0 ? focal_px : frame_width; }
+  [[nodiscard]] bool Check(std::string* error) const;
+};
+
+// Parses YAML text; `base_dir` resolves a relative `canvas`. False with a message naming the key on any problem.
+[[nodiscard]] bool ParseSimPlan(const std::string& yaml_text, const std::string& base_dir, SimPlan* plan,
+                                std::string* error);
+[[nodiscard]] bool LoadSimPlanFile(const std::string& path, SimPlan* plan, std::string* error);
+// Every key with its value; ParseSimPlan reads it back to the same plan.
+[[nodiscard]] std::string ToYaml(const SimPlan& plan);
+
+// One simulated frame's pose and imaging parameters.
+struct SimPose {
+  int strip = 0;
+  int pass = 0;
+  Vec2 position = Vec2::Zero();  // canvas point under the camera centre
+  double yaw_deg = 0.0;          // frame +x direction in the canvas, from canvas +x towards +y
+  double altitude = 1.0;         // fraction of nominal
+  double roll_deg = 0.0;         // rotation about the frame x axis
+  double pitch_deg = 0.0;        // rotation about the frame y axis
+  double gain = 1.0;
+  double offset = 0.0;
+};
+
+// canvas_from_frame of a pinhole camera at `pose` looking down at the flat canvas (world z points into the ground,
+// canvas x/y are world x/y). Normalised so that m(2, 2) = 1.
+[[nodiscard]] Mat3 CanvasFromFrame(const SimPlan& plan, const SimPose& pose);
+
+// Lays out the whole flight and fits it inside a canvas of `canvas_size`. `note` gets a one-line description of any
+// shrinking (empty when none). False when even a single footprint cannot fit.
+[[nodiscard]] bool BuildFlight(const SimPlan& plan, cv::Size canvas_size, std::vector<SimPose>* poses,
+                               std::string* note, std::string* error);
+
+}  // namespace uavm::hal

@@ -1,0 +1,55 @@
+#include "hal/sim/sim_writer.h"
+
+#include <filesystem>
+#include <opencv2/imgcodecs.hpp>
+
+#include "core/eval/ground_truth.h"
+#include "core/session/session_dir.h"
+
+namespace uavm::hal {
+
+namespace fs = std::filesystem;
+
+bool WriteSimFlight(SimSource* source, const std::string& out_dir, int max_frames, std::string* error) {
+  std::error_code ec;
+  const fs::path root(out_dir);
+  fs::create_directories(root / "images", ec);
+  if (ec) {
+    *error = "cannot create " + (root / "images").string() + ": " + ec.message();
+    return false;
+  }
+  std::vector<eval::GtRow> rows;
+  Frame frame;
+  while (max_frames <= 0 || static_cast<int>(rows.size()) < max_frames) {
+    const Status st = source->Next(&frame, error);
+    if (st == Status::kEndOfStream) break;
+    if (st != Status::kOk) return false;
+    const fs::path file = root / "images" / frame.source_name;
+    const auto& bytes = source->last_encoded();
+    std::string contents;
+    if (!bytes.empty()) {
+      contents.assign(bytes.begin(), bytes.end());
+    } else {
+      std::vector<uchar> png;
+      if (!cv::imencode(".png", frame.image, png)) {
+        *error = "PNG encoding failed for " + frame.source_name;
+        return false;
+      }
+      contents.assign(png.begin(), png.end());
+    }
+    if (!WriteFileAtomic(file.string(), contents, error)) return false;
+    const SimTruth& t = source->last_truth();
+    rows.push_back({static_cast<int>(frame.index), frame.source_name, t.canvas_from_frame, t.affine});
+  }
+  if (rows.empty()) {
+    *error = "the flight has no frames";
+    return false;
+  }
+  SimPlan plan = source->plan();
+  plan.canvas = fs::absolute(plan.canvas, ec).string();
+  const std::string yaml = "# effective plan of this simulated flight (uavmosaic-sim)\n" + ToYaml(plan);
+  return WriteFileAtomic((root / "gt.csv").string(), eval::FormatGroundTruthCsv(rows), error) &&
+         WriteFileAtomic((root / "plan.yaml").string(), yaml, error);
+}
+
+}  // namespace uavm::hal

@@ -1,0 +1,16 @@
+#pragma once
+#include <string>
+
+#include "hal/sim/sim_source.h"
+
+namespace uavm::hal {
+
+// Writes a simulated flight so it can be replayed (`--source replay:OUT/images`) and evaluated later:
+//   OUT/images/frame_000000.jpg ...  (.png when the plan has no JPEG round trip; JPEG files hold exactly the bytes
+//                                     the source decoded, so replayed frames equal the emitted ones)
+//   OUT/gt.csv                        ground truth (core/eval/ground_truth.h)
+//   OUT/plan.yaml                     the effective plan, canvas path made absolute
+// `source` must be open; it is consumed from its current position. max_frames 0 = all.
+[[nodiscard]] bool WriteSimFlight(SimSource* source, const std::string& out_dir, int max_frames, std::string* error);
+
+}  // namespace uavm::hal
