@@ -8,4 +8,4 @@ bash "$ROOT/scripts/build.sh"
 "$BUILD_DIR/firmware_app/uavmosaic-onboard" \
   --source "replay:$ROOT/tests/data/brighton_beach_small/images" --out "$OUT"
 echo
-echo "demo: mosaic written to $OUT/mosaic.png (full resolution: $OUT/mosaic.tif, report: $OUT/report.json)"
+echo "demo: mosaic written to $OUT/mosaic.png (tiled GeoTIFF container: $OUT/mosaic.tif, report: $OUT/report.json)"

@@ -123,6 +123,33 @@ TEST(OnboardE2ETest, DamagedInputsAreSkippedAndReported) {
   fs::remove_all(out);
 }
 
+// The strips flown out of order: strip 1, then strip 3, then strip 2 that links them. Strip 3's first frame cannot
+// match its predecessors; it must be relocalised or start a component that strip 2 later merges: every frame ends
+// in one mosaic.
+TEST(OnboardE2ETest, StripsOutOfOrderAreJoined) {
+  const fs::path in = TempDir("order_in");
+  const fs::path out = TempDir("order_out");
+  fs::create_directories(in);
+  const int order[] = {18, 19, 20, 21, 22, 23, 30, 31, 32, 33, 34, 35, 24, 25, 26, 27, 28, 29};
+  int k = 0;
+  for (int frame : order) {
+    char src[64];
+    char dst[64];
+    std::snprintf(src, sizeof(src), "DJI_%04d.JPG", frame);
+    std::snprintf(dst, sizeof(dst), "f%02d_%s", k++, src);
+    fs::copy_file(kData + "/brighton_beach_small/images/" + src, in / dst);
+  }
+  ASSERT_EQ(RunOnboard("--source replay:" + in.string() + " --out " + out.string()), 0);
+  const auto report = ReadJson(out / "report.json");
+  EXPECT_EQ(report["registered"].get<int>(), 18);
+  EXPECT_GE(report["relocalized"].get<int>() + report["component_merges"].get<int>() +
+                report["joined_on_retry"].get<int>(),
+            1);
+  EXPECT_LT(report["residual_rms_px"].get<double>(), 3.0);
+  fs::remove_all(in);
+  fs::remove_all(out);
+}
+
 TEST(OnboardE2ETest, MissingSourceAndUnwritableOutputGiveDocumentedExitCodes) {
   const fs::path out = TempDir("codes");
   EXPECT_EQ(RunOnboard("--source replay:/nonexistent/flight --out " + out.string() + " 2>/dev/null"), 3);

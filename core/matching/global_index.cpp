@@ -12,8 +12,8 @@ bool GlobalIndexOptions::Check(std::string* why) const {
     if (why != nullptr) *why = "relocalization: need descriptors_per_frame >= 8 and max_descriptors >= 4x that";
     return false;
   }
-  if (!(ratio > 0 && ratio <= 1) || min_votes < 1) {
-    if (why != nullptr) *why = "relocalization: ratio must be in (0,1], min_votes >= 1";
+  if (!(ratio > 0 && ratio <= 1) || min_votes < 1 || rebuild_every_frames < 1) {
+    if (why != nullptr) *why = "relocalization: ratio must be in (0,1], min_votes >= 1, rebuild_every_frames >= 1";
     return false;
   }
   return true;
@@ -38,6 +38,7 @@ void GlobalIndex::Add(int frame_id, const Features& features) {
     rank_in_frame_.push_back(k);
   }
   dirty_ = true;
+  ++added_since_build_;
 }
 
 void GlobalIndex::Thin() {
@@ -57,12 +58,15 @@ void GlobalIndex::Thin() {
   dirty_ = true;
 }
 
-std::vector<int> GlobalIndex::Query(const Features& features, int max_results) {
+std::vector<int> GlobalIndex::Query(const Features& features, int max_results, bool allow_stale) {
   std::vector<int> out;
   if (descriptors_.rows < 2 || features.descriptors.rows == 0) return out;
-  if (dirty_) {
+  const bool stale_ok = allow_stale && index_ && added_since_build_ < options_.rebuild_every_frames;
+  if (dirty_ && !stale_ok) {
+    added_since_build_ = 0;
     // Rebuilt lazily: relocalisation is rare, adding frames is not.
     index_data_ = DequantizeDescriptors(descriptors_);
+    index_frame_of_row_ = frame_of_row_;  // rows of the built tree, valid even after a later Thin()
     index_ = std::make_unique<cv::flann::Index>(index_data_, cv::flann::KDTreeIndexParams(4), cvflann::FLANN_DIST_L2);
     dirty_ = false;
   }
@@ -76,10 +80,10 @@ std::vector<int> GlobalIndex::Query(const Features& features, int max_results) {
   for (int q = 0; q < query.rows; ++q) {
     const int t0 = indices.at<int>(q, 0);
     const int t1 = indices.at<int>(q, 1);
-    if (t0 < 0 || t0 >= descriptors_.rows) continue;
-    const int f0 = frame_of_row_[static_cast<size_t>(t0)];
+    if (t0 < 0 || t0 >= index_data_.rows) continue;
+    const int f0 = index_frame_of_row_[static_cast<size_t>(t0)];
     // Two neighbours from the same frame do not make the match ambiguous.
-    const bool same_frame = t1 >= 0 && t1 < descriptors_.rows && frame_of_row_[static_cast<size_t>(t1)] == f0;
+    const bool same_frame = t1 >= 0 && t1 < index_data_.rows && index_frame_of_row_[static_cast<size_t>(t1)] == f0;
     if (same_frame || dists.at<float>(q, 0) < ratio_sq * dists.at<float>(q, 1)) ++votes[f0];
   }
   std::vector<std::pair<int, int>> ranked;

@@ -13,6 +13,7 @@ struct GlobalIndexOptions {
   int max_descriptors = 131072;     // hard cap (8-bit storage: 16 MiB); when reached, every frame keeps half
   int min_votes = 8;
   double ratio = 0.85;
+  int rebuild_every_frames = 10;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -23,8 +24,10 @@ class GlobalIndex {
  public:
   explicit GlobalIndex(const GlobalIndexOptions& options);
   void Add(int frame_id, const Features& features);
-  // Frames ranked by votes (most first), at most `max_results`, each with at least min_votes.
-  [[nodiscard]] std::vector<int> Query(const Features& features, int max_results);
+  // Frames ranked by votes (most first), at most `max_results`, each with at least min_votes. With `allow_stale`
+  // the kd-tree is rebuilt only after `rebuild_every_frames` additions: a per-frame query then costs a search, not a
+  // rebuild, and misses only the newest frames (which recency matching covers anyway).
+  [[nodiscard]] std::vector<int> Query(const Features& features, int max_results, bool allow_stale = false);
   [[nodiscard]] size_t size() const { return static_cast<size_t>(descriptors_.rows); }
   [[nodiscard]] int per_frame_quota() const { return quota_; }
 
@@ -38,7 +41,9 @@ class GlobalIndex {
   std::vector<int> rank_in_frame_;  // 0..quota-1, used to thin evenly
   std::unique_ptr<cv::flann::Index> index_;
   cv::Mat index_data_;  // CV_32F copy the FLANN index borrows
+  std::vector<int> index_frame_of_row_;
   bool dirty_ = true;
+  int added_since_build_ = 0;
 };
 
 }  // namespace uavm

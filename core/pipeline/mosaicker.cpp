@@ -97,9 +97,9 @@ void Mosaicker::AddEdge(Edge edge) {
 // Re-expresses every frame of `other_root`'s component by `other_fix` (new = fix * old) and unites the two.
 void Mosaicker::MergeInto(int keep_root, int other_root, const Mat3& other_fix) {
   for (int id : MembersOf(other_root)) mosaic_from_work_[id] = other_fix * mosaic_from_work_[id];
-  const int merged = components_.Unite(keep_root, other_root);
-  (void)merged;
+  components_.Unite(keep_root, other_root);
   ++merges_;
+  --num_components_;
 }
 
 void Mosaicker::FullSolve(int root) {
@@ -130,29 +130,48 @@ void Mosaicker::UpdatePreview(int id, const cv::Mat& work_bgr) {
   }
 }
 
+bool Mosaicker::TryJoin(int new_id, int other_id, const DescriptorIndex& index, const Features& feats) {
+  auto other = feature_store_.Get(other_id);
+  if (!other) return false;
+  PairResult r = MatchPair(index, feats, *other, options_.matching);
+  if (!r.ok || r.num_inliers < options_.relative_inlier_fraction * best_inliers_) return false;
+  Edge e{other_id, new_id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points),
+         std::move(r.tgt_points)};
+  // mosaic_from_work(other) should become T_new * new_from_other; the other component moves with it.
+  const Mat3 fix = mosaic_from_work_[new_id] * e.tgt_from_src * mosaic_from_work_[other_id].inverse();
+  AddEdge(std::move(e));
+  MergeInto(components_.Find(new_id), components_.Find(other_id), fix);
+  FullSolve(components_.Find(new_id));
+  return true;
+}
+
 void Mosaicker::TryRetries(int new_id, const DescriptorIndex& index, const Features& feats) {
   const int budget = std::min<int>(options_.retry_per_frame, static_cast<int>(retry_.size()));
   for (int k = 0; k < budget; ++k) {
     auto [id, attempts] = retry_.front();
     retry_.pop_front();
     if (components_.Find(id) == components_.Find(new_id)) continue;  // already joined through another frame
-    auto other = feature_store_.Get(id);
-    if (!other) continue;
-    PairResult r = MatchPair(index, feats, *other, options_.matching);
-    if (r.ok && r.num_inliers >= options_.relative_inlier_fraction * best_inliers_) {
-      Edge e{
-          id, new_id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points), std::move(r.tgt_points)};
-      // mosaic_from_work(id) should become T_new * new_from_id.
-      const Mat3 fix = mosaic_from_work_[new_id] * e.tgt_from_src * mosaic_from_work_[id].inverse();
-      AddEdge(std::move(e));
-      MergeInto(components_.Find(new_id), components_.Find(id), fix);
-      FullSolve(components_.Find(new_id));
+    if (TryJoin(new_id, id, index, feats)) {
       ++retried_ok_;
       spdlog::info("frame {} joined the mosaic on retry (via frame {})", frames_[static_cast<size_t>(id)].name,
                    frames_[static_cast<size_t>(new_id)].name);
       continue;
     }
     if (attempts + 1 < options_.retry_max_attempts) retry_.emplace_back(id, attempts + 1);
+  }
+}
+
+void Mosaicker::Bridge(int new_id, const DescriptorIndex& index, const Features& feats) {
+  // The flight is in pieces (a strip flown elsewhere first, a lost frame): look for the new frame's look-alikes in
+  // other components. The global index answers from a tree rebuilt every few frames, so this costs one search.
+  int tried = 0;
+  for (int c : global_index_.Query(feats, 2 * options_.bridge_candidates, /*allow_stale=*/true)) {
+    if (tried >= options_.bridge_candidates) break;
+    if (components_.Find(c) == components_.Find(new_id)) continue;
+    ++tried;
+    if (TryJoin(new_id, c, index, feats))
+      spdlog::info("frame {} joined two parts of the flight (via frame {})", frames_[static_cast<size_t>(new_id)].name,
+                   frames_[static_cast<size_t>(c)].name);
   }
 }
 
@@ -303,12 +322,17 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     // A component of its own until a later frame connects it.
     mosaic_from_work_[id] = Mat3::Identity();
     st.in_graph = true;
-    st.failure = "no verified match with any candidate";
-    if (options_.retry_list_size > 0) {
-      if (static_cast<int>(retry_.size()) >= options_.retry_list_size) retry_.pop_front();  // oldest gives way
-      retry_.emplace_back(id, 0);
+    ++num_components_;
+    if (id == 0) {
+      spdlog::info("frame {} starts the mosaic", st.name);
+    } else {
+      st.failure = "no verified match with any candidate";
+      if (options_.retry_list_size > 0) {
+        if (static_cast<int>(retry_.size()) >= options_.retry_list_size) retry_.pop_front();  // oldest gives way
+        retry_.emplace_back(id, 0);
+      }
+      spdlog::info("frame {} matched none of {} candidates; kept for retry", st.name, tried.size());
     }
-    spdlog::info("frame {} matched none of {} candidates; kept for retry", st.name, tried.size());
     outcome = id == 0 ? FrameOutcome::kRegistered : FrameOutcome::kNewComponent;
   } else {
     st.in_graph = true;
@@ -335,6 +359,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     if (++registered_since_full_ >= options_.full_solve_every || loop_closure || merged)
       FullSolve(components_.Find(id));
     TryRetries(id, index, feats);
+    if (num_components_ > 1 && options_.bridge_candidates > 0) Bridge(id, index, feats);
   }
   global_index_.Add(id, feats);
   stats_.Add("adjust", t.ElapsedMs());

@@ -28,6 +28,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"", "min_overlap_fraction", &o.min_overlap_fraction},
       {"", "relative_inlier_fraction", &o.relative_inlier_fraction},
       {"", "relocalization_candidates", &o.relocalization_candidates},
+      {"", "bridge_candidates", &o.bridge_candidates},
       {"", "retry_list_size", &o.retry_list_size},
       {"", "retry_per_frame", &o.retry_per_frame},
       {"", "retry_max_attempts", &o.retry_max_attempts},
@@ -61,6 +62,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"relocalization", "max_descriptors", &o.relocalization.max_descriptors},
       {"relocalization", "min_votes", &o.relocalization.min_votes},
       {"relocalization", "ratio", &o.relocalization.ratio},
+      {"relocalization", "rebuild_every_frames", &o.relocalization.rebuild_every_frames},
       {"adjust", "rigidity_weight", &o.adjust.rigidity_weight},
       {"adjust", "relative_linear_weight", &o.adjust.relative_linear_weight},
       {"adjust", "huber_px", &o.adjust.huber_px},
@@ -91,7 +93,7 @@ bool PipelineOptions::Check(std::string* why) const {
     return Fail(why, "min_overlap_fraction must be in (0,1)");
   if (!(relative_inlier_fraction >= 0 && relative_inlier_fraction < 1))
     return Fail(why, "relative_inlier_fraction must be in [0,1)");
-  if (relocalization_candidates < 0 || retry_list_size < 0 || retry_per_frame < 0 || retry_max_attempts < 1)
+  if (relocalization_candidates < 0 || bridge_candidates < 0 || retry_list_size < 0 || retry_per_frame < 0 || retry_max_attempts < 1)
     return Fail(why, "relocalization/retry settings must be >= 0");
   if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
   if (preview_every < 0 || preview_side < 64) return Fail(why, "preview_every >= 0 and preview_side >= 64");
