@@ -48,6 +48,8 @@ void LivePreview::Add(const cv::Mat& thumb, const Mat3& mosaic_from_thumb) {
     cv::warpPerspective(thumb, warped, cv::Mat(ToCv(view_from_thumb)), canvas_.size(), cv::INTER_LINEAR);
     cv::warpPerspective(mask, warped_mask, cv::Mat(ToCv(view_from_thumb)), canvas_.size(), cv::INTER_NEAREST);
   }
+  // Bilinear warping blends the thumbnail's edge with black: leave that 1 px rim out.
+  cv::erode(warped_mask, warped_mask, cv::Mat());
   warped.copyTo(canvas_, warped_mask);
   content_ = wanted;
   empty_ = false;
