@@ -11,6 +11,7 @@
 #include "core/util/clock.h"
 #include "core/util/memory.h"
 #include "hal/replay/replay_source.h"
+#include "hal/sim/sim_source.h"
 
 namespace uavm::app {
 
@@ -27,7 +28,11 @@ std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::strin
     o.stride = config.stride;
     return std::make_unique<hal::ReplaySource>(o);
   }
-  *error = "unknown source '" + s + "' (expected replay:PATH)";
+  if (scheme == "sim") {
+    // A simulated flight over a real image (plan YAML: see hal/sim/sim_plan.h); frames are rendered, not decoded.
+    return std::make_unique<hal::SimSource>(hal::SimOptions{arg, "", "", 0});
+  }
+  *error = "unknown source '" + s + "' (expected replay:PATH or sim:PLAN.yaml)";
   return nullptr;
 }
 

@@ -52,7 +52,8 @@ void Mosaicker::RecordSkipped(const std::string& file, const std::string& reason
   skipped_.push_back({file, reason});
 }
 
-bool Mosaicker::StoreFrameBytes(const hal::Frame& frame, FrameState* state, std::string* error) {
+bool Mosaicker::StoreFrameBytes(const hal::Frame& frame, const std::vector<uchar>& encoded, FrameState* state,
+                                std::string* error) {
   state->stored_file = paths_.frames() + "/" + StoredName(state->id, frame.source_name);
   std::error_code ec;
   if (!frame.source_path.empty()) {
@@ -65,8 +66,9 @@ bool Mosaicker::StoreFrameBytes(const hal::Frame& frame, FrameState* state, std:
     return true;
   }
   if (fs::path(state->stored_file).extension() != ".jpg") state->stored_file += ".jpg";
-  if (!cv::imwrite(state->stored_file, frame.image, {cv::IMWRITE_JPEG_QUALITY, 95})) {
-    *error = "cannot store frame " + frame.source_name;
+  if (encoded.empty() ||
+      !WriteFileAtomic(state->stored_file, std::string(encoded.begin(), encoded.end()), error)) {
+    *error = "cannot store frame " + frame.source_name + (error->empty() ? "" : ": " + *error);
     return false;
   }
   return true;
@@ -187,6 +189,14 @@ Mosaicker::Prepared Mosaicker::Prepare(hal::Frame frame) const {
   else
     cv::resize(frame.image, p.work_bgr, work_size, 0, 0, cv::INTER_AREA);
   cv::cvtColor(p.work_bgr, p.work_gray, cv::COLOR_BGR2GRAY);
+  if (frame.source_path.empty()) {
+    // No file to copy into the session (camera, video, simulation): encode here, on the capture thread.
+    try {
+      cv::imencode(".jpg", frame.image, p.encoded, {cv::IMWRITE_JPEG_QUALITY, 95});
+    } catch (const cv::Exception&) {
+      p.encoded.clear();
+    }
+  }
   frame.image.release();  // the decoded original is not needed any more: keep queued frames small
   p.prepare_ms = t.ElapsedMs();
   t.Restart();
@@ -217,7 +227,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   st.half_diagonal = 0.5 * std::hypot(st.work_size.width, st.work_size.height);
   const cv::Mat& work_bgr = prepared.work_bgr;
   std::string error;
-  if (!StoreFrameBytes(frame, &st, &error)) {
+  if (!StoreFrameBytes(frame, prepared.encoded, &st, &error)) {
     st.failure = error;
     spdlog::error("{}", error);
     return FrameOutcome::kFailed;

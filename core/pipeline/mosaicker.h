@@ -39,6 +39,7 @@ class Mosaicker {
     cv::Mat work_bgr;
     cv::Mat work_gray;
     Features features;
+    std::vector<uchar> encoded;  // JPEG of the frame when the source has no file to copy
     double decode_ms = 0.0;  // measured by the caller around the source's Next()
     double prepare_ms = 0.0;
     double features_ms = 0.0;
@@ -73,7 +74,8 @@ class Mosaicker {
     hal::FrameMetadata metadata;
   };
 
-  [[nodiscard]] bool StoreFrameBytes(const hal::Frame& frame, FrameState* state, std::string* error);
+  [[nodiscard]] bool StoreFrameBytes(const hal::Frame& frame, const std::vector<uchar>& encoded, FrameState* state,
+                                     std::string* error);
   [[nodiscard]] std::vector<const Edge*> EdgesWithin(int root);
   [[nodiscard]] std::vector<int> MembersOf(int root);
   void AddEdge(Edge edge);

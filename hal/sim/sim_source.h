@@ -45,7 +45,7 @@ class SimSource final : public FrameSource {
   [[nodiscard]] size_t NumFrames() const;
   // Name of frame `index`: frame_000000.jpg, or .png when the plan has no JPEG round trip.
   [[nodiscard]] std::string FrameName(uint64_t index) const;
-  // Exposed for tests: the rendering of pose i without noise-free shortcuts (what Next() emits).
+  // Renders frame i exactly as Next() emits it (random access, for tests and tools).
   [[nodiscard]] bool Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded,
                             std::string* error);
 

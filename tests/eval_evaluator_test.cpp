@@ -1,0 +1,151 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "core/eval/evaluator.h"
+#include "core/eval/ground_truth.h"
+#include "core/eval/image_score.h"
+#include "hal/sim/sim_plan.h"
+
+namespace uavm::eval {
+namespace {
+
+const std::string kCanvas = std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg";
+const cv::Size kFrame(400, 300);
+
+// Ground truth of a 15-frame flight (3 strips of 5) over the 1000x750 canvas, without rendering.
+std::vector<GtRow> Flight(double tilt_deg, double yaw_jitter_deg = 3.0) {
+  hal::SimPlan plan;
+  std::string err;
+  std::string yaml = "frame_width: 400\nframe_height: 300\ngsd: 1.0\nstrips: 3\nstrip_length: 480\n";
+  // Appends, not operator+ on a literal: GCC 12 warns falsely (-Wrestrict) on the latter.
+  yaml.append("altitude_change: 0.05\nyaw_jitter_deg: ").append(std::to_string(yaw_jitter_deg));
+  yaml.append("\ntilt_deg: ").append(std::to_string(tilt_deg)).append("\n");
+  EXPECT_TRUE(hal::ParseSimPlan(yaml, "", &plan, &err)) << err;
+  std::vector<hal::SimPose> poses;
+  std::string note;
+  EXPECT_TRUE(hal::BuildFlight(plan, cv::Size(1000, 750), &poses, &note, &err)) << err;
+  std::vector<GtRow> gt;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const Mat3 h = hal::CanvasFromFrame(plan, poses[i]);
+    const std::string name = std::string("f").append(std::to_string(i)).append(".png");
+    gt.push_back({static_cast<int>(i), name, h, ClosestAffine(h, 400, 300)});
+  }
+  return gt;
+}
+
+// An arbitrary similarity standing in for the mosaic's own frame: scale 0.5, 20 degrees, offset.
+Mat3 MosaicFromCanvas() {
+  const double c = 0.5 * std::cos(0.35), s = 0.5 * std::sin(0.35);
+  Mat3 m;
+  m << c, -s, 120.0, s, c, -40.0, 0, 0, 1;
+  return m;
+}
+
+std::vector<TransformRow> SessionFrom(const std::vector<GtRow>& gt) {
+  std::vector<TransformRow> rows;
+  for (const auto& g : gt) rows.push_back({g.index, g.filename, true, MosaicFromCanvas() * g.canvas_from_frame});
+  return rows;
+}
+
+TEST(GroundTruthCsvTest, RoundTripsExactly) {
+  const auto gt = Flight(2.0);
+  std::vector<GtRow> back;
+  std::string err;
+  ASSERT_TRUE(ParseGroundTruthCsv(FormatGroundTruthCsv(gt), &back, &err)) << err;
+  ASSERT_EQ(back.size(), gt.size());
+  EXPECT_TRUE(back[3].canvas_from_frame == gt[3].canvas_from_frame);
+  EXPECT_TRUE(back[3].affine == gt[3].affine);
+  EXPECT_FALSE(ParseGroundTruthCsv("index,filename\n", &back, &err));
+}
+
+TEST(EvaluatorTest, TheTruthItselfHasNoError) {
+  const auto gt = Flight(1.5);
+  EvalResult r;
+  std::string err;
+  ASSERT_TRUE(EvaluateSession(SessionFrom(gt), gt, kFrame, &r, &err)) << err;
+  EXPECT_EQ(r.registered, 15);
+  EXPECT_DOUBLE_EQ(r.registered_share, 1.0);
+  EXPECT_LT(r.rms_px, 1e-6);
+  EXPECT_LT(r.max_px, 1e-6);
+  EXPECT_LT((r.canvas_from_mosaic - MosaicFromCanvas().inverse()).norm(), 1e-6);
+}
+
+TEST(EvaluatorTest, AKnownShiftOfOneFrameShowsOnThatFrame) {
+  const auto gt = Flight(0.0);
+  auto session = SessionFrom(gt);
+  session[7].mosaic_from_frame = session[7].mosaic_from_frame * Translation(2.0, 0.0);  // 2 frame px
+  session[11].registered = false;
+  EvalResult r;
+  std::string err;
+  ASSERT_TRUE(EvaluateSession(session, gt, kFrame, &r, &err)) << err;
+  EXPECT_EQ(r.registered, 14);
+  EXPECT_NEAR(r.registered_share, 14.0 / 15.0, 1e-12);
+  // One global least-squares fit over 14 frames absorbs about 1/14 of the shift.
+  EXPECT_NEAR(r.per_frame[7].rms_px, 2.0, 0.25);
+  for (size_t i = 0; i < r.per_frame.size(); ++i) {
+    if (i == 7) continue;
+    EXPECT_LT(r.per_frame[i].rms_px, 0.25) << i;
+  }
+  EXPECT_FALSE(r.per_frame[11].registered);
+  EXPECT_GT(r.per_frame[14].path_length_px, r.per_frame[13].path_length_px);
+}
+
+TEST(EvaluatorTest, PairsByIndexWhenNamesDiffer) {
+  const auto gt = Flight(0.0);
+  auto session = SessionFrom(gt);
+  for (auto& row : session) row.filename = "renamed.jpg";
+  EvalResult r;
+  std::string err;
+  ASSERT_TRUE(EvaluateSession(session, gt, kFrame, &r, &err)) << err;
+  EXPECT_LT(r.rms_px, 1e-6);
+}
+
+TEST(EvaluatorTest, AffineFloorIsZeroForNadirAndPositiveForTilt) {
+  EvalResult nadir, tilted;
+  std::string err;
+  const auto gn = Flight(0.0);
+  const auto gtl = Flight(1.0);
+  ASSERT_TRUE(EvaluateSession(AffineFloorSession(gn), gn, kFrame, &nadir, &err)) << err;
+  ASSERT_TRUE(EvaluateSession(AffineFloorSession(gtl), gtl, kFrame, &tilted, &err)) << err;
+  EXPECT_LT(nadir.rms_px, 1e-6);
+  EXPECT_GT(tilted.rms_px, 0.05);
+  EXPECT_GT(tilted.max_px, tilted.rms_px);
+  std::printf("affine floor at 1 deg tilt: rms %.4f max %.4f px\n", tilted.rms_px, tilted.max_px);
+  const auto j = ToJson(nadir, &tilted);
+  EXPECT_EQ(j["per_frame"].size(), 15u);
+  EXPECT_DOUBLE_EQ(j["affine_floor_rms_px"].get<double>(), tilted.rms_px);
+}
+
+TEST(ImageScoreTest, AnAffineWarpOfTheCanvasScoresBelowOnePixel) {
+  const cv::Mat canvas = cv::imread(kCanvas, cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION);
+  ASSERT_FALSE(canvas.empty());
+  // mosaic_from_canvas: scale 0.8, 12 degrees, shift.
+  const double c = 0.8 * std::cos(0.21), s = 0.8 * std::sin(0.21);
+  const cv::Matx23d a(c, -s, 150.0, s, c, 20.0);
+  cv::Mat mosaic;
+  cv::warpAffine(canvas, mosaic, a, cv::Size(1100, 900), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+  cv::Mat alpha;
+  cv::warpAffine(cv::Mat(canvas.size(), CV_8U, cv::Scalar(255)), alpha, a, mosaic.size(), cv::INTER_NEAREST);
+  cv::Mat bgra;
+  cv::cvtColor(mosaic, bgra, cv::COLOR_BGR2BGRA);
+  cv::insertChannel(alpha, bgra, 3);
+  ImageScore score;
+  std::string err;
+  ASSERT_TRUE(ScoreMosaicImage(bgra, canvas, &score, &err)) << err;
+  std::printf("image score: %d matches, %d inliers, median %.3f p90 %.3f px\n", score.matches, score.inliers,
+              score.median_px, score.p90_px);
+  EXPECT_GT(score.inliers, 100);
+  EXPECT_LT(score.median_px, 1.0);
+  // The fitted affine is the inverse of the warp.
+  Mat3 m = Mat3::Identity();
+  m.topRows<2>() << a(0, 0), a(0, 1), a(0, 2), a(1, 0), a(1, 1), a(1, 2);
+  const Mat3 expect = m.inverse();
+  for (const auto& p : {Vec2(100, 100), Vec2(900, 700)})
+    EXPECT_LT((Apply(score.canvas_from_mosaic, p) - Apply(expect, p)).norm(), 1.0);
+}
+
+}  // namespace
+}  // namespace uavm::eval

@@ -1,0 +1,199 @@
+#include "hal/sim/sim_source.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "core/eval/ground_truth.h"
+#include "core/session/session_dir.h"
+#include "hal/sim/sim_writer.h"
+
+namespace uavm::hal {
+namespace {
+
+namespace fs = std::filesystem;
+const std::string kCanvas = std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg";
+
+// 400x300 frames at gsd 1 over the 1000x750 canvas: 2 strips of 480 px at 120 px spacing (forward overlap 0.7).
+const std::string kNadirPlan =
+    "frame_width: 400\nframe_height: 300\ngsd: 1.0\nstrips: 2\nstrip_length: 480\n"
+    "forward_overlap: 0.7\nside_overlap: 0.3\nseed: 7\n";
+
+SimSource Make(const std::string& yaml) { return SimSource({"", yaml, kCanvas, 0}); }
+
+TEST(SimPlanTest, UnknownKeyAndWrongTypeAreErrors) {
+  SimPlan plan;
+  std::string err;
+  EXPECT_FALSE(ParseSimPlan("gsd: 1\nspeed: 3\n", "", &plan, &err));
+  EXPECT_NE(err.find("unknown key 'speed'"), std::string::npos) << err;
+  EXPECT_FALSE(ParseSimPlan("strips: two\n", "", &plan, &err));
+  EXPECT_NE(err.find("'strips' has the wrong type"), std::string::npos) << err;
+  EXPECT_FALSE(ParseSimPlan("side_overlap: 1.5\n", "", &plan, &err));
+  ASSERT_TRUE(ParseSimPlan("", "", &plan, &err)) << err;  // all defaults
+  EXPECT_DOUBLE_EQ(plan.gsd, 1.5);
+  SimPlan back;
+  plan.tilt_deg = 1.25;
+  ASSERT_TRUE(ParseSimPlan(ToYaml(plan), "", &back, &err)) << err;
+  EXPECT_DOUBLE_EQ(back.tilt_deg, 1.25);
+  // A bad plan makes Open() fail with the message, not throw.
+  SimSource src = Make("gsd: -1\n");
+  EXPECT_EQ(src.Open(&err), Status::kError);
+  EXPECT_NE(err.find("gsd"), std::string::npos) << err;
+}
+
+TEST(SimSourceTest, FrameCountAndSpacingFollowTheOverlaps) {
+  SimSource src = Make(kNadirPlan);
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  // 480 / (400 * (1 - 0.7)) + 1 = 5 frames per strip.
+  ASSERT_EQ(src.NumFrames(), 10u);
+  const auto& p = src.poses();
+  EXPECT_NEAR((p[1].position - p[0].position).norm(), 120.0, 1e-9);
+  EXPECT_NEAR(p[5].position.y() - p[0].position.y(), 210.0, 1e-9);  // 300 * (1 - 0.3)
+  // Every footprint is inside the canvas.
+  for (size_t i = 0; i < p.size(); ++i) {
+    for (const auto& c : Footprint(CanvasFromFrame(src.plan(), p[i]), 400, 300)) {
+      EXPECT_GE(c.x, 0.f);
+      EXPECT_GE(c.y, 0.f);
+      EXPECT_LE(c.x, 999.f);
+      EXPECT_LE(c.y, 749.f);
+    }
+  }
+  Frame f;
+  int n = 0;
+  while (src.Next(&f, &err) == Status::kOk) {
+    EXPECT_EQ(f.image.size(), cv::Size(400, 300));
+    EXPECT_EQ(f.index, static_cast<uint64_t>(n));
+    ++n;
+  }
+  EXPECT_EQ(n, 10);
+}
+
+TEST(SimSourceTest, TooLongPlanIsShrunkIntoTheCanvas) {
+  SimSource src = Make("frame_width: 400\nframe_height: 300\ngsd: 1.0\nstrips: 3\nstrip_length: 2000\n");
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  for (const auto& pose : src.poses())
+    for (const auto& c : Footprint(CanvasFromFrame(src.plan(), pose), 400, 300)) {
+      EXPECT_GE(c.x, 0.f);
+      EXPECT_LE(c.x, 999.f);
+    }
+}
+
+TEST(SimSourceTest, SameSeedSameBytes) {
+  const std::string plan = kNadirPlan + "yaw_jitter_deg: 2\nnoise_sigma: 3\nblur_px: 1.5\njpeg_quality: 90\n"
+                                        "exposure_gain: 0.1\naltitude_change: 0.1\n";
+  SimSource a = Make(plan), b = Make(plan);
+  std::string err;
+  SimSource d = Make(std::string(plan).replace(plan.find("seed: 7"), 7, "seed: 8"));
+  ASSERT_EQ(a.Open(&err), Status::kOk) << err;
+  ASSERT_EQ(b.Open(&err), Status::kOk) << err;
+  ASSERT_EQ(d.Open(&err), Status::kOk) << err;
+  Frame fa, fb, fd;
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_EQ(a.Next(&fa, &err), Status::kOk);
+    ASSERT_EQ(b.Next(&fb, &err), Status::kOk);
+    ASSERT_EQ(d.Next(&fd, &err), Status::kOk);
+    EXPECT_EQ(cv::norm(fa.image, fb.image, cv::NORM_INF), 0.0);
+    EXPECT_EQ(a.last_encoded(), b.last_encoded());
+    EXPECT_TRUE(a.last_truth().canvas_from_frame == b.last_truth().canvas_from_frame);
+  }
+  EXPECT_GT(cv::norm(fa.image, fd.image, cv::NORM_INF), 0.0);
+}
+
+TEST(SimSourceTest, PixelsAreTheCanvasSampledThroughTheTruth) {
+  const cv::Mat canvas = cv::imread(kCanvas, cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION);
+  ASSERT_FALSE(canvas.empty());
+  SimSource src = Make(kNadirPlan + "yaw_jitter_deg: 5\n");
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  Frame f;
+  for (int k = 0; k < 7; ++k) ASSERT_EQ(src.Next(&f, &err), Status::kOk);  // a return-strip frame
+  const Mat3 h = src.last_truth().canvas_from_frame;
+  for (const auto& p : {Vec2(10, 10), Vec2(200, 150), Vec2(377, 41), Vec2(55, 280), Vec2(390, 290)}) {
+    const Vec2 q = Apply(h, p);
+    cv::Mat patch;
+    cv::getRectSubPix(canvas, cv::Size(1, 1), cv::Point2f(static_cast<float>(q.x()), static_cast<float>(q.y())),
+                      patch);
+    const cv::Vec3b expect = patch.at<cv::Vec3b>(0, 0);
+    const cv::Vec3b got = f.image.at<cv::Vec3b>(static_cast<int>(p.y()), static_cast<int>(p.x()));
+    for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(got[ch], expect[ch], 2) << "at " << p.transpose();
+  }
+}
+
+TEST(SimSourceTest, TiltMakesTheTruthProjectiveAndTheAffineIsItsBestFit) {
+  SimSource src = Make(kNadirPlan + "tilt_deg: 3\n");
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  Frame f;
+  ASSERT_EQ(src.Next(&f, &err), Status::kOk);
+  const SimTruth t = src.last_truth();
+  EXPECT_GT(std::abs(t.canvas_from_frame(2, 0)) + std::abs(t.canvas_from_frame(2, 1)), 1e-6);
+  EXPECT_TRUE(IsAffine(t.affine));
+  // Least squares: perturbing any affine coefficient makes the grid error larger.
+  auto cost = [&](const Mat3& a) {
+    double s = 0;
+    for (int j = 0; j < 17; ++j)
+      for (int i = 0; i < 17; ++i) {
+        const Vec2 p(399.0 * i / 16, 299.0 * j / 16);
+        s += (Apply(a, p) - Apply(t.canvas_from_frame, p)).squaredNorm();
+      }
+    return s;
+  };
+  const double best = cost(t.affine);
+  EXPECT_GT(best, 0.0);
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 3; ++c)
+      for (double d : {-1e-3, 1e-3}) {
+        Mat3 a = t.affine;
+        a(r, c) += c == 2 ? d * 100 : d;
+        EXPECT_GT(cost(a), best);
+      }
+}
+
+TEST(SimSourceTest, ReturnStripsFaceTheOtherWay) {
+  SimSource src = Make(kNadirPlan);
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  Frame f;
+  std::vector<double> yaw;
+  while (src.Next(&f, &err) == Status::kOk) yaw.push_back(Decompose(src.last_truth().affine).rotation);
+  ASSERT_EQ(yaw.size(), 10u);
+  for (int i = 0; i < 5; ++i) EXPECT_NEAR(yaw[static_cast<size_t>(i)], 0.0, 1e-9);
+  for (int i = 5; i < 10; ++i) EXPECT_NEAR(std::abs(yaw[static_cast<size_t>(i)]), M_PI, 1e-9);
+}
+
+TEST(SimWriterTest, WritesImagesGroundTruthAndPlan) {
+  const fs::path dir = fs::temp_directory_path() / ("uavm_sim_writer_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  SimSource src = Make(kNadirPlan + "jpeg_quality: 92\n");
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  ASSERT_TRUE(WriteSimFlight(&src, dir.string(), 4, &err)) << err;
+  EXPECT_TRUE(fs::exists(dir / "images" / "frame_000003.jpg"));
+  EXPECT_FALSE(fs::exists(dir / "images" / "frame_000004.jpg"));
+  std::string text;
+  ASSERT_TRUE(ReadTextFile((dir / "gt.csv").string(), &text, &err));
+  std::vector<eval::GtRow> rows;
+  ASSERT_TRUE(eval::ParseGroundTruthCsv(text, &rows, &err)) << err;
+  ASSERT_EQ(rows.size(), 4u);
+  EXPECT_EQ(rows[2].filename, "frame_000002.jpg");
+  SimPlan plan;
+  ASSERT_TRUE(LoadSimPlanFile((dir / "plan.yaml").string(), &plan, &err)) << err;
+  EXPECT_EQ(plan.jpeg_quality, 92);
+  EXPECT_TRUE(fs::path(plan.canvas).is_absolute());
+  // The written JPEG decodes to exactly the emitted frame.
+  SimSource again = Make(kNadirPlan + "jpeg_quality: 92\n");
+  ASSERT_EQ(again.Open(&err), Status::kOk);
+  Frame f;
+  ASSERT_EQ(again.Next(&f, &err), Status::kOk);
+  const cv::Mat read = cv::imread((dir / "images" / "frame_000000.jpg").string());
+  EXPECT_EQ(cv::norm(read, f.image, cv::NORM_INF), 0.0);
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace uavm::hal
