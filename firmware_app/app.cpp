@@ -91,10 +91,16 @@ int Run(const RunConfig& config) {
       }
       item.message = err;
       if (item.status == hal::Status::kOk) {
-        // Features are computed here, on the capture side, overlapping the previous frame's matching.
-        item.prepared = mosaicker.Prepare(std::move(frame));
-        item.prepared.decode_ms = decode_ms;
         ++delivered;
+        // Features are computed here, on the capture side, overlapping the previous frame's matching.
+        try {
+          item.prepared = mosaicker.Prepare(std::move(frame));
+          item.prepared.decode_ms = decode_ms;
+        } catch (const std::exception& e) {
+          // An input OpenCV cannot process (e.g. a degenerate size) is skipped like a corrupt file, never fatal.
+          item.status = hal::Status::kSkipped;
+          item.message = std::string("cannot process frame: ") + e.what();
+        }
       }
       if (!queue.Push(std::move(item))) break;
     }
@@ -106,8 +112,12 @@ int Run(const RunConfig& config) {
       mosaicker.RecordSkipped(item->name, item->message);
       continue;
     }
-    const auto outcome = mosaicker.AddFrame(std::move(item->prepared));
-    (void)outcome;
+    try {
+      const auto outcome = mosaicker.AddFrame(std::move(item->prepared));
+      (void)outcome;
+    } catch (const std::exception& e) {
+      spdlog::error("frame {} could not be registered: {}", item->name, e.what());
+    }
     const auto& stats = mosaicker.stage_stats();
     if (mosaicker.frames_in() % 10 == 0)
       spdlog::info("{} frames, median {:.0f} ms/frame, RSS {:.0f} MiB", mosaicker.frames_in(),
