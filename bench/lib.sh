@@ -1,0 +1,87 @@
+# bench/lib.sh: measurement and formatting helpers shared by bench/run_real.sh and bench/run.sh (source it).
+# Needs bash >= 5 (EPOCHREALTIME) and LC_ALL=C for "." decimals.
+
+now_us() { echo "${EPOCHREALTIME//[.,]/}"; }
+
+# read_status PID: sets S_STATE S_RSS S_HWM (kB); fails once /proc/PID is gone.
+read_status() {
+  S_STATE="" S_RSS=0 S_HWM=0
+  local key val _rest
+  {
+    while read -r key val _rest; do
+      case $key in
+        State:) S_STATE=$val ;;
+        VmRSS:) S_RSS=$val ;;
+        VmHWM:) S_HWM=$val ;;
+      esac
+    done <"/proc/$1/status"
+  } 2>/dev/null || return 1
+}
+
+# run_watched PREFIX CAP_KB TIMEOUT_S CMD...: runs CMD with stdout/stderr to PREFIX.{stdout,stderr}
+# under the watchdog (CAP_KB / TIMEOUT_S of 0 = no cap). Sets W_RC, W_WALL_S, W_PEAK_KB,
+# W_KILLED ("" | mem | timeout), W_KILL_RSS_KB. Never fails, so one tool cannot abort the table.
+run_watched() {
+  local prefix=$1 cap_kb=$2 timeout_s=$3
+  shift 3
+  local t0 t1 pid
+  W_RC=0 W_PEAK_KB=0 W_KILLED="" W_KILL_RSS_KB=0
+  t0=$(now_us)
+  "$@" >"$prefix.stdout" 2>"$prefix.stderr" &
+  pid=$!
+  while read_status "$pid"; do
+    # A zombie still answers kill -0 and has no Vm* lines: it has finished.
+    [[ -z $S_STATE || $S_STATE == Z* ]] && break
+    ((S_HWM > W_PEAK_KB)) && W_PEAK_KB=$S_HWM
+    ((S_RSS > W_PEAK_KB)) && W_PEAK_KB=$S_RSS
+    if ((cap_kb > 0 && S_RSS > cap_kb)); then
+      kill -KILL "$pid" 2>/dev/null || true
+      W_KILLED=mem W_KILL_RSS_KB=$S_RSS
+      break
+    fi
+    if ((timeout_s > 0 && $(now_us) - t0 > timeout_s * 1000000)); then
+      kill -KILL "$pid" 2>/dev/null || true
+      W_KILLED=timeout
+      break
+    fi
+    sleep 0.2
+  done
+  # Braces: silence bash's own "Killed" job notice; the table says what happened.
+  { wait "$pid"; } 2>/dev/null || W_RC=$?
+  t1=$(now_us)
+  W_WALL_S=$(awk -v d=$((t1 - t0)) 'BEGIN { printf "%.2f", d / 1e6 }')
+}
+
+# peak_mib: the watchdog's peak in MiB; "—" when the process ended before a useful poll.
+peak_mib() {
+  if ((W_PEAK_KB >= 1024)); then fmt "$W_PEAK_KB" 0 1024; else echo "—"; fi
+}
+
+# fmt VALUE DECIMALS [DIVISOR]: number formatting, "—" for empty/non-numeric.
+fmt() {
+  local v=$1 dec=$2 div=${3:-1}
+  if [[ $v =~ ^-?[0-9]+(\.[0-9]+)?([eE][-+]?[0-9]+)?$ ]]; then
+    awk -v v="$v" -v d="$div" -v p="$dec" 'BEGIN { printf "%.*f", p, v / d }'
+  else
+    echo "—"
+  fi
+}
+
+# cell TEXT: safe inside a markdown table cell (no pipes/newlines, bounded length).
+cell() {
+  local s=${1//$'\n'/ }
+  s=${s//|/\\|}
+  ((${#s} > 140)) && s="${s:0:137}..."
+  echo "$s"
+}
+
+count_images() {  # -L: test data folders are often symlink farms
+  [[ -d $1 ]] || { echo 0; return 0; }
+  find -L "$1" -maxdepth 1 -type f \( -iname '*.jpg' -o -iname '*.jpeg' -o -iname '*.png' \) | wc -l
+}
+
+rc_text() {  # exit status -> "exit N" / "signal N"
+  if (($1 > 128)); then echo "signal $(($1 - 128))"; else echo "exit $1"; fi
+}
+
+cpu_model() { awk -F': ' '/^model name/ { print $2; exit }' /proc/cpuinfo; }
