@@ -291,7 +291,6 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     }
   }
   int root = -1;
-  bool loop_closure = false;
   if (!found.empty()) {
     // Base component: the largest one touched; the new frame's first estimate comes from its strongest edge there.
     std::map<int, int> size_of_root;
@@ -318,10 +317,8 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
         if (area_new > 0 && a / area_new >= options_.min_overlap_fraction) overlaps.emplace_back(a, f.id);
       }
       std::sort(overlaps.rbegin(), overlaps.rend());
-      const size_t before = found.size();
       for (size_t k = 0; k < overlaps.size() && static_cast<int>(k) < options_.overlap_candidates; ++k)
         try_candidate(overlaps[k].second);
-      loop_closure = found.size() > before;
     }
   }
   stats_.Add("matching", t.ElapsedMs());
@@ -366,8 +363,10 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     const auto r = AdjustAffine(local, {id}, half_diag, options_.adjust, &mosaic_from_work_);
     if (!r.ok) spdlog::warn("local adjustment of {} failed: {}", st.name, r.failure);
     st.failure.clear();
-    if (++registered_since_full_ >= options_.full_solve_every || loop_closure || merged)
-      FullSolve(components_.Find(id));
+    // Full solves get rarer as the component grows (every max(N, size/20) frames): their cost grows with the
+    // flight, and between them each new frame is still solved against all its neighbours, old strips included.
+    const int interval = std::max(options_.full_solve_every, components_.SizeOf(id) / 20);
+    if (++registered_since_full_ >= interval || merged) FullSolve(components_.Find(id));
     TryRetries(id, index, feats);
     if (num_components_ > 1 && options_.bridge_candidates > 0) Bridge(id, index, feats);
   }
