@@ -134,7 +134,7 @@ TEST(OnboardE2ETest, StripsOutOfOrderAreJoined) {
   int k = 0;
   for (int frame : order) {
     char src[64];
-    char dst[64];
+    char dst[96];
     std::snprintf(src, sizeof(src), "DJI_%04d.JPG", frame);
     std::snprintf(dst, sizeof(dst), "f%02d_%s", k++, src);
     fs::copy_file(kData + "/brighton_beach_small/images/" + src, in / dst);
@@ -142,9 +142,9 @@ TEST(OnboardE2ETest, StripsOutOfOrderAreJoined) {
   ASSERT_EQ(RunOnboard("--source replay:" + in.string() + " --out " + out.string()), 0);
   const auto report = ReadJson(out / "report.json");
   EXPECT_EQ(report["registered"].get<int>(), 18);
-  EXPECT_GE(report["relocalized"].get<int>() + report["component_merges"].get<int>() +
-                report["joined_on_retry"].get<int>(),
-            1);
+  EXPECT_GE(
+      report["relocalized"].get<int>() + report["component_merges"].get<int>() + report["joined_on_retry"].get<int>(),
+      1);
   EXPECT_LT(report["residual_rms_px"].get<double>(), 3.0);
   fs::remove_all(in);
   fs::remove_all(out);

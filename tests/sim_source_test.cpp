@@ -22,7 +22,9 @@ const std::string kNadirPlan =
     "frame_width: 400\nframe_height: 300\ngsd: 1.0\nstrips: 2\nstrip_length: 480\n"
     "forward_overlap: 0.7\nside_overlap: 0.3\nseed: 7\n";
 
-SimSource Make(const std::string& yaml) { return SimSource({"", yaml, kCanvas, 0}); }
+SimSource Make(const std::string& yaml) {
+  return SimSource({"", yaml, kCanvas, 0});
+}
 
 TEST(SimPlanTest, UnknownKeyAndWrongTypeAreErrors) {
   SimPlan plan;
@@ -84,8 +86,9 @@ TEST(SimSourceTest, TooLongPlanIsShrunkIntoTheCanvas) {
 }
 
 TEST(SimSourceTest, SameSeedSameBytes) {
-  const std::string plan = kNadirPlan + "yaw_jitter_deg: 2\nnoise_sigma: 3\nblur_px: 1.5\njpeg_quality: 90\n"
-                                        "exposure_gain: 0.1\naltitude_change: 0.1\n";
+  const std::string plan = kNadirPlan +
+                           "yaw_jitter_deg: 2\nnoise_sigma: 3\nblur_px: 1.5\njpeg_quality: 90\n"
+                           "exposure_gain: 0.1\naltitude_change: 0.1\n";
   SimSource a = Make(plan), b = Make(plan);
   std::string err;
   SimSource d = Make(std::string(plan).replace(plan.find("seed: 7"), 7, "seed: 8"));
@@ -116,8 +119,7 @@ TEST(SimSourceTest, PixelsAreTheCanvasSampledThroughTheTruth) {
   for (const auto& p : {Vec2(10, 10), Vec2(200, 150), Vec2(377, 41), Vec2(55, 280), Vec2(390, 290)}) {
     const Vec2 q = Apply(h, p);
     cv::Mat patch;
-    cv::getRectSubPix(canvas, cv::Size(1, 1), cv::Point2f(static_cast<float>(q.x()), static_cast<float>(q.y())),
-                      patch);
+    cv::getRectSubPix(canvas, cv::Size(1, 1), cv::Point2f(static_cast<float>(q.x()), static_cast<float>(q.y())), patch);
     const cv::Vec3b expect = patch.at<cv::Vec3b>(0, 0);
     const cv::Vec3b got = f.image.at<cv::Vec3b>(static_cast<int>(p.y()), static_cast<int>(p.x()));
     for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(got[ch], expect[ch], 2) << "at " << p.transpose();

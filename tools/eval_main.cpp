@@ -67,8 +67,7 @@ int RunSession(const std::string& session, const std::string& gt_path, std::stri
   std::printf("%-22s %10.4f %10.4f\n", "session", result.rms_px, result.max_px);
   std::printf("%-22s %10.4f %10.4f\n", "affine floor", floor.rms_px, floor.max_px);
   std::printf("drift: first third %.4f, last third %.4f, ratio %.3f, slope %.4f px per 1000 canvas px\n",
-              result.first_third_rms_px, result.last_third_rms_px, result.drift_ratio,
-              result.drift_slope_px_per_kpx);
+              result.first_third_rms_px, result.last_third_rms_px, result.drift_ratio, result.drift_slope_px_per_kpx);
   if (!json_path.empty()) {
     std::ofstream out(json_path);
     out << eval::ToJson(result, &floor).dump(2) << "\n";

@@ -10,7 +10,7 @@
 namespace uavm::eval {
 
 struct EvalOptions {
-  int grid = 9;            // grid x grid points per frame
+  int grid = 9;                // grid x grid points per frame
   int refine_iterations = 20;  // Levenberg-Marquardt steps after the DLT
 };
 

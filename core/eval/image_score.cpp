@@ -63,8 +63,8 @@ bool ScoreMosaicImage(const cv::Mat& mosaic, const cv::Mat& canvas, ImageScore* 
   sift->detectAndCompute(pm.grey, pm.mask, km, dm);
   sift->detectAndCompute(pc.grey, pc.mask, kc, dc);
   if (km.size() < 10 || kc.size() < 10) {
-    *error = "too few SIFT keypoints (mosaic " + std::to_string(km.size()) + ", canvas " + std::to_string(kc.size()) +
-             ")";
+    *error =
+        "too few SIFT keypoints (mosaic " + std::to_string(km.size()) + ", canvas " + std::to_string(kc.size()) + ")";
     return false;
   }
   cv::FlannBasedMatcher matcher;

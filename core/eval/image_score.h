@@ -11,8 +11,8 @@ namespace uavm::eval {
 struct ImageScoreOptions {
   int max_long_side = 2000;  // both images are reduced to at most this for feature extraction
   int max_features = 8000;
-  double ratio = 0.75;       // Lowe's ratio test
-  double ransac_px = 3.0;    // RANSAC threshold, in reduced canvas pixels
+  double ratio = 0.75;     // Lowe's ratio test
+  double ransac_px = 3.0;  // RANSAC threshold, in reduced canvas pixels
 };
 
 struct ImageScore {
@@ -24,7 +24,7 @@ struct ImageScore {
 };
 
 // `mosaic` may be BGRA (alpha 0 = not flown, ignored), BGR or grey. False with a reason when too few matches.
-[[nodiscard]] bool ScoreMosaicImage(const cv::Mat& mosaic, const cv::Mat& canvas, ImageScore* score,
-                                    std::string* error, const ImageScoreOptions& options = {});
+[[nodiscard]] bool ScoreMosaicImage(const cv::Mat& mosaic, const cv::Mat& canvas, ImageScore* score, std::string* error,
+                                    const ImageScoreOptions& options = {});
 
 }  // namespace uavm::eval

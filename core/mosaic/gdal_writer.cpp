@@ -48,8 +48,8 @@ GdalTiffWriter::~GdalTiffWriter() {
   if (impl_->ds != nullptr) GDALClose(impl_->ds);
 }
 
-bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_size, int tile_size,
-                          bool overviews, std::string* error) {
+bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_size, int tile_size, bool overviews,
+                          std::string* error) {
   GDALAllRegister();
   CPLSetConfigOption("CPL_LOG_ERRORS", "OFF");
   // GDAL's block cache defaults to 5 % of RAM; tiles are written once, so a small cache is enough.

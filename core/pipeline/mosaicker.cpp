@@ -66,8 +66,7 @@ bool Mosaicker::StoreFrameBytes(const hal::Frame& frame, const std::vector<uchar
     return true;
   }
   if (fs::path(state->stored_file).extension() != ".jpg") state->stored_file += ".jpg";
-  if (encoded.empty() ||
-      !WriteFileAtomic(state->stored_file, std::string(encoded.begin(), encoded.end()), error)) {
+  if (encoded.empty() || !WriteFileAtomic(state->stored_file, std::string(encoded.begin(), encoded.end()), error)) {
     *error = "cannot store frame " + frame.source_name + (error->empty() ? "" : ": " + *error);
     return false;
   }
@@ -137,8 +136,8 @@ bool Mosaicker::TryJoin(int new_id, int other_id, const DescriptorIndex& index, 
   if (!other) return false;
   PairResult r = MatchPair(index, feats, *other, options_.matching);
   if (!r.ok || r.num_inliers < options_.relative_inlier_fraction * best_inliers_) return false;
-  Edge e{other_id, new_id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points),
-         std::move(r.tgt_points)};
+  Edge e{
+      other_id, new_id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points), std::move(r.tgt_points)};
   // mosaic_from_work(other) should become T_new * new_from_other; the other component moves with it.
   const Mat3 fix = mosaic_from_work_[new_id] * e.tgt_from_src * mosaic_from_work_[other_id].inverse();
   AddEdge(std::move(e));

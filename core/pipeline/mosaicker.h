@@ -40,7 +40,7 @@ class Mosaicker {
     cv::Mat work_gray;
     Features features;
     std::vector<uchar> encoded;  // JPEG of the frame when the source has no file to copy
-    double decode_ms = 0.0;  // measured by the caller around the source's Next()
+    double decode_ms = 0.0;      // measured by the caller around the source's Next()
     double prepare_ms = 0.0;
     double features_ms = 0.0;
   };

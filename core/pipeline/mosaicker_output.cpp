@@ -3,10 +3,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <filesystem>
 #include <sstream>
 #include <unordered_set>
 
@@ -139,10 +139,10 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     const auto& m = f.metadata;
     frames_csv << f.id << ',' << f.name << ',' << std::filesystem::path(f.stored_file).filename().string() << ','
                << f.original_size.width << ',' << f.original_size.height << ',' << f.timestamp_ns << ','
-               << (in_component.count(f.id) != 0 ? 1 : 0) << ',' << cell(m.latitude_deg) << ','
-               << cell(m.longitude_deg) << ',' << cell(m.altitude_m) << ',' << cell(m.relative_altitude_m) << ','
-               << cell(m.flight_yaw_deg) << ',' << cell(m.gimbal_yaw_deg) << ',' << cell(m.gimbal_pitch_deg) << ','
-               << cell(m.focal_length_mm) << '\n';
+               << (in_component.count(f.id) != 0 ? 1 : 0) << ',' << cell(m.latitude_deg) << ',' << cell(m.longitude_deg)
+               << ',' << cell(m.altitude_m) << ',' << cell(m.relative_altitude_m) << ',' << cell(m.flight_yaw_deg)
+               << ',' << cell(m.gimbal_yaw_deg) << ',' << cell(m.gimbal_pitch_deg) << ',' << cell(m.focal_length_mm)
+               << '\n';
   }
   if (!WriteFileAtomic(paths_.Join("frames.csv"), frames_csv.str(), error)) return false;
   if (!WriteFileAtomic(paths_.Join("correspondences.csv"), corr_csv.str(), error)) return false;
@@ -176,8 +176,9 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     auto load = [&](int id) { return LoadForCanvas(frames_[static_cast<size_t>(id)].stored_file, load_of[id]); };
     GdalTiffWriter tiff;
     const bool write_tiff = options_.write_tiff;
-    if (write_tiff && !tiff.Open(paths_.Join("mosaic.tif"), canvas, options_.mosaic.tiff_block, options_.mosaic.tile_size,
-                                options_.mosaic.build_overviews, error)) return false;
+    if (write_tiff && !tiff.Open(paths_.Join("mosaic.tif"), canvas, options_.mosaic.tiff_block,
+                                 options_.mosaic.tile_size, options_.mosaic.build_overviews, error))
+      return false;
     composite = Composite(inputs, canvas, load, options_.mosaic, write_tiff ? &tiff : nullptr);
     if (!composite.ok) {
       *error = "composite failed: " + composite.error;

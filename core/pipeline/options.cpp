@@ -93,7 +93,8 @@ bool PipelineOptions::Check(std::string* why) const {
     return Fail(why, "min_overlap_fraction must be in (0,1)");
   if (!(relative_inlier_fraction >= 0 && relative_inlier_fraction < 1))
     return Fail(why, "relative_inlier_fraction must be in [0,1)");
-  if (relocalization_candidates < 0 || bridge_candidates < 0 || retry_list_size < 0 || retry_per_frame < 0 || retry_max_attempts < 1)
+  if (relocalization_candidates < 0 || bridge_candidates < 0 || retry_list_size < 0 || retry_per_frame < 0 ||
+      retry_max_attempts < 1)
     return Fail(why, "relocalization/retry settings must be >= 0");
   if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
   if (preview_every < 0 || preview_side < 64) return Fail(why, "preview_every >= 0 and preview_side >= 64");

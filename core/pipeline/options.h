@@ -16,8 +16,8 @@ struct PipelineOptions {
   double min_overlap_fraction = 0.15;  // of the new frame's area, for an overlap candidate
   double relative_inlier_fraction = 0.05;  // seed method: an edge needs 5 % of the best pair's inliers
   int relocalization_candidates = 4;
-  int bridge_candidates = 2;         // while the flight is in pieces: frames of other components tried per frame
-  int retry_list_size = 16;  // frames that matched nothing, retried against later frames
+  int bridge_candidates = 2;  // while the flight is in pieces: frames of other components tried per frame
+  int retry_list_size = 16;   // frames that matched nothing, retried against later frames
   int retry_per_frame = 2;
   int retry_max_attempts = 60;
   int full_solve_every = 10;  // full adjustment every max(N, size/20) registered frames, and on a merge

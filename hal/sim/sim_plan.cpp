@@ -16,7 +16,9 @@ namespace uavm::hal {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-double Rad(double deg) { return deg * kPi / 180.0; }
+double Rad(double deg) {
+  return deg * kPi / 180.0;
+}
 
 bool Fail(std::string* error, const std::string& msg) {
   *error = msg;
@@ -56,7 +58,7 @@ class Draws {
  public:
   explicit Draws(uint64_t seed) : gen_(seed) {}
   double Uniform() { return static_cast<double>(gen_() >> 11) * 0x1.0p-53; }  // [0, 1)
-  double Symmetric() { return 2.0 * Uniform() - 1.0; }                       // [-1, 1)
+  double Symmetric() { return 2.0 * Uniform() - 1.0; }                        // [-1, 1)
   double Normal() {
     const double u1 = 1.0 - Uniform();  // (0, 1]: log is finite
     const double u2 = Uniform();
@@ -73,7 +75,8 @@ bool SimPlan::Check(std::string* error) const {
   if (frame_width < 16 || frame_height < 16) return Fail(error, "frame_width and frame_height must be >= 16");
   if (focal_px < 0) return Fail(error, "focal_px must be >= 0");
   if (!(gsd > 0)) return Fail(error, "gsd must be > 0");
-  if (strips < 0 || strip_length < 0 || strip_spacing < 0) return Fail(error, "strips/strip_length/spacing must be >= 0");
+  if (strips < 0 || strip_length < 0 || strip_spacing < 0)
+    return Fail(error, "strips/strip_length/spacing must be >= 0");
   if (forward_overlap < 0 || forward_overlap > 0.95) return Fail(error, "forward_overlap must be in [0, 0.95]");
   if (side_overlap < 0 || side_overlap > 0.95) return Fail(error, "side_overlap must be in [0, 0.95]");
   if (yaw_jitter_deg < 0) return Fail(error, "yaw_jitter_deg must be >= 0");
@@ -175,7 +178,8 @@ bool BuildFlight(const SimPlan& plan, cv::Size canvas_size, std::vector<SimPose>
   note->clear();
   const double w = plan.frame_width, ht = plan.frame_height, g = plan.gsd;
   const double fwd = std::max(w * g * (1.0 - plan.forward_overlap), 1.0);
-  const double spacing = plan.strip_spacing > 0 ? plan.strip_spacing : std::max(ht * g * (1.0 - plan.side_overlap), 1.0);
+  const double spacing =
+      plan.strip_spacing > 0 ? plan.strip_spacing : std::max(ht * g * (1.0 - plan.side_overlap), 1.0);
   // Rough footprint extent, only to size the automatic strip length and count; the fit below is exact.
   const double amax = 1.0 + std::abs(plan.altitude_change) + std::abs(plan.altitude_drift);
   const double yaw3 = Rad(std::min(3.0 * plan.yaw_jitter_deg, 90.0));

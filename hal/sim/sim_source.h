@@ -46,8 +46,7 @@ class SimSource final : public FrameSource {
   // Name of frame `index`: frame_000000.jpg, or .png when the plan has no JPEG round trip.
   [[nodiscard]] std::string FrameName(uint64_t index) const;
   // Renders frame i exactly as Next() emits it (random access, for tests and tools).
-  [[nodiscard]] bool Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded,
-                            std::string* error);
+  [[nodiscard]] bool Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded, std::string* error);
 
  private:
   const cv::Mat& CanvasLevel(int level);
