@@ -378,8 +378,57 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   return outcome;
 }
 
+// Frames only get to choose overlap candidates when they arrive, so the first frames of a flight (and any frame
+// whose neighbours came later) have fewer edges than the rest: on simulated flights the first frame carried 3-4x the
+// error of the others. At the end, frames with fewer edges than a new frame normally makes are matched against the
+// frames that now overlap them (bounded: at most kMaxFrames frames, M candidates each).
+void Mosaicker::Densify() {
+  constexpr int kMaxFrames = 64;
+  const int wanted = options_.recent_candidates + options_.overlap_candidates;
+  int done = 0;
+  for (auto& f : frames_) {
+    if (done >= kMaxFrames) break;
+    if (!f.in_graph || !f.has_features || static_cast<int>(adjacency_[static_cast<size_t>(f.id)].size()) >= wanted)
+      continue;
+    const int root = components_.Find(f.id);
+    std::unordered_set<int> linked{f.id};
+    for (size_t ei : adjacency_[static_cast<size_t>(f.id)]) {
+      linked.insert(graph_.edges()[ei].src);
+      linked.insert(graph_.edges()[ei].tgt);
+    }
+    const auto fp = Footprint(mosaic_from_work_[f.id], f.work_size.width, f.work_size.height);
+    const double area = PolygonArea(fp);
+    std::vector<std::pair<double, int>> overlaps;
+    for (const auto& g : frames_) {
+      if (linked.count(g.id) != 0 || !g.in_graph || components_.Find(g.id) != root) continue;
+      const double a = ConvexOverlapArea(fp, Footprint(mosaic_from_work_[g.id], g.work_size.width, g.work_size.height));
+      if (area > 0 && a / area >= options_.min_overlap_fraction) overlaps.emplace_back(a, g.id);
+    }
+    if (overlaps.empty()) continue;
+    ++done;
+    std::sort(overlaps.rbegin(), overlaps.rend());
+    auto mine = feature_store_.Get(f.id);
+    if (!mine) continue;
+    const DescriptorIndex index(*mine, options_.matching);
+    for (size_t k = 0; k < overlaps.size() && static_cast<int>(k) < options_.overlap_candidates; ++k) {
+      const int other_id = overlaps[k].second;
+      auto other = feature_store_.Get(other_id);
+      if (!other) continue;
+      MatchGuide guide;
+      guide.tgt_from_src = mosaic_from_work_[f.id].inverse() * mosaic_from_work_[other_id];
+      guide.tgt_size = f.work_size;
+      PairResult r = MatchPair(index, *mine, *other, options_.matching, &guide);
+      if (!r.ok || r.num_inliers < options_.relative_inlier_fraction * best_inliers_) continue;
+      AddEdge(Edge{other_id, f.id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points),
+                   std::move(r.tgt_points)});
+      ++densified_edges_;
+    }
+  }
+}
+
 bool Mosaicker::Finish(std::string* error) {
   StageTimer t;
+  Densify();
   // Largest component over edges that pass both thresholds against the final best pair.
   std::vector<int> component =
       graph_.LargestComponent(options_.relative_inlier_fraction, options_.matching.min_inliers);

@@ -81,6 +81,7 @@ class Mosaicker {
   void AddEdge(Edge edge);
   void MergeInto(int keep_root, int other_root, const Mat3& other_fix);
   void FullSolve(int root);
+  void Densify();
   void TryRetries(int new_id, const class DescriptorIndex& index, const Features& feats);
   // Tries to join `other` (a frame of another component) to the new frame; merges the components on success.
   bool TryJoin(int new_id, int other, const DescriptorIndex& index, const Features& feats);
@@ -109,6 +110,7 @@ class Mosaicker {
   int retried_ok_ = 0;
   int merges_ = 0;
   int num_components_ = 0;
+  int densified_edges_ = 0;
   int64_t start_ns_ = 0;
   int final_registered_ = 0;
   double final_rms_ = 0.0;

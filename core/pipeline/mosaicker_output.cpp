@@ -217,6 +217,7 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   report["joined_on_retry"] = retried_ok_;
   report["component_merges"] = merges_;
   report["edges"] = graph_.edges().size();
+  report["edges_added_at_end"] = densified_edges_;
   report["feature_store"] = {{"resident_mib", static_cast<double>(feature_store_.resident_bytes()) / (1 << 20)},
                              {"disk_loads", feature_store_.disk_loads()}};
   nlohmann::json skipped = nlohmann::json::array();
