@@ -303,22 +303,8 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
         best = &f.edge;
     mosaic_from_work_[id] = mosaic_from_work_[best->src] * best->tgt_from_src.inverse();
     // 3) frames of that component whose footprint overlaps the estimate: closes loops between strips.
-    if (options_.overlap_candidates > 0) {
-      const auto fp_new = Footprint(mosaic_from_work_[id], st.work_size.width, st.work_size.height);
-      const cv::Rect2d box_new = cv::boundingRect(fp_new);
-      const double area_new = PolygonArea(fp_new);
-      std::vector<std::pair<double, int>> overlaps;
-      for (const auto& f : frames_) {
-        if (f.id == id || !f.in_graph || tried.count(f.id) != 0 || components_.Find(f.id) != root) continue;
-        const auto fp = Footprint(mosaic_from_work_[f.id], f.work_size.width, f.work_size.height);
-        if ((cv::Rect2d(cv::boundingRect(fp)) & box_new).area() <= 0) continue;
-        const double a = ConvexOverlapArea(fp_new, fp);
-        if (area_new > 0 && a / area_new >= options_.min_overlap_fraction) overlaps.emplace_back(a, f.id);
-      }
-      std::sort(overlaps.rbegin(), overlaps.rend());
-      for (size_t k = 0; k < overlaps.size() && static_cast<int>(k) < options_.overlap_candidates; ++k)
-        try_candidate(overlaps[k].second);
-    }
+    // (The new frame is not united with `root` yet: its component is named explicitly.)
+    for (int c : OverlapCandidates(id, root, tried)) try_candidate(c);
   }
   stats_.Add("matching", t.ElapsedMs());
 
@@ -378,6 +364,29 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   return outcome;
 }
 
+std::vector<int> Mosaicker::OverlapCandidates(int id, int root, const std::unordered_set<int>& exclude) {
+  std::vector<int> out;
+  if (options_.overlap_candidates <= 0) return out;
+  const FrameState& me = frames_[static_cast<size_t>(id)];
+  const auto fp_me = Footprint(mosaic_from_work_[id], me.work_size.width, me.work_size.height);
+  const cv::Rect2d box_me = cv::boundingRect(fp_me);
+  const double area_me = PolygonArea(fp_me);
+  if (!(area_me > 0)) return out;
+  std::vector<std::pair<double, int>> overlaps;
+  for (const auto& f : frames_) {
+    if (f.id == id || !f.in_graph || exclude.count(f.id) != 0 || components_.Find(f.id) != components_.Find(root))
+      continue;
+    const auto fp = Footprint(mosaic_from_work_[f.id], f.work_size.width, f.work_size.height);
+    if ((cv::Rect2d(cv::boundingRect(fp)) & box_me).area() <= 0) continue;
+    const double a = ConvexOverlapArea(fp_me, fp);
+    if (a / area_me >= options_.min_overlap_fraction) overlaps.emplace_back(a, f.id);
+  }
+  std::sort(overlaps.rbegin(), overlaps.rend());
+  for (size_t k = 0; k < overlaps.size() && static_cast<int>(k) < options_.overlap_candidates; ++k)
+    out.push_back(overlaps[k].second);
+  return out;
+}
+
 // Frames only get to choose overlap candidates when they arrive, so the first frames of a flight (and any frame
 // whose neighbours came later) have fewer edges than the rest: on simulated flights the first frame carried 3-4x the
 // error of the others. At the end, frames with fewer edges than a new frame normally makes are matched against the
@@ -390,28 +399,18 @@ void Mosaicker::Densify() {
     if (done >= kMaxFrames) break;
     if (!f.in_graph || !f.has_features || static_cast<int>(adjacency_[static_cast<size_t>(f.id)].size()) >= wanted)
       continue;
-    const int root = components_.Find(f.id);
     std::unordered_set<int> linked{f.id};
     for (size_t ei : adjacency_[static_cast<size_t>(f.id)]) {
       linked.insert(graph_.edges()[ei].src);
       linked.insert(graph_.edges()[ei].tgt);
     }
-    const auto fp = Footprint(mosaic_from_work_[f.id], f.work_size.width, f.work_size.height);
-    const double area = PolygonArea(fp);
-    std::vector<std::pair<double, int>> overlaps;
-    for (const auto& g : frames_) {
-      if (linked.count(g.id) != 0 || !g.in_graph || components_.Find(g.id) != root) continue;
-      const double a = ConvexOverlapArea(fp, Footprint(mosaic_from_work_[g.id], g.work_size.width, g.work_size.height));
-      if (area > 0 && a / area >= options_.min_overlap_fraction) overlaps.emplace_back(a, g.id);
-    }
-    if (overlaps.empty()) continue;
+    const std::vector<int> candidates = OverlapCandidates(f.id, f.id, linked);
+    if (candidates.empty()) continue;
     ++done;
-    std::sort(overlaps.rbegin(), overlaps.rend());
     auto mine = feature_store_.Get(f.id);
     if (!mine) continue;
     const DescriptorIndex index(*mine, options_.matching);
-    for (size_t k = 0; k < overlaps.size() && static_cast<int>(k) < options_.overlap_candidates; ++k) {
-      const int other_id = overlaps[k].second;
+    for (int other_id : candidates) {
       auto other = feature_store_.Get(other_id);
       if (!other) continue;
       MatchGuide guide;

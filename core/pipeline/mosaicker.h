@@ -3,6 +3,7 @@
 #include <memory>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include "core/graph/match_graph.h"
@@ -82,6 +83,9 @@ class Mosaicker {
   void MergeInto(int keep_root, int other_root, const Mat3& other_fix);
   void FullSolve(int root);
   void Densify();
+  // Up to M frames of `root`'s component whose footprint overlaps frame `id` most (current transforms), not in
+  // `exclude`.
+  [[nodiscard]] std::vector<int> OverlapCandidates(int id, int root, const std::unordered_set<int>& exclude);
   void TryRetries(int new_id, const class DescriptorIndex& index, const Features& feats);
   // Tries to join `other` (a frame of another component) to the new frame; merges the components on success.
   bool TryJoin(int new_id, int other, const DescriptorIndex& index, const Features& feats);
