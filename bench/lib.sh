@@ -85,3 +85,39 @@ rc_text() {  # exit status -> "exit N" / "signal N"
 }
 
 cpu_model() { awk -F': ' '/^model name/ { print $2; exit }' /proc/cpuinfo; }
+
+# run_stitcher FDIR IMG_DIR TIMEOUT_S MEM_CAP_KB OURS_OK OURS_WALL_S: runs uavm-stitcher-bench under the watchdog and
+# sets S_FRAMES S_REG S_WALL S_RSS S_STATUS S_RATIO (S_FRAMES keeps its value when the tool prints no JSON). The ratio
+# only means something against a successful run of ours; a killed or timed-out stitcher ran at least that long, so
+# it is a lower bound.
+run_stitcher() {
+  local fdir=$1 img_dir=$2 timeout_s=$3 mem_cap_kb=$4 ours_ok=$5 ours_wall_s=$6 json j_frames j_reg r
+  S_REG="—" S_WALL="" S_RSS="—" S_STATUS="" S_RATIO="—"
+  rm -f "$fdir/stitcher.png"
+  run_watched "$fdir/stitcher" "$mem_cap_kb" "$timeout_s" "$STITCHER_BIN" --images "$img_dir" --out "$fdir/stitcher.png"
+  S_RSS=$(peak_mib)
+  json=$(grep '^{' "$fdir/stitcher.stdout" | tail -n 1 || true)
+  if [[ -n $json ]] && IFS=$'\x1f' read -r S_STATUS j_frames j_reg < <(
+    jq -r '[.status, .frames, .frames_in_result] | map(tostring) | join("\u001f")' <<<"$json" 2>/dev/null); then
+    S_FRAMES=$j_frames S_REG=$j_reg
+  fi
+  if [[ $W_KILLED == mem ]]; then
+    S_WALL="killed at $(fmt "$W_KILL_RSS_KB" 1 1048576) GB (after $W_WALL_S s)"
+  elif [[ $W_KILLED == timeout ]]; then
+    S_WALL="timeout at $timeout_s s"
+  elif [[ $S_STATUS == ok ]]; then
+    S_WALL=$W_WALL_S
+  elif [[ -n $S_STATUS ]]; then
+    S_WALL="failed: ${S_STATUS#failed: }"
+  else
+    S_WALL="failed: $(rc_text "$W_RC"), no JSON"
+  fi
+  if ((ours_ok)); then
+    r=$(awk -v a="$W_WALL_S" -v b="$ours_wall_s" 'BEGIN { if (b > 0) printf "%.2f", a / b }')
+    if [[ -n $r ]]; then
+      if [[ $S_STATUS == ok ]]; then S_RATIO="${r}x"
+      elif [[ -n $W_KILLED ]]; then S_RATIO="≥ ${r}x"
+      fi
+    fi
+  fi
+}

@@ -162,37 +162,12 @@ for name in $FLIGHTS_SIM; do
   ROWS+=("| $label | uavmosaic-onboard | $o_frames | $o_reg | $o_err | $o_drift | $o_floor | $o_score | $(cell "$o_wall") | $o_st | $o_rss | — |")
 
   # ---- cv::Stitcher -----------------------------------------------------------------------
-  s_frames=$n_img s_reg="—" s_wall="" s_rss="—" ratio="—" s_score="—"
-  rm -f "$fdir/stitcher.png"
   log "$label: cv::Stitcher SCANS (cap ${STITCHER_MEM_GB} GiB, ${SIM_STITCHER_TIMEOUT_S} s)"
-  run_watched "$fdir/stitcher" "$mem_cap_kb" "$SIM_STITCHER_TIMEOUT_S" \
-    "$STITCHER_BIN" --images "$img_dir" --out "$fdir/stitcher.png"
-  s_rss=$(peak_mib)
-  json=$(grep '^{' "$fdir/stitcher.stdout" | tail -n 1 || true)
-  s_status=""
-  if [[ -n $json ]] && IFS=$'\x1f' read -r s_status j_frames j_reg < <(
-    jq -r '[.status, .frames, .frames_in_result] | map(tostring) | join("\u001f")' <<<"$json" 2>/dev/null); then
-    s_frames=$j_frames s_reg=$j_reg
-  fi
-  if [[ $W_KILLED == mem ]]; then
-    s_wall="killed at $(fmt "$W_KILL_RSS_KB" 1 1048576) GB (after $W_WALL_S s)"
-  elif [[ $W_KILLED == timeout ]]; then
-    s_wall="timeout at $SIM_STITCHER_TIMEOUT_S s"
-  elif [[ $s_status == ok ]]; then
-    s_wall=$W_WALL_S
+  S_FRAMES=$n_img
+  run_stitcher "$fdir" "$img_dir" "$SIM_STITCHER_TIMEOUT_S" "$mem_cap_kb" "$o_ok" "$ours_wall_s"
+  s_frames=$S_FRAMES s_reg=$S_REG s_wall=$S_WALL s_rss=$S_RSS ratio=$S_RATIO s_score="—"
+  if [[ $S_STATUS == ok && -z $W_KILLED ]]; then
     s_score=$(image_score "$fdir/stitcher.png" "$fdir/score_stitcher")
-  elif [[ -n $s_status ]]; then
-    s_wall="failed: ${s_status#failed: }"
-  else
-    s_wall="failed: $(rc_text "$W_RC"), no JSON"
-  fi
-  if ((o_ok)); then
-    r=$(awk -v a="$W_WALL_S" -v b="$ours_wall_s" 'BEGIN { if (b > 0) printf "%.2f", a / b }')
-    if [[ -n $r ]]; then
-      if [[ $s_status == ok ]]; then ratio="${r}x"
-      elif [[ -n $W_KILLED ]]; then ratio="≥ ${r}x"
-      fi
-    fi
   fi
   ROWS+=("| $label | cv::Stitcher SCANS | $s_frames | $s_reg | — | — | — | $s_score | $(cell "$s_wall") | — | $s_rss | $ratio |")
 done
