@@ -6,7 +6,7 @@
 # vs OpenCV's cv::Stitcher, one markdown table (OUT_DIR/table.md and $RESULTS_DIR/<date>-<hostname>.md).
 #
 # Environment:
-#   FLIGHTS_SIM            simulated plans (default "sim_easy sim_hard sim_long sim_tilt1"; "" = none)
+#   FLIGHTS_SIM            simulated plans (default "sim_easy sim_hard sim_long sim_tilt1 sim_tilt2"; "" = none)
 #   FLIGHTS_REAL           real flight folders (default "brighton_beach caliterra"; "" = none)
 #   QUICK=1                small versions of the sim plans (2 strips, 1 pass) for testing
 #   SIM_DIR                where flights are generated (default OUT_DIR/sim; reused when gt.csv exists)
@@ -14,6 +14,7 @@
 #   STITCHER_TIMEOUT_S     cv::Stitcher wall cap on real flights, s (default 600, run_real.sh)
 #   STITCHER_MEM_GB        cv::Stitcher RSS cap, GiB (default 12)
 #   OURS_TIMEOUT_S         wall cap for uavmosaic-onboard, s (default 0 = none)
+#   OURS_ARGS              extra uavmosaic-onboard options, e.g. "--model affine" (also passed to run_real.sh)
 #   UAVM_BUILD_DIR         build tree (default <repo>/build)
 #   UAVM_RESULTS_DIR       where the dated table goes (default bench/results)
 set -euo pipefail
@@ -23,7 +24,7 @@ SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 
 if [[ $# -lt 1 || $# -gt 2 || $1 == -h || $1 == --help ]]; then
-  sed -n '2,20p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,21p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 
@@ -36,13 +37,14 @@ RESULTS_DIR=${UAVM_RESULTS_DIR:-$SCRIPT_DIR/results}
 OUT_DIR=${2:-$RESULTS_DIR/run-$STAMP}
 BUILD=${UAVM_BUILD_DIR:-$REPO/build}
 OURS_BIN=$BUILD/firmware_app/uavmosaic-onboard
+read -r -a OURS_EXTRA <<<"${OURS_ARGS:-}"
 SIM_BIN=$BUILD/tools/uavmosaic-sim
 EVAL_BIN=$BUILD/tools/uavmosaic-eval
 STITCHER_BIN=$BUILD/bench/uavm-stitcher-bench
 SIM_STITCHER_TIMEOUT_S=${SIM_STITCHER_TIMEOUT_S:-300}
 STITCHER_MEM_GB=${STITCHER_MEM_GB:-12}
 OURS_TIMEOUT_S=${OURS_TIMEOUT_S:-0}
-FLIGHTS_SIM=${FLIGHTS_SIM-sim_easy sim_hard sim_long sim_tilt1}
+FLIGHTS_SIM=${FLIGHTS_SIM-sim_easy sim_hard sim_long sim_tilt1 sim_tilt2}
 FLIGHTS_REAL=${FLIGHTS_REAL-brighton_beach caliterra}
 QUICK=${QUICK:-0}
 CANVAS=$DATA_DIR/caliterra/images/IMG_9360.jpg
@@ -120,7 +122,7 @@ for name in $FLIGHTS_SIM; do
   o_frames=$n_img ours_wall_s=0
   log "$label: uavmosaic-onboard ($n_img frames)"
   run_watched "$fdir/uavmosaic" 0 "$OURS_TIMEOUT_S" \
-    "$OURS_BIN" --source "replay:$img_dir" --out "$fdir/uavmosaic"
+    "$OURS_BIN" --source "replay:$img_dir" --out "$fdir/uavmosaic" "${OURS_EXTRA[@]}"
   o_rss=$(peak_mib)
   ours_wall_s=$W_WALL_S
   if [[ $W_KILLED == timeout ]]; then
@@ -190,7 +192,7 @@ if [[ -n ${FLIGHTS_REAL// /} ]]; then
       [[ $f == "$flight" ]] || continue
       if [[ $tool == uavmosaic-onboard ]]; then
         st=$(stages "$real_out/$flight/uavmosaic/report.json")
-        [[ $res != "—" ]] && res="residual $res (report.json, work px)"
+        [[ $res != "—" ]] && res="residual / held-out $res (report.json, work px)"
         ROWS+=("| $flight (real) | $tool | $frames | $reg | $res | — | — | — | $wall | $st | $rss | $ratio |")
       else
         ROWS+=("| $flight (real) | $tool | $frames | $reg | — | — | — | — | $wall | — | $rss | $ratio |")
@@ -208,7 +210,7 @@ fi
   echo "|---|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|"
   printf '%s\n' "${ROWS[@]}"
   echo
-  echo "Sim flights: plans bench/plans/<flight>.yaml over $(basename "$CANVAS") (4000x3000); error = uavmosaic-eval grid error of every registered frame vs. ground truth, in original frame px, after one global mosaic→canvas homography; affine floor = the same for the best per-frame affine (what an affine model cannot beat). Real flights: error = residual_rms_px from report.json (matched-point residual at working resolution, not ground truth)."
+  echo "Sim flights: plans bench/plans/<flight>.yaml over $(basename "$CANVAS") (4000x3000); error = uavmosaic-eval grid error of every registered frame vs. ground truth, in original frame px, after one global mosaic→canvas homography; affine floor = the same for the best per-frame affine (what an affine model cannot beat). Real flights: error = residual_rms_px / holdout_rms_px from report.json (transfer error of the adjusted matches / of held-out matches the adjustment never used, working resolution px; no ground truth)."
   echo "image score: \`uavmosaic-eval image\` (SIFT + RANSAC affine of the mosaic to the canvas; ours scored on mosaic.tif, default mosaic scale). wall s measured outside the process (load + work + write); peak RSS = max VmHWM polled every 0.2 s."
   echo "cv::Stitcher caps: sim ${SIM_STITCHER_TIMEOUT_S} s, real ${STITCHER_TIMEOUT_S:-600} s, ${STITCHER_MEM_GB} GiB RSS (SIGKILL); ≥ ratio = stitcher was killed. 'registered' for cv::Stitcher = frames in its largest component."
   for n in "${NOTES[@]}"; do echo "Note: $n"; done

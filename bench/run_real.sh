@@ -10,6 +10,7 @@
 #   STITCHER_TIMEOUT_S wall-time cap for cv::Stitcher, s (default 600)
 #   STITCHER_MEM_GB    RSS cap for cv::Stitcher, GiB, may be fractional (default 12)
 #   OURS_TIMEOUT_S     wall-time cap for uavmosaic-onboard, s (default 0 = none)
+#   OURS_ARGS          extra uavmosaic-onboard options, e.g. "--model affine"
 #   FLIGHTS            space-separated flight folders (default "brighton_beach caliterra")
 #   UAVM_RESULTS_DIR   where the dated copy of the table goes (default bench/results)
 #
@@ -24,7 +25,7 @@ SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 
 if [[ $# -lt 1 || $# -gt 2 || $1 == -h || $1 == --help ]]; then
-  sed -n '2,19p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,20p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 
@@ -34,6 +35,7 @@ RESULTS_DIR=${UAVM_RESULTS_DIR:-$SCRIPT_DIR/results}
 OUT_DIR=${2:-$RESULTS_DIR/real-$STAMP}
 BUILD=${UAVM_BUILD_DIR:-$REPO/build}
 OURS_BIN=$BUILD/firmware_app/uavmosaic-onboard
+read -r -a OURS_EXTRA <<<"${OURS_ARGS:-}"
 STITCHER_BIN=$BUILD/bench/uavm-stitcher-bench
 STITCHER_TIMEOUT_S=${STITCHER_TIMEOUT_S:-600}
 STITCHER_MEM_GB=${STITCHER_MEM_GB:-12}
@@ -79,7 +81,7 @@ for flight in $FLIGHTS; do
   else
     log "$flight: uavmosaic-onboard ($n_img frames)"
     run_watched "$fdir/uavmosaic" 0 "$OURS_TIMEOUT_S" \
-      "$OURS_BIN" --source "replay:$img_dir" --out "$fdir/uavmosaic"
+      "$OURS_BIN" --source "replay:$img_dir" --out "$fdir/uavmosaic" "${OURS_EXTRA[@]}"
     o_rss=$(peak_mib)
     if [[ $W_KILLED == timeout ]]; then
       o_wall="timeout at $OURS_TIMEOUT_S s"
@@ -94,18 +96,19 @@ for flight in $FLIGHTS; do
     fi
     ours_wall_s=$W_WALL_S
   fi
-  r_frames="" r_reg="" r_rms="" r_comp="" r_rss="" r_st=""
+  r_frames="" r_reg="" r_rms="" r_hold="" r_comp="" r_rss="" r_st=""
   if [[ -s $report ]] && jq -e . "$report" >/dev/null 2>&1; then
     # \x1f as separator: unlike tab it is not IFS whitespace, so empty fields are not collapsed.
-    IFS=$'\x1f' read -r r_frames r_reg r_rms r_comp r_rss r_st < <(jq -r --arg st "${STAGES[*]}" '
-      [ (.frames_in // ""), (.registered // ""), (.residual_rms_px // ""), (.composite_ms // ""),
+    IFS=$'\x1f' read -r r_frames r_reg r_rms r_hold r_comp r_rss r_st < <(jq -r --arg st "${STAGES[*]}" '
+      [ (.frames_in // ""), (.registered // ""), (.residual_rms_px // ""), (.holdout_rms_px // ""),
+        (.composite_ms // ""),
         (.peak_rss_mib // ""),
         ([ ($st | split(" "))[] as $k | (.stages_ms[$k].median // "-") | tostring ] | join(" ")) ]
       | map(tostring) | join("\u001f")' "$report") || true
     [[ -n ${r_frames:-} ]] && o_frames=$r_frames
     o_reg=$(cell "${r_reg:-—}")
     [[ -z $o_reg ]] && o_reg="—"
-    o_rms=$(fmt "${r_rms:-}" 2)
+    o_rms="$(fmt "${r_rms:-}" 2) / $(fmt "${r_hold:-}" 2) ($(jq -r '.model // "?"' "$report"))"
     o_comp=$(fmt "${r_comp:-}" 2 1000)
     # The watchdog may miss a process that lives < 0.2 s; fall back to the program's own figure.
     [[ $o_rss == "—" ]] && o_rss=$(fmt "${r_rss:-}" 0)
@@ -136,11 +139,12 @@ cpu=$(awk -F': ' '/^model name/ { print $2; exit }' /proc/cpuinfo)
 {
   echo "Real-flight benchmark, $(date '+%Y-%m-%d %H:%M:%S %z'), nproc $(nproc), CPU: ${cpu:-unknown}"
   echo
-  echo "| flight | tool | frames | registered | residual RMS px | wall s | per-frame ms (median: decode / features / matching / adjust / frame_total) | composite s | peak RSS MiB | stitcher wall / ours wall |"
+  echo "| flight | tool | frames | registered | residual / held-out RMS px (model) | wall s | per-frame ms (median: decode / features / matching / adjust / frame_total) | composite s | peak RSS MiB | stitcher wall / ours wall |"
   echo "|---|---|---:|---:|---:|---:|---|---:|---:|---:|"
   printf '%s\n' "${ROWS[@]}"
   echo
-  echo "wall s: measured outside the process (load + work + write). peak RSS: max VmHWM polled every 0.2 s." \
+  echo "residual: transfer error of the adjusted correspondences (report.json residual_rms_px, working-resolution px); held-out: the same for up to 16 further inliers per edge that the adjustment never used (holdout_rms_px)." \
+    "wall s: measured outside the process (load + work + write). peak RSS: max VmHWM polled every 0.2 s." \
     "cv::Stitcher caps: ${STITCHER_TIMEOUT_S} s, ${STITCHER_MEM_GB} GiB RSS (SIGKILL). 'registered' for cv::Stitcher = frames in its largest component."
 } >"$OUT_DIR/table.md"
 

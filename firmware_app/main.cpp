@@ -2,6 +2,8 @@
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
+#include <map>
+#include <string>
 
 #include "firmware_app/app.h"
 
@@ -34,6 +36,12 @@ int main(int argc, char** argv) {
   cli.add_option("--preview-every", p.preview_every, "Write live.jpg every N frames (0 = off)");
   cli.add_option("--recent", p.recent_candidates, "Recent frames matched against each new frame (K)");
   cli.add_option("--overlap-candidates", p.overlap_candidates, "Extra frames chosen by footprint overlap (M)");
+  const std::map<std::string, uavm::MotionModel> models{{"affine", uavm::MotionModel::kAffine},
+                                                        {"homography", uavm::MotionModel::kHomography}};
+  cli.add_option("--model", p.refine.model,
+                 "Per-frame map of the final solution: homography (refined projectively: tilted cameras) or affine")
+      ->transform(CLI::CheckedTransformer(models, CLI::ignore_case));
+  cli.add_option("--refine-seconds", p.refine.max_seconds, "Time limit of the end-of-flight refinement, s (0 = none)");
   cli.add_flag(
       "--no-tiff", [&](std::int64_t) { p.write_tiff = false; }, "Do not write mosaic.tif");
   cli.add_option("--log-level", log_level, "trace|debug|info|warn|error");

@@ -22,8 +22,14 @@ TEST(OptionsTest, DefaultsAreValid) {
 TEST(OptionsTest, YamlOverridesAndRoundTrips) {
   PipelineOptions o;
   std::string err;
-  ASSERT_TRUE(LoadOptionsYaml(WriteTemp("ok", "work_long_side: 800\nmatching:\n  ratio: 0.7\n"), &o, &err)) << err;
+  ASSERT_TRUE(LoadOptionsYaml(
+      WriteTemp("ok", "work_long_side: 800\nmodel: affine\nmatching:\n  ratio: 0.7\nrefine:\n  max_seconds: 5\n"), &o,
+      &err))
+      << err;
   EXPECT_EQ(o.work_long_side, 800);
+  EXPECT_EQ(o.refine.model, MotionModel::kAffine);
+  EXPECT_DOUBLE_EQ(o.refine.max_seconds, 5.0);
+  EXPECT_NE(ToYaml(o).find("model: affine"), std::string::npos);
   EXPECT_DOUBLE_EQ(o.matching.ratio, 0.7);
   PipelineOptions back;
   ASSERT_TRUE(LoadOptionsYaml(WriteTemp("rt", ToYaml(o)), &back, &err)) << err;
@@ -38,7 +44,9 @@ TEST(OptionsTest, BadConfigsGiveClearErrors) {
   for (const Case& c : {Case{"work_long_sid: 800\n", "unknown key 'work_long_sid'"},
                         Case{"matching:\n  ratoi: 0.7\n", "unknown key 'matching.ratoi'"},
                         Case{"work_long_side: big\n", "wrong type"}, Case{"work_long_side: -5\n", "work_long_side"},
-                        Case{"matching: 3\n", "must be a mapping"}, Case{"[1, 2\n", "config"}}) {
+                        Case{"matching: 3\n", "must be a mapping"},
+                        Case{"model: projective\n", "'model' must be affine or homography"},
+                        Case{"refine:\n  huber_px: -1\n", "refine:"}, Case{"[1, 2\n", "config"}}) {
     PipelineOptions o;
     std::string err;
     EXPECT_FALSE(LoadOptionsYaml(WriteTemp("bad", c.text), &o, &err)) << c.text;

@@ -27,7 +27,7 @@ struct FlightRun {
   fs::path dir;
 };
 
-void FlyAndEvaluate(const std::string& name, const std::string& plan, FlightRun* run) {
+void FlyAndEvaluate(const std::string& name, const std::string& plan, FlightRun* run, const std::string& args = "") {
   run->dir = fs::temp_directory_path() / ("uavm_sim_e2e_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(run->dir);
   hal::SimSource source({"", plan, kCanvas, 0});
@@ -35,7 +35,7 @@ void FlyAndEvaluate(const std::string& name, const std::string& plan, FlightRun*
   ASSERT_EQ(source.Open(&err), hal::Status::kOk) << err;
   ASSERT_TRUE(hal::WriteSimFlight(&source, (run->dir / "flight").string(), 0, &err)) << err;
   const std::string cmd = std::string(UAVM_ONBOARD_BIN) + " --source replay:" + (run->dir / "flight/images").string() +
-                          " --out " + (run->dir / "session").string() + " --log-level warn";
+                          " --out " + (run->dir / "session").string() + " --log-level warn " + args;
   const int status = std::system(cmd.c_str());
   ASSERT_TRUE(WIFEXITED(status));
   ASSERT_EQ(WEXITSTATUS(status), 0);
@@ -75,14 +75,32 @@ TEST(SimOnboardE2ETest, NadirFlightRegistersEveryFrameToSubPixel) {
   fs::remove_all(run.dir);
 }
 
-TEST(SimOnboardE2ETest, OneDegreeTiltStaysNearTheAffineFloor) {
+TEST(SimOnboardE2ETest, OneDegreeTiltWithTheAffineModelStaysNearTheAffineFloor) {
   FlightRun run;
-  ASSERT_NO_FATAL_FAILURE(FlyAndEvaluate("tilt", kPlan + "tilt_deg: 1.0\n", &run));
+  ASSERT_NO_FATAL_FAILURE(FlyAndEvaluate("tilt_affine", kPlan + "tilt_deg: 1.0\n", &run, "--model affine"));
   EXPECT_DOUBLE_EQ(run.result.registered_share, 1.0);
   EXPECT_GT(run.affine_floor.rms_px, 0.3);  // 1 deg of tilt is not affine: ~0.74 px RMS at best for 400 px frames
-  // Measured 0.97 px RMS (affine floor 0.74): an affine pipeline pays the floor plus the inconsistency between
-  // neighbours' best affines. A projective refinement should go below the floor.
+  // An affine pipeline pays the floor plus the inconsistency between neighbours' best affines.
   EXPECT_LT(run.result.rms_px, 2.0);
+  EXPECT_GT(run.result.rms_px, run.affine_floor.rms_px * 0.9);
+  fs::remove_all(run.dir);
+}
+
+TEST(SimOnboardE2ETest, OneDegreeTiltWithTheHomographyModelGoesBelowTheAffineFloor) {
+  FlightRun run;
+  ASSERT_NO_FATAL_FAILURE(FlyAndEvaluate("tilt_homography", kPlan + "tilt_deg: 1.0\n", &run, "--model homography"));
+  EXPECT_DOUBLE_EQ(run.result.registered_share, 1.0);
+  EXPECT_LT(run.result.rms_px, 0.5);
+  EXPECT_LT(run.result.max_px, 2.5);
+  EXPECT_LT(run.result.rms_px, 0.5 * run.affine_floor.rms_px);
+  std::string text;
+  std::string err;
+  ASSERT_TRUE(ReadTextFile((run.dir / "session/transforms.csv").string(), &text, &err)) << err;
+  std::vector<TransformRow> rows;
+  ASSERT_TRUE(ParseTransformsCsv(text, &rows, &err)) << err;
+  int projective = 0;
+  for (const auto& r : rows) projective += IsAffine(r.mosaic_from_frame, 1e-12) ? 0 : 1;
+  EXPECT_GT(projective, 10);  // the session carries the perspective rows (h20, h21)
   fs::remove_all(run.dir);
 }
 

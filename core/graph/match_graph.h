@@ -15,6 +15,8 @@ struct Edge {
   Mat3 tgt_from_src = Mat3::Identity();
   std::vector<Vec2> src_points;
   std::vector<Vec2> tgt_points;
+  std::vector<Vec2> holdout_src_points;  // inliers the adjustment does not use: a check of its result
+  std::vector<Vec2> holdout_tgt_points;
 };
 
 class UnionFind {

@@ -30,6 +30,7 @@ bool MatchOptions::Check(std::string* why) const {
   if (!(max_anisotropy > 0.0)) return fail("matching.max_anisotropy must be > 0");
   if (max_edge_correspondences < 3) return fail("matching.max_edge_correspondences must be >= 3");
   if (correspondence_grid < 1) return fail("matching.correspondence_grid must be >= 1");
+  if (holdout_correspondences < 0) return fail("matching.holdout_correspondences must be >= 0");
   return ransac.Check(why);
 }
 
@@ -78,25 +79,29 @@ std::vector<cv::DMatch> DescriptorIndex::Match(const cv::Mat& query_descriptors)
   return out;
 }
 
-void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int max_points) {
-  const size_t n = src->size();
-  if (n <= static_cast<size_t>(max_points)) return;
-  Vec2 lo = (*src)[0];
+std::vector<size_t> GridSubsampleIndices(const std::vector<Vec2>& src, int grid, int max_points) {
+  const size_t n = src.size();
+  std::vector<size_t> keep;
+  if (n <= static_cast<size_t>(std::max(0, max_points))) {
+    for (size_t i = 0; i < n; ++i) keep.push_back(i);
+    return keep;
+  }
+  if (max_points <= 0) return keep;
+  Vec2 lo = src[0];
   Vec2 hi = lo;
-  for (const auto& p : *src) {
+  for (const auto& p : src) {
     lo = lo.cwiseMin(p);
     hi = hi.cwiseMax(p);
   }
   const Vec2 extent = (hi - lo).cwiseMax(Vec2(1e-6, 1e-6));
   std::vector<std::vector<size_t>> cells(static_cast<size_t>(grid * grid));
   for (size_t i = 0; i < n; ++i) {
-    const Vec2 r = ((*src)[i] - lo).cwiseQuotient(extent);
+    const Vec2 r = (src[i] - lo).cwiseQuotient(extent);
     const int cx = std::min(grid - 1, static_cast<int>(r.x() * grid));
     const int cy = std::min(grid - 1, static_cast<int>(r.y() * grid));
     cells[static_cast<size_t>(cy * grid + cx)].push_back(i);
   }
   // Round-robin over cells: every occupied cell is represented before any cell gets a second point.
-  std::vector<size_t> keep;
   keep.reserve(static_cast<size_t>(max_points));
   for (size_t round = 0; keep.size() < static_cast<size_t>(max_points); ++round) {
     bool any = false;
@@ -112,6 +117,12 @@ void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int
   }
   std::sort(keep.begin(), keep.end());
   keep.erase(std::unique(keep.begin(), keep.end()), keep.end());
+  return keep;
+}
+
+void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int max_points) {
+  if (src->size() <= static_cast<size_t>(max_points)) return;
+  const std::vector<size_t> keep = GridSubsampleIndices(*src, grid, max_points);
   std::vector<Vec2> s;
   std::vector<Vec2> t;
   s.reserve(keep.size());
@@ -181,12 +192,33 @@ PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, cons
     result.failure = "implausible relative affine";
     return result;
   }
+  std::vector<Vec2> in_src;
+  std::vector<Vec2> in_tgt;
   for (size_t i = 0; i < xs.size(); ++i) {
     if (report.inlier_mask[i] == 0) continue;
-    result.src_points.push_back(xs[i]);
-    result.tgt_points.push_back(ys[i]);
+    in_src.push_back(xs[i]);
+    in_tgt.push_back(ys[i]);
   }
-  GridSubsample(&result.src_points, &result.tgt_points, options.correspondence_grid, options.max_edge_correspondences);
+  // The adjustment's points, spread over the frame; a disjoint, equally spread sample is held out to check it.
+  const std::vector<size_t> keep =
+      GridSubsampleIndices(in_src, options.correspondence_grid, options.max_edge_correspondences);
+  std::vector<char> kept(in_src.size(), 0);
+  for (size_t i : keep) {
+    kept[i] = 1;
+    result.src_points.push_back(in_src[i]);
+    result.tgt_points.push_back(in_tgt[i]);
+  }
+  std::vector<Vec2> rest_src;
+  std::vector<Vec2> rest_tgt;
+  for (size_t i = 0; i < in_src.size(); ++i)
+    if (kept[i] == 0) {
+      rest_src.push_back(in_src[i]);
+      rest_tgt.push_back(in_tgt[i]);
+    }
+  for (size_t i : GridSubsampleIndices(rest_src, options.correspondence_grid, options.holdout_correspondences)) {
+    result.holdout_src_points.push_back(rest_src[i]);
+    result.holdout_tgt_points.push_back(rest_tgt[i]);
+  }
   result.tgt_from_src = report.model;
   result.ok = true;
   return result;

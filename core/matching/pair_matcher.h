@@ -24,6 +24,9 @@ struct MatchOptions {
   // Inlier correspondences kept per edge for the adjustment, spread over a grid of the source frame.
   int max_edge_correspondences = 64;
   int correspondence_grid = 8;
+  // Further inliers, disjoint from those, kept aside per edge: the report's held-out residual (a check of the final
+  // maps on points the adjustment never saw).
+  int holdout_correspondences = 16;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -52,6 +55,8 @@ struct PairResult {
   Mat3 tgt_from_src = Mat3::Identity();
   std::vector<Vec2> src_points;  // grid-subsampled inliers
   std::vector<Vec2> tgt_points;
+  std::vector<Vec2> holdout_src_points;  // further inliers, not in src_points (see holdout_correspondences)
+  std::vector<Vec2> holdout_tgt_points;
   std::string failure;
 };
 
@@ -69,6 +74,8 @@ struct MatchGuide {
 
 // Keeps at most `max_points` pairs, spread over a grid x grid partition of the source points' bounding box.
 void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int max_points);
+// The indices GridSubsample keeps, ascending.
+[[nodiscard]] std::vector<size_t> GridSubsampleIndices(const std::vector<Vec2>& src, int grid, int max_points);
 
 // Descriptor storage helpers: RootSIFT values lie in [0,1]; 8-bit storage quarters memory at no matching cost.
 [[nodiscard]] cv::Mat QuantizeDescriptors(const cv::Mat& float_descriptors);

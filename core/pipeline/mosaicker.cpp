@@ -25,6 +25,20 @@ namespace {
 
 constexpr int kThumbLongSide = 320;
 
+Edge EdgeFromPair(int src, int tgt, PairResult&& r) {
+  Edge e;
+  e.src = src;
+  e.tgt = tgt;
+  e.num_matches = r.num_matches;
+  e.num_inliers = r.num_inliers;
+  e.tgt_from_src = r.tgt_from_src;
+  e.src_points = std::move(r.src_points);
+  e.tgt_points = std::move(r.tgt_points);
+  e.holdout_src_points = std::move(r.holdout_src_points);
+  e.holdout_tgt_points = std::move(r.holdout_tgt_points);
+  return e;
+}
+
 std::string StoredName(int id, const std::string& name) {
   char prefix[16];
   std::snprintf(prefix, sizeof(prefix), "%06d_", id);
@@ -136,8 +150,7 @@ bool Mosaicker::TryJoin(int new_id, int other_id, const DescriptorIndex& index, 
   if (!other) return false;
   PairResult r = MatchPair(index, feats, *other, options_.matching);
   if (!r.ok || r.num_inliers < options_.relative_inlier_fraction * best_inliers_) return false;
-  Edge e{
-      other_id, new_id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points), std::move(r.tgt_points)};
+  Edge e = EdgeFromPair(other_id, new_id, std::move(r));
   // mosaic_from_work(other) should become T_new * new_from_other; the other component moves with it.
   const Mat3 fix = mosaic_from_work_[new_id] * e.tgt_from_src * mosaic_from_work_[other_id].inverse();
   AddEdge(std::move(e));
@@ -265,8 +278,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     PairResult r = MatchPair(index, feats, *other, options_.matching, guided ? &guide : nullptr);
     if (!r.ok) return;
     if (r.num_inliers < options_.relative_inlier_fraction * best_inliers_) return;
-    found.push_back({Edge{cand, id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points),
-                          std::move(r.tgt_points)}});
+    found.push_back({EdgeFromPair(cand, id, std::move(r))});
     if (!have_estimate) {
       mosaic_from_work_[id] = mosaic_from_work_[cand] * found.back().edge.tgt_from_src.inverse();
       have_estimate = true;
@@ -418,8 +430,7 @@ void Mosaicker::Densify() {
       guide.tgt_size = f.work_size;
       PairResult r = MatchPair(index, *mine, *other, options_.matching, &guide);
       if (!r.ok || r.num_inliers < options_.relative_inlier_fraction * best_inliers_) continue;
-      AddEdge(Edge{other_id, f.id, r.num_matches, r.num_inliers, r.tgt_from_src, std::move(r.src_points),
-                   std::move(r.tgt_points)});
+      AddEdge(EdgeFromPair(other_id, f.id, std::move(r)));
       ++densified_edges_;
     }
   }
@@ -456,10 +467,29 @@ bool Mosaicker::Finish(std::string* error) {
     }
     rms = r.rms_px;
     median = r.median_px;
+    stats_.Add("final_adjust", t.ElapsedMs());
+    holdout_linear_ = TransferErrors(edges, mosaic_from_work_, true);
+    // Refinement: transfer errors in frame pixels (no pull to shrink towards the anchor) and, with the homography
+    // model, each frame's perspective.
+    StageTimer refine_timer;
+    const RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
+    refine_ = rr;
+    stats_.Add("refine", refine_timer.ElapsedMs());
+    holdout_final_ = TransferErrors(edges, mosaic_from_work_, true);
+    if (rr.ok) {
+      rms = rr.final_rms_px;
+      median = rr.final_median_px;
+      spdlog::info(
+          "{} refinement: transfer error RMS {:.3f} -> {:.3f} px (held-out points {:.3f} -> {:.3f}), {} iterations, "
+          "{:.1f} s",
+          ToString(options_.refine.model), rr.initial_rms_px, rr.final_rms_px, holdout_linear_.rms, holdout_final_.rms,
+          rr.iterations, rr.seconds);
+    } else {
+      spdlog::warn("refinement failed ({}); keeping the affine solution", rr.failure);
+    }
   } else if (component.size() == 1) {
     mosaic_from_work_[component.front()] = Mat3::Identity();
   }
-  stats_.Add("final_adjust", t.ElapsedMs());
   for (auto& f : frames_) {
     if (in_component.count(f.id) != 0) continue;
     if (f.failure.empty()) f.failure = f.has_features ? "not in the largest connected component" : "not processed";

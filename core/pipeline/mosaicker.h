@@ -119,6 +119,9 @@ class Mosaicker {
   int final_registered_ = 0;
   double final_rms_ = 0.0;
   double residual_median_ = 0.0;
+  RefineResult refine_;
+  TransferStats holdout_linear_;  // held-out correspondences under the linear solution, then the final one
+  TransferStats holdout_final_;
   double composite_ms_ = 0.0;
 };
 

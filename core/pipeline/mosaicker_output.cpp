@@ -209,7 +209,20 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   report["dropped_by_queue"] = dropped_frames_;
   report["residual_rms_px"] = final_rms_;
   report["residual_median_px"] = residual_median_;
-  report["residual_units"] = "pixels of the reference frame at working resolution";
+  report["residual_units"] = refine_.ok ? "transfer error, pixels of the target frame at working resolution"
+                                        : "pixels of the reference frame at working resolution";
+  report["holdout_rms_px"] = holdout_final_.rms;
+  report["holdout_median_px"] = holdout_final_.median;
+  report["holdout_points"] = holdout_final_.count;
+  report["model"] = refine_.ok ? ToString(options_.refine.model) : "affine";
+  report["refine"] = {{"ok", refine_.ok},
+                      {"failure", refine_.failure},
+                      {"iterations", refine_.iterations},
+                      {"initial_rms_px", refine_.initial_rms_px},
+                      {"final_rms_px", refine_.final_rms_px},
+                      {"holdout_linear_rms_px", holdout_linear_.rms},
+                      {"correspondences", refine_.num_residuals},
+                      {"seconds", refine_.seconds}};
   report["wall_s"] = static_cast<double>(MonotonicNs() - start_ns_) * 1e-9;
   report["peak_rss_mib"] = PeakRssMiB();
   report["reference_frame"] = component.empty() ? -1 : component.front();

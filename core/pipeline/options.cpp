@@ -5,6 +5,8 @@
 #include <functional>
 #include <set>
 #include <sstream>
+#include <stdexcept>
+#include <type_traits>
 #include <variant>
 #include <vector>
 
@@ -12,7 +14,7 @@ namespace uavm {
 
 namespace {
 
-using FieldPtr = std::variant<int*, double*, bool*, size_t*>;
+using FieldPtr = std::variant<int*, double*, bool*, size_t*, MotionModel*>;
 struct Field {
   std::string section;  // "" = top level
   std::string key;
@@ -40,6 +42,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"", "feature_cache_mib", &o.feature_cache_mib},
       {"", "queue_capacity", &o.queue_capacity},
       {"", "write_tiff", &o.write_tiff},
+      {"", "model", &o.refine.model},
       {"features", "max_features", &o.features.max_features},
       {"features", "contrast_threshold", &o.features.contrast_threshold},
       {"features", "target_min_features", &o.features.target_min_features},
@@ -54,6 +57,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"matching", "max_anisotropy", &o.matching.max_anisotropy},
       {"matching", "max_edge_correspondences", &o.matching.max_edge_correspondences},
       {"matching", "correspondence_grid", &o.matching.correspondence_grid},
+      {"matching", "holdout_correspondences", &o.matching.holdout_correspondences},
       {"matching", "ransac_max_error_px", &o.matching.ransac.max_error},
       {"matching", "ransac_confidence", &o.matching.ransac.confidence},
       {"matching", "ransac_min_iterations", &o.matching.ransac.min_iterations},
@@ -67,6 +71,12 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"adjust", "relative_linear_weight", &o.adjust.relative_linear_weight},
       {"adjust", "huber_px", &o.adjust.huber_px},
       {"adjust", "robust_iterations", &o.adjust.robust_iterations},
+      {"refine", "huber_px", &o.refine.huber_px},
+      {"refine", "nadir_weight", &o.refine.nadir_weight},
+      {"refine", "rigidity_weight", &o.refine.rigidity_weight},
+      {"refine", "max_iterations", &o.refine.max_iterations},
+      {"refine", "max_seconds", &o.refine.max_seconds},
+      {"refine", "threads", &o.refine.threads},
       {"mosaic", "tile_size", &o.mosaic.tile_size},
       {"mosaic", "tiff_block", &o.mosaic.tiff_block},
       {"mosaic", "num_bands", &o.mosaic.num_bands},
@@ -102,7 +112,7 @@ bool PipelineOptions::Check(std::string* why) const {
   if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");
   if (feature_cache_mib < 1) return Fail(why, "feature_cache_mib must be >= 1");
   if (queue_capacity < 1 || queue_capacity > 1024) return Fail(why, "queue_capacity must be in [1,1024]");
-  return features.Check(why) && matching.Check(why) && relocalization.Check(why) && adjust.Check(why) &&
+  return features.Check(why) && matching.Check(why) && relocalization.Check(why) && adjust.Check(why) && refine.Check(why) &&
          mosaic.Check(why);
 }
 
@@ -140,7 +150,18 @@ bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::str
     if (!node) continue;
     const std::string name = f.section.empty() ? f.key : f.section + "." + f.key;
     try {
-      std::visit([&](auto* p) { *p = node.as<std::remove_pointer_t<decltype(p)>>(); }, f.ptr);
+      std::visit(
+          [&](auto* p) {
+            using T = std::remove_pointer_t<decltype(p)>;
+            if constexpr (std::is_same_v<T, MotionModel>) {
+              if (!ParseMotionModel(node.as<std::string>(), p)) throw std::invalid_argument("model");
+            } else {
+              *p = node.as<T>();
+            }
+          },
+          f.ptr);
+    } catch (const std::invalid_argument&) {
+      return Fail(error, "config " + path + ": '" + name + "' must be affine or homography");
     } catch (const std::exception&) {
       return Fail(error, "config " + path + ": '" + name + "' has the wrong type");
     }
@@ -163,7 +184,14 @@ std::string ToYaml(const PipelineOptions& options) {
       open_section = f.section;
     }
     out << YAML::Key << f.key << YAML::Value;
-    std::visit([&](auto* p) { out << *p; }, f.ptr);
+    std::visit(
+        [&](auto* p) {
+          if constexpr (std::is_same_v<std::remove_pointer_t<decltype(p)>, MotionModel>)
+            out << ToString(*p);
+          else
+            out << *p;
+        },
+        f.ptr);
   }
   if (!open_section.empty()) out << YAML::EndMap;
   out << YAML::EndMap;

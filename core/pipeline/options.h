@@ -2,6 +2,7 @@
 #include <string>
 
 #include "core/adjust/affine_adjuster.h"
+#include "core/adjust/global_refiner.h"
 #include "core/features/sift.h"
 #include "core/matching/global_index.h"
 #include "core/matching/pair_matcher.h"
@@ -33,6 +34,8 @@ struct PipelineOptions {
   MatchOptions matching;
   GlobalIndexOptions relocalization;
   AdjustOptions adjust;
+  // End-of-flight refinement of the linear solution; `model` (top-level key) picks affine or homography maps.
+  RefineOptions refine;
   CompositorOptions mosaic;
 
   [[nodiscard]] bool Check(std::string* why) const;

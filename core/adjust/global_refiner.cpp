@@ -1,0 +1,276 @@
+#include "core/adjust/global_refiner.h"
+
+#include <ceres/ceres.h>
+
+#include <spdlog/spdlog.h>
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <map>
+
+#include "core/util/clock.h"
+
+namespace uavm {
+
+const char* ToString(MotionModel model) { return model == MotionModel::kAffine ? "affine" : "homography"; }
+
+bool ParseMotionModel(const std::string& text, MotionModel* model) {
+  if (text == "affine") {
+    *model = MotionModel::kAffine;
+    return true;
+  }
+  if (text == "homography") {
+    *model = MotionModel::kHomography;
+    return true;
+  }
+  return false;
+}
+
+bool RefineOptions::Check(std::string* why) const {
+  if (!(huber_px > 0) || !(nadir_weight >= 0) || !(rigidity_weight >= 0) || max_iterations < 1 ||
+      !(max_seconds >= 0) || threads < 1 || threads > 64) {
+    if (why != nullptr)
+      *why = "refine: huber_px > 0, weights >= 0, max_iterations >= 1, max_seconds >= 0, threads in [1,64]";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+// Per frame: the affine rows (h00 h01 h02 h10 h11 h12) and the perspective row (h20 h21), h22 = 1. Two blocks, so
+// that the affine model holds the perspective block constant and the anchor holds its affine block constant.
+struct FrameParams {
+  std::array<double, 6> affine{};
+  std::array<double, 2> perspective{};
+};
+
+FrameParams ToParams(const Mat3& m_in) {
+  const Mat3 m = m_in / m_in(2, 2);
+  FrameParams p;
+  p.affine = {m(0, 0), m(0, 1), m(0, 2), m(1, 0), m(1, 1), m(1, 2)};
+  p.perspective = {m(2, 0), m(2, 1)};
+  return p;
+}
+
+Mat3 FromParams(const FrameParams& p) {
+  Mat3 m;
+  m << p.affine[0], p.affine[1], p.affine[2], p.affine[3], p.affine[4], p.affine[5], p.perspective[0],
+      p.perspective[1], 1.0;
+  return m;
+}
+
+// Transfer error of one correspondence: the source point through mosaic_from_src, then back through the inverse of
+// mosaic_from_tgt (its adjugate: the determinant cancels in the projective division), minus the target point.
+struct TransferCost {
+  TransferCost(const Vec2& p, const Vec2& q) : px(p.x()), py(p.y()), qx(q.x()), qy(q.y()) {}
+
+  template <typename T>
+  bool operator()(const T* sa, const T* sp, const T* ta, const T* tp, T* residual) const {
+    const T mx = sa[0] * px + sa[1] * py + sa[2];
+    const T my = sa[3] * px + sa[4] * py + sa[5];
+    const T mw = sp[0] * px + sp[1] * py + T(1.0);
+    // mosaic_from_tgt = [[a b c] [d e f] [g h 1]]
+    const T& a = ta[0];
+    const T& b = ta[1];
+    const T& c = ta[2];
+    const T& d = ta[3];
+    const T& e = ta[4];
+    const T& f = ta[5];
+    const T& g = tp[0];
+    const T& h = tp[1];
+    const T x = (e - f * h) * mx + (c * h - b) * my + (b * f - c * e) * mw;
+    const T y = (f * g - d) * mx + (a - c * g) * my + (c * d - a * f) * mw;
+    const T w = (d * h - e * g) * mx + (b * g - a * h) * my + (a * e - b * d) * mw;
+    residual[0] = x / w - qx;
+    residual[1] = y / w - qy;
+    return true;
+  }
+
+  double px, py, qx, qy;
+};
+
+// Perspective row towards 0, as the denominator's change across the half-diagonal, in pixels at the half-diagonal.
+struct NadirPrior {
+  explicit NadirPrior(double weight_px) : w(weight_px) {}
+  template <typename T>
+  bool operator()(const T* perspective, T* residual) const {
+    residual[0] = w * perspective[0];
+    residual[1] = w * perspective[1];
+    return true;
+  }
+  double w;
+};
+
+// The frame's local linear map at its centre c towards a similarity (no shear, equal axis scales), divided by the
+// frame's scale so the prior reads in frame pixels at the half-diagonal. For a homography [A t; p 1] the local map is
+// (A - m p^T) / w with m the centre's mosaic position and w its denominator: the raw A is not, far from the origin.
+struct RigidityPrior {
+  RigidityPrior(double weight_px, const Vec2& centre) : w(weight_px), cx(centre.x()), cy(centre.y()) {}
+  template <typename T>
+  bool operator()(const T* a, const T* p, T* residual) const {
+    const T den = p[0] * cx + p[1] * cy + T(1.0);
+    const T mx = (a[0] * cx + a[1] * cy + a[2]) / den;
+    const T my = (a[3] * cx + a[4] * cy + a[5]) / den;
+    const T j00 = (a[0] - mx * p[0]) / den;
+    const T j01 = (a[1] - mx * p[1]) / den;
+    const T j10 = (a[3] - my * p[0]) / den;
+    const T j11 = (a[4] - my * p[1]) / den;
+    residual[0] = w * (j00 - j11);
+    residual[1] = w * (j01 + j10);
+    return true;
+  }
+  double w, cx, cy;
+};
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+}  // namespace
+
+TransferStats TransferErrors(const std::vector<const Edge*>& edges,
+                             const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout) {
+  TransferStats s;
+  std::vector<double> r;
+  for (const Edge* e : edges) {
+    const auto ts = mosaic_from_frame.find(e->src);
+    const auto tt = mosaic_from_frame.find(e->tgt);
+    if (ts == mosaic_from_frame.end() || tt == mosaic_from_frame.end()) continue;
+    const Mat3 tgt_from_src = tt->second.inverse() * ts->second;
+    const auto& src = holdout ? e->holdout_src_points : e->src_points;
+    const auto& tgt = holdout ? e->holdout_tgt_points : e->tgt_points;
+    for (size_t k = 0; k < src.size(); ++k) r.push_back((Apply(tgt_from_src, src[k]) - tgt[k]).norm());
+  }
+  s.count = r.size();
+  if (r.empty()) return s;
+  double sq = 0.0;
+  for (double v : r) sq += v * v;
+  s.rms = std::sqrt(sq / static_cast<double>(r.size()));
+  s.median = Median(std::move(r));
+  return s;
+}
+
+RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
+                          const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
+                          std::unordered_map<int, Mat3>* mosaic_from_frame) {
+  RefineResult result;
+  StageTimer timer;
+  auto& T = *mosaic_from_frame;
+  std::vector<const Edge*> used;
+  for (const Edge* e : edges) {
+    if (T.count(e->src) == 0 || T.count(e->tgt) == 0) continue;
+    const bool touches = variable.count(e->src) != 0 || variable.count(e->tgt) != 0 || e->src == anchor ||
+                         e->tgt == anchor;
+    if (touches && !e->src_points.empty()) used.push_back(e);
+  }
+  const TransferStats before = TransferErrors(used, T);
+  result.initial_rms_px = before.rms;
+  result.num_residuals = before.count;
+  const bool homography = options.model == MotionModel::kHomography;
+
+  // Ordered map: the parameter blocks' addresses must stay put while the problem holds them.
+  std::map<int, FrameParams> params;
+  auto params_of = [&](int id) -> FrameParams& {
+    auto it = params.find(id);
+    if (it == params.end()) it = params.emplace(id, ToParams(T.at(id))).first;
+    return it->second;
+  };
+  ceres::Problem::Options problem_options;
+  problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+  problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(problem_options);
+  ceres::HuberLoss loss(options.huber_px);
+  for (const Edge* e : used) {
+    FrameParams& s = params_of(e->src);
+    FrameParams& t = params_of(e->tgt);
+    for (size_t k = 0; k < e->src_points.size(); ++k) {
+      auto* cost = new ceres::AutoDiffCostFunction<TransferCost, 2, 6, 2, 6, 2>(
+          new TransferCost(e->src_points[k], e->tgt_points[k]));
+      problem.AddResidualBlock(cost, &loss, s.affine.data(), s.perspective.data(), t.affine.data(),
+                               t.perspective.data());
+    }
+  }
+  // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
+  std::unordered_map<int, Vec2> frame_centre;
+  {
+    std::unordered_map<int, Eigen::AlignedBox2d> extent;
+    for (const Edge* e : used)
+      for (size_t k = 0; k < e->src_points.size(); ++k) {
+        extent[e->src].extend(e->src_points[k]);
+        extent[e->tgt].extend(e->tgt_points[k]);
+      }
+    for (const auto& [id, box] : extent) frame_centre[id] = box.center();
+  }
+  if (params.empty()) {
+    result.ok = true;
+    return result;
+  }
+  for (auto& [id, p] : params) {
+    const bool is_variable = variable.count(id) != 0;
+    const bool is_anchor = id == anchor;
+    const auto hd_it = half_diagonal.find(id);
+    const double hd = hd_it != half_diagonal.end() ? hd_it->second : 1.0;
+    if (is_variable) ++result.num_variables;
+    if (!is_variable || is_anchor) problem.SetParameterBlockConstant(p.affine.data());
+    if (!homography || !(is_variable || is_anchor)) {
+      problem.SetParameterBlockConstant(p.perspective.data());
+    } else if (options.nadir_weight > 0) {
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<NadirPrior, 2, 2>(new NadirPrior(options.nadir_weight * hd * hd)), nullptr,
+          p.perspective.data());
+    }
+    if (is_variable && !is_anchor && options.rigidity_weight > 0) {
+      const double scale = std::sqrt(std::abs(p.affine[0] * p.affine[4] - p.affine[1] * p.affine[3]));
+      const auto c = frame_centre.find(id);
+      if (scale > 0 && c != frame_centre.end())
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RigidityPrior, 2, 6, 2>(
+                                     new RigidityPrior(options.rigidity_weight * hd / scale, c->second)),
+                                 nullptr, p.affine.data(), p.perspective.data());
+    }
+  }
+
+  ceres::Solver::Options solver_options;
+  solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  solver_options.max_num_iterations = options.max_iterations;
+  solver_options.num_threads = options.threads;
+  solver_options.function_tolerance = 1e-9;
+  solver_options.parameter_tolerance = 1e-10;
+  if (options.max_seconds > 0) solver_options.max_solver_time_in_seconds = options.max_seconds;
+  solver_options.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, &problem, &summary);
+  spdlog::debug("refinement: {}", summary.BriefReport());
+  result.iterations = static_cast<int>(summary.iterations.size());
+  if (!summary.IsSolutionUsable()) {
+    result.failure = "refinement failed: " + summary.message;
+    return result;
+  }
+  std::unordered_map<int, Mat3> refined;
+  for (const auto& [id, p] : params) {
+    if (variable.count(id) == 0 && id != anchor) continue;
+    const Mat3 m = FromParams(p);
+    if (!m.allFinite() || std::abs(m.determinant()) < 1e-12) {
+      result.failure = "refinement produced a degenerate map";
+      return result;
+    }
+    refined[id] = m;
+  }
+  // Ceres only returns a step that lowered the robust cost; the plain statistics are for the report.
+  std::unordered_map<int, Mat3> trial = T;
+  for (const auto& [id, m] : refined) trial[id] = m;
+  const TransferStats after = TransferErrors(used, trial);
+  for (const auto& [id, m] : refined) T[id] = m;
+  result.final_rms_px = after.rms;
+  result.final_median_px = after.median;
+  result.seconds = timer.ElapsedMs() / 1000.0;
+  result.ok = true;
+  return result;
+}
+
+}  // namespace uavm

@@ -1,0 +1,69 @@
+#pragma once
+#include <string>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include "core/geometry/transform.h"
+#include "core/graph/match_graph.h"
+
+namespace uavm {
+
+// The per-frame motion model of the mosaic: a 6-dof affine (nadir camera) or an 8-dof homography (tilted camera).
+enum class MotionModel { kAffine, kHomography };
+
+[[nodiscard]] const char* ToString(MotionModel model);
+[[nodiscard]] bool ParseMotionModel(const std::string& text, MotionModel* model);
+
+struct RefineOptions {
+  MotionModel model = MotionModel::kHomography;
+  // Robust loss on each correspondence's transfer error, frame pixels.
+  double huber_px = 2.0;
+  // Nadir prior: each frame's perspective row (h20, h21) is pulled to 0, in pixels of denominator change at the
+  // frame's half-diagonal. Weak against real matches; it fixes the mosaic's global projective freedom (a common
+  // tilt of all frames cannot be observed from images) at "average tilt = 0".
+  double nadir_weight = 0.1;
+  // Similarity prior on each frame's 2x2 part (no shear, equal axis scales), frame pixels at the half-diagonal.
+  double rigidity_weight = 0.05;
+  int max_iterations = 50;
+  double max_seconds = 0.0;  // 0 = no time limit
+  int threads = 1;
+
+  [[nodiscard]] bool Check(std::string* why) const;
+};
+
+struct RefineResult {
+  bool ok = false;
+  std::string failure;
+  size_t num_variables = 0;  // frames refined
+  size_t num_residuals = 0;  // correspondences
+  int iterations = 0;
+  double initial_rms_px = 0.0;  // transfer error, target-frame pixels
+  double final_rms_px = 0.0;
+  double final_median_px = 0.0;
+  double seconds = 0.0;
+};
+
+// Nonlinear refinement of the global solution: minimises each correspondence's transfer error measured in the target
+// frame's pixels, |proj(T_tgt^-1 T_src p) - q|, with a robust loss, over the mosaic_from_frame maps of the frames in
+// `variable` (8 dof with kHomography, 6 with kAffine). Unlike the linear adjustment's residual in mosaic pixels, this
+// error does not change when all maps are scaled together, so the solution has no pull to shrink the mosaic towards
+// its anchor. `anchor` (may be -1) keeps its affine part fixed — the gauge — while its perspective row stays free;
+// other frames that edges touch but `variable` does not hold stay fixed. `half_diagonal` is per variable frame.
+[[nodiscard]] RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
+                                        int anchor, const std::unordered_map<int, double>& half_diagonal,
+                                        const RefineOptions& options,
+                                        std::unordered_map<int, Mat3>* mosaic_from_frame);
+
+struct TransferStats {
+  size_t count = 0;
+  double rms = 0.0;
+  double median = 0.0;
+};
+// Transfer errors |proj(T_tgt^-1 T_src p) - q| over all correspondences of `edges` whose frames have maps (with
+// `holdout`: over the held-out points instead).
+[[nodiscard]] TransferStats TransferErrors(const std::vector<const Edge*>& edges,
+                                           const std::unordered_map<int, Mat3>& mosaic_from_frame,
+                                           bool holdout = false);
+
+}  // namespace uavm
