@@ -245,6 +245,17 @@ TEST(GlobalRefiner, FixedFramesStayAndOptionsAreChecked) {
   for (const Vec2& c : ImageCorners(kW, kH)) EXPECT_LT((Apply(T.at(5), c) - Apply(s.truth[5], c)).norm(), 0.01);
   EXPECT_EQ(T.at(4), s.truth[4]);
 
+  // A perspective beyond max_perspective_ratio is refused and nothing is changed.
+  auto tilted = AffineStart(s);
+  const auto before = tilted;
+  RefineOptions strict;
+  strict.max_perspective_ratio = 1.0001;
+  const RefineResult refused = RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0,
+                                            HalfDiagonals(s.truth.size()), strict, &tilted);
+  EXPECT_FALSE(refused.ok);
+  EXPECT_NE(refused.failure.find("implausible perspective"), std::string::npos) << refused.failure;
+  for (const auto& [id, m] : before) EXPECT_EQ(tilted.at(id), m);
+
   std::string why;
   o.huber_px = 0;
   EXPECT_FALSE(o.Check(&why));

@@ -31,9 +31,11 @@ bool ParseMotionModel(const std::string& text, MotionModel* model) {
 
 bool RefineOptions::Check(std::string* why) const {
   if (!(huber_px > 0) || !(nadir_weight >= 0) || !(rigidity_weight >= 0) || max_iterations < 1 ||
-      !(max_seconds >= 0) || threads < 1 || threads > 64) {
+      !(max_seconds >= 0) || threads < 1 || threads > 64 || !(max_perspective_ratio > 1)) {
     if (why != nullptr)
-      *why = "refine: huber_px > 0, weights >= 0, max_iterations >= 1, max_seconds >= 0, threads in [1,64]";
+      *why =
+          "refine: huber_px > 0, weights >= 0, max_iterations >= 1, max_seconds >= 0, threads in [1,64], "
+          "max_perspective_ratio > 1";
     return false;
   }
   return true;
@@ -198,8 +200,8 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   }
   // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
   std::unordered_map<int, Vec2> frame_centre;
+  std::unordered_map<int, Eigen::AlignedBox2d> extent;
   {
-    std::unordered_map<int, Eigen::AlignedBox2d> extent;
     for (const Edge* e : used)
       for (size_t k = 0; k < e->src_points.size(); ++k) {
         extent[e->src].extend(e->src_points[k]);
@@ -258,6 +260,24 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
     if (!m.allFinite() || std::abs(m.determinant()) < 1e-12) {
       result.failure = "refinement produced a degenerate map";
       return result;
+    }
+    // A drone camera is near nadir: the projective denominator may not vary much over the frame. A frame whose
+    // matches allowed a wild perspective (few, clustered points) would be drawn folded or smeared.
+    const auto box = extent.find(id);
+    if (homography && box != extent.end()) {
+      double lo = 1e300;
+      double hi = -1e300;
+      for (const auto corner : {Eigen::AlignedBox2d::BottomLeft, Eigen::AlignedBox2d::BottomRight,
+                                Eigen::AlignedBox2d::TopLeft, Eigen::AlignedBox2d::TopRight}) {
+        const Vec2 c = box->second.corner(corner);
+        const double w = m(2, 0) * c.x() + m(2, 1) * c.y() + 1.0;
+        lo = std::min(lo, w);
+        hi = std::max(hi, w);
+      }
+      if (!(lo > 0) || hi / lo > options.max_perspective_ratio) {
+        result.failure = "implausible perspective on frame " + std::to_string(id);
+        return result;
+      }
     }
     refined[id] = m;
   }

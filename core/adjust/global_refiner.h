@@ -25,6 +25,9 @@ struct RefineOptions {
   double nadir_weight = 0.1;
   // Similarity prior on each frame's 2x2 part (no shear, equal axis scales), frame pixels at the half-diagonal.
   double rigidity_weight = 0.05;
+  // Largest ratio of the projective denominator between a frame's corners (2.0: ~20 degrees of tilt for a 70 degree
+  // lens); beyond it the refinement is refused and the caller keeps an affine solution.
+  double max_perspective_ratio = 2.0;
   int max_iterations = 50;
   double max_seconds = 0.0;  // 0 = no time limit
   int threads = 1;

@@ -472,7 +472,15 @@ bool Mosaicker::Finish(std::string* error) {
     // Refinement: transfer errors in frame pixels (no pull to shrink towards the anchor) and, with the homography
     // model, each frame's perspective.
     StageTimer refine_timer;
-    const RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
+    RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
+    refined_model_ = options_.refine.model;
+    if (!rr.ok && options_.refine.model == MotionModel::kHomography) {
+      spdlog::warn("homography refinement refused ({}); refining affine maps instead", rr.failure);
+      RefineOptions affine = options_.refine;
+      affine.model = MotionModel::kAffine;
+      rr = RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
+      refined_model_ = MotionModel::kAffine;
+    }
     refine_ = rr;
     stats_.Add("refine", refine_timer.ElapsedMs());
     holdout_final_ = TransferErrors(edges, mosaic_from_work_, true);
@@ -482,7 +490,7 @@ bool Mosaicker::Finish(std::string* error) {
       spdlog::info(
           "{} refinement: transfer error RMS {:.3f} -> {:.3f} px (held-out points {:.3f} -> {:.3f}), {} iterations, "
           "{:.1f} s",
-          ToString(options_.refine.model), rr.initial_rms_px, rr.final_rms_px, holdout_linear_.rms, holdout_final_.rms,
+          ToString(refined_model_), rr.initial_rms_px, rr.final_rms_px, holdout_linear_.rms, holdout_final_.rms,
           rr.iterations, rr.seconds);
     } else {
       spdlog::warn("refinement failed ({}); keeping the affine solution", rr.failure);

@@ -120,6 +120,7 @@ class Mosaicker {
   double final_rms_ = 0.0;
   double residual_median_ = 0.0;
   RefineResult refine_;
+  MotionModel refined_model_ = MotionModel::kAffine;
   TransferStats holdout_linear_;  // held-out correspondences under the linear solution, then the final one
   TransferStats holdout_final_;
   double composite_ms_ = 0.0;

@@ -214,7 +214,7 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   report["holdout_rms_px"] = holdout_final_.rms;
   report["holdout_median_px"] = holdout_final_.median;
   report["holdout_points"] = holdout_final_.count;
-  report["model"] = refine_.ok ? ToString(options_.refine.model) : "affine";
+  report["model"] = refine_.ok ? ToString(refined_model_) : "affine";
   report["refine"] = {{"ok", refine_.ok},
                       {"failure", refine_.failure},
                       {"iterations", refine_.iterations},

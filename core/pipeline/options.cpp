@@ -74,6 +74,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"refine", "huber_px", &o.refine.huber_px},
       {"refine", "nadir_weight", &o.refine.nadir_weight},
       {"refine", "rigidity_weight", &o.refine.rigidity_weight},
+      {"refine", "max_perspective_ratio", &o.refine.max_perspective_ratio},
       {"refine", "max_iterations", &o.refine.max_iterations},
       {"refine", "max_seconds", &o.refine.max_seconds},
       {"refine", "threads", &o.refine.threads},
