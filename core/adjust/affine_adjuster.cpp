@@ -63,41 +63,56 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
     used.push_back(e);
   }
   const int num_cols = static_cast<int>(column.size()) * kDof;
-  std::vector<double> weights;  // IRLS weight per correspondence of `used`, in order
+  // IRLS weight per correspondence of `used`, in order (sqrt of the Huber weight: rows are scaled, not squared).
+  // float: the only per-correspondence state, so the solve's memory grows with edges, not points.
+  std::vector<float> weights;
   for (int iteration = 0; iteration <= options.robust_iterations; ++iteration) {
-    RowBuilder rb;
+    // Correspondence rows T_src p - T_tgt q = 0 go straight into the normal equations: per edge, the weighted sums
+    // S_pp, S_pq, S_qq of the homogeneous points give its 6x6 block (the same for both coordinate rows), so the
+    // Jacobian with one row per point is never built.
+    std::vector<Eigen::Triplet<double>> normal;
+    Eigen::VectorXd Atb = Eigen::VectorXd::Zero(num_cols);
     size_t corr_index = 0;
-    // Correspondence rows: T_src p - T_tgt q = 0, one row per coordinate.
     for (const Edge* e : used) {
+      Eigen::Matrix3d Spp = Eigen::Matrix3d::Zero();
+      Eigen::Matrix3d Spq = Eigen::Matrix3d::Zero();
+      Eigen::Matrix3d Sqq = Eigen::Matrix3d::Zero();
+      for (size_t k = 0; k < e->src_points.size(); ++k, ++corr_index) {
+        const double w = iteration == 0 ? 1.0 : static_cast<double>(weights[corr_index]);
+        const Eigen::Vector3d p(e->src_points[k].x(), e->src_points[k].y(), 1.0);
+        const Eigen::Vector3d q(e->tgt_points[k].x(), e->tgt_points[k].y(), 1.0);
+        const double w2 = w * w;
+        Spp.noalias() += w2 * p * p.transpose();
+        Spq.noalias() += w2 * p * q.transpose();
+        Sqq.noalias() += w2 * q * q.transpose();
+      }
       const auto cs = column.find(e->src);
       const auto ct = column.find(e->tgt);
       const Mat3& Ts = T.at(e->src);
       const Mat3& Tt = T.at(e->tgt);
-      for (size_t k = 0; k < e->src_points.size(); ++k, ++corr_index) {
-        const double w = iteration == 0 ? 1.0 : weights[corr_index];
-        const Vec2& p = e->src_points[k];
-        const Vec2& q = e->tgt_points[k];
-        for (int r = 0; r < 2; ++r) {
-          double b = 0.0;
-          const int row = rb.NewRow(0.0);
-          if (cs != column.end()) {
-            rb.Add(row, cs->second + 3 * r + 0, w * p.x());
-            rb.Add(row, cs->second + 3 * r + 1, w * p.y());
-            rb.Add(row, cs->second + 3 * r + 2, w);
-          } else {
-            b -= w * (Ts(r, 0) * p.x() + Ts(r, 1) * p.y() + Ts(r, 2));
+      for (int r = 0; r < 2; ++r) {
+        const int s0 = cs != column.end() ? cs->second + 3 * r : -1;
+        const int t0 = ct != column.end() ? ct->second + 3 * r : -1;
+        for (int i = 0; i < 3; ++i)
+          for (int j = 0; j < 3; ++j) {
+            if (s0 >= 0) normal.emplace_back(s0 + i, s0 + j, Spp(i, j));
+            if (t0 >= 0) normal.emplace_back(t0 + i, t0 + j, Sqq(i, j));
+            if (s0 >= 0 && t0 >= 0) {
+              normal.emplace_back(s0 + i, t0 + j, -Spq(i, j));
+              normal.emplace_back(t0 + j, s0 + i, -Spq(i, j));
+            }
           }
-          if (ct != column.end()) {
-            rb.Add(row, ct->second + 3 * r + 0, -w * q.x());
-            rb.Add(row, ct->second + 3 * r + 1, -w * q.y());
-            rb.Add(row, ct->second + 3 * r + 2, -w);
-          } else {
-            b += w * (Tt(r, 0) * q.x() + Tt(r, 1) * q.y() + Tt(r, 2));
-          }
-          rb.rhs[static_cast<size_t>(row)] = b;
+        // A fixed side moves to the right-hand side.
+        if (s0 < 0 && t0 >= 0) {
+          const Eigen::Vector3d alpha = Ts.row(r).transpose();
+          Atb.segment<3>(t0) += Spq.transpose() * alpha;
+        } else if (t0 < 0 && s0 >= 0) {
+          const Eigen::Vector3d beta = Tt.row(r).transpose();
+          Atb.segment<3>(s0) += Spq * beta;
         }
       }
     }
+    RowBuilder rb;
     // Rigidity: a00 - a11 = 0 and a01 + a10 = 0, in pixels at the frame's half-diagonal.
     for (const auto& [id, col] : column) {
       const auto hd = half_diagonal.find(id);
@@ -152,8 +167,11 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
     Eigen::SparseMatrix<double> A(rb.rows, num_cols);
     A.setFromTriplets(rb.triplets.begin(), rb.triplets.end());
     const Eigen::Map<const Eigen::VectorXd> b(rb.rhs.data(), rb.rows);
-    const Eigen::SparseMatrix<double> AtA = A.transpose() * A;
-    const Eigen::VectorXd Atb = A.transpose() * b;
+    Eigen::SparseMatrix<double> AtA(num_cols, num_cols);
+    AtA.setFromTriplets(normal.begin(), normal.end());
+    normal = {};
+    AtA += Eigen::SparseMatrix<double>(A.transpose() * A);
+    Atb += A.transpose() * b;
     Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(AtA);
     if (solver.info() != Eigen::Success) {
       result.failure = "normal equations are singular";
@@ -177,7 +195,7 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
       const Mat3& Tt = T.at(e->tgt);
       for (size_t k = 0; k < e->src_points.size(); ++k) {
         const double r = (Apply(Ts, e->src_points[k]) - Apply(Tt, e->tgt_points[k])).norm();
-        weights.push_back(r <= options.huber_px ? 1.0 : std::sqrt(options.huber_px / r));
+        weights.push_back(static_cast<float>(r <= options.huber_px ? 1.0 : std::sqrt(options.huber_px / r)));
       }
     }
   }

@@ -31,11 +31,12 @@ bool ParseMotionModel(const std::string& text, MotionModel* model) {
 
 bool RefineOptions::Check(std::string* why) const {
   if (!(huber_px > 0) || !(nadir_weight >= 0) || !(rigidity_weight >= 0) || max_iterations < 1 ||
-      !(max_seconds >= 0) || threads < 1 || threads > 64 || !(max_perspective_ratio > 1)) {
+      !(max_seconds >= 0) || threads < 1 || threads > 64 || !(max_perspective_ratio > 1) ||
+      max_correspondences < 100 || !(outlier_px >= 0)) {
     if (why != nullptr)
       *why =
           "refine: huber_px > 0, weights >= 0, max_iterations >= 1, max_seconds >= 0, threads in [1,64], "
-          "max_perspective_ratio > 1";
+          "max_perspective_ratio > 1, max_correspondences >= 100, outlier_px >= 0";
     return false;
   }
   return true;
@@ -137,7 +138,7 @@ double Median(std::vector<double> v) {
 }  // namespace
 
 TransferStats TransferErrors(const std::vector<const Edge*>& edges,
-                             const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout) {
+                             const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout, double max_px) {
   TransferStats s;
   std::vector<double> r;
   for (const Edge* e : edges) {
@@ -147,7 +148,10 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
     const Mat3 tgt_from_src = tt->second.inverse() * ts->second;
     const auto& src = holdout ? e->holdout_src_points : e->src_points;
     const auto& tgt = holdout ? e->holdout_tgt_points : e->tgt_points;
-    for (size_t k = 0; k < src.size(); ++k) r.push_back((Apply(tgt_from_src, src[k]) - tgt[k]).norm());
+    for (size_t k = 0; k < src.size(); ++k) {
+      const double d = (Apply(tgt_from_src, src[k]) - tgt[k]).norm();
+      if (max_px <= 0 || d <= max_px) r.push_back(d);
+    }
   }
   s.count = r.size();
   if (r.empty()) return s;
@@ -186,16 +190,31 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   ceres::Problem::Options problem_options;
   problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
   problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  problem_options.enable_fast_removal = true;  // the outlier pass removes residual blocks
   ceres::Problem problem(problem_options);
   ceres::HuberLoss loss(options.huber_px);
+  struct Observation {
+    const Edge* edge;
+    size_t index;
+    ceres::ResidualBlockId id;
+  };
+  std::vector<Observation> observations;
+  const size_t stride =
+      before.count > static_cast<size_t>(options.max_correspondences)
+          ? (before.count + static_cast<size_t>(options.max_correspondences) - 1) /
+                static_cast<size_t>(options.max_correspondences)
+          : 1;
   for (const Edge* e : used) {
     FrameParams& s = params_of(e->src);
     FrameParams& t = params_of(e->tgt);
-    for (size_t k = 0; k < e->src_points.size(); ++k) {
+    // Points are grid-spread over the frame in no particular order, so a stride keeps the spread.
+    for (size_t k = 0; k < e->src_points.size(); k += stride) {
+      ++result.num_used;
       auto* cost = new ceres::AutoDiffCostFunction<TransferCost, 2, 6, 2, 6, 2>(
           new TransferCost(e->src_points[k], e->tgt_points[k]));
-      problem.AddResidualBlock(cost, &loss, s.affine.data(), s.perspective.data(), t.affine.data(),
-                               t.perspective.data());
+      observations.push_back({e, k,
+                              problem.AddResidualBlock(cost, &loss, s.affine.data(), s.perspective.data(),
+                                                       t.affine.data(), t.perspective.data())});
     }
   }
   // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
@@ -253,6 +272,41 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
     result.failure = "refinement failed: " + summary.message;
     return result;
   }
+  // Correspondences the refined maps put beyond the pairwise inlier threshold (moving water, parallax on relief, a
+  // match that only fitted the pair's affine) are dropped and the problem solved again, as a bundle adjustment
+  // filters its observations. An edge that would lose more than half of its points keeps them all.
+  if (options.outlier_px > 0) {
+    const auto current = [&](int id) {
+      auto it = params.find(id);
+      return FromParams(it->second);
+    };
+    std::vector<size_t> to_remove;
+    size_t first = 0;
+    while (first < observations.size()) {
+      size_t last = first;
+      while (last < observations.size() && observations[last].edge == observations[first].edge) ++last;
+      const Edge* e = observations[first].edge;
+      const Mat3 tgt_from_src = current(e->tgt).inverse() * current(e->src);
+      std::vector<size_t> bad;
+      for (size_t o = first; o < last; ++o) {
+        const size_t k = observations[o].index;
+        if ((Apply(tgt_from_src, e->src_points[k]) - e->tgt_points[k]).norm() > options.outlier_px) bad.push_back(o);
+      }
+      if (2 * bad.size() <= last - first) to_remove.insert(to_remove.end(), bad.begin(), bad.end());
+      first = last;
+    }
+    for (size_t o : to_remove) problem.RemoveResidualBlock(observations[o].id);
+    result.outliers = to_remove.size();
+    if (!to_remove.empty()) {
+      ceres::Solver::Summary second;
+      ceres::Solve(solver_options, &problem, &second);
+      result.iterations += static_cast<int>(second.iterations.size());
+      if (!second.IsSolutionUsable()) {
+        result.failure = "refinement failed: " + second.message;
+        return result;
+      }
+    }
+  }
   std::unordered_map<int, Mat3> refined;
   for (const auto& [id, p] : params) {
     if (variable.count(id) == 0 && id != anchor) continue;
@@ -285,9 +339,12 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   std::unordered_map<int, Mat3> trial = T;
   for (const auto& [id, m] : refined) trial[id] = m;
   const TransferStats after = TransferErrors(used, trial);
+  const TransferStats inliers = TransferErrors(used, trial, false, options.outlier_px);
   for (const auto& [id, m] : refined) T[id] = m;
-  result.final_rms_px = after.rms;
-  result.final_median_px = after.median;
+  result.final_all_rms_px = after.rms;
+  result.final_rms_px = options.outlier_px > 0 ? inliers.rms : after.rms;
+  result.final_median_px = options.outlier_px > 0 ? inliers.median : after.median;
+  result.final_inliers = options.outlier_px > 0 ? inliers.count : after.count;
   result.seconds = timer.ElapsedMs() / 1000.0;
   result.ok = true;
   return result;

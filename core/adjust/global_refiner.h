@@ -28,7 +28,13 @@ struct RefineOptions {
   // Largest ratio of the projective denominator between a frame's corners (2.0: ~20 degrees of tilt for a 70 degree
   // lens); beyond it the refinement is refused and the caller keeps an affine solution.
   double max_perspective_ratio = 2.0;
+  // After a first solve, correspondences with a larger transfer error are dropped and the problem is solved again
+  // (0 = keep all). The pipeline sets it to the pairwise RANSAC threshold: "inlier" means the same in both.
+  double outlier_px = 3.0;
   int max_iterations = 50;
+  // Cap on the correspondences handed to the solver (each costs ~1 KiB of solver memory): beyond it every edge
+  // contributes an evenly strided subset of its grid-spread points. Set from the memory budget.
+  int max_correspondences = 100000;
   double max_seconds = 0.0;  // 0 = no time limit
   int threads = 1;
 
@@ -39,11 +45,15 @@ struct RefineResult {
   bool ok = false;
   std::string failure;
   size_t num_variables = 0;  // frames refined
-  size_t num_residuals = 0;  // correspondences
+  size_t num_residuals = 0;  // correspondences of the edges
+  size_t num_used = 0;       // of which the solver used (max_correspondences)
   int iterations = 0;
   double initial_rms_px = 0.0;  // transfer error, target-frame pixels
-  double final_rms_px = 0.0;
+  double final_rms_px = 0.0;  // over the final inliers (within outlier_px), or all when outlier_px = 0
   double final_median_px = 0.0;
+  size_t final_inliers = 0;
+  double final_all_rms_px = 0.0;  // over every correspondence of the edges
+  size_t outliers = 0;            // correspondences removed by the outlier pass
   double seconds = 0.0;
 };
 
@@ -64,9 +74,9 @@ struct TransferStats {
   double median = 0.0;
 };
 // Transfer errors |proj(T_tgt^-1 T_src p) - q| over all correspondences of `edges` whose frames have maps (with
-// `holdout`: over the held-out points instead).
+// `holdout`: over the held-out points instead); with max_px > 0, only errors up to max_px count (inliers).
 [[nodiscard]] TransferStats TransferErrors(const std::vector<const Edge*>& edges,
                                            const std::unordered_map<int, Mat3>& mosaic_from_frame,
-                                           bool holdout = false);
+                                           bool holdout = false, double max_px = 0.0);
 
 }  // namespace uavm

@@ -484,6 +484,7 @@ bool Mosaicker::Finish(std::string* error) {
     refine_ = rr;
     stats_.Add("refine", refine_timer.ElapsedMs());
     holdout_final_ = TransferErrors(edges, mosaic_from_work_, true);
+    holdout_inliers_ = TransferErrors(edges, mosaic_from_work_, true, options_.refine.outlier_px);
     if (rr.ok) {
       rms = rr.final_rms_px;
       median = rr.final_median_px;

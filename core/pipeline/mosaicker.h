@@ -123,6 +123,7 @@ class Mosaicker {
   MotionModel refined_model_ = MotionModel::kAffine;
   TransferStats holdout_linear_;  // held-out correspondences under the linear solution, then the final one
   TransferStats holdout_final_;
+  TransferStats holdout_inliers_;  // of those, the ones within refine.outlier_px
   double composite_ms_ = 0.0;
 };
 

@@ -214,12 +214,20 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   report["holdout_rms_px"] = holdout_final_.rms;
   report["holdout_median_px"] = holdout_final_.median;
   report["holdout_points"] = holdout_final_.count;
+  report["holdout_inlier_rms_px"] = holdout_inliers_.rms;
+  report["holdout_inlier_share"] =
+      holdout_final_.count > 0 ? static_cast<double>(holdout_inliers_.count) / static_cast<double>(holdout_final_.count)
+                               : 0.0;
   report["model"] = refine_.ok ? ToString(refined_model_) : "affine";
   report["refine"] = {{"ok", refine_.ok},
                       {"failure", refine_.failure},
                       {"iterations", refine_.iterations},
                       {"initial_rms_px", refine_.initial_rms_px},
                       {"final_rms_px", refine_.final_rms_px},
+                      {"final_all_rms_px", refine_.final_all_rms_px},
+                      {"inliers", refine_.final_inliers},
+                      {"outliers_removed", refine_.outliers},
+                      {"solver_correspondences", refine_.num_used},
                       {"holdout_linear_rms_px", holdout_linear_.rms},
                       {"correspondences", refine_.num_residuals},
                       {"seconds", refine_.seconds}};
