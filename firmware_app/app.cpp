@@ -5,6 +5,7 @@
 #include <memory>
 #include <thread>
 
+#include "core/pipeline/memory_budget.h"
 #include "core/pipeline/mosaicker.h"
 #include "core/session/session_dir.h"
 #include "core/util/bounded_queue.h"
@@ -66,9 +67,24 @@ int Run(const RunConfig& config) {
   source->SetDecodeHint({config.pipeline.work_long_side});
   spdlog::info("source {}, output {}", source->Describe(), config.out_dir);
 
-  Mosaicker mosaicker(config.pipeline, paths);
+  // The budget sizes caches, pools and the detector's bands; the plan is for the working frame's usual 4:3 shape
+  // (the detector adapts its bands to each frame's real size).
+  PipelineOptions pipeline = config.pipeline;
+  MemoryPlan plan;
+  if (!ApplyMemoryBudget(pipeline.work_long_side, pipeline.work_long_side * 3 / 4, &pipeline, &plan, &error)) {
+    spdlog::error("{}", error);
+    return kExitUsage;
+  }
+  if (plan.budget_mib > 0)
+    spdlog::info(
+        "memory budget {:.0f} MiB: flight ~{:.0f} MiB (detector {:.0f} MiB in {} band(s), queue {}, feature cache "
+        "{:.0f}, relocalisation {:.0f}), end ~{:.0f} MiB (image cache {:.0f}, blending {:.0f}, tile {})",
+        plan.budget_mib, plan.FlightMiB(), plan.sift_mib, plan.sift_bands, plan.queue_capacity, plan.feature_cache_mib,
+        plan.relocalization_mib, plan.EndMiB(), plan.image_cache_mib, plan.blend_mib, pipeline.mosaic.tile_size);
+  Mosaicker mosaicker(pipeline, paths);
+  mosaicker.SetMemoryPlan(plan);
   BoundedQueue<Item> queue(
-      static_cast<size_t>(config.pipeline.queue_capacity),
+      static_cast<size_t>(pipeline.queue_capacity),
       source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock : BoundedQueue<Item>::Policy::kDropOldest);
   bool source_failed = false;
   std::string source_error;

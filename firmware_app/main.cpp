@@ -1,6 +1,8 @@
 // uavmosaic-onboard: thin entry point; the loop lives in app.cpp.
 #include <spdlog/spdlog.h>
 
+#include <malloc.h>
+
 #include <CLI/CLI.hpp>
 #include <map>
 #include <string>
@@ -9,6 +11,11 @@
 
 int main(int argc, char** argv) {
   using namespace uavm;
+  // Resident memory must follow what the program holds: two malloc arenas (one per working thread is what glibc
+  // would grow to on more cores), and buffers of 1 MiB or more always mmapped, so that freeing a detector pyramid or
+  // a tile returns it to the system instead of leaving it in a heap that only grows.
+  mallopt(M_ARENA_MAX, 2);
+  mallopt(M_MMAP_THRESHOLD, 1 << 20);
   app::RunConfig config;
   std::string config_file;
   std::string log_level = "info";
@@ -28,6 +35,9 @@ int main(int argc, char** argv) {
   cli.add_option("--stride", config.stride, "Take every N-th input of the replay (video frames or files)")
       ->check(CLI::PositiveNumber);
   cli.add_option("--work-size", p.work_long_side, "Long side of the working copy used for registration, px");
+  cli.add_option("--memory-budget", p.memory_budget_mib,
+                 "Memory budget of the whole program, MiB; caches, pools and feature detection fit into it "
+                 "(0 = none)");
   cli.add_option("--max-features", p.features.max_features, "Keypoints kept per frame");
   cli.add_option("--mosaic-scale", p.mosaic_scale,
                  "mosaic.tif resolution relative to the reference frame's original pixels (1 = full resolution)");

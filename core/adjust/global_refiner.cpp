@@ -247,8 +247,8 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
           p.perspective.data());
     }
     if (is_variable && !is_anchor && options.rigidity_weight > 0) {
-      const double scale = std::sqrt(std::abs(p.affine[0] * p.affine[4] - p.affine[1] * p.affine[3]));
       const auto c = frame_centre.find(id);
+      const double scale = c != frame_centre.end() ? LocalScale(FromParams(p), c->second) : 0.0;
       if (scale > 0 && c != frame_centre.end())
         problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RigidityPrior, 2, 6, 2>(
                                      new RigidityPrior(options.rigidity_weight * hd / scale, c->second)),

@@ -1,5 +1,6 @@
 #include "core/features/sift.h"
 
+#include <algorithm>
 #include <opencv2/features2d.hpp>
 
 namespace uavm {
@@ -16,10 +17,90 @@ bool FeatureOptions::Check(std::string* why) const {
     return fail("features.min_contrast_threshold must be in (0, contrast_threshold]");
   if (target_min_features < 0) return fail("features.target_min_features must be >= 0");
   if (octave_layers < 1 || octave_layers > 8) return fail("features.octave_layers must be in [1,8]");
+  if (max_scale_space_mib < 0) return fail("features.max_scale_space_mib must be >= 0");
+  if (band_margin < 16) return fail("features.band_margin must be >= 16");
   return true;
 }
 
+double SiftScaleSpaceMiB(int width, int height) {
+  // Octave -1 is 2w x 2h; each further octave a quarter of the previous: 4/3 of the first in all.
+  constexpr double kImagesPerOctave = 11.0;  // 6 Gaussian + 5 difference-of-Gaussian, float
+  const double first = 4.0 * static_cast<double>(width) * static_cast<double>(height) * sizeof(float);
+  return first * kImagesPerOctave * 4.0 / 3.0 / (1024.0 * 1024.0);
+}
+
+int SiftBands(int width, int height, const FeatureOptions& options) {
+  if (options.max_scale_space_mib <= 0) return 1;
+  constexpr int kMaxBands = 16;
+  for (int bands = 1; bands <= kMaxBands; ++bands) {
+    const int rows = (height + bands - 1) / bands + (bands > 1 ? 2 * options.band_margin : 0);
+    if (SiftScaleSpaceMiB(width, std::min(rows, height)) <= options.max_scale_space_mib) return bands;
+  }
+  return kMaxBands;
+}
+
 SiftExtractor::SiftExtractor(const FeatureOptions& options) : options_(options) {}
+
+void SiftExtractor::Detect(const cv::Mat& gray, double threshold, std::vector<cv::KeyPoint>* keypoints,
+                           cv::Mat* descriptors) const {
+  const int bands = SiftBands(gray.cols, gray.rows, options_);
+  if (bands <= 1) {
+    auto sift = cv::SIFT::create(options_.max_features, options_.octave_layers, threshold, 10.0, 1.6);
+    sift->detectAndCompute(gray, cv::noArray(), *keypoints, *descriptors);
+    // OpenCV keeps ties at the cut, so it may return a few more than asked.
+    if (keypoints->size() > static_cast<size_t>(options_.max_features)) {
+      std::vector<size_t> order(keypoints->size());
+      for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+      std::stable_sort(order.begin(), order.end(),
+                       [&](size_t a, size_t b) { return (*keypoints)[a].response > (*keypoints)[b].response; });
+      order.resize(static_cast<size_t>(options_.max_features));
+      std::sort(order.begin(), order.end());
+      std::vector<cv::KeyPoint> kept;
+      cv::Mat kept_desc(static_cast<int>(order.size()), descriptors->cols, descriptors->type());
+      for (size_t i = 0; i < order.size(); ++i) {
+        kept.push_back((*keypoints)[order[i]]);
+        descriptors->row(static_cast<int>(order[i])).copyTo(kept_desc.row(static_cast<int>(i)));
+      }
+      *keypoints = std::move(kept);
+      *descriptors = kept_desc;
+    }
+    return;
+  }
+  // Each band is detected with its overlap and keeps the keypoints of its own rows; per band a proportional share
+  // of max_features (with slack) bounds the descriptor work, then the strongest max_features overall are kept.
+  const int band_rows = (gray.rows + bands - 1) / bands;
+  std::vector<cv::KeyPoint> all;
+  std::vector<cv::Mat> rows;
+  for (int b = 0; b < bands; ++b) {
+    const int y0 = b * band_rows;
+    const int y1 = std::min(gray.rows, y0 + band_rows);
+    if (y0 >= y1) break;
+    const int ry0 = std::max(0, y0 - options_.band_margin);
+    const int ry1 = std::min(gray.rows, y1 + options_.band_margin);
+    const int share = static_cast<int>(1.5 * options_.max_features * (y1 - y0) / gray.rows) + 16;
+    auto sift = cv::SIFT::create(share, options_.octave_layers, threshold, 10.0, 1.6);
+    std::vector<cv::KeyPoint> kps;
+    cv::Mat desc;
+    sift->detectAndCompute(gray.rowRange(ry0, ry1), cv::noArray(), kps, desc);
+    for (size_t i = 0; i < kps.size(); ++i) {
+      cv::KeyPoint kp = kps[i];
+      kp.pt.y += static_cast<float>(ry0);
+      if (kp.pt.y < static_cast<float>(y0) - 0.5f || kp.pt.y >= static_cast<float>(y1) - 0.5f) continue;
+      all.push_back(kp);
+      rows.push_back(desc.row(static_cast<int>(i)));
+    }
+  }
+  std::vector<size_t> order(all.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return all[a].response > all[b].response; });
+  if (order.size() > static_cast<size_t>(options_.max_features)) order.resize(static_cast<size_t>(options_.max_features));
+  keypoints->clear();
+  descriptors->create(static_cast<int>(order.size()), rows.empty() ? 128 : rows.front().cols, CV_32F);
+  for (size_t i = 0; i < order.size(); ++i) {
+    keypoints->push_back(all[order[i]]);
+    rows[order[i]].copyTo(descriptors->row(static_cast<int>(i)));
+  }
+}
 
 Features SiftExtractor::Extract(const cv::Mat& gray) const {
   Features out;
@@ -28,8 +109,7 @@ Features SiftExtractor::Extract(const cv::Mat& gray) const {
   double threshold = options_.contrast_threshold;
   for (;;) {
     keypoints.clear();
-    auto sift = cv::SIFT::create(options_.max_features, options_.octave_layers, threshold, 10.0, 1.6);
-    sift->detectAndCompute(gray, cv::noArray(), keypoints, out.descriptors);
+    Detect(gray, threshold, &keypoints, &out.descriptors);
     out.contrast_threshold_used = threshold;
     if (static_cast<int>(keypoints.size()) >= options_.target_min_features) break;
     const double next = threshold / 3.0;

@@ -16,9 +16,21 @@ struct FeatureOptions {
   int octave_layers = 3;
   // L1-normalise and square-root descriptors (RootSIFT): better ratio-test matching at no cost.
   bool root_sift = true;
+  // Memory cap on OpenCV's scale space (it doubles the image, then keeps 11 float images per octave: ~240 bytes per
+  // working pixel, 173 MiB for 1000x750). Above it the frame is processed in horizontal bands with an overlap
+  // (band_margin px) that covers the detection and descriptor support of all but the coarsest octaves; 0 = no cap.
+  // Set from the memory budget.
+  int max_scale_space_mib = 0;
+  int band_margin = 48;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
+
+// Bytes of OpenCV's SIFT scale space for a width x height image (doubled first octave, 6 Gaussian + 5 DoG images per
+// octave, float).
+[[nodiscard]] double SiftScaleSpaceMiB(int width, int height);
+// Number of horizontal bands Extract() uses for a width x height image under `options`.
+[[nodiscard]] int SiftBands(int width, int height, const FeatureOptions& options);
 
 // Keypoints of one frame at working resolution. Descriptors are CV_32F, one row per point.
 struct Features {
@@ -39,6 +51,10 @@ class SiftExtractor {
   [[nodiscard]] Features Extract(const cv::Mat& gray) const;
 
  private:
+  // One detection at `threshold`, whole image or banded; strongest max_features kept.
+  void Detect(const cv::Mat& gray, double threshold, std::vector<cv::KeyPoint>* keypoints,
+              cv::Mat* descriptors) const;
+
   FeatureOptions options_;
 };
 

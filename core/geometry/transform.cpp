@@ -88,4 +88,15 @@ Mat3 FromCv(const cv::Matx23d& a) {
   return m;
 }
 
+double LocalScale(const Mat3& m, const Vec2& at) {
+  const double w = m(2, 0) * at.x() + m(2, 1) * at.y() + m(2, 2);
+  const Vec2 p = Apply(m, at);
+  // d(x/w)/du = (m0u - p.x m2u) / w, likewise for y.
+  const double j00 = (m(0, 0) - p.x() * m(2, 0)) / w;
+  const double j01 = (m(0, 1) - p.x() * m(2, 1)) / w;
+  const double j10 = (m(1, 0) - p.y() * m(2, 0)) / w;
+  const double j11 = (m(1, 1) - p.y() * m(2, 1)) / w;
+  return std::sqrt(std::abs(j00 * j11 - j01 * j10));
+}
+
 }  // namespace uavm

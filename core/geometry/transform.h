@@ -37,6 +37,9 @@ struct LinearPart {
   double det = 1.0;
 };
 [[nodiscard]] LinearPart Decompose(const Mat3& affine);
+// sqrt |det J| of tgt_from_src's Jacobian at `at`: target pixels per source pixel there (exact for projective maps,
+// whose upper-left 2x2 is not their Jacobian away from the origin).
+[[nodiscard]] double LocalScale(const Mat3& tgt_from_src, const Vec2& at);
 
 [[nodiscard]] cv::Matx23d ToCvAffine(const Mat3& m);
 [[nodiscard]] cv::Matx33d ToCv(const Mat3& m);

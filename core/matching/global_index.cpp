@@ -56,6 +56,20 @@ void GlobalIndex::Thin() {
   rank_in_frame_ = std::move(ranks);
   quota_ = std::max(1, quota_ / 2);
   dirty_ = true;
+  ++thinnings_;
+}
+
+void GlobalIndex::Release() {
+  index_.reset();
+  index_data_ = cv::Mat();
+  descriptors_ = cv::Mat();
+  frame_of_row_.clear();
+  frame_of_row_.shrink_to_fit();
+  rank_in_frame_.clear();
+  rank_in_frame_.shrink_to_fit();
+  index_frame_of_row_.clear();
+  index_frame_of_row_.shrink_to_fit();
+  dirty_ = true;
 }
 
 std::vector<int> GlobalIndex::Query(const Features& features, int max_results, bool allow_stale) {

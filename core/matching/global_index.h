@@ -30,9 +30,14 @@ class GlobalIndex {
   [[nodiscard]] std::vector<int> Query(const Features& features, int max_results, bool allow_stale = false);
   [[nodiscard]] size_t size() const { return static_cast<size_t>(descriptors_.rows); }
   [[nodiscard]] int per_frame_quota() const { return quota_; }
+  [[nodiscard]] int thinnings() const { return thinnings_; }  // times every frame's share was halved
+  // Frees the index (the end of the flight does not relocalise).
+  void Release();
 
  private:
   void Thin();
+
+  int thinnings_ = 0;
 
   GlobalIndexOptions options_;
   int quota_;

@@ -28,6 +28,7 @@ bool CompositorOptions::Check(std::string* why) const {
     return fail("mosaic.tile_size must be a multiple of tiff_block");
   if (num_bands < 0 || num_bands > 10) return fail("mosaic.num_bands must be in [0,10]");
   if (threads < 1 || threads > 64) return fail("mosaic.threads must be in [1,64]");
+  if (gdal_cache_mib < 1) return fail("mosaic.gdal_cache_mib must be >= 1");
   if (!(max_covered_fraction > 0.0 && max_covered_fraction <= 1.0))
     return fail("mosaic.max_covered_fraction must be in (0,1]");
   if (quicklook_long_side < 16) return fail("mosaic.quicklook_long_side must be >= 16");
@@ -59,6 +60,12 @@ FrameGeometry MakeGeometry(const CompositeInput& in) {
   g.bbox = cv::boundingRect(fp);
   return g;
 }
+
+// Seams from distance-to-border are smooth, so ownership is decided on a grid of kSeamStep x kSeamStep cells aligned
+// to the canvas (identical in every tile), then spread to the cells' pixels. A cell is owned only when its centre lies
+// kSeamMargin px inside the owner, so that every pixel of the cell is inside it too.
+constexpr int kSeamStep = 4;
+constexpr float kSeamMargin = 3.0f;  // > half the cell diagonal (2.1 px)
 
 // Fills image coordinates (map_x, map_y) for the canvas points (x0 + c * step + offset, y0 + r * step + offset),
 // c < size.width, r < size.height. step 1, offset 0: every pixel of an ROI.
@@ -114,13 +121,8 @@ void BorderDistance(const FrameGeometry& g, const cv::Mat& map_x, const cv::Mat&
 
 // Blends one ROI from the frames listed in `candidates` (indices into geometry / images).
 bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size_t>& candidates,
-              const std::function<const cv::Mat*(size_t)>& image_of, const cv::Rect& roi, int num_bands,
+              const std::function<const cv::Mat*(size_t, cv::Point*)>& image_of, const cv::Rect& roi, int num_bands,
               cv::Mat* out_image, cv::Mat* out_mask) {
-  // Seams from distance-to-border are smooth, so ownership is decided on a grid of kSeamStep x kSeamStep cells
-  // aligned to the canvas (identical in every tile), then spread to the cells' pixels. A cell is owned only when its
-  // centre lies kSeamMargin px inside the owner, so that every pixel of the cell is inside it too.
-  constexpr int kSeamStep = 4;
-  constexpr float kSeamMargin = 3.0f;  // > half the cell diagonal (2.1 px)
   const int cx0 = roi.x / kSeamStep;
   const int cy0 = roi.y / kSeamStep;
   const cv::Size cells((roi.x + roi.width + kSeamStep - 1) / kSeamStep - cx0,
@@ -160,7 +162,8 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
   for (size_t k = 0; k < candidates.size(); ++k) {
     cv::compare(owner, cv::Scalar(static_cast<double>(k)), mask, cv::CMP_EQ);
     if (cv::countNonZero(mask) == 0) continue;
-    const cv::Mat* img = image_of(candidates[k]);
+    cv::Point crop_tl;  // the image may be a crop of the frame (see OwnedCanvasBoxes)
+    const cv::Mat* img = image_of(candidates[k], &crop_tl);
     if (img == nullptr || img->empty()) continue;
     // Only the owned area plus the pyramid's reach is warped and fed: each pixel is blended about once, not once
     // per overlapping frame.
@@ -170,6 +173,10 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
             cv::Rect(0, 0, roi.width, roi.height);
     const cv::Rect sub(roi.x + owned.x, roi.y + owned.y, owned.width, owned.height);
     ComputeMaps(geometry[candidates[k]], sub, &map_x, &map_y);
+    if (crop_tl != cv::Point()) {
+      map_x -= static_cast<float>(crop_tl.x);
+      map_y -= static_cast<float>(crop_tl.y);
+    }
     // Reflect beyond the frame edge: the pyramid then sees image texture, not black, next to the seam.
     cv::remap(*img, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REFLECT);
     blender->Feed(warped, mask(owned), sub.tl());
@@ -183,6 +190,55 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
   out_mask->setTo(0, ~covered);
   out_image->setTo(cv::Scalar::all(0), ~covered);
   return true;
+}
+
+// Canvas bounding box of the seam cells each frame owns (the same ownership BlendRoi computes per tile: canvas-aligned
+// kSeamStep cells, farthest border wins), computed in bands of cell rows so that no canvas-sized map is held. A frame
+// that owns nothing gets an empty box: it is never decoded.
+std::vector<cv::Rect> OwnedCanvasBoxes(const std::vector<FrameGeometry>& geometry, cv::Size canvas) {
+  constexpr int kBandCells = 128;
+  const cv::Size all_cells((canvas.width + kSeamStep - 1) / kSeamStep, (canvas.height + kSeamStep - 1) / kSeamStep);
+  std::vector<cv::Rect> owned(geometry.size());
+  cv::Mat map_x;
+  cv::Mat map_y;
+  cv::Mat dist;
+  for (int cy0 = 0; cy0 < all_cells.height; cy0 += kBandCells) {
+    const cv::Size cells(all_cells.width, std::min(kBandCells, all_cells.height - cy0));
+    const cv::Rect2d band(0, cy0 * kSeamStep, canvas.width, cells.height * kSeamStep);
+    cv::Mat best(cells, CV_32F, cv::Scalar(kSeamMargin));
+    cv::Mat owner(cells, CV_32S, cv::Scalar(-1));
+    for (size_t k = 0; k < geometry.size(); ++k) {
+      const cv::Rect2d hit = geometry[k].bbox & band;
+      if (hit.area() <= 0) continue;
+      // Only the cells under the frame's bounding box.
+      const int c0 = std::max(0, static_cast<int>(hit.x) / kSeamStep - 1);
+      const int c1 = std::min(cells.width, static_cast<int>(hit.x + hit.width) / kSeamStep + 2);
+      if (c1 <= c0) continue;
+      ComputeMapsGrid(geometry[k], c0 * kSeamStep, cy0 * kSeamStep, cv::Size(c1 - c0, cells.height), kSeamStep,
+                      0.5 * (kSeamStep - 1), &map_x, &map_y);
+      BorderDistance(geometry[k], map_x, map_y, &dist);
+      for (int r = 0; r < cells.height; ++r) {
+        const auto* d = dist.ptr<float>(r);
+        auto* b = best.ptr<float>(r) + c0;
+        auto* o = owner.ptr<int>(r) + c0;
+        for (int c = 0; c < c1 - c0; ++c)
+          if (d[c] > b[c]) {
+            b[c] = d[c];
+            o[c] = static_cast<int>(k);
+          }
+      }
+    }
+    for (int r = 0; r < cells.height; ++r) {
+      const auto* o = owner.ptr<int>(r);
+      for (int c = 0; c < cells.width; ++c)
+        if (o[c] >= 0) {
+          const cv::Rect cell(c * kSeamStep, (cy0 + r) * kSeamStep, kSeamStep, kSeamStep);
+          cv::Rect& box = owned[static_cast<size_t>(o[c])];
+          box = box.empty() ? cell : (box | cell);
+        }
+    }
+  }
+  return owned;
 }
 
 // Bounded LRU of decoded frames between tiles.
@@ -201,11 +257,16 @@ class ImageCache {
     auto it = entries_.find(id);
     if (it != entries_.end()) return it->second.image;  // another worker decoded it meanwhile
     const size_t bytes = img.total() * img.elemSize();
-    while (!lru_.empty() && used_ + bytes > capacity_) {
-      auto victim = entries_.find(lru_.back());
-      used_ -= victim->second.bytes;
-      entries_.erase(victim);
-      lru_.pop_back();
+    // Evict least recently used images that no worker holds: evicting a held one would free nothing, and a later
+    // decode of it would be a second copy. When every cached image is held, the cache may exceed its capacity.
+    auto victim = lru_.end();
+    while (used_ + bytes > capacity_ && victim != lru_.begin()) {
+      --victim;
+      auto e = entries_.find(*victim);
+      if (e->second.image.u != nullptr && e->second.image.u->refcount > 1) continue;
+      used_ -= e->second.bytes;
+      entries_.erase(e);
+      victim = lru_.erase(victim);
     }
     lru_.push_front(id);
     auto& e = entries_[id];
@@ -247,7 +308,7 @@ bool RenderRoi(const std::vector<CompositeInput>& frames, const std::vector<cv::
     if ((geometry.back().bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
   }
   return BlendRoi(
-      geometry, candidates, [&](size_t i) { return &images[i]; }, roi, num_bands, image, mask);
+      geometry, candidates, [&](size_t i, cv::Point*) { return &images[i]; }, roi, num_bands, image, mask);
 }
 
 CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas, const ImageLoadFn& load,
@@ -271,21 +332,63 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
   result.frames_used = static_cast<int>(used.size());
   std::vector<FrameGeometry> geometry;
   for (const auto& f : used) geometry.push_back(MakeGeometry(f));
+  // Each frame is kept decoded only over what it owns plus the pyramid's reach: with 75 % / 40 % overlaps a frame
+  // owns a fifth of its area, so the cache holds ~5x more frames and decodes each about once.
+  const int reach = (options.num_bands > 0 ? (3 << options.num_bands) : 0) + 2 * kSeamStep;
+  std::vector<cv::Rect> crop(used.size());
+  {
+    const std::vector<cv::Rect> owned = OwnedCanvasBoxes(geometry, canvas);
+    for (size_t i = 0; i < used.size(); ++i) {
+      if (owned[i].empty()) continue;
+      const cv::Rect2d need(owned[i].x - reach, owned[i].y - reach, owned[i].width + 2 * reach,
+                            owned[i].height + 2 * reach);
+      // Corners suffice: a projective map takes the rectangle to a convex quadrilateral.
+      double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
+      for (const Vec2& c : {Vec2(need.x, need.y), Vec2(need.x + need.width, need.y),
+                            Vec2(need.x, need.y + need.height), Vec2(need.x + need.width, need.y + need.height)}) {
+        const Vec2 p = Apply(geometry[i].image_from_canvas, c);
+        x0 = std::min(x0, p.x());
+        y0 = std::min(y0, p.y());
+        x1 = std::max(x1, p.x());
+        y1 = std::max(y1, p.y());
+      }
+      const cv::Rect2d box(x0, y0, x1 - x0, y1 - y0);
+      const cv::Rect grown(static_cast<int>(std::floor(box.x)) - 2, static_cast<int>(std::floor(box.y)) - 2,
+                           static_cast<int>(std::ceil(box.width)) + 5, static_cast<int>(std::ceil(box.height)) + 5);
+      crop[i] = grown & cv::Rect(0, 0, geometry[i].size.width, geometry[i].size.height);
+      spdlog::debug("composite: frame {} owns {}x{} canvas px; kept {}x{} of {}x{}", used[i].id, owned[i].width,
+                    owned[i].height, crop[i].width, crop[i].height, geometry[i].size.width, geometry[i].size.height);
+    }
+  }
 
   const double q =
       std::min(1.0, options.quicklook_long_side / static_cast<double>(std::max(canvas.width, canvas.height)));
   result.quicklook = cv::Mat(std::max(1, static_cast<int>(std::lround(canvas.height * q))),
                              std::max(1, static_cast<int>(std::lround(canvas.width * q))), CV_8UC4, cv::Scalar::all(0));
-  ImageCache cache(load, options.image_cache_bytes);
+  // image_cache_bytes is all the memory for frame pixels: one full decode at a time (decodes are serialised) and the
+  // quick-look come out of it, the cache of cropped frames gets the rest (at least two of the largest crops).
+  size_t largest_crop = 0;
+  size_t largest_frame = 0;
+  for (size_t i = 0; i < used.size(); ++i) {
+    largest_frame = std::max(largest_frame, static_cast<size_t>(geometry[i].size.area()) * 3);
+    largest_crop = std::max(largest_crop, static_cast<size_t>(crop[i].area()) * 3);
+  }
+  const size_t transient = largest_frame + result.quicklook.total() * result.quicklook.elemSize();
+  const size_t cache_bytes = std::max(options.image_cache_bytes > transient ? options.image_cache_bytes - transient : 0,
+                                      2 * largest_crop);
+  ImageCache cache(load, cache_bytes);
+  std::mutex decode_mutex;
   std::vector<bool> reported_unreadable(used.size(), false);
   const int margin = options.Margin();
   const cv::Rect canvas_rect(0, 0, canvas.width, canvas.height);
+  // Tiles are independent: workers take them in row-major order, which completes the TIFF's overview blocks (each
+  // covers several tiles) soon after they are started, so GDAL's small block cache never writes one twice. Each frame
+  // is cached only over what it owns, so a row of tiles finds its frames in the cache. Decoding and writing are
+  // serialised; warping and blending, the bulk of the work, run in parallel.
   std::vector<cv::Rect> tiles;
   for (int ty = 0; ty < canvas.height; ty += options.tile_size)
     for (int tx = 0; tx < canvas.width; tx += options.tile_size)
       tiles.push_back(cv::Rect(tx, ty, options.tile_size, options.tile_size) & canvas_rect);
-  // Tiles are independent: workers take them in row-major order (which keeps the frame cache warm). Decoding and
-  // writing are serialised; warping and blending, the bulk of the work, run in parallel.
   std::mutex cache_mutex;
   std::mutex out_mutex;
   std::atomic<size_t> next_tile{0};
@@ -303,7 +406,8 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
       if (candidates.empty()) continue;
       // Images used by this tile are pinned (shared) so that another worker's eviction cannot free them.
       std::vector<cv::Mat> pinned(candidates.size());
-      auto image_of = [&](size_t i) -> const cv::Mat* {
+      auto image_of = [&](size_t i, cv::Point* tl) -> const cv::Mat* {
+        *tl = crop[i].empty() ? cv::Point() : crop[i].tl();
         const size_t k = static_cast<size_t>(std::find(candidates.begin(), candidates.end(), i) - candidates.begin());
         if (pinned[k].empty()) {
           {
@@ -311,7 +415,16 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
             pinned[k] = cache.Peek(used[i].id);
           }
           if (pinned[k].empty()) {
-            cv::Mat img = cache.loader()(used[i].id);  // decode outside the lock: the workers decode in parallel
+            cv::Mat img;
+            {
+              // Outside the cache lock (the other worker keeps blending) but one at a time: a full decode is the
+              // largest transient buffer of the compositor.
+              std::lock_guard<std::mutex> decode_lock(decode_mutex);
+              img = cache.loader()(used[i].id);
+              if (!img.empty() && !crop[i].empty() && img.size() == geometry[i].size &&
+                  crop[i].size() != img.size())
+                img = img(crop[i]).clone();  // the full decode is freed here
+            }
             std::lock_guard<std::mutex> lock(cache_mutex);
             if (img.empty()) {
               if (!reported_unreadable[i]) {

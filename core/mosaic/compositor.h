@@ -19,6 +19,7 @@ struct CompositorOptions {
   size_t image_cache_bytes = size_t{256} << 20;  // decoded frames kept between tiles
   bool build_overviews = true;
   int threads = 2;  // tile workers
+  int gdal_cache_mib = 64;  // GDAL's block cache while the TIFF is written (tiles are written once)
 
   [[nodiscard]] bool Check(std::string* why) const;
   // Margin around each tile so that the pyramid of the blend does not see the tile border.

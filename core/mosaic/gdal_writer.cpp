@@ -49,11 +49,11 @@ GdalTiffWriter::~GdalTiffWriter() {
 }
 
 bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_size, int tile_size, bool overviews,
-                          std::string* error) {
+                          int cache_mib, std::string* error) {
   GDALAllRegister();
   CPLSetConfigOption("CPL_LOG_ERRORS", "OFF");
   // GDAL's block cache defaults to 5 % of RAM; tiles are written once, so a small cache is enough.
-  GDALSetCacheMax64(int64_t{64} << 20);
+  GDALSetCacheMax64(int64_t{cache_mib} << 20);
   GDALDriver* driver = GetGDALDriverManager()->GetDriverByName("GTiff");
   if (driver == nullptr) {
     *error = "GDAL has no GTiff driver";

@@ -15,6 +15,7 @@ class GdalTiffWriter {
 
   // With `overviews`, internal overview levels (2, 4, ... down to ~256 px) are written from each tile as it comes.
   [[nodiscard]] bool Open(const std::string& path, cv::Size canvas, int block_size, int tile_size, bool overviews,
+                          int cache_mib,
                           std::string* error);
   // image CV_8UC3 (BGR), mask CV_8U (alpha); top_left in canvas pixels, region inside the canvas.
   [[nodiscard]] bool Write(const cv::Mat& image, const cv::Mat& mask, cv::Point top_left, std::string* error);

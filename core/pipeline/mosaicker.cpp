@@ -438,7 +438,11 @@ void Mosaicker::Densify() {
 
 bool Mosaicker::Finish(std::string* error) {
   StageTimer t;
+  flight_peak_rss_mib_ = PeakRssMiB();
   Densify();
+  // Nothing after this point matches features: their memory goes to the refinement and the compositor.
+  feature_store_.Clear();
+  global_index_.Release();
   // Largest component over edges that pass both thresholds against the final best pair.
   std::vector<int> component =
       graph_.LargestComponent(options_.relative_inlier_fraction, options_.matching.min_inliers);

@@ -9,6 +9,7 @@
 #include "core/graph/match_graph.h"
 #include "core/matching/global_index.h"
 #include "core/mosaic/live_preview.h"
+#include "core/pipeline/memory_budget.h"
 #include "core/pipeline/options.h"
 #include "core/session/feature_store.h"
 #include "core/session/session_dir.h"
@@ -51,6 +52,8 @@ class Mosaicker {
   // An input the source could not turn into a frame (corrupt, empty, not an image).
   void RecordSkipped(const std::string& file, const std::string& reason);
   void RecordDropped(size_t count) { dropped_frames_ = count; }
+  // The memory plan the options were sized with (reported in report.json).
+  void SetMemoryPlan(const MemoryPlan& plan) { memory_plan_ = plan; }
   // Final solve, session files and mosaic. Returns false on an output failure (message in `error`).
   [[nodiscard]] bool Finish(std::string* error);
 
@@ -120,6 +123,8 @@ class Mosaicker {
   double final_rms_ = 0.0;
   double residual_median_ = 0.0;
   RefineResult refine_;
+  MemoryPlan memory_plan_;
+  double flight_peak_rss_mib_ = 0.0;  // peak RSS when the last frame was registered
   MotionModel refined_model_ = MotionModel::kAffine;
   TransferStats holdout_linear_;  // held-out correspondences under the linear solution, then the final one
   TransferStats holdout_final_;

@@ -52,12 +52,25 @@ nlohmann::json SummaryJson(const Summary& s) {
 
 bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* error) {
   std::unordered_set<int> in_component(component.begin(), component.end());
-  // Canvas: the reference frame's original pixel grid scaled by mosaic_scale, shifted so the flight starts at (0,0).
+  // Canvas: mosaic_scale canvas pixels per original pixel of the median frame (in the reference frame's orientation),
+  // shifted so the flight starts at (0,0). The median, not the reference frame: the first frame is often taken while
+  // the drone still climbs (caliterra's is 80 m lower than the last ones), and the canvas should follow the survey.
   std::vector<Mat3> canvas_from_original(frames_.size(), Mat3::Identity());
   cv::Size canvas(0, 0);
   double scale = options_.mosaic_scale;
   if (!component.empty()) {
     const FrameState& ref = frames_[static_cast<size_t>(component.front())];
+    std::vector<double> ref_px_per_px;
+    for (int id : component) {
+      const FrameState& f = frames_[static_cast<size_t>(id)];
+      const Mat3 ref_from_original = ref.work_from_original.inverse() * mosaic_from_work_[id] * f.work_from_original;
+      ref_px_per_px.push_back(
+          LocalScale(ref_from_original, Vec2(0.5 * (f.original_size.width - 1), 0.5 * (f.original_size.height - 1))));
+    }
+    std::nth_element(ref_px_per_px.begin(), ref_px_per_px.begin() + static_cast<long>(ref_px_per_px.size() / 2),
+                     ref_px_per_px.end());
+    const double median = ref_px_per_px[ref_px_per_px.size() / 2];
+    if (median > 0 && std::isfinite(median)) scale /= median;
     for (int attempt = 0; attempt < 2; ++attempt) {
       const Mat3 out_from_mosaic_work = ResizeMap(scale, scale) * ref.work_from_original.inverse();
       double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
@@ -157,7 +170,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
       const FrameState& f = frames_[static_cast<size_t>(id)];
       const Mat3& c = canvas_from_original[static_cast<size_t>(id)];
       // Canvas pixels per original pixel; the frame is loaded at that sampling (never above its own resolution).
-      const double local_scale = std::sqrt(std::abs(c.topLeftCorner<2, 2>().determinant()));
+      const double local_scale =
+          LocalScale(c, Vec2(0.5 * (f.original_size.width - 1), 0.5 * (f.original_size.height - 1)));
       const double keep = std::min(1.0, local_scale);
       CanvasLoad how;
       // DCT-scaled decoding is 2-3x cheaper than full; allow the final resize to enlarge by up to 1.25x for it.
@@ -177,7 +191,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     GdalTiffWriter tiff;
     const bool write_tiff = options_.write_tiff;
     if (write_tiff && !tiff.Open(paths_.Join("mosaic.tif"), canvas, options_.mosaic.tiff_block,
-                                 options_.mosaic.tile_size, options_.mosaic.build_overviews, error))
+                                 options_.mosaic.tile_size, options_.mosaic.build_overviews,
+                                 options_.mosaic.gdal_cache_mib, error))
       return false;
     composite = Composite(inputs, canvas, load, options_.mosaic, write_tiff ? &tiff : nullptr);
     if (!composite.ok) {
@@ -239,8 +254,39 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   report["component_merges"] = merges_;
   report["edges"] = graph_.edges().size();
   report["edges_added_at_end"] = densified_edges_;
-  report["feature_store"] = {{"resident_mib", static_cast<double>(feature_store_.resident_bytes()) / (1 << 20)},
-                             {"disk_loads", feature_store_.disk_loads()}};
+  report["feature_store"] = {{"disk_loads", feature_store_.disk_loads()}, {"evictions", feature_store_.evictions()}};
+  const MemoryPlan& mp = memory_plan_;
+  report["memory"] = {
+      {"budget_mib", mp.budget_mib},
+      {"peak_rss_mib", PeakRssMiB()},
+      {"flight_peak_rss_mib", flight_peak_rss_mib_},
+      {"plan_flight_mib", mp.FlightMiB()},
+      {"plan_end_mib", mp.EndMiB()},
+      {"plan",
+       {{"baseline_mib", mp.baseline_mib},
+        {"graph_mib", mp.graph_mib},
+        {"sift_mib", mp.sift_mib},
+        {"sift_bands", mp.sift_bands},
+        {"queue_mib", mp.queue_mib},
+        {"queue_capacity", mp.queue_capacity},
+        {"feature_cache_mib", mp.feature_cache_mib},
+        {"relocalization_mib", mp.relocalization_mib},
+        {"relocalization_descriptors", mp.relocalization_descriptors},
+        {"refine_mib", mp.refine_mib},
+        {"refine_correspondences", mp.refine_correspondences},
+        {"image_cache_mib", mp.image_cache_mib},
+        {"blend_mib", mp.blend_mib},
+        {"gdal_cache_mib", mp.gdal_cache_mib},
+        {"tile_size", options_.mosaic.tile_size},
+        {"compositor_threads", options_.mosaic.threads}}},
+      // What did not fit and went to disk or was thinned, so that the budget held.
+      {"spilled",
+       {{"feature_sets_evicted", feature_store_.evictions()},
+        {"feature_sets_reloaded", feature_store_.disk_loads()},
+        {"relocalization_thinnings", global_index_.thinnings()},
+        {"frame_redecodes", std::max(0, composite.image_loads - composite.frames_used)},
+        {"refine_correspondences_skipped", refine_.num_residuals - std::min(refine_.num_residuals, refine_.num_used)},
+        {"frames_dropped_by_queue", dropped_frames_}}}};
   nlohmann::json skipped = nlohmann::json::array();
   for (const auto& s : skipped_) skipped.push_back({{"file", s.file}, {"reason", s.reason}});
   report["skipped"] = skipped;
@@ -255,7 +301,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   report["composite_ms"] = composite_ms_;
   report["mosaic"] = {{"width", canvas.width},
                       {"height", canvas.height},
-                      {"scale", scale},
+                      {"scale", options_.mosaic_scale},  // canvas px per original px of the median frame
+                      {"canvas_px_per_reference_px", scale},
                       {"frames_blended", composite.frames_used},
                       {"frames_dropped_by_overlap", composite.frames_dropped_by_overlap},
                       {"frames_unreadable", composite.frames_unreadable},

@@ -39,6 +39,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"", "preview_side", &o.preview_side},
       {"", "mosaic_scale", &o.mosaic_scale},
       {"", "max_canvas_side", &o.max_canvas_side},
+      {"", "memory_budget_mib", &o.memory_budget_mib},
       {"", "feature_cache_mib", &o.feature_cache_mib},
       {"", "queue_capacity", &o.queue_capacity},
       {"", "write_tiff", &o.write_tiff},
@@ -49,6 +50,8 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"features", "min_contrast_threshold", &o.features.min_contrast_threshold},
       {"features", "octave_layers", &o.features.octave_layers},
       {"features", "root_sift", &o.features.root_sift},
+      {"features", "max_scale_space_mib", &o.features.max_scale_space_mib},
+      {"features", "band_margin", &o.features.band_margin},
       {"matching", "ratio", &o.matching.ratio},
       {"matching", "flann_trees", &o.matching.flann_trees},
       {"matching", "flann_checks", &o.matching.flann_checks},
@@ -88,6 +91,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"mosaic", "image_cache_bytes", &o.mosaic.image_cache_bytes},
       {"mosaic", "build_overviews", &o.mosaic.build_overviews},
       {"mosaic", "threads", &o.mosaic.threads},
+      {"mosaic", "gdal_cache_mib", &o.mosaic.gdal_cache_mib},
   };
 }
 
@@ -114,6 +118,7 @@ bool PipelineOptions::Check(std::string* why) const {
   if (!(mosaic_scale > 0 && mosaic_scale <= 4)) return Fail(why, "mosaic_scale must be in (0,4]");
   if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");
   if (feature_cache_mib < 1) return Fail(why, "feature_cache_mib must be >= 1");
+  if (memory_budget_mib < 0) return Fail(why, "memory_budget_mib must be >= 0 (0 = no budget)");
   if (queue_capacity < 1 || queue_capacity > 1024) return Fail(why, "queue_capacity must be in [1,1024]");
   return features.Check(why) && matching.Check(why) && relocalization.Check(why) && adjust.Check(why) && refine.Check(why) &&
          mosaic.Check(why);

@@ -26,6 +26,9 @@ struct PipelineOptions {
   int preview_side = 1024;
   double mosaic_scale = 0.5;    // mosaic.tif GSD relative to the reference frame's original resolution
   int max_canvas_side = 60000;  // guards against a runaway transform making a giant canvas
+  // Memory budget of the whole program, MiB: caches, pools and the feature detector's bands are sized to fit it
+  // (core/pipeline/memory_budget.h); 0 = no budget, every cache takes its own setting.
+  int memory_budget_mib = 256;
   int feature_cache_mib = 192;
   int queue_capacity = 4;
   bool write_tiff = true;

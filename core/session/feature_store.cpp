@@ -90,6 +90,7 @@ void FeatureStore::Insert(int id, std::shared_ptr<const Features> f) {
     used_ -= victim->second.features->MemoryBytes();
     entries_.erase(victim);
     lru_.pop_back();
+    ++evictions_;
   }
   lru_.push_front(id);
   entries_[id] = Entry{std::move(f), lru_.begin()};

@@ -19,6 +19,13 @@ class FeatureStore {
   [[nodiscard]] std::shared_ptr<const Features> Get(int id);
   [[nodiscard]] size_t resident_bytes() const { return used_; }
   [[nodiscard]] size_t disk_loads() const { return disk_loads_; }
+  [[nodiscard]] size_t evictions() const { return evictions_; }
+  // Drops every resident entry (the files stay): the end of the flight needs the memory for other things.
+  void Clear() {
+    entries_.clear();
+    lru_.clear();
+    used_ = 0;
+  }
 
  private:
   void Insert(int id, std::shared_ptr<const Features> f);
@@ -28,6 +35,7 @@ class FeatureStore {
   size_t max_bytes_;
   size_t used_ = 0;
   size_t disk_loads_ = 0;
+  size_t evictions_ = 0;
   std::list<int> lru_;
   struct Entry {
     std::shared_ptr<const Features> features;

@@ -1,0 +1,94 @@
+#!/usr/bin/env bash
+# memory.sh DATA_DIR [OUT_DIR]
+#
+# Fixed memory, measured: uavmosaic-onboard under its default memory budget (256 MiB) on
+#   - the same simulated flight (bench/plans/sim_memory.yaml over DATA_DIR/caliterra/images/IMG_9360.jpg, rendered
+#     by the sim: source, nothing on disk) cut at 200 and at 2000 frames: peak RSS must stay flat
+#     (RSS(2000) <= 1.1 x RSS(200)) and both within the budget;
+#   - the full-resolution real flights (12 MP caliterra, brighton_beach): within the budget.
+# One markdown table (OUT_DIR/table.md and $RESULTS_DIR/memory-<date>-<hostname>.md).
+#
+# Environment:
+#   BUDGET_MIB        memory budget passed to the program (default 256)
+#   LONG_FRAMES       frames of the long run (default 2000); SHORT_FRAMES (default 200)
+#   FLIGHTS_REAL      real flights (default "caliterra brighton_beach"; "" = none)
+#   UAVM_BUILD_DIR    build tree (default <repo>/build); UAVM_RESULTS_DIR (default bench/results)
+set -euo pipefail
+export LC_ALL=C
+
+SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+REPO=$(dirname "$SCRIPT_DIR")
+if [[ $# -lt 1 || $# -gt 2 || $1 == -h || $1 == --help ]]; then
+  sed -n '2,16p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  exit 2
+fi
+# shellcheck source=bench/lib.sh
+source "$SCRIPT_DIR/lib.sh"
+
+DATA_DIR=$(cd "$1" && pwd)
+STAMP=$(date +%Y%m%d-%H%M%S)
+RESULTS_DIR=${UAVM_RESULTS_DIR:-$SCRIPT_DIR/results}
+OUT_DIR=${2:-$RESULTS_DIR/run-memory-$STAMP}
+BUILD=${UAVM_BUILD_DIR:-$REPO/build}
+OURS_BIN=$BUILD/firmware_app/uavmosaic-onboard
+BUDGET_MIB=${BUDGET_MIB:-256}
+LONG_FRAMES=${LONG_FRAMES:-2000}
+SHORT_FRAMES=${SHORT_FRAMES:-200}
+FLIGHTS_REAL=${FLIGHTS_REAL-caliterra brighton_beach}
+log() { echo "[memory] $*" >&2; }
+command -v jq >/dev/null 2>&1 || { log "jq missing (apt-get install jq)"; exit 1; }
+mkdir -p "$OUT_DIR" "$RESULTS_DIR"
+OUT_DIR=$(cd "$OUT_DIR" && pwd)
+
+# The plan with its canvas, so that the sim: source renders the flight in memory.
+PLAN=$OUT_DIR/sim_memory.yaml
+{ echo "canvas: $DATA_DIR/caliterra/images/IMG_9360.jpg"; cat "$SCRIPT_DIR/plans/sim_memory.yaml"; } >"$PLAN"
+
+ROWS=()
+declare -A PEAK
+# run NAME SOURCE [extra args]: one onboard run under the watchdog; a table row from report.json.
+run() {
+  local name=$1 source=$2
+  shift 2
+  local dir=$OUT_DIR/$name
+  rm -rf "$dir"
+  log "$name: $source $*"
+  run_watched "$dir" 0 0 "$OURS_BIN" --source "$source" --out "$dir" --memory-budget "$BUDGET_MIB" "$@"
+  local peak report=$dir/report.json
+  peak=$(peak_mib)
+  PEAK[$name]=$W_PEAK_KB
+  if ((W_RC != 0)) || [[ ! -s $report ]]; then
+    ROWS+=("| $name | failed (exit $W_RC) | | | | | | | | |")
+    return 0
+  fi
+  ROWS+=("$(jq -r --arg name "$name" --arg peak "$peak" --arg wall "$(fmt "$W_WALL_S" 1)" '
+    "| \($name) | \(.frames_in) | \(.registered) | \($wall) | \($peak) | " +
+    "\(.memory.flight_peak_rss_mib | floor) | \(.memory.plan.sift_bands) / \(.memory.plan.queue_capacity) / " +
+    "\(.memory.plan.feature_cache_mib | floor) / \(.memory.plan.relocalization_descriptors) / " +
+    "\(.memory.plan.image_cache_mib | floor) / \(.memory.plan.tile_size) | " +
+    "\(.memory.spilled.feature_sets_reloaded) / \(.memory.spilled.relocalization_thinnings) / " +
+    "\(.memory.spilled.frame_redecodes) / \(.memory.spilled.refine_correspondences_skipped) | " +
+    "\(.holdout_rms_px * 1000 | round / 1000) |"' "$report" || echo "| $name | report unreadable |")")
+}
+run "sim_$SHORT_FRAMES" "sim:$PLAN" --max-frames "$SHORT_FRAMES" --no-tiff
+run "sim_$LONG_FRAMES" "sim:$PLAN" --max-frames "$LONG_FRAMES" --no-tiff
+for f in $FLIGHTS_REAL; do
+  run "$f" "replay:$DATA_DIR/$f/images"
+done
+
+short_kb=${PEAK[sim_$SHORT_FRAMES]:-0}
+long_kb=${PEAK[sim_$LONG_FRAMES]:-0}
+ratio="—"
+((short_kb > 0)) && ratio=$(awk -v a="$long_kb" -v b="$short_kb" 'BEGIN { printf "%.3f", a / b }')
+{
+  echo "Memory benchmark, $(date '+%Y-%m-%d %H:%M:%S %z'), nproc $(nproc), CPU: $(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -n 1), budget $BUDGET_MIB MiB"
+  echo
+  echo "| run | frames | registered | wall s | peak RSS MiB | peak RSS during flight MiB | plan: detector bands / queue / feature cache MiB / relocalisation descriptors / image cache MiB / tile | spilled: feature reloads / index thinnings / frame re-decodes / solver points skipped | held-out RMS px |"
+  echo "|---|---:|---:|---:|---:|---:|---|---|---:|"
+  printf '%s\n' "${ROWS[@]}"
+  echo
+  echo "RSS(${LONG_FRAMES}) / RSS(${SHORT_FRAMES}) = $ratio (target <= 1.1); budget $BUDGET_MIB MiB."
+  echo "peak RSS: max VmHWM polled every 0.2 s, outside the process. sim runs: --no-tiff (the mosaic of a sim flight is not the point here); real runs write mosaic.tif."
+} >"$OUT_DIR/table.md"
+cp "$OUT_DIR/table.md" "$RESULTS_DIR/memory-$STAMP-$(hostname).md"
+cat "$OUT_DIR/table.md"

@@ -1,0 +1,136 @@
+#include "core/pipeline/memory_budget.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace uavm {
+
+namespace {
+
+constexpr double kMiB = 1024.0 * 1024.0;
+// Measured on x86-64 Debian 12 (bench/memory.sh): the onboard program with its libraries loaded and its threads
+// started, before the first frame.
+constexpr double kBaselineMiB = 72.0;
+// Match graph (edges with their correspondences, ~10 KiB per frame) and per-frame state for a 2000-frame flight.
+constexpr double kGraphMiB = 20.0;
+// Relocalisation index per descriptor: 8-bit copy, float copy for FLANN, 4 kd-trees.
+constexpr double kBytesPerIndexedDescriptor = 128 + 512 + 160;
+// Ceres per correspondence: residual block, cost functor, Jacobian blocks and their compressed-row copy.
+constexpr double kBytesPerSolverCorrespondence = 1100;
+// Compositor per tile pixel (tile + margin) and worker: 16-bit Laplacian pyramid and its Gaussian source, float
+// weights, warped frame, maps, masks.
+constexpr double kBytesPerBlendPixel = 64;
+
+double BlendMiB(const CompositorOptions& m) {
+  const double side = m.tile_size + 2.0 * m.Margin();
+  return m.threads * side * side * kBytesPerBlendPixel / kMiB;
+}
+
+double FeatureSetMiB(int max_features) { return max_features * (128 * 4 + 8) / kMiB; }
+
+}  // namespace
+
+double MemoryPlan::FlightMiB() const {
+  return baseline_mib + graph_mib + sift_mib + queue_mib + feature_cache_mib + relocalization_mib;
+}
+
+double MemoryPlan::EndMiB() const {
+  return baseline_mib + graph_mib + std::max(refine_mib, image_cache_mib + blend_mib + gdal_cache_mib);
+}
+
+double QueuedFrameMiB(int work_width, int work_height, int max_features) {
+  return static_cast<double>(work_width) * work_height * 4 / kMiB + FeatureSetMiB(max_features);
+}
+
+bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options, MemoryPlan* plan,
+                       std::string* why) {
+  PipelineOptions& o = *options;
+  MemoryPlan p;
+  p.budget_mib = o.memory_budget_mib;
+  p.baseline_mib = kBaselineMiB;
+  p.graph_mib = kGraphMiB;
+  const double frame_mib = QueuedFrameMiB(work_width, work_height, o.features.max_features);
+  // A frame being captured and one being registered are in flight besides the queue.
+  const auto queue_mib = [&](int capacity) { return (capacity + 2) * frame_mib; };
+  const auto index_mib = [](int descriptors) { return descriptors * kBytesPerIndexedDescriptor / kMiB; };
+
+  if (o.memory_budget_mib <= 0) {  // no budget: describe the configuration as it is
+    p.queue_capacity = o.queue_capacity;
+    p.queue_mib = queue_mib(o.queue_capacity);
+    p.sift_bands = SiftBands(work_width, work_height, o.features);
+    p.sift_mib = SiftScaleSpaceMiB(work_width, work_height) / p.sift_bands;
+    p.feature_cache_mib = o.feature_cache_mib;
+    p.relocalization_descriptors = o.relocalization.max_descriptors;
+    p.relocalization_mib = index_mib(o.relocalization.max_descriptors);
+    p.refine_correspondences = o.refine.max_correspondences;
+    p.refine_mib = o.refine.max_correspondences * kBytesPerSolverCorrespondence / kMiB;
+    p.image_cache_mib = static_cast<double>(o.mosaic.image_cache_bytes) / kMiB;
+    p.blend_mib = BlendMiB(o.mosaic);
+    p.gdal_cache_mib = o.mosaic.gdal_cache_mib;
+    *plan = p;
+    return true;
+  }
+
+  const double budget = o.memory_budget_mib;
+  const double avail = budget - p.baseline_mib - p.graph_mib;
+  const auto fail = [&](const std::string& msg) {
+    if (why != nullptr) *why = msg;
+    return false;
+  };
+  if (avail < 48)
+    return fail("memory_budget_mib " + std::to_string(o.memory_budget_mib) + " is below the minimum of " +
+                std::to_string(static_cast<int>(std::ceil(p.baseline_mib + p.graph_mib + 48))) + " MiB");
+
+  // Flight. A small budget queues fewer frames: capture then waits (replay) or drops the oldest (camera).
+  p.queue_capacity = budget >= 512 ? o.queue_capacity : std::min(o.queue_capacity, 2);
+  p.queue_mib = queue_mib(p.queue_capacity);
+  p.relocalization_descriptors = std::min(
+      o.relocalization.max_descriptors,
+      std::max(4096, static_cast<int>(0.06 * budget * kMiB / kBytesPerIndexedDescriptor)));
+  p.relocalization_mib = index_mib(p.relocalization_descriptors);
+  // Candidates (K recent + M overlapping + relocalisation) need a dozen feature sets; the rest reloads from disk.
+  p.feature_cache_mib = std::min<double>(o.feature_cache_mib, std::max(12.0 * FeatureSetMiB(o.features.max_features),
+                                                                       0.1 * budget));
+  const double sift_cap = avail - p.queue_mib - p.relocalization_mib - p.feature_cache_mib;
+  const double smallest_band = SiftScaleSpaceMiB(work_width, 2 * o.features.band_margin + 32);
+  if (sift_cap < smallest_band)
+    return fail("memory_budget_mib " + std::to_string(o.memory_budget_mib) + " leaves " +
+                std::to_string(static_cast<int>(sift_cap)) + " MiB for feature detection on " +
+                std::to_string(work_width) + "x" + std::to_string(work_height) +
+                " working frames; raise the budget or lower work_long_side");
+  FeatureOptions features = o.features;
+  features.max_scale_space_mib = static_cast<int>(std::floor(sift_cap));
+  if (o.features.max_scale_space_mib > 0)
+    features.max_scale_space_mib = std::min(features.max_scale_space_mib, o.features.max_scale_space_mib);
+  p.sift_bands = SiftBands(work_width, work_height, features);
+  const int band_rows = (work_height + p.sift_bands - 1) / p.sift_bands + (p.sift_bands > 1 ? 2 * features.band_margin : 0);
+  p.sift_mib = SiftScaleSpaceMiB(work_width, std::min(work_height, band_rows));
+
+  // End of flight.
+  CompositorOptions mosaic = o.mosaic;
+  p.gdal_cache_mib = std::clamp(0.05 * budget, 4.0, static_cast<double>(o.mosaic.gdal_cache_mib));
+  const double end_avail = avail - p.gdal_cache_mib;
+  while (BlendMiB(mosaic) > 0.45 * end_avail && mosaic.tile_size > mosaic.tiff_block) mosaic.tile_size /= 2;
+  while (BlendMiB(mosaic) > 0.45 * end_avail && mosaic.threads > 1) --mosaic.threads;
+  p.blend_mib = BlendMiB(mosaic);
+  p.image_cache_mib = std::min(static_cast<double>(o.mosaic.image_cache_bytes) / kMiB, end_avail - p.blend_mib);
+  if (p.image_cache_mib < 8)
+    return fail("memory_budget_mib " + std::to_string(o.memory_budget_mib) + " leaves no room for the compositor");
+  p.refine_correspondences =
+      std::min(o.refine.max_correspondences,
+               std::max(1000, static_cast<int>(0.8 * avail * kMiB / kBytesPerSolverCorrespondence)));
+  p.refine_mib = p.refine_correspondences * kBytesPerSolverCorrespondence / kMiB;
+
+  o.queue_capacity = p.queue_capacity;
+  o.relocalization.max_descriptors = p.relocalization_descriptors;
+  o.feature_cache_mib = static_cast<int>(std::floor(p.feature_cache_mib));
+  o.features = features;
+  o.mosaic = mosaic;
+  o.mosaic.gdal_cache_mib = static_cast<int>(std::floor(p.gdal_cache_mib));
+  o.mosaic.image_cache_bytes = static_cast<size_t>(p.image_cache_mib * kMiB);
+  o.refine.max_correspondences = p.refine_correspondences;
+  *plan = p;
+  return true;
+}
+
+}  // namespace uavm

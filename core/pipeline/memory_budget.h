@@ -1,0 +1,45 @@
+#pragma once
+#include <string>
+
+#include "core/pipeline/options.h"
+
+namespace uavm {
+
+// How a memory budget is spent. The flight and the end of the flight do not overlap in time, so each has the whole
+// budget minus what lives through both (the process itself, the match graph):
+//   flight: baseline + SIFT scale space + frames in the queue + feature cache + relocalisation index + graph
+//   end:    baseline + graph + max(refinement solver, compositor: decoded-frame cache + tile blenders + GDAL cache)
+// Every figure is MiB. Estimates come from the sizes of the buffers involved; the benchmark measures the outcome.
+struct MemoryPlan {
+  double budget_mib = 0;
+  double baseline_mib = 0;  // code, shared libraries, thread stacks, allocator slack
+  double graph_mib = 0;     // match graph and per-frame state, reserved for the configured flight length
+  // Flight.
+  double sift_mib = 0;  // per band
+  int sift_bands = 1;
+  double queue_mib = 0;
+  int queue_capacity = 0;
+  double feature_cache_mib = 0;
+  double relocalization_mib = 0;
+  int relocalization_descriptors = 0;
+  // End of flight.
+  double refine_mib = 0;
+  int refine_correspondences = 0;
+  double image_cache_mib = 0;
+  double blend_mib = 0;
+  double gdal_cache_mib = 0;
+
+  [[nodiscard]] double FlightMiB() const;
+  [[nodiscard]] double EndMiB() const;
+};
+
+// Per-frame working memory of a width x height working frame in the queue (colour + grey copies, float descriptors).
+[[nodiscard]] double QueuedFrameMiB(int work_width, int work_height, int max_features);
+
+// Fits the caches and pools of `options` into options->memory_budget_mib (0 = no budget: nothing is changed and the
+// plan only describes the configured sizes). `work_width` x `work_height` is the expected working frame size.
+// Fails with a reason when even the smallest configuration does not fit.
+[[nodiscard]] bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options, MemoryPlan* plan,
+                                     std::string* why);
+
+}  // namespace uavm

@@ -1,0 +1,131 @@
+// The onboard program on a real flight inside a memory cgroup whose hard limit is a little above the program's
+// memory budget: it must finish normally (the kernel OOM-kills a process that exceeds a cgroup's limit).
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+namespace uavm {
+namespace {
+
+namespace fs = std::filesystem;
+const std::string kData = UAVM_TEST_DATA;
+
+// A fresh memory cgroup with a hard limit (v1 "memory" hierarchy or v2 with the memory controller), removed on
+// destruction. `why` says what was missing when it cannot be made.
+class MemoryCgroup {
+ public:
+  MemoryCgroup(const std::string& name, int64_t limit_bytes) {
+    const fs::path v1 = "/sys/fs/cgroup/memory";
+    const fs::path v2 = "/sys/fs/cgroup";
+    if (fs::exists(v1 / "memory.limit_in_bytes")) {
+      dir_ = v1 / name;
+      limit_file_ = "memory.limit_in_bytes";
+      peak_file_ = "memory.max_usage_in_bytes";
+      swap_file_ = "memory.memsw.limit_in_bytes";
+    } else if (ReadFile(v2 / "cgroup.controllers").find("memory") != std::string::npos) {
+      dir_ = v2 / name;
+      limit_file_ = "memory.max";
+      peak_file_ = "memory.peak";
+      swap_file_ = "memory.swap.max";
+    } else {
+      why_ = "no memory cgroup hierarchy (neither v1 memory nor v2 with the memory controller)";
+      return;
+    }
+    std::error_code ec;
+    fs::create_directory(dir_, ec);
+    if (ec) {
+      why_ = "cannot create " + dir_.string() + ": " + ec.message();
+      dir_.clear();
+      return;
+    }
+    if (!WriteFile(dir_ / limit_file_, std::to_string(limit_bytes))) {
+      why_ = "cannot write " + (dir_ / limit_file_).string();
+      return;
+    }
+    // No swap either, where the kernel accounts it: the limit is on memory, not memory + swap.
+    if (fs::exists(dir_ / swap_file_))
+      (void)WriteFile(dir_ / swap_file_, limit_file_ == "memory.max" ? "0" : std::to_string(limit_bytes));
+    ok_ = true;
+  }
+  ~MemoryCgroup() {
+    if (!dir_.empty()) ::rmdir(dir_.c_str());
+  }
+  [[nodiscard]] bool ok() const { return ok_; }
+  [[nodiscard]] const std::string& why() const { return why_; }
+  [[nodiscard]] fs::path procs() const { return dir_ / "cgroup.procs"; }
+  [[nodiscard]] int64_t PeakBytes() const {
+    const std::string s = ReadFile(dir_ / peak_file_);
+    return s.empty() ? -1 : std::stoll(s);
+  }
+  [[nodiscard]] std::string Stat(const std::string& file) const { return ReadFile(dir_ / file); }
+
+  static std::string ReadFile(const fs::path& p) {
+    std::ifstream in(p);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  }
+  static bool WriteFile(const fs::path& p, const std::string& text) {
+    std::ofstream out(p);
+    out << text;
+    out.close();
+    return static_cast<bool>(out);
+  }
+
+ private:
+  fs::path dir_;
+  std::string limit_file_, peak_file_, swap_file_, why_;
+  bool ok_ = false;
+};
+
+// Runs the onboard program inside `cgroup`; returns the wait status.
+int RunInCgroup(const MemoryCgroup& cgroup, const std::vector<std::string>& args) {
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    if (!MemoryCgroup::WriteFile(cgroup.procs(), std::to_string(::getpid()))) ::_exit(120);
+    std::vector<char*> argv;
+    std::string bin = UAVM_ONBOARD_BIN;
+    argv.push_back(bin.data());
+    std::vector<std::string> copy = args;
+    for (auto& a : copy) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    ::execv(bin.c_str(), argv.data());
+    ::_exit(121);
+  }
+  int status = 0;
+  ::waitpid(pid, &status, 0);
+  return status;
+}
+
+TEST(MemoryLimitTest, RealFlightFinishesUnderAHardLimitJustAboveItsBudget) {
+  constexpr int kBudgetMiB = 192;
+  constexpr int kLimitMiB = kBudgetMiB + 16;
+  const std::string name = "uavm_memory_test_" + std::to_string(::getpid());
+  MemoryCgroup cgroup(name, int64_t{kLimitMiB} << 20);
+  if (!cgroup.ok()) GTEST_SKIP() << "cannot run under a memory cgroup here: " << cgroup.why();
+  const fs::path out = fs::temp_directory_path() / ("uavm_memlimit_" + std::to_string(::getpid()));
+  fs::remove_all(out);
+  const int status = RunInCgroup(cgroup, {"--source", "replay:" + kData + "/brighton_beach_small/images", "--out",
+                                          out.string(), "--memory-budget", std::to_string(kBudgetMiB),
+                                          "--log-level", "warn"});
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0)
+                                 << " (an OOM kill is SIGKILL); cgroup memory.oom_control: "
+                                 << cgroup.Stat("memory.oom_control");
+  ASSERT_EQ(WEXITSTATUS(status), 0);
+  std::ifstream in(out / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  EXPECT_EQ(report["registered"].get<int>(), 18);
+  EXPECT_EQ(report["memory"]["budget_mib"].get<double>(), kBudgetMiB);
+  // The process's own peak stays within the budget; the cgroup's peak also counts the page cache of written files.
+  EXPECT_LE(report["memory"]["peak_rss_mib"].get<double>(), kBudgetMiB);
+  EXPECT_GT(cgroup.PeakBytes(), 0);
+  fs::remove_all(out);
+}
+
+}  // namespace
+}  // namespace uavm
