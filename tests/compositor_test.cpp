@@ -5,7 +5,13 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "core/mosaic/gdal_writer.h"
 #include "core/mosaic/selection.h"
+
+#include <gdal_priv.h>
+#include <unistd.h>
+
+#include <filesystem>
 
 namespace uavm {
 namespace {
@@ -95,6 +101,81 @@ TEST(CompositorTest, TilesMatchAWholeCanvasBlend) {
   std::vector<uchar> v(diff.begin<uchar>(), diff.end<uchar>());
   std::sort(v.begin(), v.end());
   EXPECT_LE(v[static_cast<size_t>(0.999 * static_cast<double>(v.size()))], 2) << "tile borders must be invisible";
+}
+
+// A strip longer than 32767 px (where OpenCV's warps and its stitcher stop): 40 overlapping frames along a synthetic
+// 34000 px ground, composited tile by tile into a BigTIFF with overviews; the far end reads back like the ground.
+TEST(CompositorTest, CanvasWiderThan32767PxComposesCorrectly) {
+  const cv::Mat base = cv::imread(std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg");
+  ASSERT_FALSE(base.empty());
+  constexpr int kWidth = 34000;
+  cv::Mat ground(base.rows, kWidth, CV_8UC3);
+  for (int x = 0, k = 0; x < kWidth; x += base.cols, ++k) {
+    cv::Mat piece;
+    cv::flip(base, piece, 1);  // mirrored copies: no seam in the texture itself
+    const cv::Mat& src = k % 2 == 0 ? base : piece;
+    const int w = std::min(base.cols, kWidth - x);
+    src(cv::Rect(0, 0, w, base.rows)).copyTo(ground(cv::Rect(x, 0, w, base.rows)));
+  }
+  constexpr int kFrames = 40;
+  const cv::Size frame(1000, base.rows);
+  std::vector<CompositeInput> inputs;
+  std::vector<cv::Rect> crops;
+  for (int i = 0; i < kFrames; ++i) {
+    const int x = (kWidth - frame.width) * i / (kFrames - 1);
+    crops.emplace_back(x, 0, frame.width, frame.height);
+    CompositeInput in;
+    in.id = i;
+    in.image_size = frame;
+    in.canvas_from_image = Translation(x, 0);
+    inputs.push_back(in);
+  }
+  CompositorOptions o;
+  o.max_covered_fraction = 1.0;
+  const auto path = std::filesystem::temp_directory_path() / ("uavm_wide_" + std::to_string(::getpid()) + ".tif");
+  GdalTiffWriter tiff;
+  std::string err;
+  const cv::Size canvas(kWidth, frame.height);
+  ASSERT_TRUE(tiff.Open(path.string(), canvas, o.tiff_block, o.tile_size, true, 16, &err)) << err;
+  int loads = 0;
+  const auto r = Composite(
+      inputs, canvas,
+      [&](int id) {
+        ++loads;
+        return ground(crops[static_cast<size_t>(id)]).clone();
+      },
+      o, &tiff);
+  ASSERT_TRUE(r.ok) << r.error;
+  ASSERT_TRUE(tiff.Close(&err)) << err;
+  EXPECT_EQ(r.canvas.width, kWidth);
+  EXPECT_EQ(r.frames_used, kFrames);
+  EXPECT_LE(loads, 2 * kFrames);
+
+  GDALAllRegister();
+  GDALDataset* ds = static_cast<GDALDataset*>(GDALOpen(path.c_str(), GA_ReadOnly));
+  ASSERT_NE(ds, nullptr);
+  EXPECT_EQ(ds->GetRasterXSize(), kWidth);
+  EXPECT_EQ(ds->GetRasterCount(), 4);
+  EXPECT_GT(ds->GetRasterBand(1)->GetOverviewCount(), 3);
+  // Windows near the start, in the middle and beyond 32767 px.
+  for (const int x0 : {100, 17000, 33200}) {
+    const cv::Rect win(x0, 100, 600, 500);
+    cv::Mat got(win.size(), CV_8UC3);
+    for (int b = 0; b < 3; ++b) {
+      cv::Mat plane(win.size(), CV_8UC1);
+      ASSERT_EQ(ds->GetRasterBand(b + 1)->RasterIO(GF_Read, win.x, win.y, win.width, win.height, plane.data,
+                                                    win.width, win.height, GDT_Byte, 0, 0),
+                CE_None);
+      // The TIFF is RGB(A); the ground is BGR.
+      cv::insertChannel(plane, got, 2 - b);
+    }
+    cv::Mat diff;
+    cv::absdiff(got, ground(win), diff);
+    const cv::Scalar e = cv::mean(diff);
+    EXPECT_LT((e[0] + e[1] + e[2]) / 3, 2.5) << "window at x=" << x0;
+  }
+  GDALClose(ds);
+  std::filesystem::remove(path);
 }
 
 TEST(SelectionTest, DropsAFrameCoveredByOthers) {
