@@ -3,6 +3,8 @@
 
 #include <malloc.h>
 
+#include <cstdlib>
+
 #include <CLI/CLI.hpp>
 #include <map>
 #include <string>
@@ -11,11 +13,13 @@
 
 int main(int argc, char** argv) {
   using namespace uavm;
-  // Resident memory must follow what the program holds: two malloc arenas (one per working thread is what glibc
-  // would grow to on more cores), and buffers of 1 MiB or more always mmapped, so that freeing a detector pyramid or
-  // a tile returns it to the system instead of leaving it in a heap that only grows.
+  // Resident memory must follow what the program holds: two malloc arenas (what glibc would grow to per core is
+  // not needed by two working threads), and buffers of 256 KiB or more always mmapped, so that a freed detector
+  // pyramid, tile or solver matrix leaves the RSS instead of fragmenting a heap that only grows. Measured on a
+  // 700-frame simulated flight: with a 1 MiB threshold the heap held 96 MiB for 46 MiB in use; 256 KiB gives 25 MiB less
+  // RSS at the end of the flight for 8 % more time (64 KiB: 50 MiB less, 20 % more time).
   mallopt(M_ARENA_MAX, 2);
-  mallopt(M_MMAP_THRESHOLD, 1 << 20);
+  if (std::getenv("MALLOC_MMAP_THRESHOLD_") == nullptr) mallopt(M_MMAP_THRESHOLD, 256 << 10);  // glibc's env wins
   app::RunConfig config;
   std::string config_file;
   std::string log_level = "info";

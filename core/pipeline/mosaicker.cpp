@@ -121,7 +121,12 @@ void Mosaicker::FullSolve(int root) {
   const std::vector<int> members = MembersOf(root);
   if (members.size() < 2) return;
   const int anchor = *std::min_element(members.begin(), members.end());
-  std::unordered_set<int> variable(members.begin(), members.end());
+  // During the flight only the newest solve_window frames move (the rest is their fixed frame of reference): the
+  // solve's memory and time stay bounded however long the flight. The end of the flight solves everything.
+  std::vector<int> order = members;
+  std::sort(order.begin(), order.end());
+  const size_t window = options_.solve_window > 0 ? static_cast<size_t>(options_.solve_window) : order.size();
+  std::unordered_set<int> variable(order.end() - static_cast<long>(std::min(window, order.size())), order.end());
   variable.erase(anchor);
   std::unordered_map<int, double> half_diag;
   for (int id : members) half_diag[id] = frames_[static_cast<size_t>(id)].half_diagonal;
@@ -362,7 +367,9 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     st.failure.clear();
     // Full solves get rarer as the component grows (every max(N, size/20) frames): their cost grows with the
     // flight, and between them each new frame is still solved against all its neighbours, old strips included.
-    const int interval = std::max(options_.full_solve_every, components_.SizeOf(id) / 20);
+    const int solved = options_.solve_window > 0 ? std::min(components_.SizeOf(id), options_.solve_window)
+                                                 : components_.SizeOf(id);
+    const int interval = std::max(options_.full_solve_every, solved / 20);
     if (++registered_since_full_ >= interval || merged) FullSolve(components_.Find(id));
     TryRetries(id, index, feats);
     if (num_components_ > 1 && options_.bridge_candidates > 0) Bridge(id, index, feats);
@@ -439,6 +446,8 @@ void Mosaicker::Densify() {
 bool Mosaicker::Finish(std::string* error) {
   StageTimer t;
   flight_peak_rss_mib_ = PeakRssMiB();
+  flight_end_rss_mib_ = CurrentRssMiB();
+  flight_end_heap_ = CurrentHeapStats();
   Densify();
   // Nothing after this point matches features: their memory goes to the refinement and the compositor.
   feature_store_.Clear();

@@ -13,6 +13,7 @@
 #include "core/pipeline/options.h"
 #include "core/session/feature_store.h"
 #include "core/session/session_dir.h"
+#include "core/util/memory.h"
 #include "core/util/stats.h"
 #include "hal/common/frame_source.h"
 
@@ -125,6 +126,8 @@ class Mosaicker {
   RefineResult refine_;
   MemoryPlan memory_plan_;
   double flight_peak_rss_mib_ = 0.0;  // peak RSS when the last frame was registered
+  double flight_end_rss_mib_ = 0.0;   // RSS then
+  HeapStats flight_end_heap_;
   MotionModel refined_model_ = MotionModel::kAffine;
   TransferStats holdout_linear_;  // held-out correspondences under the linear solution, then the final one
   TransferStats holdout_final_;

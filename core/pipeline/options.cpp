@@ -35,6 +35,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"", "retry_per_frame", &o.retry_per_frame},
       {"", "retry_max_attempts", &o.retry_max_attempts},
       {"", "full_solve_every", &o.full_solve_every},
+      {"", "solve_window", &o.solve_window},
       {"", "preview_every", &o.preview_every},
       {"", "preview_side", &o.preview_side},
       {"", "mosaic_scale", &o.mosaic_scale},
@@ -114,6 +115,7 @@ bool PipelineOptions::Check(std::string* why) const {
       retry_max_attempts < 1)
     return Fail(why, "relocalization/retry settings must be >= 0");
   if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
+  if (solve_window < 0) return Fail(why, "solve_window must be >= 0 (0 = whole component)");
   if (preview_every < 0 || preview_side < 64) return Fail(why, "preview_every >= 0 and preview_side >= 64");
   if (!(mosaic_scale > 0 && mosaic_scale <= 4)) return Fail(why, "mosaic_scale must be in (0,4]");
   if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");

@@ -22,6 +22,7 @@ struct PipelineOptions {
   int retry_per_frame = 2;
   int retry_max_attempts = 60;
   int full_solve_every = 10;  // full adjustment every max(N, size/20) registered frames, and on a merge
+  int solve_window = 300;     // frames those solves move (the newest); 0 = the whole component
   int preview_every = 5;      // live.jpg every N frames; 0 = off
   int preview_side = 1024;
   double mosaic_scale = 0.5;    // mosaic.tif GSD relative to the reference frame's original resolution

@@ -1,5 +1,7 @@
 #include "core/util/memory.h"
 
+#include <malloc.h>
+
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -22,6 +24,16 @@ double CurrentRssMiB() {
   std::fclose(f);
   if (n != 2) return 0.0;
   return static_cast<double>(pages_resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+}
+
+HeapStats CurrentHeapStats() {
+  HeapStats h;
+  const struct mallinfo2 mi = mallinfo2();
+  constexpr double kMiB = 1024.0 * 1024.0;
+  h.in_use_mib = static_cast<double>(mi.uordblks) / kMiB;
+  h.arena_mib = static_cast<double>(mi.arena) / kMiB;
+  h.mmapped_mib = static_cast<double>(mi.hblkhd) / kMiB;
+  return h;
 }
 
 }  // namespace uavm
