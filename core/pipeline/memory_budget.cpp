@@ -118,7 +118,7 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
     return fail("memory_budget_mib " + std::to_string(o.memory_budget_mib) + " leaves no room for the compositor");
   p.refine_correspondences =
       std::min(o.refine.max_correspondences,
-               std::max(1000, static_cast<int>(0.25 * avail * kMiB / kBytesPerSolverCorrespondence)));
+               std::max(1000, static_cast<int>(0.8 * avail * kMiB / kBytesPerSolverCorrespondence)));
   p.refine_mib = p.refine_correspondences * kBytesPerSolverCorrespondence / kMiB;
 
   o.queue_capacity = p.queue_capacity;
