@@ -145,7 +145,7 @@ int Run(const RunConfig& config) {
   if (source_failed) spdlog::error("source stopped: {} (finishing with what was received)", source_error);
 
   if (!mosaicker.Finish(&error)) {
-    spdlog::error("{}", error);
+    spdlog::error("cannot write the session (output not writable or disk full): {}", error);
     return kExitOutputError;
   }
   spdlog::info("done: {}/{} registered, residual RMS {:.2f} px, peak RSS {:.0f} MiB", mosaicker.registered_count(),

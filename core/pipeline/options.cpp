@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <fstream>
 #include <functional>
 #include <set>
 #include <sstream>
@@ -127,14 +128,23 @@ bool PipelineOptions::Check(std::string* why) const {
 }
 
 bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Fail(error, "config " + path + ": cannot read");
+  std::ostringstream text;
+  text << in.rdbuf();  // an empty file leaves the text empty: the defaults
+  return ParseOptionsYaml(text.str(), path, options, error);
+}
+
+bool ParseOptionsYaml(const std::string& text, const std::string& origin, PipelineOptions* options,
+                      std::string* error) {
   YAML::Node root;
   try {
-    root = YAML::LoadFile(path);
+    root = YAML::Load(text);
   } catch (const std::exception& e) {
-    return Fail(error, "config " + path + ": " + e.what());
+    return Fail(error, "config " + origin + ": " + e.what());
   }
   if (root.IsNull()) return true;  // an empty file means defaults
-  if (!root.IsMap()) return Fail(error, "config " + path + ": top level must be a mapping");
+  if (!root.IsMap()) return Fail(error, "config " + origin + ": top level must be a mapping");
   PipelineOptions o = *options;
   auto fields = Fields(o);
   std::set<std::string> known_sections;
@@ -143,17 +153,22 @@ bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::str
     if (!f.section.empty()) known_sections.insert(f.section);
     known_keys.insert(f.section.empty() ? f.key : f.section + "." + f.key);
   }
-  for (const auto& kv : root) {
-    const std::string k = kv.first.as<std::string>();
-    if (known_sections.count(k) != 0) {
-      if (!kv.second.IsMap()) return Fail(error, "config " + path + ": '" + k + "' must be a mapping");
-      for (const auto& sub : kv.second) {
-        const std::string full = k + "." + sub.first.as<std::string>();
-        if (known_keys.count(full) == 0) return Fail(error, "config " + path + ": unknown key '" + full + "'");
+  // Keys that are not strings (e.g. a sequence as a key) make as<std::string>() throw: an error, never a crash.
+  try {
+    for (const auto& kv : root) {
+      const std::string k = kv.first.as<std::string>();
+      if (known_sections.count(k) != 0) {
+        if (!kv.second.IsMap()) return Fail(error, "config " + origin + ": '" + k + "' must be a mapping");
+        for (const auto& sub : kv.second) {
+          const std::string full = k + "." + sub.first.as<std::string>();
+          if (known_keys.count(full) == 0) return Fail(error, "config " + origin + ": unknown key '" + full + "'");
+        }
+      } else if (known_keys.count(k) == 0) {
+        return Fail(error, "config " + origin + ": unknown key '" + k + "'");
       }
-    } else if (known_keys.count(k) == 0) {
-      return Fail(error, "config " + path + ": unknown key '" + k + "'");
     }
+  } catch (const std::exception& e) {
+    return Fail(error, "config " + origin + ": " + e.what());
   }
   for (const auto& f : fields) {
     const YAML::Node node = f.section.empty() ? root[f.key] : root[f.section][f.key];
@@ -171,13 +186,13 @@ bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::str
           },
           f.ptr);
     } catch (const std::invalid_argument&) {
-      return Fail(error, "config " + path + ": '" + name + "' must be affine or homography");
+      return Fail(error, "config " + origin + ": '" + name + "' must be affine or homography");
     } catch (const std::exception&) {
-      return Fail(error, "config " + path + ": '" + name + "' has the wrong type");
+      return Fail(error, "config " + origin + ": '" + name + "' has the wrong type");
     }
   }
   std::string why;
-  if (!o.Check(&why)) return Fail(error, "config " + path + ": " + why);
+  if (!o.Check(&why)) return Fail(error, "config " + origin + ": " + why);
   *options = o;
   return true;
 }

@@ -47,6 +47,9 @@ struct PipelineOptions {
 
 // YAML config: keys as in ToYaml(); unknown keys are an error (a typo must not be silently ignored).
 [[nodiscard]] bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error);
+// The same from YAML text; `origin` names it in messages (e.g. the file it came from).
+[[nodiscard]] bool ParseOptionsYaml(const std::string& text, const std::string& origin, PipelineOptions* options,
+                                    std::string* error);
 [[nodiscard]] std::string ToYaml(const PipelineOptions& options);
 
 }  // namespace uavm

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <exiv2/exiv2.hpp>
+#include <functional>
 
 namespace uavm::hal {
 
@@ -61,18 +62,22 @@ std::string ExifString(const Exiv2::ExifData& exif, const char* key) {
   return it == exif.end() ? std::string() : it->toString();
 }
 
-}  // namespace
+// Exiv2's logging is muted once: bad metadata is reported by us, once per file, not spammed.
+void InitExiv2() {
+  static const bool kReady = [] {
+    Exiv2::XmpParser::initialize();
+    Exiv2::LogMsg::setLevel(Exiv2::LogMsg::mute);
+    return true;
+  }();
+  (void)kReady;
+}
 
-FrameMetadata ReadMetadata(const std::string& path, std::string* warning) {
+// Reads an opened image's EXIF/XMP. Never throws.
+FrameMetadata ReadFrom(const std::function<Exiv2::Image::AutoPtr()>& open, std::string* warning) {
   FrameMetadata md;
   try {
-    static const bool kXmpReady = [] {
-      Exiv2::XmpParser::initialize();
-      Exiv2::LogMsg::setLevel(Exiv2::LogMsg::mute);  // bad metadata is reported by us, once, not spammed
-      return true;
-    }();
-    (void)kXmpReady;
-    auto image = Exiv2::ImageFactory::open(path);
+    InitExiv2();
+    auto image = open();
     if (image.get() == nullptr) return md;
     image->readMetadata();
     const Exiv2::ExifData& exif = image->exifData();
@@ -101,6 +106,17 @@ FrameMetadata ReadMetadata(const std::string& path, std::string* warning) {
     return FrameMetadata{};
   }
   return md;
+}
+
+}  // namespace
+
+FrameMetadata ReadMetadata(const std::string& path, std::string* warning) {
+  return ReadFrom([&] { return Exiv2::ImageFactory::open(path); }, warning);
+}
+
+FrameMetadata ReadMetadata(const unsigned char* data, size_t size, std::string* warning) {
+  if (data == nullptr || size == 0) return {};
+  return ReadFrom([&] { return Exiv2::ImageFactory::open(data, static_cast<long>(size)); }, warning);
 }
 
 }  // namespace uavm::hal

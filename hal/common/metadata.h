@@ -1,4 +1,5 @@
 #pragma once
+#include <cstddef>
 #include <optional>
 #include <string>
 
@@ -25,5 +26,7 @@ struct FrameMetadata {
 // Reads EXIF/XMP with Exiv2. Never throws: unreadable or garbage metadata gives an empty result and, when `warning`
 // is given, a one-line reason.
 [[nodiscard]] FrameMetadata ReadMetadata(const std::string& path, std::string* warning = nullptr);
+// The same from the bytes of an image file already in memory.
+[[nodiscard]] FrameMetadata ReadMetadata(const unsigned char* data, size_t size, std::string* warning = nullptr);
 
 }  // namespace uavm::hal

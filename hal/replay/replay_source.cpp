@@ -1,10 +1,16 @@
 #include "hal/replay/replay_source.h"
 
+#include <jerror.h>
+#include <jpeglib.h>
+
 #include <algorithm>
+#include <csetjmp>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <string_view>
 
 #include "core/util/clock.h"
 #include "hal/replay/natural_order.h"
@@ -38,12 +44,26 @@ int ReducedFlag(const cv::Size& full, int min_long_side, double* scale) {
   return flag;
 }
 
-// Reads the header only, so the full size is known before a reduced decode. Returns false when unreadable.
-bool ProbeSize(const std::vector<uchar>& bytes, cv::Size* size) {
-  // OpenCV has no header-only API; a 1/8 decode is cheap and gives the size to within rounding. For JPEG the exact
-  // size comes from the SOF marker, parsed here to avoid the rounding.
+// What a frame may be, checked on its header before any pixel is decoded. A header beyond the pixel limit is a
+// decompression bomb (a few bytes declaring gigapixels); a side below the minimum cannot be registered.
+constexpr int64_t kMaxImagePixels = 120'000'000;  // above any drone camera (100 Mpx)
+constexpr int kMinImageSide = 32;
+
+enum class Format { kUnknown, kJpeg, kPng, kTiff };
+
+Format Sniff(const std::vector<uchar>& b) {
+  static constexpr uchar kPng[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+  if (b.size() >= 3 && b[0] == 0xFF && b[1] == 0xD8 && b[2] == 0xFF) return Format::kJpeg;
+  if (b.size() >= 8 && std::equal(kPng, kPng + 8, b.begin())) return Format::kPng;
+  if (b.size() >= 8 && ((b[0] == 'I' && b[1] == 'I' && b[2] == 42 && b[3] == 0) ||
+                        (b[0] == 'M' && b[1] == 'M' && b[2] == 0 && b[3] == 42)))
+    return Format::kTiff;
+  return Format::kUnknown;
+}
+
+// The frame size from the SOF marker. False when there is none before the scan.
+bool JpegSize(const std::vector<uchar>& bytes, cv::Size* size) {
   for (size_t i = 2; i + 9 < bytes.size();) {
-    if (bytes[0] != 0xFF || bytes[1] != 0xD8) break;
     if (bytes[i] != 0xFF) return false;
     const uchar marker = bytes[i + 1];
     const size_t len = static_cast<size_t>(bytes[i + 2]) << 8 | bytes[i + 3];
@@ -52,9 +72,134 @@ bool ProbeSize(const std::vector<uchar>& bytes, cv::Size* size) {
       size->width = bytes[i + 7] << 8 | bytes[i + 8];
       return size->width > 0 && size->height > 0;
     }
+    if (marker == 0xDA) return false;
     i += 2 + len;
   }
   return false;
+}
+
+uint32_t Be32(const uchar* p) {
+  return static_cast<uint32_t>(p[0]) << 24 | static_cast<uint32_t>(p[1]) << 16 | static_cast<uint32_t>(p[2]) << 8 |
+         p[3];
+}
+
+// IHDR is the first chunk: width and height at bytes 16..23.
+bool PngSize(const std::vector<uchar>& b, cv::Size* size) {
+  if (b.size() < 24 || std::string_view(reinterpret_cast<const char*>(&b[12]), 4) != "IHDR") return false;
+  const uint32_t w = Be32(&b[16]);
+  const uint32_t h = Be32(&b[20]);
+  if (w == 0 || h == 0 || w > (1u << 30) || h > (1u << 30)) return false;
+  *size = cv::Size(static_cast<int>(w), static_cast<int>(h));
+  return true;
+}
+
+// ImageWidth (256) and ImageLength (257) of the first IFD of a classic TIFF.
+bool TiffSize(const std::vector<uchar>& b, cv::Size* size) {
+  const bool le = b[0] == 'I';
+  const auto u16 = [&](size_t o) -> uint32_t {
+    return le ? static_cast<uint32_t>(b[o]) | static_cast<uint32_t>(b[o + 1]) << 8
+              : static_cast<uint32_t>(b[o]) << 8 | static_cast<uint32_t>(b[o + 1]);
+  };
+  const auto u32 = [&](size_t o) -> uint32_t { return le ? u16(o) | u16(o + 2) << 16 : u16(o) << 16 | u16(o + 2); };
+  const size_t ifd = u32(4);
+  if (ifd + 2 > b.size()) return false;
+  const size_t n = u16(ifd);
+  uint32_t w = 0;
+  uint32_t h = 0;
+  for (size_t k = 0; k < n && ifd + 2 + 12 * (k + 1) <= b.size(); ++k) {
+    const size_t e = ifd + 2 + 12 * k;
+    const uint32_t tag = u16(e);
+    const uint32_t type = u16(e + 2);
+    const uint32_t value = type == 3 ? u16(e + 8) : (type == 4 ? u32(e + 8) : 0);
+    if (tag == 256) w = value;
+    if (tag == 257) h = value;
+  }
+  if (w == 0 || h == 0 || w > (1u << 30) || h > (1u << 30)) return false;
+  *size = cv::Size(static_cast<int>(w), static_cast<int>(h));
+  return true;
+}
+
+bool DeclaredSize(Format format, const std::vector<uchar>& bytes, cv::Size* size) {
+  switch (format) {
+    case Format::kJpeg:
+      return JpegSize(bytes, size);
+    case Format::kPng:
+      return PngSize(bytes, size);
+    case Format::kTiff:
+      return TiffSize(bytes, size);
+    case Format::kUnknown:
+      break;
+  }
+  return false;
+}
+
+// libjpeg reports damaged entropy-coded data (bad Huffman codes, a scan that ends early or late) as warnings and
+// goes on; OpenCV's decoder ignores them and returns a smeared frame. This pass decodes at 1/8 scale (the entropy
+// decoding is the whole cost, ~2 ms per Mpx) and collects those warnings.
+struct JpegErrors {
+  jpeg_error_mgr mgr;
+  std::jmp_buf jump;
+  int corrupt = 0;
+  char message[JMSG_LENGTH_MAX] = {};
+};
+
+void JpegErrorExit(j_common_ptr cinfo) {
+  auto* err = reinterpret_cast<JpegErrors*>(cinfo->err);
+  (*cinfo->err->format_message)(cinfo, err->message);
+  std::longjmp(err->jump, 1);
+}
+
+void JpegEmitMessage(j_common_ptr cinfo, int level) {
+  // Level -1 is a warning; the JFIF version and Adobe transform warnings say nothing about the pixels.
+  auto* err = reinterpret_cast<JpegErrors*>(cinfo->err);
+  if (level >= 0 || err->mgr.msg_code == JWRN_JFIF_MAJOR || err->mgr.msg_code == JWRN_ADOBE_XFORM) return;
+  if (err->corrupt++ == 0) (*cinfo->err->format_message)(cinfo, err->message);
+}
+
+// The libjpeg calls that may long-jump, apart, so that no local of the caller lives across setjmp.
+bool JpegDecodeAll(jpeg_decompress_struct* cinfo, JpegErrors* err, const std::vector<uchar>& bytes,
+                   std::vector<JSAMPLE>* row) {
+  if (setjmp(err->jump) != 0) return false;
+  jpeg_mem_src(cinfo, bytes.data(), static_cast<unsigned long>(bytes.size()));
+  jpeg_read_header(cinfo, TRUE);
+  cinfo->scale_num = 1;
+  cinfo->scale_denom = 8;
+  cinfo->dct_method = JDCT_IFAST;
+  cinfo->do_fancy_upsampling = FALSE;
+  cinfo->do_block_smoothing = FALSE;
+  if (cinfo->jpeg_color_space == JCS_YCbCr) cinfo->out_color_space = JCS_GRAYSCALE;  // no colour conversion
+  jpeg_start_decompress(cinfo);
+  row->resize(static_cast<size_t>(cinfo->output_width) * static_cast<size_t>(cinfo->output_components));
+  while (cinfo->output_scanline < cinfo->output_height) {
+    JSAMPROW rows[1] = {row->data()};
+    jpeg_read_scanlines(cinfo, rows, 1);
+  }
+  jpeg_finish_decompress(cinfo);
+  return true;
+}
+
+// False with libjpeg's message when the JPEG's data is damaged.
+bool JpegIntact(const std::vector<uchar>& bytes, std::string* why) {
+  jpeg_decompress_struct cinfo{};
+  JpegErrors err{};
+  cinfo.err = jpeg_std_error(&err.mgr);
+  err.mgr.error_exit = JpegErrorExit;
+  err.mgr.emit_message = JpegEmitMessage;
+  jpeg_create_decompress(&cinfo);
+  std::vector<JSAMPLE> row;
+  const bool decoded = JpegDecodeAll(&cinfo, &err, bytes, &row);
+  jpeg_destroy_decompress(&cinfo);
+  if (decoded && err.corrupt == 0) return true;
+  *why = std::string("corrupt JPEG data: ") + err.message;
+  return false;
+}
+
+// An image whose pixels are all nearly the same (lens cap, over-exposure, a blank sensor read) has nothing to register.
+bool Uniform(const cv::Mat& image) {
+  cv::Scalar mean;
+  cv::Scalar stddev;
+  cv::meanStdDev(image, mean, stddev);
+  return std::max({stddev[0], stddev[1], stddev[2]}) < 1.0;
 }
 
 }  // namespace
@@ -129,11 +274,53 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
     *error = "empty file (0 bytes)";
     return Status::kSkipped;
   }
+  // The same bytes twice (a camera that wrote a frame twice, a copied file) add nothing but a degenerate pair.
+  const size_t hash =
+      std::hash<std::string_view>{}(std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
+  const auto seen = seen_.find(hash);
+  if (seen != seen_.end() && seen->second.size == bytes.size()) {
+    *error = "duplicate of " + seen->second.name + " (identical bytes)";
+    return Status::kSkipped;
+  }
+  // Only formats whose size can be read from the header before decoding: a decompression bomb is refused unopened.
+  const Format format = Sniff(bytes);
+  if (format == Format::kUnknown) {
+    *error = "unsupported format: not a JPEG, PNG or TIFF image";
+    return Status::kSkipped;
+  }
   cv::Size full;
-  const bool has_size = ProbeSize(bytes, &full);
+  if (!DeclaredSize(format, bytes, &full)) {
+    *error = "unreadable image header";
+    return Status::kSkipped;
+  }
+  const int64_t pixels = static_cast<int64_t>(full.width) * full.height;
+  if (pixels > kMaxImagePixels) {
+    *error = "header declares " + std::to_string(full.width) + "x" + std::to_string(full.height) + " (" +
+             std::to_string(pixels / 1'000'000) + " Mpx), more than the " +
+             std::to_string(kMaxImagePixels / 1'000'000) + " Mpx a frame may have (decompression bomb?)";
+    return Status::kSkipped;
+  }
+  if (std::min(full.width, full.height) < kMinImageSide) {
+    *error = "image too small to register: " + std::to_string(full.width) + "x" + std::to_string(full.height) +
+             " (a frame needs " + std::to_string(kMinImageSide) + " px a side)";
+    return Status::kSkipped;
+  }
+  if (format == Format::kJpeg) {
+    // A truncated JPEG decodes "successfully" with a grey tail; libjpeg only warns. Check the end-of-image marker,
+    // then the entropy-coded data itself.
+    size_t end = bytes.size();
+    while (end > 2 && bytes[end - 1] == 0x00) --end;  // some writers pad
+    if (!(bytes[end - 2] == 0xFF && bytes[end - 1] == 0xD9)) {
+      *error = "truncated JPEG (no end-of-image marker)";
+      return Status::kSkipped;
+    }
+    if (!JpegIntact(bytes, error)) return Status::kSkipped;
+  }
   double scale = 1.0;
-  const int flag = has_size ? ReducedFlag(full, hint_.min_long_side, &scale) : cv::IMREAD_COLOR;
+  // JPEG decodes reduced (DCT scaling); the other formats decode whole and the consumer resizes.
+  const int flag = format == Format::kJpeg ? ReducedFlag(full, hint_.min_long_side, &scale) : cv::IMREAD_COLOR;
   // Sensor geometry, not display orientation: transforms and the ground tool refer to the stored pixel grid.
+  // IMREAD_COLOR makes every frame 8-bit BGR: 16-bit, grey, alpha (dropped) and CMYK inputs are converted.
   const int flags = flag | cv::IMREAD_IGNORE_ORIENTATION;
   cv::Mat image;
   try {
@@ -145,21 +332,16 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
     *error = "not a decodable image";
     return Status::kSkipped;
   }
-  if (!has_size) full = image.size();
-  // A truncated JPEG decodes "successfully" with a grey tail; libjpeg only warns. Check the end-of-image marker.
-  if (bytes.size() >= 2 && bytes[0] == 0xFF && bytes[1] == 0xD8) {
-    size_t end = bytes.size();
-    while (end > 2 && bytes[end - 1] == 0x00) --end;  // some writers pad
-    if (!(bytes[end - 2] == 0xFF && bytes[end - 1] == 0xD9)) {
-      *error = "truncated JPEG (no end-of-image marker)";
-      return Status::kSkipped;
-    }
+  if (Uniform(image)) {
+    *error = "uniform frame (black, saturated or one colour): nothing to register";
+    return Status::kSkipped;
   }
   frame->timestamp_ns = MonotonicNs();
   frame->original_size = full;
   frame->decode_scale = static_cast<double>(image.cols) / full.width;
   frame->image = std::move(image);
-  if (options_.read_metadata) frame->metadata = ReadMetadata(path);
+  if (options_.read_metadata) frame->metadata = ReadMetadata(bytes.data(), bytes.size());
+  seen_.emplace(hash, Seen{bytes.size(), frame->source_name});
   return Status::kOk;
 }
 

@@ -2,6 +2,7 @@
 #include <memory>
 #include <opencv2/videoio.hpp>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "hal/common/frame_source.h"
@@ -36,6 +37,11 @@ class ReplaySource final : public FrameSource {
   std::unique_ptr<cv::VideoCapture> video_;
   uint64_t next_index_ = 0;
   uint64_t video_frame_ = 0;
+  struct Seen {
+    size_t size;
+    std::string name;
+  };
+  std::unordered_map<size_t, Seen> seen_;  // content hash of every frame delivered: duplicates are skipped
 };
 
 }  // namespace uavm::hal
