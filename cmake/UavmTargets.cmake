@@ -8,6 +8,13 @@ if(UAVM_SANITIZE)
   target_compile_options(uavm_warnings INTERFACE -fsanitize=address,undefined -fno-omit-frame-pointer)
   target_link_options(uavm_warnings INTERFACE -fsanitize=address,undefined)
 endif()
+if(UAVM_FUZZ)
+  # Coverage for libFuzzer in every project target, ASan + UBSan so that memory errors are found, not just crashes;
+  # the fuzz/ executables add the libFuzzer driver (-fsanitize=fuzzer).
+  target_compile_options(uavm_warnings INTERFACE -fsanitize=fuzzer-no-link,address,undefined
+                                                 -fno-sanitize-recover=undefined -fno-omit-frame-pointer)
+  target_link_options(uavm_warnings INTERFACE -fsanitize=address,undefined)
+endif()
 
 # uavm_library(NAME SOURCES ... DEPS ...): one static library per folder, include root = project root.
 function(uavm_library name)

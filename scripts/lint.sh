@@ -4,7 +4,7 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$ROOT"
-mapfile -t FILES < <(git ls-files '*.cpp' '*.h' | grep -E '^(core|hal|firmware_app|tests|bench|tools)/')
+mapfile -t FILES < <(git ls-files '*.cpp' '*.h' | grep -E '^(core|hal|firmware_app|tests|bench|tools|fuzz)/')
 if [ "${1:-}" = "--check" ]; then
   clang-format --dry-run --Werror "${FILES[@]}"
   exit 0

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Installs the Debian 12 packages the build needs. Idempotent: does nothing when all are present.
+# Installs the Debian 12 packages the build needs, plus any named as arguments (e.g. `setup.sh clang`). Idempotent:
+# does nothing when all are present.
 set -euo pipefail
 PACKAGES=(
   build-essential cmake ninja-build pkg-config
@@ -7,6 +8,7 @@ PACKAGES=(
   libcli11-dev libspdlog-dev libyaml-cpp-dev nlohmann-json3-dev
   libceres-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  "$@"
 )
 missing=()
 for p in "${PACKAGES[@]}"; do

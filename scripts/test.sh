@@ -6,3 +6,9 @@ BUILD_DIR="${UAVM_BUILD_DIR:-$ROOT/build}"
 bash "$ROOT/scripts/build.sh"
 cd "$BUILD_DIR"
 ctest --output-on-failure -j "$(nproc)" --timeout 900
+
+# ---- fuzzing: a short run of every libFuzzer target (fuzz/, build-fuzz/; the long run is bench/fuzz.sh) ----------
+# clang provides libFuzzer; installed when missing by the same helper. A crash fails the script.
+bash "$ROOT/scripts/setup.sh" clang
+bash "$ROOT/scripts/fuzz.sh" --runs 20000
+# ---- end of fuzzing ----------------------------------------------------------------------------------------------

@@ -51,6 +51,11 @@ bool ReadFeatures(const std::string& path, Features* f, std::string* error) {
   uint32_t dims = 0;
   bool ok = std::fread(magic, 1, 8, fp) == 8 && std::memcmp(magic, kMagic, 8) == 0 && std::fread(&n, 4, 1, fp) == 1 &&
             std::fread(&dims, 4, 1, fp) == 1 && n <= (1u << 22) && dims <= 1024;
+  // The counts must match the file's size before anything is allocated: a corrupt header would otherwise ask for
+  // up to 4 GiB.
+  const uint64_t expected = 16 + static_cast<uint64_t>(n) * (sizeof(cv::Point2f) + dims);
+  ok = ok && std::fseek(fp, 0, SEEK_END) == 0 && static_cast<uint64_t>(std::ftell(fp)) == expected &&
+       std::fseek(fp, 16, SEEK_SET) == 0;
   if (ok) {
     f->points.resize(n);
     f->descriptors.create(static_cast<int>(n), static_cast<int>(dims), CV_8U);

@@ -47,16 +47,17 @@ bool WriteFileAtomic(const std::string& path, const std::string& contents, std::
 
 std::string FormatTransformsCsv(const std::vector<TransformRow>& rows) {
   std::string out = std::string(kTransformsHeader) + "\n";
-  char buf[512];
+  char buf[256];  // the numbers only: the file name is appended whole, whatever its length or bytes
   for (const auto& r : rows) {
+    out += std::to_string(r.index) + "," + r.filename;
     if (!r.registered) {
-      std::snprintf(buf, sizeof(buf), "%d,%s,0,,,,,,,,\n", r.index, r.filename.c_str());
-    } else {
-      // Normalised so the projective part's constant term is 1, as the header's formula assumes.
-      const Mat3 m = r.mosaic_from_frame / r.mosaic_from_frame(2, 2);
-      std::snprintf(buf, sizeof(buf), "%d,%s,1,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g\n", r.index,
-                    r.filename.c_str(), m(0, 0), m(0, 1), m(0, 2), m(1, 0), m(1, 1), m(1, 2), m(2, 0), m(2, 1));
+      out += ",0,,,,,,,,\n";
+      continue;
     }
+    // Normalised so the projective part's constant term is 1, as the header's formula assumes.
+    const Mat3 m = r.mosaic_from_frame / r.mosaic_from_frame(2, 2);
+    std::snprintf(buf, sizeof(buf), ",1,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g\n", m(0, 0), m(0, 1), m(0, 2),
+                  m(1, 0), m(1, 1), m(1, 2), m(2, 0), m(2, 1));
     out += buf;
   }
   return out;

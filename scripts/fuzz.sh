@@ -1,0 +1,82 @@
+#!/usr/bin/env bash
+# Builds the libFuzzer targets (fuzz/, clang, build directory build-fuzz/ or --build-dir) and runs each for a set
+# number of executions on its corpus in fuzz/corpus/<target>/; prints target, executions, seconds, crashes.
+#
+#   scripts/fuzz.sh                      # CI: 20000 executions per target
+#   scripts/fuzz.sh --runs 1000000       # the long run (bench/fuzz.sh)
+#   scripts/fuzz.sh --runs 1000000 --minimize   # ... then merge what it found into fuzz/corpus/ (minimised)
+#   scripts/fuzz.sh --target fuzz_config # one target
+#
+# New inputs of a run go to <build-dir>/fuzz-work/<target>/, not into the repository, unless --minimize. A crash
+# leaves its input in <build-dir>/fuzz-artifacts/<target>/ and fails the script (exit 1); add it to the target's
+# corpus as a regression once fixed.
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+RUNS=20000
+BUILD_DIR="$ROOT/build-fuzz"
+MINIMIZE=0
+ONLY=""
+JOBS="${UAVM_JOBS:-2}"
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --runs) RUNS="$2"; shift 2 ;;
+    --build-dir) BUILD_DIR="$2"; shift 2 ;;
+    --minimize) MINIMIZE=1; shift ;;
+    --target) ONLY="$2"; shift 2 ;;
+    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
+    *) echo "fuzz.sh: unknown argument $1" >&2; exit 2 ;;
+  esac
+done
+TARGETS=(fuzz_config fuzz_metadata fuzz_transforms_csv fuzz_features_bin)
+if [ -n "$ONLY" ]; then TARGETS=("$ONLY"); fi
+
+command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ not found (apt-get install clang)" >&2; exit 2; }
+if [ ! -f "$BUILD_DIR/CMakeCache.txt" ]; then
+  GEN=()
+  command -v ninja >/dev/null && GEN=(-G Ninja)
+  CC=clang CXX=clang++ cmake -S "$ROOT" -B "$BUILD_DIR" "${GEN[@]}" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+    -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g" -DUAVM_FUZZ=ON -DUAVM_BUILD_TESTS=OFF -DUAVM_BUILD_BENCH=OFF >/dev/null
+fi
+start_build=$(date +%s)
+nice -n 10 cmake --build "$BUILD_DIR" -j "$JOBS" --target "${TARGETS[@]}" >"$BUILD_DIR/fuzz-build.log" 2>&1 ||
+  { tail -40 "$BUILD_DIR/fuzz-build.log"; echo "fuzz.sh: build failed" >&2; exit 1; }
+echo "fuzz.sh: build $(($(date +%s) - start_build)) s ($BUILD_DIR)"
+
+failed=0
+rows=()
+for t in "${TARGETS[@]}"; do
+  corpus="$ROOT/fuzz/corpus/$t"
+  work="$BUILD_DIR/fuzz-work/$t"
+  artifacts="$BUILD_DIR/fuzz-artifacts/$t"
+  mkdir -p "$corpus" "$work" "$artifacts"
+  rm -f "$artifacts"/*
+  log="$BUILD_DIR/fuzz-$t.log"
+  t0=$(date +%s%N)
+  status=0
+  # -max_len: enough for a config or a small JPEG header with EXIF/XMP; -timeout: a hang is a bug too.
+  nice -n 10 "$BUILD_DIR/fuzz/$t" -runs="$RUNS" -max_len=65536 -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+    -artifact_prefix="$artifacts/" "$work" "$corpus" >"$log" 2>&1 || status=$?
+  secs=$(awk -v a="$t0" -v b="$(date +%s%N)" 'BEGIN { printf "%.1f", (b - a) / 1e9 }')
+  execs=$(grep -oE 'stat::number_of_executed_units: *[0-9]+' "$log" | grep -oE '[0-9]+$' || true)
+  crashes=$(find "$artifacts" -type f | wc -l)
+  if [ "$status" -ne 0 ] && [ "$crashes" -eq 0 ]; then crashes=1; fi
+  if [ "$crashes" -ne 0 ]; then
+    failed=1
+    echo "---- $t failed (exit $status), last lines of $log:" >&2
+    tail -30 "$log" >&2
+  elif [ "$MINIMIZE" -eq 1 ]; then
+    # Keep only inputs that add coverage: merge the old corpus and this run's finds into a fresh folder.
+    fresh="$BUILD_DIR/fuzz-merge/$t"
+    rm -rf "$fresh" && mkdir -p "$fresh"
+    "$BUILD_DIR/fuzz/$t" -merge=1 -max_len=65536 "$fresh" "$corpus" "$work" >>"$log" 2>&1
+    rm -rf "$corpus" && mv "$fresh" "$corpus"
+    rm -rf "$work"
+  fi
+  rows+=("$(printf '| %-20s | %11s | %7s | %7s |' "$t" "${execs:-?}" "$secs" "$crashes")")
+done
+
+echo
+echo "| target               |  executions | seconds | crashes |"
+echo "|----------------------|-------------|---------|---------|"
+printf '%s\n' "${rows[@]}"
+exit "$failed"
