@@ -30,18 +30,13 @@ bool LooksLikeVideo(const fs::path& p) {
 
 // JPEG DCT scaling decodes 1/2, 1/4, 1/8 sizes several times faster than full size: pick the smallest that still
 // gives the consumer its long side.
-int ReducedFlag(const cv::Size& full, int min_long_side, double* scale) {
+unsigned ReducedDenominator(const cv::Size& full, int min_long_side) {
   const int long_side = std::max(full.width, full.height);
-  *scale = 1.0;
-  if (min_long_side <= 0) return cv::IMREAD_COLOR;
-  int flag = cv::IMREAD_COLOR;
-  for (int f : {2, 4, 8}) {
-    if (long_side / f >= min_long_side) {
-      *scale = 1.0 / f;
-      flag = f == 2 ? cv::IMREAD_REDUCED_COLOR_2 : (f == 4 ? cv::IMREAD_REDUCED_COLOR_4 : cv::IMREAD_REDUCED_COLOR_8);
-    }
-  }
-  return flag;
+  unsigned denom = 1;
+  if (min_long_side <= 0) return denom;
+  for (unsigned f : {2u, 4u, 8u})
+    if (long_side / static_cast<int>(f) >= min_long_side) denom = f;
+  return denom;
 }
 
 // What a frame may be, checked on its header before any pixel is decoded. A header beyond the pixel limit is a
@@ -133,9 +128,9 @@ bool DeclaredSize(Format format, const std::vector<uchar>& bytes, cv::Size* size
   return false;
 }
 
-// libjpeg reports damaged entropy-coded data (bad Huffman codes, a scan that ends early or late) as warnings and
-// goes on; OpenCV's decoder ignores them and returns a smeared frame. This pass decodes at 1/8 scale (the entropy
-// decoding is the whole cost, ~2 ms per Mpx) and collects those warnings.
+// JPEG frames are decoded with libjpeg directly: it reports damaged entropy-coded data (bad Huffman codes, a scan
+// that ends early or late) as warnings and goes on, and OpenCV's decoder ignores those warnings and returns a smeared
+// frame. One pass decodes (DCT-scaled, as OpenCV's reduced modes) and collects them.
 struct JpegErrors {
   jpeg_error_mgr mgr;
   std::jmp_buf jump;
@@ -156,42 +151,55 @@ void JpegEmitMessage(j_common_ptr cinfo, int level) {
   if (err->corrupt++ == 0) (*cinfo->err->format_message)(cinfo, err->message);
 }
 
-// The libjpeg calls that may long-jump, apart, so that no local of the caller lives across setjmp.
-bool JpegDecodeAll(jpeg_decompress_struct* cinfo, JpegErrors* err, const std::vector<uchar>& bytes,
-                   std::vector<JSAMPLE>* row) {
+// The libjpeg calls that may long-jump, apart, so that no local of the caller lives across setjmp. Fills `image`
+// (8-bit, 3 channels BGR, or 4 channels CMYK as stored for CMYK/YCCK files).
+bool JpegDecodeScaled(jpeg_decompress_struct* cinfo, JpegErrors* err, const std::vector<uchar>& bytes, unsigned denom,
+                      cv::Mat* image) {
   if (setjmp(err->jump) != 0) return false;
   jpeg_mem_src(cinfo, bytes.data(), static_cast<unsigned long>(bytes.size()));
   jpeg_read_header(cinfo, TRUE);
   cinfo->scale_num = 1;
-  cinfo->scale_denom = 8;
-  cinfo->dct_method = JDCT_IFAST;
-  cinfo->do_fancy_upsampling = FALSE;
-  cinfo->do_block_smoothing = FALSE;
-  if (cinfo->jpeg_color_space == JCS_YCbCr) cinfo->out_color_space = JCS_GRAYSCALE;  // no colour conversion
+  cinfo->scale_denom = denom;
+  const bool cmyk = cinfo->jpeg_color_space == JCS_CMYK || cinfo->jpeg_color_space == JCS_YCCK;
+  cinfo->out_color_space = cmyk ? JCS_CMYK : JCS_EXT_BGR;  // grey and RGB files expand to BGR too
   jpeg_start_decompress(cinfo);
-  row->resize(static_cast<size_t>(cinfo->output_width) * static_cast<size_t>(cinfo->output_components));
+  image->create(static_cast<int>(cinfo->output_height), static_cast<int>(cinfo->output_width),
+                cmyk ? CV_8UC4 : CV_8UC3);
   while (cinfo->output_scanline < cinfo->output_height) {
-    JSAMPROW rows[1] = {row->data()};
+    JSAMPROW rows[1] = {image->ptr<JSAMPLE>(static_cast<int>(cinfo->output_scanline))};
     jpeg_read_scanlines(cinfo, rows, 1);
   }
   jpeg_finish_decompress(cinfo);
   return true;
 }
 
-// False with libjpeg's message when the JPEG's data is damaged.
-bool JpegIntact(const std::vector<uchar>& bytes, std::string* why) {
+// Decodes a JPEG at 1/denom scale into 8-bit BGR. False with libjpeg's message when the file is damaged.
+bool DecodeJpeg(const std::vector<uchar>& bytes, unsigned denom, cv::Mat* bgr, std::string* why) {
   jpeg_decompress_struct cinfo{};
   JpegErrors err{};
   cinfo.err = jpeg_std_error(&err.mgr);
   err.mgr.error_exit = JpegErrorExit;
   err.mgr.emit_message = JpegEmitMessage;
   jpeg_create_decompress(&cinfo);
-  std::vector<JSAMPLE> row;
-  const bool decoded = JpegDecodeAll(&cinfo, &err, bytes, &row);
+  cv::Mat image;
+  const bool decoded = JpegDecodeScaled(&cinfo, &err, bytes, denom, &image);
   jpeg_destroy_decompress(&cinfo);
-  if (decoded && err.corrupt == 0) return true;
-  *why = std::string("corrupt JPEG data: ") + err.message;
-  return false;
+  if (!decoded || err.corrupt > 0) {
+    *why = std::string("corrupt JPEG data: ") + err.message;
+    return false;
+  }
+  if (image.channels() == 4) {
+    // Adobe CMYK is stored inverted (255 = no ink): each colour is the inverted ink scaled by the inverted black.
+    bgr->create(image.size(), CV_8UC3);
+    image.forEach<cv::Vec4b>([&](const cv::Vec4b& v, const int* pos) {
+      const int k = v[3];
+      const auto channel = [k](int ink) { return static_cast<uchar>(k - ((255 - ink) * k >> 8)); };
+      bgr->at<cv::Vec3b>(pos[0], pos[1]) = cv::Vec3b(channel(v[2]), channel(v[1]), channel(v[0]));
+    });
+    return true;
+  }
+  *bgr = std::move(image);
+  return true;
 }
 
 // An image whose pixels are all nearly the same (lens cap, over-exposure, a blank sensor read) has nothing to register.
@@ -306,27 +314,28 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
     return Status::kSkipped;
   }
   if (format == Format::kJpeg) {
-    // A truncated JPEG decodes "successfully" with a grey tail; libjpeg only warns. Check the end-of-image marker,
-    // then the entropy-coded data itself.
+    // A truncated JPEG decodes "successfully" with a grey tail; libjpeg only warns. Check the end-of-image marker
+    // (the decoder below checks the entropy-coded data).
     size_t end = bytes.size();
     while (end > 2 && bytes[end - 1] == 0x00) --end;  // some writers pad
     if (!(bytes[end - 2] == 0xFF && bytes[end - 1] == 0xD9)) {
       *error = "truncated JPEG (no end-of-image marker)";
       return Status::kSkipped;
     }
-    if (!JpegIntact(bytes, error)) return Status::kSkipped;
   }
-  double scale = 1.0;
-  // JPEG decodes reduced (DCT scaling); the other formats decode whole and the consumer resizes.
-  const int flag = format == Format::kJpeg ? ReducedFlag(full, hint_.min_long_side, &scale) : cv::IMREAD_COLOR;
-  // Sensor geometry, not display orientation: transforms and the ground tool refer to the stored pixel grid.
-  // IMREAD_COLOR makes every frame 8-bit BGR: 16-bit, grey, alpha (dropped) and CMYK inputs are converted.
-  const int flags = flag | cv::IMREAD_IGNORE_ORIENTATION;
+  // JPEG decodes DCT-scaled (1/2, 1/4, 1/8) to what the consumer needs; the other formats decode whole and the
+  // consumer resizes. Sensor geometry, not display orientation: transforms and the ground tool refer to the stored
+  // pixel grid (libjpeg ignores EXIF orientation; OpenCV is told to). Every frame becomes 8-bit BGR: 16-bit, grey,
+  // alpha (dropped) and CMYK inputs are converted.
   cv::Mat image;
-  try {
-    image = cv::imdecode(bytes, flags);
-  } catch (const cv::Exception& e) {
-    image.release();
+  if (format == Format::kJpeg) {
+    if (!DecodeJpeg(bytes, ReducedDenominator(full, hint_.min_long_side), &image, error)) return Status::kSkipped;
+  } else {
+    try {
+      image = cv::imdecode(bytes, cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION);
+    } catch (const cv::Exception& e) {
+      image.release();
+    }
   }
   if (image.empty()) {
     *error = "not a decodable image";
