@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <vector>
 
 namespace uavm::hal {
 namespace {
@@ -40,6 +41,20 @@ TEST(MetadataTest, GarbageGivesEmptyMetadataNotAnException) {
   const auto missing = ReadMetadata("/nonexistent.jpg", &warning);
   EXPECT_FALSE(missing.HasGps());
   EXPECT_FALSE(warning.empty());
+}
+
+TEST(MetadataTest, ReadsFromBytesInMemoryOnlyFrameFormats) {
+  std::ifstream in(std::string(UAVM_TEST_DATA) + "/brighton_beach_small/images/DJI_0018.JPG", std::ios::binary);
+  const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto md = ReadMetadata(bytes.data(), bytes.size());
+  ASSERT_TRUE(md.HasGps());
+  EXPECT_NEAR(*md.latitude_deg, 46.8426070833333, 1e-7);
+  ASSERT_TRUE(md.gimbal_yaw_deg.has_value());
+  EXPECT_NEAR(*md.gimbal_yaw_deg, 45.0, 1e-6);
+  // Formats frames never come in are not parsed at all (an empty result, no exception).
+  const std::string gif = "GIF89a\x01\x00\x01\x00";
+  EXPECT_FALSE(ReadMetadata(reinterpret_cast<const unsigned char*>(gif.data()), gif.size()).HasGps());
+  EXPECT_FALSE(ReadMetadata(nullptr, 0).HasGps());
 }
 
 }  // namespace

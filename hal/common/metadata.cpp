@@ -116,7 +116,16 @@ FrameMetadata ReadMetadata(const std::string& path, std::string* warning) {
 
 FrameMetadata ReadMetadata(const unsigned char* data, size_t size, std::string* warning) {
   if (data == nullptr || size == 0) return {};
-  return ReadFrom([&] { return Exiv2::ImageFactory::open(data, static_cast<long>(size)); }, warning);
+  // Only the formats frames come in (hal/replay reads nothing else): Exiv2's parsers of raw, video and other
+  // formats are never given untrusted bytes.
+  return ReadFrom(
+      [&]() -> Exiv2::Image::AutoPtr {
+        const int type = Exiv2::ImageFactory::getType(data, static_cast<long>(size));
+        if (type != Exiv2::ImageType::jpeg && type != Exiv2::ImageType::png && type != Exiv2::ImageType::tiff)
+          return Exiv2::Image::AutoPtr();
+        return Exiv2::ImageFactory::open(data, static_cast<long>(size));
+      },
+      warning);
 }
 
 }  // namespace uavm::hal
