@@ -2,11 +2,14 @@
 
 #include <spdlog/spdlog.h>
 
+#include <csignal>
 #include <memory>
 #include <thread>
+#include <unordered_set>
 
 #include "core/pipeline/memory_budget.h"
 #include "core/pipeline/mosaicker.h"
+#include "core/session/journal.h"
 #include "core/session/session_dir.h"
 #include "core/util/bounded_queue.h"
 #include "core/util/clock.h"
@@ -17,6 +20,10 @@
 namespace uavm::app {
 
 namespace {
+
+volatile std::sig_atomic_t g_stop_signal = 0;
+
+void OnStopSignal(int sig) { g_stop_signal = sig; }
 
 std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::string* error) {
   const std::string& s = config.source;
@@ -45,7 +52,61 @@ struct Item {
   Mosaicker::Prepared prepared;
 };
 
+// Registers the journal's frames again from the session directory, in their order. Returns the source names the
+// journal already has (accepted or skipped), which the live source then passes over.
+bool ResumeFromJournal(const SessionPaths& paths, const JournalContents& journal, Mosaicker* mosaicker,
+                       std::unordered_set<std::string>* seen, std::string* error) {
+  hal::ReplayOptions stored_options;
+  stored_options.path = paths.frames();
+  hal::ReplaySource stored(stored_options);
+  for (const auto& skip : journal.skipped) {
+    mosaicker->RecordSkipped(skip.name, skip.reason, /*journal=*/false);
+    seen->insert(skip.name);
+  }
+  if (journal.frames.empty()) return true;
+  if (stored.Open(error) != hal::Status::kOk) return false;
+  for (const JournalFrame& jf : journal.frames) {
+    // frames/ is in id order (NNNNNN_ prefix); a file there without a journal line (killed between the two) is
+    // passed over: its input is taken from the source again.
+    hal::Frame frame;
+    std::string err;
+    for (;;) {
+      const hal::Status st = stored.Next(&frame, &err);
+      if (st == hal::Status::kEndOfStream || st == hal::Status::kError) {
+        *error = "resume: frame " + jf.stored_file + " of the journal is missing from frames/";
+        return false;
+      }
+      if (frame.source_name == jf.stored_file) break;
+    }
+    if (frame.original_size != cv::Size(jf.width, jf.height)) {
+      *error = "resume: frames/" + jf.stored_file + " does not match the journal";
+      return false;
+    }
+    frame.source_name = jf.name;
+    frame.timestamp_ns = jf.timestamp_ns;
+    if (mosaicker->frames_in() != static_cast<size_t>(jf.id)) {
+      *error = "resume: journal frame ids are not consecutive";
+      return false;
+    }
+    const auto outcome = mosaicker->AddFrame(mosaicker->PrepareStored(std::move(frame), jf.id, jf.stored_file));
+    (void)outcome;  // registered or not, exactly as in the interrupted run
+    seen->insert(jf.name);
+  }
+  stored.Close();
+  return true;
+}
+
 }  // namespace
+
+void InstallStopHandlers() {
+  struct sigaction sa {};
+  sa.sa_handler = OnStopSignal;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+  // Past a file-size limit, writes fail with EFBIG (reported like a full disk) instead of killing the process.
+  std::signal(SIGXFSZ, SIG_IGN);
+}
 
 int Run(const RunConfig& config) {
   std::string error;
@@ -83,15 +144,39 @@ int Run(const RunConfig& config) {
         plan.relocalization_mib, plan.EndMiB(), plan.image_cache_mib, plan.blend_mib, pipeline.mosaic.tile_size);
   Mosaicker mosaicker(pipeline, paths);
   mosaicker.SetMemoryPlan(plan);
+  JournalContents journal;
+  const std::string journal_path = paths.Join("journal.jsonl");
+  if (config.resume) {
+    if (!ReadJournal(journal_path, &journal, &error)) {
+      spdlog::error("cannot resume: {}: {}", journal_path, error);
+      return kExitUsage;
+    }
+    if (journal.torn_lines > 0) spdlog::warn("journal: a torn last line (the run was killed while writing it) dropped");
+    spdlog::info("resuming: {} frames and {} skipped inputs in the journal{}", journal.frames.size(),
+                 journal.skipped.size(), journal.finished ? " (the previous run had finished its flight)" : "");
+  }
+  if (!mosaicker.StartJournal(config.resume, journal.valid_bytes, &error)) {
+    spdlog::error("{}", error);
+    return kExitOutputError;
+  }
+  std::unordered_set<std::string> seen;
+  if (config.resume) {
+    if (!ResumeFromJournal(paths, journal, &mosaicker, &seen, &error)) {
+      spdlog::error("{}", error);
+      return kExitOutputError;
+    }
+    spdlog::info("resumed {} frames from the session", mosaicker.frames_in());
+  }
   BoundedQueue<Item> queue(
       static_cast<size_t>(pipeline.queue_capacity),
       source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock : BoundedQueue<Item>::Policy::kDropOldest);
   bool source_failed = false;
   std::string source_error;
   std::thread capture([&] {
-    int delivered = 0;
+    int delivered = static_cast<int>(journal.frames.size());
     for (;;) {
       if (config.max_frames > 0 && delivered >= config.max_frames) break;
+      if (g_stop_signal != 0) break;
       Item item;
       std::string err;
       hal::Frame frame;
@@ -106,6 +191,7 @@ int Run(const RunConfig& config) {
         break;
       }
       item.message = err;
+      if (seen.count(item.name) != 0) continue;  // accepted or skipped before the interruption
       if (item.status == hal::Status::kOk) {
         ++delivered;
         // Features are computed here, on the capture side, overlapping the previous frame's matching.
@@ -142,6 +228,9 @@ int Run(const RunConfig& config) {
   capture.join();
   source->Close();
   mosaicker.RecordDropped(queue.dropped());
+  if (g_stop_signal != 0)
+    spdlog::warn("signal {} received: capture stopped; registering and compositing the {} frames received",
+                 static_cast<int>(g_stop_signal), mosaicker.frames_in());
   if (source_failed) spdlog::error("source stopped: {} (finishing with what was received)", source_error);
 
   if (!mosaicker.Finish(&error)) {

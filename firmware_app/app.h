@@ -19,8 +19,15 @@ struct RunConfig {
   std::string out_dir;
   int max_frames = 0;  // 0 = all
   int stride = 1;
+  // Continue the session in out_dir from its journal: the frames it accepted are registered again from the session
+  // (no detection, same result), then the source goes on after them, skipping inputs the journal already has.
+  bool resume = false;
   PipelineOptions pipeline;
 };
+
+// SIGINT / SIGTERM: the capture stops, and what was received is registered and composited (exit 0 when that
+// succeeds). A second signal does not interrupt the compositing: use SIGKILL, then --resume.
+void InstallStopHandlers();
 
 // The onboard loop: capture thread -> bounded queue -> registration -> outputs. Returns an ExitCode.
 [[nodiscard]] int Run(const RunConfig& config);

@@ -35,6 +35,9 @@ int main(int argc, char** argv) {
       ->required();
   cli.add_option("--out", config.out_dir, "Session directory to write (created if missing)")->required();
   cli.add_option("--config", config_file, "YAML config; command-line options override it")->check(CLI::ExistingFile);
+  cli.add_flag("--resume", config.resume,
+               "Continue the session in --out after an interruption (kill, power loss): its journaled frames are "
+               "kept and the source continues after them");
   cli.add_option("--max-frames", config.max_frames, "Stop after N frames (0 = all)")->check(CLI::NonNegativeNumber);
   cli.add_option("--stride", config.stride, "Take every N-th input of the replay (video frames or files)")
       ->check(CLI::PositiveNumber);
@@ -85,5 +88,6 @@ int main(int argc, char** argv) {
     std::fputs(ToYaml(p).c_str(), stdout);
     return app::kExitOk;
   }
+  app::InstallStopHandlers();
   return app::Run(config);
 }

@@ -1,4 +1,5 @@
 #pragma once
+#include <cstdint>
 #include <cstddef>
 #include <vector>
 
@@ -17,6 +18,10 @@ struct Edge {
   std::vector<Vec2> tgt_points;
   std::vector<Vec2> holdout_src_points;  // inliers the adjustment does not use: a check of its result
   std::vector<Vec2> holdout_tgt_points;
+  // Where the points live: an edge whose frames no longer move during the flight keeps them only on disk
+  // (EdgeStore, edges.bin at byte stored_at) until the end of the flight reads them back.
+  int64_t stored_at = -1;
+  bool points_resident = true;
 };
 
 class UnionFind {
@@ -38,6 +43,7 @@ class MatchGraph {
   void AddNode(int id);
   void AddEdge(Edge edge);
   [[nodiscard]] const std::vector<Edge>& edges() const { return edges_; }
+  [[nodiscard]] std::vector<Edge>& mutable_edges() { return edges_; }
   [[nodiscard]] const std::vector<int>& nodes() const { return nodes_; }
   [[nodiscard]] int MaxInliers() const;
   // An edge counts when its inliers reach both the absolute floor and `relative` x the best edge's count

@@ -12,6 +12,10 @@ bool GlobalIndexOptions::Check(std::string* why) const {
     if (why != nullptr) *why = "relocalization: need descriptors_per_frame >= 8 and max_descriptors >= 4x that";
     return false;
   }
+  if (!(keyframe_spacing >= 0 && keyframe_spacing <= 4)) {
+    if (why != nullptr) *why = "relocalization.keyframe_spacing must be in [0, 4]";
+    return false;
+  }
   if (!(ratio > 0 && ratio <= 1) || min_votes < 1 || rebuild_every_frames < 1) {
     if (why != nullptr) *why = "relocalization: ratio must be in (0,1], min_votes >= 1, rebuild_every_frames >= 1";
     return false;

@@ -14,6 +14,10 @@ struct GlobalIndexOptions {
   int min_votes = 8;
   double ratio = 0.85;
   int rebuild_every_frames = 10;
+  // A registered frame joins the index only when no indexed frame of its part of the flight is centred closer than
+  // keyframe_spacing x its half-diagonal: the index then grows with the ground covered, not with flight time, and a
+  // place flown over six times keeps six times the descriptors per frame. 0 indexes every frame.
+  double keyframe_spacing = 0.5;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };

@@ -35,6 +35,7 @@ bool MatchOptions::Check(std::string* why) const {
 }
 
 cv::Mat QuantizeDescriptors(const cv::Mat& f) {
+  if (f.type() == CV_8U) return f;  // already quantised (read back from the session)
   cv::Mat out;
   f.convertTo(out, CV_8U, kQuantScale);  // saturating
   return out;

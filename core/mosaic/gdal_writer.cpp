@@ -1,5 +1,7 @@
 #include "core/mosaic/gdal_writer.h"
 
+#include <cstdio>
+
 #include <gdal_priv.h>
 
 #include <opencv2/imgproc.hpp>
@@ -11,6 +13,7 @@ struct GdalTiffWriter::Impl {
   GDALDataset* ds = nullptr;
   cv::Size canvas;
   std::vector<int> overview_factors;  // written tile by tile, alongside the full resolution
+  std::string path;                   // final name; GDAL writes path + ".part"
 };
 
 namespace {
@@ -45,7 +48,10 @@ bool WriteRgba(GDALDataset* ds, int overview, const cv::Mat& image, const cv::Ma
 GdalTiffWriter::GdalTiffWriter() : impl_(std::make_unique<Impl>()) {}
 
 GdalTiffWriter::~GdalTiffWriter() {
-  if (impl_->ds != nullptr) GDALClose(impl_->ds);
+  if (impl_->ds != nullptr) {  // not closed: an error path; the partial file goes
+    GDALClose(impl_->ds);
+    std::remove((impl_->path + ".part").c_str());
+  }
 }
 
 bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_size, int tile_size, bool overviews,
@@ -70,10 +76,12 @@ bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_si
   opts = CSLSetNameValue(opts, "BIGTIFF", "IF_SAFER");
   opts = CSLSetNameValue(opts, "PHOTOMETRIC", "RGB");
   opts = CSLSetNameValue(opts, "ALPHA", "YES");
-  impl_->ds = driver->Create(path.c_str(), canvas.width, canvas.height, 4, GDT_Byte, opts);
+  impl_->path = path;
+  const std::string part = path + ".part";
+  impl_->ds = driver->Create(part.c_str(), canvas.width, canvas.height, 4, GDT_Byte, opts);
   CSLDestroy(opts);
   if (impl_->ds == nullptr) {
-    *error = "cannot create " + path + ": " + CPLGetLastErrorMsg();
+    *error = "cannot create " + part + ": " + CPLGetLastErrorMsg();
     return false;
   }
   impl_->canvas = canvas;
@@ -121,9 +129,24 @@ bool GdalTiffWriter::Close(std::string* error) {
     *error = std::string("GDAL: ") + CPLGetLastErrorMsg();
     ok = false;
   }
+  // GDALClose writes what the cache still holds (overviews, the directory): its errors count too.
   GDALClose(impl_->ds);
   impl_->ds = nullptr;
-  return ok;
+  if (CPLGetLastErrorType() == CE_Failure && ok) {
+    *error = std::string("GDAL: ") + CPLGetLastErrorMsg();
+    ok = false;
+  }
+  const std::string part = impl_->path + ".part";
+  if (!ok) {
+    std::remove(part.c_str());
+    return false;
+  }
+  if (std::rename(part.c_str(), impl_->path.c_str()) != 0) {
+    *error = "cannot rename " + part + " to " + impl_->path;
+    std::remove(part.c_str());
+    return false;
+  }
+  return true;
 }
 
 }  // namespace uavm

@@ -6,6 +6,8 @@
 namespace uavm {
 
 // Tiled RGBA GeoTIFF / BigTIFF written block by block through GDAL: the canvas never exists whole in memory.
+// The file is written as "<path>.part" and renamed to `path` by a successful Close(): a run killed or stopped by a
+// full disk leaves the previous mosaic (if any) intact and no half-written one under the final name.
 class GdalTiffWriter {
  public:
   GdalTiffWriter();

@@ -57,13 +57,23 @@ Mosaicker::Mosaicker(const PipelineOptions& options, SessionPaths paths)
       feature_store_(paths_.features(), static_cast<size_t>(options.feature_cache_mib) << 20),
       global_index_(options.relocalization),
       preview_(options.preview_side),
-      start_ns_(MonotonicNs()) {}
+      start_ns_(MonotonicNs()) {
+  std::string error;
+  // Without the file every edge keeps its points in memory: slower to grow flat, nothing lost.
+  if (!edge_store_.Open(paths_.Join("edges.bin"), &error)) spdlog::warn("{}; edge points stay in memory", error);
+}
 
 Mosaicker::~Mosaicker() = default;
 
-void Mosaicker::RecordSkipped(const std::string& file, const std::string& reason) {
+void Mosaicker::RecordSkipped(const std::string& file, const std::string& reason, bool journal) {
   spdlog::warn("skipped {}: {}", file, reason);
   skipped_.push_back({file, reason});
+  std::string error;
+  if (journal && journal_.is_open() && !journal_.AddSkip({file, reason}, &error)) spdlog::error("{}", error);
+}
+
+bool Mosaicker::StartJournal(bool append, uint64_t valid_bytes, std::string* error) {
+  return journal_.Open(paths_.Join("journal.jsonl"), append, valid_bytes, options_.journal_sync_every, error);
 }
 
 bool Mosaicker::StoreFrameBytes(const hal::Frame& frame, const std::vector<uchar>& encoded, FrameState* state,
@@ -103,10 +113,49 @@ std::vector<const Edge*> Mosaicker::EdgesWithin(int root) {
 
 void Mosaicker::AddEdge(Edge edge) {
   best_inliers_ = std::max(best_inliers_, edge.num_inliers);
+  RoundToFloat(&edge);  // what edges.bin keeps: a reloaded edge gives the same solution
+  if (edge_store_.is_open()) {
+    std::string error;
+    if (!edge_store_.Append(&edge, &error)) {
+      spdlog::warn("{}; edge points stay in memory from now on", error);
+      edge_store_.Close();
+    }
+  }
   const size_t index = graph_.edges().size();
   adjacency_[static_cast<size_t>(edge.src)].push_back(index);
   adjacency_[static_cast<size_t>(edge.tgt)].push_back(index);
   graph_.AddEdge(std::move(edge));
+}
+
+void Mosaicker::ReleaseColdEdges() {
+  if (options_.solve_window <= 0 || !edge_store_.is_open()) return;
+  // Edges are appended as frames arrive, so an edge's newest frame rarely goes back in time: the scan stops at the
+  // first edge still in the window. A solve that needs a released edge after all (a merged component) reloads it.
+  const int cold_below = static_cast<int>(frames_.size()) - options_.solve_window;
+  auto& edges = graph_.mutable_edges();
+  for (; release_cursor_ < edges.size(); ++release_cursor_) {
+    Edge& e = edges[release_cursor_];
+    if (std::max(e.src, e.tgt) >= cold_below) break;
+    const size_t bytes = edge_store_.Release(&e);
+    if (bytes > 0) {
+      ++edges_released_;
+      edge_bytes_released_ += bytes;
+    }
+  }
+}
+
+bool Mosaicker::LoadEdgePoints(const std::vector<const Edge*>& edges) {
+  auto& all = graph_.mutable_edges();
+  for (const Edge* e : edges) {
+    if (e->points_resident) continue;
+    Edge& edge = all[static_cast<size_t>(e - all.data())];
+    std::string error;
+    if (!edge_store_.Load(&edge, &error)) {
+      spdlog::error("{}", error);
+      return false;
+    }
+  }
+  return true;
 }
 
 // Re-expresses every frame of `other_root`'s component by `other_fix` (new = fix * old) and unites the two.
@@ -130,9 +179,35 @@ void Mosaicker::FullSolve(int root) {
   variable.erase(anchor);
   std::unordered_map<int, double> half_diag;
   for (int id : members) half_diag[id] = frames_[static_cast<size_t>(id)].half_diagonal;
-  const auto result = AdjustAffine(EdgesWithin(root), variable, half_diag, options_.adjust, &mosaic_from_work_);
+  std::vector<const Edge*> edges = EdgesWithin(root);
+  std::vector<const Edge*> needed;
+  for (const Edge* e : edges)
+    if (!e->points_resident && (variable.count(e->src) != 0 || variable.count(e->tgt) != 0)) needed.push_back(e);
+  if (!LoadEdgePoints(needed)) spdlog::warn("full adjustment without some edges (edges.bin unreadable)");
+  edges_reloaded_ += needed.size();
+  const auto result = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+  ReleaseColdEdges();
   if (!result.ok) spdlog::warn("full adjustment failed: {}", result.failure);
   registered_since_full_ = 0;
+}
+
+bool Mosaicker::IsNewGround(int id) {
+  const FrameState& me = frames_[static_cast<size_t>(id)];
+  const double spacing = options_.relocalization.keyframe_spacing;
+  // A frame that is not placed yet may be anywhere: it is indexed so that a later frame can find it.
+  if (spacing <= 0 || !me.in_graph) return true;
+  const auto work_centre = [](const FrameState& f) {
+    return Vec2(0.5 * (f.work_size.width - 1), 0.5 * (f.work_size.height - 1));
+  };
+  const auto centre_of = [&](const FrameState& f) { return Apply(mosaic_from_work_[f.id], work_centre(f)); };
+  const Vec2 c = centre_of(me);
+  const double radius = spacing * me.half_diagonal * LocalScale(mosaic_from_work_[id], work_centre(me));
+  const int root = components_.Find(id);
+  for (int k : keyframes_) {
+    const FrameState& f = frames_[static_cast<size_t>(k)];
+    if (f.in_graph && components_.Find(k) == root && (centre_of(f) - c).norm() < radius) return false;
+  }
+  return true;
 }
 
 void Mosaicker::UpdatePreview(int id, const cv::Mat& work_bgr) {
@@ -195,6 +270,30 @@ void Mosaicker::Bridge(int new_id, const DescriptorIndex& index, const Features&
 }
 
 Mosaicker::Prepared Mosaicker::Prepare(hal::Frame frame) const {
+  Prepared p = PrepareImages(std::move(frame));
+  StageTimer t;
+  p.features = extractor_.Extract(p.work_gray);
+  p.features_ms = t.ElapsedMs();
+  return p;
+}
+
+Mosaicker::Prepared Mosaicker::PrepareStored(hal::Frame frame, int id, const std::string& stored_name) const {
+  const std::string stored = stored_name;
+  frame.source_path = paths_.frames() + "/" + stored_name;  // a path: nothing gets encoded
+  Prepared p = PrepareImages(std::move(frame));
+  p.resumed = true;
+  p.stored_name = stored_name;
+  std::string error;
+  StageTimer t;
+  if (!feature_store_.Load(id, &p.features, &error)) {
+    spdlog::warn("resume: {}; detecting features of {} again", error, stored);
+    p.features = extractor_.Extract(p.work_gray);
+  }
+  p.features_ms = t.ElapsedMs();
+  return p;
+}
+
+Mosaicker::Prepared Mosaicker::PrepareImages(hal::Frame frame) const {
   StageTimer t;
   Prepared p;
   const int long_side = std::max(frame.original_size.width, frame.original_size.height);
@@ -216,9 +315,6 @@ Mosaicker::Prepared Mosaicker::Prepare(hal::Frame frame) const {
   }
   frame.image.release();  // the decoded original is not needed any more: keep queued frames small
   p.prepare_ms = t.ElapsedMs();
-  t.Restart();
-  p.features = extractor_.Extract(p.work_gray);
-  p.features_ms = t.ElapsedMs();
   p.frame = std::move(frame);
   return p;
 }
@@ -244,7 +340,9 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   st.half_diagonal = 0.5 * std::hypot(st.work_size.width, st.work_size.height);
   const cv::Mat& work_bgr = prepared.work_bgr;
   std::string error;
-  if (!StoreFrameBytes(frame, prepared.encoded, &st, &error)) {
+  if (prepared.resumed) {
+    st.stored_file = paths_.frames() + "/" + prepared.stored_name;
+  } else if (!StoreFrameBytes(frame, prepared.encoded, &st, &error)) {
     st.failure = error;
     spdlog::error("{}", error);
     return FrameOutcome::kFailed;
@@ -254,10 +352,21 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   if (prepared.decode_ms > 0) stats_.Add("decode", prepared.decode_ms);
   t.Restart();
   Features& feats = prepared.features;
-  if (!feature_store_.Put(id, feats, &error)) {
-    st.failure = error;
-    spdlog::error("{}", error);
-    return FrameOutcome::kFailed;
+  if (prepared.resumed) {
+    feature_store_.Adopt(id, feats);
+    ++resumed_frames_;
+  } else {
+    if (!feature_store_.Put(id, feats, &error)) {
+      st.failure = error;
+      spdlog::error("{}", error);
+      return FrameOutcome::kFailed;
+    }
+    // Accepted: its bytes and features are in the session, so a resumed run will find it.
+    if (journal_.is_open() &&
+        !journal_.AddFrame({id, st.name, fs::path(st.stored_file).filename().string(), st.timestamp_ns,
+                            st.original_size.width, st.original_size.height},
+                           &error))
+      spdlog::error("{}; a resumed run would take this frame from the source again", error);
   }
   st.has_features = true;
   // Match on the 8-bit values, exactly what later queries from the store will see.
@@ -374,11 +483,18 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     TryRetries(id, index, feats);
     if (num_components_ > 1 && options_.bridge_candidates > 0) Bridge(id, index, feats);
   }
-  global_index_.Add(id, feats);
+  if (IsNewGround(id)) {
+    global_index_.Add(id, feats);
+    keyframes_.push_back(id);
+  } else {
+    ++frames_not_indexed_;
+  }
   stats_.Add("adjust", t.ElapsedMs());
   t.Restart();
   if (st.failure.empty() || id == 0) UpdatePreview(id, work_bgr);
   stats_.Add("preview", t.ElapsedMs());
+  // Every few frames, not every frame: a trim walks the arenas (~1 ms).
+  if (options_.trim_heap_every > 0 && id % options_.trim_heap_every == 0) TrimHeap();
   stats_.Add("frame_total", frame_timer.ElapsedMs());
   return outcome;
 }
@@ -445,13 +561,15 @@ void Mosaicker::Densify() {
 
 bool Mosaicker::Finish(std::string* error) {
   StageTimer t;
-  flight_peak_rss_mib_ = PeakRssMiB();
+  flight_peak_rss_mib_ = std::max(PeakRssMiB(), HighWaterRssMiB());
   flight_end_rss_mib_ = CurrentRssMiB();
   flight_end_heap_ = CurrentHeapStats();
+  ResetPeakRss();
   Densify();
   // Nothing after this point matches features: their memory goes to the refinement and the compositor.
   feature_store_.Clear();
   global_index_.Release();
+  TrimHeap();
   // Largest component over edges that pass both thresholds against the final best pair.
   std::vector<int> component =
       graph_.LargestComponent(options_.relative_inlier_fraction, options_.matching.min_inliers);
@@ -463,6 +581,8 @@ bool Mosaicker::Finish(std::string* error) {
     if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 &&
         graph_.EdgeCounts(e, options_.relative_inlier_fraction, options_.matching.min_inliers))
       edges.push_back(&e);
+  // The final solves use every edge: the points given back during the flight come back from edges.bin.
+  if (!LoadEdgePoints(edges)) spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
   double rms = 0.0;
   double median = 0.0;
   if (component.size() >= 2) {
@@ -521,7 +641,12 @@ bool Mosaicker::Finish(std::string* error) {
   spdlog::info("registered {}/{} frames, residual RMS {:.3f} px (median {:.3f}) at working resolution",
                final_registered_, frames_.size(), rms, median);
   residual_median_ = median;
-  return WriteOutputs(component, error);
+  solve_peak_rss_mib_ = HighWaterRssMiB();
+  ResetPeakRss();
+  if (!WriteOutputs(component, error)) return false;
+  std::string journal_error;
+  if (journal_.is_open() && !journal_.AddFinished(&journal_error)) spdlog::warn("{}", journal_error);
+  return true;
 }
 
 }  // namespace uavm

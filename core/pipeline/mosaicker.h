@@ -11,6 +11,8 @@
 #include "core/mosaic/live_preview.h"
 #include "core/pipeline/memory_budget.h"
 #include "core/pipeline/options.h"
+#include "core/session/edge_store.h"
+#include "core/session/journal.h"
 #include "core/session/feature_store.h"
 #include "core/session/session_dir.h"
 #include "core/util/memory.h"
@@ -46,12 +48,20 @@ class Mosaicker {
     double decode_ms = 0.0;      // measured by the caller around the source's Next()
     double prepare_ms = 0.0;
     double features_ms = 0.0;
+    bool resumed = false;     // already in the session (frames/, features/, journal): registered again, not stored
+    std::string stored_name;  // its file in frames/ when resumed
   };
   [[nodiscard]] Prepared Prepare(hal::Frame frame) const;
+  [[nodiscard]] Prepared PrepareImages(hal::Frame frame) const;  // working copies, no features
+  // A frame of the journal being resumed: `frame` decoded from frames/, features read from features/ (computed again
+  // only if their file is unreadable). AddFrame then registers it exactly as the interrupted run did.
+  [[nodiscard]] Prepared PrepareStored(hal::Frame frame, int id, const std::string& stored_name) const;
+  // Starts the session journal (journal.jsonl): new, or appended after `valid_bytes` of a resumed one.
+  [[nodiscard]] bool StartJournal(bool append, uint64_t valid_bytes, std::string* error);
   [[nodiscard]] FrameOutcome AddFrame(Prepared prepared);
   [[nodiscard]] FrameOutcome AddFrame(hal::Frame frame) { return AddFrame(Prepare(std::move(frame))); }
   // An input the source could not turn into a frame (corrupt, empty, not an image).
-  void RecordSkipped(const std::string& file, const std::string& reason);
+  void RecordSkipped(const std::string& file, const std::string& reason, bool journal = true);
   void RecordDropped(size_t count) { dropped_frames_ = count; }
   // The memory plan the options were sized with (reported in report.json).
   void SetMemoryPlan(const MemoryPlan& plan) { memory_plan_ = plan; }
@@ -84,6 +94,10 @@ class Mosaicker {
   [[nodiscard]] std::vector<const Edge*> EdgesWithin(int root);
   [[nodiscard]] std::vector<int> MembersOf(int root);
   void AddEdge(Edge edge);
+  // Gives back the points of edges whose frames have left the solve window (they stay in edges.bin).
+  void ReleaseColdEdges();
+  // Makes the points of `edges` resident again; false (and a logged reason) if one cannot be read.
+  bool LoadEdgePoints(const std::vector<const Edge*>& edges);
   void MergeInto(int keep_root, int other_root, const Mat3& other_fix);
   void FullSolve(int root);
   void Densify();
@@ -95,6 +109,8 @@ class Mosaicker {
   bool TryJoin(int new_id, int other, const DescriptorIndex& index, const Features& feats);
   void Bridge(int new_id, const DescriptorIndex& index, const Features& feats);
   void UpdatePreview(int id, const cv::Mat& work_bgr);
+  // Whether frame `id` adds new ground to the relocalisation index (see GlobalIndexOptions::keyframe_spacing).
+  [[nodiscard]] bool IsNewGround(int id);
   [[nodiscard]] bool WriteOutputs(const std::vector<int>& component, std::string* error);
 
   PipelineOptions options_;
@@ -102,7 +118,16 @@ class Mosaicker {
   SiftExtractor extractor_;
   FeatureStore feature_store_;
   GlobalIndex global_index_;
+  std::vector<int> keyframes_;   // frames in the global index
+  size_t frames_not_indexed_ = 0;  // registered over ground the index already has
   MatchGraph graph_;
+  EdgeStore edge_store_;
+  SessionJournal journal_;
+  size_t resumed_frames_ = 0;  // frames taken from the journal of an interrupted run
+  size_t release_cursor_ = 0;     // edges before it have been considered by ReleaseColdEdges
+  size_t edges_released_ = 0;     // edges whose points went to disk during the flight
+  size_t edge_bytes_released_ = 0;
+  size_t edges_reloaded_ = 0;     // points read back during the flight (a solve needed a cold edge)
   UnionFind components_;
   std::vector<FrameState> frames_;
   std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
@@ -127,6 +152,8 @@ class Mosaicker {
   MemoryPlan memory_plan_;
   double flight_peak_rss_mib_ = 0.0;  // peak RSS when the last frame was registered
   double flight_end_rss_mib_ = 0.0;   // RSS then
+  double solve_peak_rss_mib_ = 0.0;   // peak of the end-of-flight solves (from flight end)
+  double compose_peak_rss_mib_ = 0.0; // peak of writing the session files and the mosaic (from the solves' end)
   HeapStats flight_end_heap_;
   MotionModel refined_model_ = MotionModel::kAffine;
   TransferStats holdout_linear_;  // held-out correspondences under the linear solution, then the final one

@@ -8,6 +8,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
+#include <string_view>
 #include <unordered_set>
 
 #include "core/mosaic/gdal_writer.h"
@@ -116,25 +117,38 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   if (!WriteFileAtomic(paths_.Join("transforms.csv"), FormatTransformsCsv(rows), error)) return false;
 
   // graph.csv and correspondences.csv (original-resolution pixels, so the ground tool needs no working sizes).
+  // correspondences.csv grows with the flight (~5 kB per edge): it is streamed to disk, edge by edge, and an edge
+  // whose points are only in edges.bin is read, written and given back.
   std::ostringstream graph_csv;
-  std::ostringstream corr_csv;
   graph_csv << "src,tgt,src_file,tgt_file,matches,inliers,used\n";
-  corr_csv << "src,tgt,x_src,y_src,x_tgt,y_tgt\n";
-  corr_csv.precision(7);
-  for (const auto& e : graph_.edges()) {
+  AtomicFileWriter corr_csv;
+  if (!corr_csv.Open(paths_.Join("correspondences.csv"), error)) return false;
+  corr_csv.Write("src,tgt,x_src,y_src,x_tgt,y_tgt\n");
+  for (Edge& e : graph_.mutable_edges()) {
     const bool used = in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 &&
                       graph_.EdgeCounts(e, options_.relative_inlier_fraction, options_.matching.min_inliers);
     graph_csv << e.src << ',' << e.tgt << ',' << frames_[static_cast<size_t>(e.src)].name << ','
               << frames_[static_cast<size_t>(e.tgt)].name << ',' << e.num_matches << ',' << e.num_inliers << ','
               << (used ? 1 : 0) << '\n';
+    std::string load_error;
+    if (!edge_store_.Load(&e, &load_error)) {
+      spdlog::warn("correspondences.csv: edge {}-{} left out ({})", e.src, e.tgt, load_error);
+      continue;
+    }
     const Mat3 src_orig = frames_[static_cast<size_t>(e.src)].work_from_original.inverse();
     const Mat3 tgt_orig = frames_[static_cast<size_t>(e.tgt)].work_from_original.inverse();
+    char line[160];
     for (size_t k = 0; k < e.src_points.size(); ++k) {
       const Vec2 a = Apply(src_orig, e.src_points[k]);
       const Vec2 b = Apply(tgt_orig, e.tgt_points[k]);
-      corr_csv << e.src << ',' << e.tgt << ',' << a.x() << ',' << a.y() << ',' << b.x() << ',' << b.y() << '\n';
+      const int n = std::snprintf(line, sizeof(line), "%d,%d,%.7g,%.7g,%.7g,%.7g\n", e.src, e.tgt, a.x(), a.y(), b.x(),
+                                  b.y());
+      corr_csv.Write(std::string_view(line, static_cast<size_t>(std::max(0, n))));
     }
+    // The solves are done: the compositor gets the memory (the points stay in edges.bin).
+    edge_store_.Release(&e);
   }
+  if (!corr_csv.Commit(error)) return false;
   if (!WriteFileAtomic(paths_.Join("graph.csv"), graph_csv.str(), error)) return false;
 
   // frames.csv: what the ground tool and georeferencing need per frame; empty cells where metadata is absent.
@@ -158,7 +172,6 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
                << '\n';
   }
   if (!WriteFileAtomic(paths_.Join("frames.csv"), frames_csv.str(), error)) return false;
-  if (!WriteFileAtomic(paths_.Join("correspondences.csv"), corr_csv.str(), error)) return false;
   if (!WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error)) return false;
 
   // Mosaic, tile by tile.
@@ -201,6 +214,7 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     }
     if (write_tiff && !tiff.Close(error)) return false;
     composite_ms_ = composite.ms;
+    compose_peak_rss_mib_ = HighWaterRssMiB();
     std::vector<uchar> png;
     if (!cv::imencode(".png", composite.quicklook, png) ||
         !WriteFileAtomic(paths_.Join("mosaic.png"), std::string(png.begin(), png.end()), error))
@@ -246,7 +260,9 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
                       {"holdout_linear_rms_px", holdout_linear_.rms},
                       {"correspondences", refine_.num_residuals},
                       {"seconds", refine_.seconds}};
-  report["wall_s"] = static_cast<double>(MonotonicNs() - start_ns_) * 1e-9;
+  report["wall_s"] = static_cast<double>(MonotonicNs() - start_ns_) * 1e-9;  // this run's, after a resume too
+  report["resumed_frames"] = resumed_frames_;
+  report["journal_syncs"] = journal_.syncs();
   report["peak_rss_mib"] = PeakRssMiB();
   report["reference_frame"] = component.empty() ? -1 : component.front();
   report["relocalized"] = relocalized_;
@@ -258,7 +274,10 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   const MemoryPlan& mp = memory_plan_;
   report["memory"] = {
       {"budget_mib", mp.budget_mib},
-      {"peak_rss_mib", PeakRssMiB()},
+      {"peak_rss_mib", std::max({PeakRssMiB(), flight_peak_rss_mib_, solve_peak_rss_mib_, compose_peak_rss_mib_})},
+      // Each phase's own peak (the kernel's high-water mark is reset between phases).
+      {"phase_peak_rss_mib",
+       {{"flight", flight_peak_rss_mib_}, {"solve", solve_peak_rss_mib_}, {"compose", compose_peak_rss_mib_}}},
       {"flight_peak_rss_mib", flight_peak_rss_mib_},
       {"flight_end_rss_mib", flight_end_rss_mib_},
       {"flight_end_heap",
@@ -289,6 +308,11 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
        {{"feature_sets_evicted", feature_store_.evictions()},
         {"feature_sets_reloaded", feature_store_.disk_loads()},
         {"relocalization_thinnings", global_index_.thinnings()},
+        {"frames_not_indexed_same_ground", frames_not_indexed_},
+        {"edges_to_disk", edges_released_},
+        {"edge_mib_to_disk", static_cast<double>(edge_bytes_released_) / (1 << 20)},
+        {"edges_reloaded_in_flight", edges_reloaded_},
+        {"edges_bin_mib", static_cast<double>(edge_store_.bytes_written()) / (1 << 20)},
         {"frame_redecodes", std::max(0, composite.image_loads - composite.frames_used)},
         {"refine_correspondences_skipped", refine_.num_residuals - std::min(refine_.num_residuals, refine_.num_used)},
         {"frames_dropped_by_queue", dropped_frames_}}}};

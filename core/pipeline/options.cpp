@@ -37,6 +37,8 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"", "retry_max_attempts", &o.retry_max_attempts},
       {"", "full_solve_every", &o.full_solve_every},
       {"", "solve_window", &o.solve_window},
+      {"", "trim_heap_every", &o.trim_heap_every},
+      {"", "journal_sync_every", &o.journal_sync_every},
       {"", "preview_every", &o.preview_every},
       {"", "preview_side", &o.preview_side},
       {"", "mosaic_scale", &o.mosaic_scale},
@@ -72,6 +74,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"relocalization", "min_votes", &o.relocalization.min_votes},
       {"relocalization", "ratio", &o.relocalization.ratio},
       {"relocalization", "rebuild_every_frames", &o.relocalization.rebuild_every_frames},
+      {"relocalization", "keyframe_spacing", &o.relocalization.keyframe_spacing},
       {"adjust", "rigidity_weight", &o.adjust.rigidity_weight},
       {"adjust", "relative_linear_weight", &o.adjust.relative_linear_weight},
       {"adjust", "huber_px", &o.adjust.huber_px},
@@ -117,6 +120,8 @@ bool PipelineOptions::Check(std::string* why) const {
     return Fail(why, "relocalization/retry settings must be >= 0");
   if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
   if (solve_window < 0) return Fail(why, "solve_window must be >= 0 (0 = whole component)");
+  if (trim_heap_every < 0) return Fail(why, "trim_heap_every must be >= 0 (0 = never)");
+  if (journal_sync_every < 1) return Fail(why, "journal_sync_every must be >= 1");
   if (preview_every < 0 || preview_side < 64) return Fail(why, "preview_every >= 0 and preview_side >= 64");
   if (!(mosaic_scale > 0 && mosaic_scale <= 4)) return Fail(why, "mosaic_scale must be in (0,4]");
   if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");

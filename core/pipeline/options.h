@@ -23,6 +23,8 @@ struct PipelineOptions {
   int retry_max_attempts = 60;
   int full_solve_every = 10;  // full adjustment every max(N, size/20) registered frames, and on a merge
   int solve_window = 300;     // frames those solves move (the newest); 0 = the whole component
+  int journal_sync_every = 1;  // accepted frames between fdatasyncs of journal.jsonl (a power cut loses fewer)
+  int trim_heap_every = 20;   // frames between returns of free heap pages to the kernel; 0 = never
   int preview_every = 5;      // live.jpg every N frames; 0 = off
   int preview_side = 1024;
   double mosaic_scale = 0.5;    // mosaic.tif GSD relative to the reference frame's original resolution

@@ -88,6 +88,21 @@ bool FeatureStore::Put(int id, const Features& features, std::string* error) {
   return true;
 }
 
+void FeatureStore::Adopt(int id, const Features& features) {
+  auto q = std::make_shared<Features>();
+  q->points = features.points;
+  if (features.descriptors.type() == CV_8U)
+    q->descriptors = features.descriptors.clone();
+  else
+    features.descriptors.convertTo(q->descriptors, CV_8U, kQuant);
+  q->contrast_threshold_used = features.contrast_threshold_used;
+  Insert(id, std::move(q));
+}
+
+bool FeatureStore::Load(int id, Features* features, std::string* error) const {
+  return ReadFeatures(PathOf(id), features, error);
+}
+
 void FeatureStore::Insert(int id, std::shared_ptr<const Features> f) {
   const size_t bytes = f->MemoryBytes();
   while (!lru_.empty() && used_ + bytes > max_bytes_) {

@@ -15,6 +15,10 @@ class FeatureStore {
   FeatureStore(std::string dir, size_t max_bytes);
   // Stores (descriptors quantised to 8 bits). Returns false when the file cannot be written.
   [[nodiscard]] bool Put(int id, const Features& features, std::string* error);
+  // Takes in a frame whose file is already in the session (a resumed run): cached, not rewritten.
+  void Adopt(int id, const Features& features);
+  // Reads a stored frame's features (8-bit descriptors). False when missing or corrupt.
+  [[nodiscard]] bool Load(int id, Features* features, std::string* error) const;
   // nullptr when the frame was never stored or its file is unreadable.
   [[nodiscard]] std::shared_ptr<const Features> Get(int id);
   [[nodiscard]] size_t resident_bytes() const { return used_; }

@@ -45,6 +45,45 @@ bool WriteFileAtomic(const std::string& path, const std::string& contents, std::
   return true;
 }
 
+AtomicFileWriter::~AtomicFileWriter() {
+  if (file_ != nullptr) {
+    std::fclose(file_);
+    std::remove((path_ + ".tmp").c_str());
+  }
+}
+
+bool AtomicFileWriter::Open(const std::string& path, std::string* error) {
+  path_ = path;
+  failed_ = false;
+  file_ = std::fopen((path + ".tmp").c_str(), "wb");
+  if (file_ == nullptr) {
+    *error = "cannot write " + path + ".tmp";
+    return false;
+  }
+  return true;
+}
+
+void AtomicFileWriter::Write(std::string_view data) {
+  if (file_ == nullptr || failed_) return;
+  if (std::fwrite(data.data(), 1, data.size(), file_) != data.size()) failed_ = true;
+}
+
+bool AtomicFileWriter::Commit(std::string* error) {
+  if (file_ == nullptr) {
+    *error = "nothing to commit: " + path_;
+    return false;
+  }
+  const bool closed = std::fclose(file_) == 0;
+  file_ = nullptr;
+  const std::string tmp = path_ + ".tmp";
+  if (failed_ || !closed || std::rename(tmp.c_str(), path_.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    *error = "write failed (disk full?): " + path_;
+    return false;
+  }
+  return true;
+}
+
 std::string FormatTransformsCsv(const std::vector<TransformRow>& rows) {
   std::string out = std::string(kTransformsHeader) + "\n";
   char buf[256];  // the numbers only: the file name is appended whole, whatever its length or bytes

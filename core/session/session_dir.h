@@ -1,5 +1,7 @@
 #pragma once
+#include <cstdio>
 #include <optional>
+#include <string_view>
 #include <string>
 #include <vector>
 
@@ -23,6 +25,24 @@ struct SessionPaths {
 
 // Writes via a temp file and rename, so a reader never sees a half-written file.
 [[nodiscard]] bool WriteFileAtomic(const std::string& path, const std::string& contents, std::string* error);
+
+// A file written in pieces that appears whole or not at all: data goes to "<path>.tmp", Commit() renames it.
+// Dropped without Commit(), the temp file is removed.
+class AtomicFileWriter {
+ public:
+  AtomicFileWriter() = default;
+  ~AtomicFileWriter();
+  AtomicFileWriter(const AtomicFileWriter&) = delete;
+  AtomicFileWriter& operator=(const AtomicFileWriter&) = delete;
+  [[nodiscard]] bool Open(const std::string& path, std::string* error);
+  void Write(std::string_view data);  // errors are remembered and reported by Commit()
+  [[nodiscard]] bool Commit(std::string* error);
+
+ private:
+  std::FILE* file_ = nullptr;
+  std::string path_;
+  bool failed_ = false;
+};
 
 inline constexpr const char* kTransformsHeader = "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21";
 

@@ -15,6 +15,29 @@ double PeakRssMiB() {
   return static_cast<double>(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
 }
 
+double HighWaterRssMiB() {
+  FILE* f = std::fopen("/proc/self/status", "r");
+  if (f == nullptr) return 0.0;
+  char line[256];
+  double mib = 0.0;
+  while (std::fgets(line, sizeof(line), f) != nullptr) {
+    long kib = 0;
+    if (std::sscanf(line, "VmHWM: %ld kB", &kib) == 1) {
+      mib = static_cast<double>(kib) / 1024.0;
+      break;
+    }
+  }
+  std::fclose(f);
+  return mib;
+}
+
+bool ResetPeakRss() {
+  FILE* f = std::fopen("/proc/self/clear_refs", "w");
+  if (f == nullptr) return false;
+  const bool ok = std::fputs("5", f) >= 0;
+  return (std::fclose(f) == 0) && ok;
+}
+
 double CurrentRssMiB() {
   FILE* f = std::fopen("/proc/self/statm", "r");
   if (f == nullptr) return 0.0;
@@ -35,5 +58,7 @@ HeapStats CurrentHeapStats() {
   h.mmapped_mib = static_cast<double>(mi.hblkhd) / kMiB;
   return h;
 }
+
+void TrimHeap() { malloc_trim(0); }
 
 }  // namespace uavm

@@ -4,6 +4,11 @@ namespace uavm {
 
 // Peak resident set size of this process in MiB (getrusage ru_maxrss).
 [[nodiscard]] double PeakRssMiB();
+// Peak RSS since the last ResetPeakRss() (VmHWM of /proc/self/status), MiB; 0 when unavailable.
+[[nodiscard]] double HighWaterRssMiB();
+// Starts a new high-water mark (writes 5 to /proc/self/clear_refs), so that each phase of a run reports its own
+// peak. False when the kernel does not allow it (then HighWaterRssMiB() keeps the run's peak).
+bool ResetPeakRss();
 // Current resident set size in MiB (/proc/self/statm); 0 when unavailable.
 [[nodiscard]] double CurrentRssMiB();
 
@@ -15,5 +20,8 @@ struct HeapStats {
   double mmapped_mib = 0;
 };
 [[nodiscard]] HeapStats CurrentHeapStats();
+// Gives the allocator's free pages back to the kernel (glibc malloc_trim): freed edge points, feature sets and solver
+// blocks leave holes in the arenas that RSS would otherwise keep counting.
+void TrimHeap();
 
 }  // namespace uavm

@@ -1,0 +1,153 @@
+#include "core/session/edge_store.h"
+
+#include <array>
+#include <cstring>
+#include <vector>
+
+namespace uavm {
+
+namespace {
+
+constexpr std::array<char, 4> kMagic = {'U', 'E', 'D', 'G'};
+constexpr uint32_t kMaxPoints = 1u << 20;  // far above any edge: a guard against a corrupt count
+
+struct RecordHeader {
+  std::array<char, 4> magic;
+  int32_t src;
+  int32_t tgt;
+  uint32_t n;
+  uint32_t n_holdout;
+  uint32_t checksum;
+};
+static_assert(sizeof(RecordHeader) == 24, "edges.bin header layout");
+
+uint32_t Fnv1a(const void* data, size_t size) {
+  uint32_t h = 2166136261u;
+  const auto* p = static_cast<const unsigned char*>(data);
+  for (size_t i = 0; i < size; ++i) h = (h ^ p[i]) * 16777619u;
+  return h;
+}
+
+void Pack(const std::vector<Vec2>& a, const std::vector<Vec2>& b, std::vector<float>* out) {
+  for (size_t k = 0; k < a.size(); ++k) {
+    out->push_back(static_cast<float>(a[k].x()));
+    out->push_back(static_cast<float>(a[k].y()));
+    out->push_back(static_cast<float>(b[k].x()));
+    out->push_back(static_cast<float>(b[k].y()));
+  }
+}
+
+void Unpack(const float* p, size_t n, std::vector<Vec2>* a, std::vector<Vec2>* b) {
+  a->resize(n);
+  b->resize(n);
+  for (size_t k = 0; k < n; ++k, p += 4) {
+    (*a)[k] = Vec2(p[0], p[1]);
+    (*b)[k] = Vec2(p[2], p[3]);
+  }
+}
+
+template <typename T>
+void FreeVector(std::vector<T>* v) {
+  std::vector<T>().swap(*v);
+}
+
+}  // namespace
+
+EdgeStore::~EdgeStore() { Close(); }
+
+bool EdgeStore::Open(const std::string& path, std::string* error) {
+  Close();
+  file_ = std::fopen(path.c_str(), "w+b");
+  if (file_ == nullptr) {
+    *error = "cannot create " + path;
+    return false;
+  }
+  path_ = path;
+  bytes_written_ = 0;
+  return true;
+}
+
+void EdgeStore::Close() {
+  if (file_ != nullptr) std::fclose(file_);
+  file_ = nullptr;
+}
+
+bool EdgeStore::Append(Edge* edge, std::string* error) {
+  if (file_ == nullptr) {
+    *error = "edge store not open";
+    return false;
+  }
+  std::vector<float> payload;
+  payload.reserve(4 * (edge->src_points.size() + edge->holdout_src_points.size()));
+  Pack(edge->src_points, edge->tgt_points, &payload);
+  Pack(edge->holdout_src_points, edge->holdout_tgt_points, &payload);
+  RecordHeader h{kMagic,
+                 edge->src,
+                 edge->tgt,
+                 static_cast<uint32_t>(edge->src_points.size()),
+                 static_cast<uint32_t>(edge->holdout_src_points.size()),
+                 Fnv1a(payload.data(), payload.size() * sizeof(float))};
+  // Reads seek elsewhere: every append goes to the end explicitly.
+  if (std::fseek(file_, 0, SEEK_END) != 0) {
+    *error = "seek failed: " + path_;
+    return false;
+  }
+  const long offset = std::ftell(file_);
+  const bool ok = offset >= 0 && std::fwrite(&h, sizeof(h), 1, file_) == 1 &&
+                  (payload.empty() || std::fwrite(payload.data(), sizeof(float), payload.size(), file_) == payload.size());
+  if (!ok || std::fflush(file_) != 0) {
+    *error = "write failed (disk full?): " + path_;
+    return false;
+  }
+  edge->stored_at = offset;
+  bytes_written_ += sizeof(h) + payload.size() * sizeof(float);
+  return true;
+}
+
+bool EdgeStore::Load(Edge* edge, std::string* error) {
+  if (edge->points_resident) return true;
+  if (file_ == nullptr || edge->stored_at < 0) {
+    *error = "edge points are not stored";
+    return false;
+  }
+  RecordHeader h{};
+  if (std::fseek(file_, static_cast<long>(edge->stored_at), SEEK_SET) != 0 || std::fread(&h, sizeof(h), 1, file_) != 1 ||
+      h.magic != kMagic || h.src != edge->src || h.tgt != edge->tgt || h.n > kMaxPoints || h.n_holdout > kMaxPoints) {
+    *error = "edges.bin: bad record at " + std::to_string(edge->stored_at);
+    return false;
+  }
+  std::vector<float> payload(4 * (static_cast<size_t>(h.n) + h.n_holdout));
+  if ((!payload.empty() && std::fread(payload.data(), sizeof(float), payload.size(), file_) != payload.size()) ||
+      Fnv1a(payload.data(), payload.size() * sizeof(float)) != h.checksum) {
+    *error = "edges.bin: corrupt record at " + std::to_string(edge->stored_at);
+    return false;
+  }
+  Unpack(payload.data(), h.n, &edge->src_points, &edge->tgt_points);
+  Unpack(payload.data() + 4 * static_cast<size_t>(h.n), h.n_holdout, &edge->holdout_src_points,
+         &edge->holdout_tgt_points);
+  edge->points_resident = true;
+  return true;
+}
+
+size_t EdgeStore::Release(Edge* edge) {
+  if (!edge->points_resident || edge->stored_at < 0) return 0;
+  const size_t bytes = PointBytes(*edge);
+  FreeVector(&edge->src_points);
+  FreeVector(&edge->tgt_points);
+  FreeVector(&edge->holdout_src_points);
+  FreeVector(&edge->holdout_tgt_points);
+  edge->points_resident = false;
+  return bytes;
+}
+
+void RoundToFloat(Edge* edge) {
+  for (auto* v : {&edge->src_points, &edge->tgt_points, &edge->holdout_src_points, &edge->holdout_tgt_points})
+    for (auto& p : *v) p = Vec2(static_cast<float>(p.x()), static_cast<float>(p.y()));
+}
+
+size_t PointBytes(const Edge& edge) {
+  return sizeof(Vec2) * (edge.src_points.capacity() + edge.tgt_points.capacity() + edge.holdout_src_points.capacity() +
+                         edge.holdout_tgt_points.capacity());
+}
+
+}  // namespace uavm

@@ -1,0 +1,168 @@
+#include "core/session/journal.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <nlohmann/json.hpp>
+
+#include "core/session/session_dir.h"
+
+namespace uavm {
+
+namespace {
+constexpr int kVersion = 1;
+// File names are bytes, JSON is UTF-8: invalid sequences are replaced rather than thrown on.
+std::string Dump(const nlohmann::json& j) { return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace); }
+}  // namespace
+
+bool ParseJournal(const std::string& text, JournalContents* out, std::string* error) {
+  *out = JournalContents{};
+  size_t pos = 0;
+  bool first = true;
+  while (pos < text.size()) {
+    const size_t nl = text.find('\n', pos);
+    if (nl == std::string::npos) {
+      out->torn_lines = 1;  // the kill came in the middle of a write
+      break;
+    }
+    const nlohmann::json j = nlohmann::json::parse(text.begin() + static_cast<long>(pos),
+                                                   text.begin() + static_cast<long>(nl), nullptr, false);
+    if (j.is_discarded() || !j.is_object() || !j.contains("type") || !j["type"].is_string()) {
+      if (first) {
+        *error = "not a uavmosaic session journal";
+        return false;
+      }
+      out->torn_lines = 1;
+      break;
+    }
+    const std::string type = j["type"].get<std::string>();
+    try {
+      if (first) {
+        if (type != "session" || j.value("version", 0) != kVersion) {
+          *error = "not a uavmosaic session journal (or a newer version)";
+          return false;
+        }
+      } else if (type == "frame") {
+        JournalFrame f;
+        f.id = j.at("id").get<int>();
+        f.name = j.at("name").get<std::string>();
+        f.stored_file = j.at("stored").get<std::string>();
+        f.timestamp_ns = j.at("timestamp_ns").get<int64_t>();
+        f.width = j.at("width").get<int>();
+        f.height = j.at("height").get<int>();
+        // Frames are journaled in id order, one each: anything else is not this program's journal.
+        if (f.id != static_cast<int>(out->frames.size()) || f.width <= 0 || f.height <= 0 ||
+            f.stored_file.find('/') != std::string::npos || f.stored_file.empty()) {
+          out->torn_lines = 1;
+          break;
+        }
+        out->frames.push_back(std::move(f));
+      } else if (type == "skipped") {
+        out->skipped.push_back({j.at("name").get<std::string>(), j.at("reason").get<std::string>()});
+      } else if (type == "finished") {
+        out->finished = true;
+      }  // "resumed" and unknown types: informational
+    } catch (const nlohmann::json::exception&) {
+      out->torn_lines = 1;
+      break;
+    }
+    first = false;
+    pos = nl + 1;
+    out->valid_bytes = pos;
+  }
+  return true;
+}
+
+bool ReadJournal(const std::string& path, JournalContents* out, std::string* error) {
+  *out = JournalContents{};
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) return true;
+  std::string text;
+  if (!ReadTextFile(path, &text, error)) return false;
+  return ParseJournal(text, out, error);
+}
+
+SessionJournal::~SessionJournal() { Close(); }
+
+bool SessionJournal::Open(const std::string& path, bool append, uint64_t valid_bytes, int sync_every,
+                          std::string* error) {
+  Close();
+  path_ = path;
+  sync_every_ = std::max(1, sync_every);
+  std::error_code ec;
+  if (append && !std::filesystem::exists(path, ec)) append = false;  // killed before its first line: start anew
+  if (append) {
+    // Cut off a torn last line before appending after it.
+    std::filesystem::resize_file(path, valid_bytes, ec);
+    if (ec) {
+      *error = "cannot repair journal " + path + ": " + ec.message();
+      return false;
+    }
+  }
+  file_ = std::fopen(path.c_str(), append ? "ab" : "wb");
+  if (file_ == nullptr) {
+    *error = "cannot write journal " + path;
+    return false;
+  }
+  if (!append || valid_bytes == 0) {
+    nlohmann::json j{{"type", "session"}, {"version", kVersion}};
+    return WriteLine(Dump(j), true, error);
+  }
+  return true;
+}
+
+void SessionJournal::Close() {
+  if (file_ != nullptr) {
+    std::fflush(file_);
+    ::fdatasync(fileno(file_));
+    std::fclose(file_);
+  }
+  file_ = nullptr;
+}
+
+bool SessionJournal::WriteLine(const std::string& line, bool sync, std::string* error) {
+  if (file_ == nullptr) {
+    *error = "journal not open";
+    return false;
+  }
+  const std::string with_newline = line + "\n";
+  // One fwrite + fflush per line: the kernel gets whole lines, so a killed process leaves at most one torn line.
+  if (std::fwrite(with_newline.data(), 1, with_newline.size(), file_) != with_newline.size() ||
+      std::fflush(file_) != 0) {
+    *error = "journal write failed (disk full?): " + path_;
+    return false;
+  }
+  if (sync || ++since_sync_ >= sync_every_) {
+    since_sync_ = 0;
+    ++syncs_;
+    if (::fdatasync(fileno(file_)) != 0) {
+      *error = "journal sync failed: " + path_;
+      return false;
+    }
+  }
+  return true;
+}
+
+bool SessionJournal::AddFrame(const JournalFrame& f, std::string* error) {
+  const nlohmann::json j{{"type", "frame"},       {"id", f.id},       {"name", f.name},
+                         {"stored", f.stored_file}, {"timestamp_ns", f.timestamp_ns}, {"width", f.width},
+                         {"height", f.height}};
+  return WriteLine(Dump(j), false, error);
+}
+
+bool SessionJournal::AddSkip(const JournalSkip& s, std::string* error) {
+  const nlohmann::json j{{"type", "skipped"}, {"name", s.name}, {"reason", s.reason}};
+  return WriteLine(Dump(j), false, error);
+}
+
+bool SessionJournal::AddResumed(size_t frames, std::string* error) {
+  const nlohmann::json j{{"type", "resumed"}, {"frames", frames}};
+  return WriteLine(Dump(j), true, error);
+}
+
+bool SessionJournal::AddFinished(std::string* error) {
+  const nlohmann::json j{{"type", "finished"}};
+  return WriteLine(Dump(j), true, error);
+}
+
+}  // namespace uavm
