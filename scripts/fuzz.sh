@@ -8,8 +8,8 @@
 #   scripts/fuzz.sh --target fuzz_config # one target
 #
 # New inputs of a run go to <build-dir>/fuzz-work/<target>/, not into the repository, unless --minimize. A crash
-# leaves its input in <build-dir>/fuzz-artifacts/<target>/ and fails the script (exit 1); add it to the target's
-# corpus as a regression once fixed.
+# leaves its input in <build-dir>/fuzz-artifacts/<target>/ and fails the script (exit 1); once fixed, add it to
+# fuzz/regressions/<target>/ (run every time, never minimised away).
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 RUNS=20000
@@ -23,11 +23,11 @@ while [ $# -gt 0 ]; do
     --build-dir) BUILD_DIR="$2"; shift 2 ;;
     --minimize) MINIMIZE=1; shift ;;
     --target) ONLY="$2"; shift 2 ;;
-    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
     *) echo "fuzz.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
-TARGETS=(fuzz_config fuzz_metadata fuzz_transforms_csv fuzz_features_bin)
+TARGETS=(fuzz_config fuzz_metadata fuzz_transforms_csv fuzz_features_bin fuzz_edges_bin)
 if [ -n "$ONLY" ]; then TARGETS=("$ONLY"); fi
 
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ not found (apt-get install clang)" >&2; exit 2; }
@@ -46,6 +46,8 @@ failed=0
 rows=()
 for t in "${TARGETS[@]}"; do
   corpus="$ROOT/fuzz/corpus/$t"
+  regressions=()
+  if [ -d "$ROOT/fuzz/regressions/$t" ]; then regressions=("$ROOT/fuzz/regressions/$t"); fi
   work="$BUILD_DIR/fuzz-work/$t"
   artifacts="$BUILD_DIR/fuzz-artifacts/$t"
   mkdir -p "$corpus" "$work" "$artifacts"
@@ -55,7 +57,7 @@ for t in "${TARGETS[@]}"; do
   status=0
   # -max_len: enough for a config or a small JPEG header with EXIF/XMP; -timeout: a hang is a bug too.
   nice -n 10 "$BUILD_DIR/fuzz/$t" -runs="$RUNS" -max_len=65536 -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
-    -artifact_prefix="$artifacts/" "$work" "$corpus" >"$log" 2>&1 || status=$?
+    -artifact_prefix="$artifacts/" "$work" "$corpus" "${regressions[@]}" >"$log" 2>&1 || status=$?
   secs=$(awk -v a="$t0" -v b="$(date +%s%N)" 'BEGIN { printf "%.1f", (b - a) / 1e9 }')
   execs=$(grep -oE 'stat::number_of_executed_units: *[0-9]+' "$log" | grep -oE '[0-9]+$' || true)
   crashes=$(find "$artifacts" -type f | wc -l)
