@@ -65,7 +65,7 @@ void GlobalIndex::Thin() {
 
 void GlobalIndex::Release() {
   index_.reset();
-  index_data_ = cv::Mat();
+  index_rows_ = 0;
   descriptors_ = cv::Mat();
   frame_of_row_.clear();
   frame_of_row_.shrink_to_fit();
@@ -83,9 +83,12 @@ std::vector<int> GlobalIndex::Query(const Features& features, int max_results, b
   if (dirty_ && !stale_ok) {
     added_since_build_ = 0;
     // Rebuilt lazily: relocalisation is rare, adding frames is not.
-    index_data_ = DequantizeDescriptors(descriptors_);
     index_frame_of_row_ = frame_of_row_;  // rows of the built tree, valid even after a later Thin()
-    index_ = std::make_unique<cv::flann::Index>(index_data_, cv::flann::KDTreeIndexParams(4), cvflann::FLANN_DIST_L2);
+    // cv::flann::Index keeps its own copy of the data: the float rows are a temporary here.
+    index_.reset();
+    index_ = std::make_unique<cv::flann::Index>(DequantizeDescriptors(descriptors_), cv::flann::KDTreeIndexParams(4),
+                                                cvflann::FLANN_DIST_L2);
+    index_rows_ = descriptors_.rows;
     dirty_ = false;
   }
   const cv::Mat query =
@@ -98,10 +101,10 @@ std::vector<int> GlobalIndex::Query(const Features& features, int max_results, b
   for (int q = 0; q < query.rows; ++q) {
     const int t0 = indices.at<int>(q, 0);
     const int t1 = indices.at<int>(q, 1);
-    if (t0 < 0 || t0 >= index_data_.rows) continue;
+    if (t0 < 0 || t0 >= index_rows_) continue;
     const int f0 = index_frame_of_row_[static_cast<size_t>(t0)];
     // Two neighbours from the same frame do not make the match ambiguous.
-    const bool same_frame = t1 >= 0 && t1 < index_data_.rows && index_frame_of_row_[static_cast<size_t>(t1)] == f0;
+    const bool same_frame = t1 >= 0 && t1 < index_rows_ && index_frame_of_row_[static_cast<size_t>(t1)] == f0;
     if (same_frame || dists.at<float>(q, 0) < ratio_sq * dists.at<float>(q, 1)) ++votes[f0];
   }
   std::vector<std::pair<int, int>> ranked;

@@ -49,7 +49,7 @@ class GlobalIndex {
   std::vector<int> frame_of_row_;
   std::vector<int> rank_in_frame_;  // 0..quota-1, used to thin evenly
   std::unique_ptr<cv::flann::Index> index_;
-  cv::Mat index_data_;  // CV_32F copy the FLANN index borrows
+  int index_rows_ = 0;  // rows of the built tree
   std::vector<int> index_frame_of_row_;
   bool dirty_ = true;
   int added_since_build_ = 0;
