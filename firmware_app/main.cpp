@@ -9,6 +9,7 @@
 #include <map>
 #include <string>
 
+#include "core/util/memory.h"
 #include "firmware_app/app.h"
 
 int main(int argc, char** argv) {
@@ -79,6 +80,7 @@ int main(int argc, char** argv) {
     return e.get_exit_code() == 0 ? cli.exit(e) : (cli.exit(e), app::kExitUsage);
   }
   spdlog::set_level(spdlog::level::from_str(log_level));
+  CountLogWarnings();  // report.json says how many warnings and errors the run logged
   std::string why;
   if (!p.Check(&why)) {
     spdlog::error("invalid configuration: {}", why);

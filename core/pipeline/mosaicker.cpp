@@ -58,6 +58,7 @@ Mosaicker::Mosaicker(const PipelineOptions& options, SessionPaths paths)
       global_index_(options.relocalization),
       preview_(options.preview_side),
       start_ns_(MonotonicNs()) {
+  fds_at_start_ = OpenFileDescriptors();
   std::string error;
   // Without the file every edge keeps its points in memory: slower to grow flat, nothing lost.
   if (!edge_store_.Open(paths_.Join("edges.bin"), &error)) spdlog::warn("{}; edge points stay in memory", error);
@@ -564,6 +565,7 @@ bool Mosaicker::Finish(std::string* error) {
   flight_peak_rss_mib_ = std::max(PeakRssMiB(), HighWaterRssMiB());
   flight_end_rss_mib_ = CurrentRssMiB();
   flight_end_heap_ = CurrentHeapStats();
+  fds_at_flight_end_ = OpenFileDescriptors();
   ResetPeakRss();
   Densify();
   // Nothing after this point matches features: their memory goes to the refinement and the compositor.

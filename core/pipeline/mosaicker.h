@@ -123,7 +123,9 @@ class Mosaicker {
   MatchGraph graph_;
   EdgeStore edge_store_;
   SessionJournal journal_;
-  size_t resumed_frames_ = 0;  // frames taken from the journal of an interrupted run
+  size_t resumed_frames_ = 0;
+  int fds_at_start_ = -1;       // open file descriptors when the flight began and when it ended: a long flight must
+  int fds_at_flight_end_ = -1;  // not leak any  // frames taken from the journal of an interrupted run
   size_t release_cursor_ = 0;     // edges before it have been considered by ReleaseColdEdges
   size_t edges_released_ = 0;     // edges whose points went to disk during the flight
   size_t edge_bytes_released_ = 0;

@@ -262,6 +262,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
                       {"seconds", refine_.seconds}};
   report["wall_s"] = static_cast<double>(MonotonicNs() - start_ns_) * 1e-9;  // this run's, after a resume too
   report["resumed_frames"] = resumed_frames_;
+  report["open_fds"] = {{"flight_start", fds_at_start_}, {"flight_end", fds_at_flight_end_}};
+  report["log"] = {{"warnings", LogWarnings()}, {"errors", LogErrors()}};
   report["journal_syncs"] = journal_.syncs();
   report["peak_rss_mib"] = PeakRssMiB();
   report["reference_frame"] = component.empty() ? -1 : component.front();

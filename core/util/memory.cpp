@@ -7,6 +7,13 @@
 
 #include <cstdio>
 
+#include <atomic>
+#include <filesystem>
+#include <memory>
+
+#include <spdlog/sinks/base_sink.h>
+#include <spdlog/spdlog.h>
+
 namespace uavm {
 
 double PeakRssMiB() {
@@ -60,5 +67,36 @@ HeapStats CurrentHeapStats() {
 }
 
 void TrimHeap() { malloc_trim(0); }
+
+namespace {
+std::atomic<size_t> g_log_warnings{0};
+std::atomic<size_t> g_log_errors{0};
+
+class CountingSink final : public spdlog::sinks::base_sink<spdlog::details::null_mutex> {
+ protected:
+  void sink_it_(const spdlog::details::log_msg& msg) override {
+    if (msg.level == spdlog::level::warn) ++g_log_warnings;
+    if (msg.level >= spdlog::level::err && msg.level != spdlog::level::off) ++g_log_errors;
+  }
+  void flush_() override {}
+};
+}  // namespace
+
+int OpenFileDescriptors() {
+  std::error_code ec;
+  int n = 0;
+  for (auto it = std::filesystem::directory_iterator("/proc/self/fd", ec); !ec && it != std::filesystem::directory_iterator();
+       it.increment(ec))
+    ++n;
+  return ec ? -1 : n - 1;  // minus the directory iterator's own descriptor
+}
+
+size_t LogWarnings() { return g_log_warnings.load(); }
+size_t LogErrors() { return g_log_errors.load(); }
+
+void CountLogWarnings() {
+  auto logger = spdlog::default_logger();
+  if (logger) logger->sinks().push_back(std::make_shared<CountingSink>());
+}
 
 }  // namespace uavm

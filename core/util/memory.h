@@ -1,4 +1,5 @@
 #pragma once
+#include <cstddef>
 
 namespace uavm {
 
@@ -20,6 +21,14 @@ struct HeapStats {
   double mmapped_mib = 0;
 };
 [[nodiscard]] HeapStats CurrentHeapStats();
+// Open file descriptors of this process (/proc/self/fd); -1 when unavailable. A long flight must not grow it.
+[[nodiscard]] int OpenFileDescriptors();
+// Log lines at warning level and above since start (counted by a sink on the default logger, see CountLogWarnings).
+[[nodiscard]] size_t LogWarnings();
+[[nodiscard]] size_t LogErrors();
+// Adds the counting sink to spdlog's default logger (once, at start-up).
+void CountLogWarnings();
+
 // Gives the allocator's free pages back to the kernel (glibc malloc_trim): freed edge points, feature sets and solver
 // blocks leave holes in the arenas that RSS would otherwise keep counting.
 void TrimHeap();
