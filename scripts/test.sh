@@ -7,6 +7,10 @@ bash "$ROOT/scripts/build.sh"
 cd "$BUILD_DIR"
 ctest --output-on-failure -j "$(nproc)" --timeout 900
 
+# ---- sanitizers: the whole suite again, built with ASan + UBSan, LeakSanitizer on (build-asan/) -------------------
+bash "$ROOT/scripts/test_asan.sh"
+# ---- end of sanitizers ---------------------------------------------------------------------------------------------
+
 # ---- fuzzing: a short run of every libFuzzer target (fuzz/, build-fuzz/; the long run is bench/fuzz.sh) ----------
 # clang provides libFuzzer; installed when missing by the same helper. A crash fails the script.
 bash "$ROOT/scripts/setup.sh" clang

@@ -1,5 +1,7 @@
 #include "hal/replay/replay_source.h"
 
+#include <opencv2/videoio/registry.hpp>
+
 #include <jerror.h>
 #include <jpeglib.h>
 
@@ -244,7 +246,10 @@ Status ReplaySource::Open(std::string* error) {
     return Status::kOk;
   }
   if (fs::is_regular_file(root, ec) && LooksLikeVideo(root)) {
-    video_ = std::make_unique<cv::VideoCapture>(options_.path);
+    // FFmpeg reads every container a drone writes; asking for it alone keeps OpenCV from probing its other back-ends
+    // (GStreamer, camera plugins) on a file that does not open — slow, and their plugins never free what they take.
+    const int api = cv::videoio_registry::hasBackend(cv::CAP_FFMPEG) ? cv::CAP_FFMPEG : cv::CAP_ANY;
+    video_ = std::make_unique<cv::VideoCapture>(options_.path, api);
     if (!video_->isOpened()) {
       *error = "cannot open video " + options_.path;
       return Status::kError;
