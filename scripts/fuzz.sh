@@ -27,7 +27,7 @@ while [ $# -gt 0 ]; do
     *) echo "fuzz.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
-TARGETS=(fuzz_config fuzz_metadata fuzz_transforms_csv fuzz_features_bin fuzz_edges_bin)
+TARGETS=(fuzz_config fuzz_metadata fuzz_transforms_csv fuzz_features_bin fuzz_edges_bin fuzz_journal)
 if [ -n "$ONLY" ]; then TARGETS=("$ONLY"); fi
 
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ not found (apt-get install clang)" >&2; exit 2; }
