@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <limits>
 #include <nlohmann/json.hpp>
 
 #include "core/session/session_dir.h"
@@ -13,6 +14,21 @@ namespace {
 constexpr int kVersion = 1;
 // File names are bytes, JSON is UTF-8: invalid sequences are replaced rather than thrown on.
 std::string Dump(const nlohmann::json& j) { return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace); }
+
+// An integer field within [lo, hi]; anything else (missing, a float, a string, out of range) is not this program's
+// journal. nlohmann's get<int>() of 2e76 would be undefined behaviour, hence the checks first.
+bool IntField(const nlohmann::json& j, const char* key, int64_t lo, int64_t hi, int64_t* out) {
+  const auto it = j.find(key);
+  if (it == j.end() || !it->is_number_integer()) return false;
+  if (it->is_number_unsigned()) {
+    const uint64_t u = it->get<uint64_t>();
+    if (u > static_cast<uint64_t>(hi)) return false;
+    *out = static_cast<int64_t>(u);
+  } else {
+    *out = it->get<int64_t>();
+  }
+  return *out >= lo && *out <= hi;
+}
 }  // namespace
 
 bool ParseJournal(const std::string& text, JournalContents* out, std::string* error) {
@@ -38,18 +54,29 @@ bool ParseJournal(const std::string& text, JournalContents* out, std::string* er
     const std::string type = j["type"].get<std::string>();
     try {
       if (first) {
-        if (type != "session" || j.value("version", 0) != kVersion) {
+        int64_t version = 0;
+        if (type != "session" || !IntField(j, "version", 0, 1 << 20, &version) || version != kVersion) {
           *error = "not a uavmosaic session journal (or a newer version)";
           return false;
         }
       } else if (type == "frame") {
         JournalFrame f;
-        f.id = j.at("id").get<int>();
+        int64_t id = 0;
+        int64_t width = 0;
+        int64_t height = 0;
+        constexpr int64_t kMaxInt = std::numeric_limits<int>::max();
+        if (!IntField(j, "id", 0, kMaxInt, &id) || !IntField(j, "width", 1, kMaxInt, &width) ||
+            !IntField(j, "height", 1, kMaxInt, &height) ||
+            !IntField(j, "timestamp_ns", std::numeric_limits<int64_t>::min(), std::numeric_limits<int64_t>::max(),
+                      &f.timestamp_ns)) {
+          out->torn_lines = 1;
+          break;
+        }
+        f.id = static_cast<int>(id);
+        f.width = static_cast<int>(width);
+        f.height = static_cast<int>(height);
         f.name = j.at("name").get<std::string>();
         f.stored_file = j.at("stored").get<std::string>();
-        f.timestamp_ns = j.at("timestamp_ns").get<int64_t>();
-        f.width = j.at("width").get<int>();
-        f.height = j.at("height").get<int>();
         // Frames are journaled in id order, one each: anything else is not this program's journal.
         if (f.id != static_cast<int>(out->frames.size()) || f.width <= 0 || f.height <= 0 ||
             f.stored_file.find('/') != std::string::npos || f.stored_file.empty()) {
