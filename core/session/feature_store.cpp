@@ -75,7 +75,9 @@ std::string FeatureStore::PathOf(int id) const {
   return dir_ + name;
 }
 
-bool FeatureStore::Put(int id, const Features& features, std::string* error) {
+namespace {
+// What the store keeps of a frame's features: its own copy, descriptors quantised to 8 bits.
+std::shared_ptr<Features> QuantizedCopy(const Features& features) {
   auto q = std::make_shared<Features>();
   q->points = features.points;
   if (features.descriptors.type() == CV_8U)
@@ -83,20 +85,19 @@ bool FeatureStore::Put(int id, const Features& features, std::string* error) {
   else
     features.descriptors.convertTo(q->descriptors, CV_8U, kQuant);
   q->contrast_threshold_used = features.contrast_threshold_used;
+  return q;
+}
+}  // namespace
+
+bool FeatureStore::Put(int id, const Features& features, std::string* error) {
+  auto q = QuantizedCopy(features);
   if (!WriteFeatures(PathOf(id), *q, error)) return false;
   Insert(id, std::move(q));
   return true;
 }
 
 void FeatureStore::Adopt(int id, const Features& features) {
-  auto q = std::make_shared<Features>();
-  q->points = features.points;
-  if (features.descriptors.type() == CV_8U)
-    q->descriptors = features.descriptors.clone();
-  else
-    features.descriptors.convertTo(q->descriptors, CV_8U, kQuant);
-  q->contrast_threshold_used = features.contrast_threshold_used;
-  Insert(id, std::move(q));
+  Insert(id, QuantizedCopy(features));
 }
 
 bool FeatureStore::Load(int id, Features* features, std::string* error) const {
