@@ -171,6 +171,7 @@ int Run(const RunConfig& config) {
       static_cast<size_t>(pipeline.queue_capacity),
       source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock : BoundedQueue<Item>::Policy::kDropOldest);
   bool source_failed = false;
+  bool storage_stopped = false;
   std::string source_error;
   std::thread capture([&] {
     int delivered = static_cast<int>(journal.frames.size());
@@ -220,6 +221,16 @@ int Run(const RunConfig& config) {
     } catch (const std::exception& e) {
       spdlog::error("frame {} could not be registered: {}", item->name, e.what());
     }
+    if (!mosaicker.storage_failure().empty()) {
+      // Disk full (or the storage went away): taking more frames would only lose them. What is stored stays valid,
+      // and a resumed run takes the rest from the source.
+      spdlog::error("the session cannot store frames any more (disk full?): capture stopped after {} frames; "
+                    "free space and run again with --resume",
+                    mosaicker.frames_in());
+      storage_stopped = true;
+      queue.Close();
+      break;
+    }
     const auto& stats = mosaicker.stage_stats();
     if (mosaicker.frames_in() % 10 == 0)
       spdlog::info("{} frames, median {:.0f} ms/frame, RSS {:.0f} MiB", mosaicker.frames_in(),
@@ -239,6 +250,7 @@ int Run(const RunConfig& config) {
   }
   spdlog::info("done: {}/{} registered, residual RMS {:.2f} px, peak RSS {:.0f} MiB", mosaicker.registered_count(),
                mosaicker.frames_in(), mosaicker.residual_rms_px(), PeakRssMiB());
+  if (storage_stopped) return kExitOutputError;
   if (mosaicker.registered_count() == 0) return kExitNothingRegistered;
   return source_failed ? kExitSourceError : kExitOk;
 }

@@ -1,6 +1,7 @@
 #pragma once
 #include <cstdint>
 #include <cstddef>
+#include <deque>
 #include <vector>
 
 #include "core/geometry/transform.h"
@@ -42,8 +43,9 @@ class MatchGraph {
  public:
   void AddNode(int id);
   void AddEdge(Edge edge);
-  [[nodiscard]] const std::vector<Edge>& edges() const { return edges_; }
-  [[nodiscard]] std::vector<Edge>& mutable_edges() { return edges_; }
+  // A deque: edges are never moved once added (no doubling copy of every record as a long flight grows them).
+  [[nodiscard]] const std::deque<Edge>& edges() const { return edges_; }
+  [[nodiscard]] std::deque<Edge>& mutable_edges() { return edges_; }
   [[nodiscard]] const std::vector<int>& nodes() const { return nodes_; }
   [[nodiscard]] int MaxInliers() const;
   // An edge counts when its inliers reach both the absolute floor and `relative` x the best edge's count
@@ -54,7 +56,7 @@ class MatchGraph {
 
  private:
   std::vector<int> nodes_;
-  std::vector<Edge> edges_;
+  std::deque<Edge> edges_;
 };
 
 }  // namespace uavm

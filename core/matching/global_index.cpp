@@ -23,21 +23,27 @@ bool GlobalIndexOptions::Check(std::string* why) const {
   return true;
 }
 
-GlobalIndex::GlobalIndex(const GlobalIndexOptions& options) : options_(options), quota_(options.descriptors_per_frame) {
-  descriptors_.reserve(static_cast<size_t>(options.max_descriptors));
+GlobalIndex::GlobalIndex(const GlobalIndexOptions& options)
+    : options_(options),
+      quota_(options.descriptors_per_frame),
+      descriptors_(options.max_descriptors, kDescriptorSize, CV_8U) {
+  const auto cap = static_cast<size_t>(options.max_descriptors);
+  frame_of_row_.reserve(cap);
+  rank_in_frame_.reserve(cap);
+  index_frame_of_row_.reserve(cap);
 }
 
 void GlobalIndex::Add(int frame_id, const Features& features) {
   const int n = features.descriptors.rows;
-  if (n == 0) return;
+  if (n == 0 || descriptors_.empty() || features.descriptors.cols != kDescriptorSize) return;
   const int take = std::min(n, quota_);
   const cv::Mat q =
       features.descriptors.type() == CV_8U ? features.descriptors : QuantizeDescriptors(features.descriptors);
-  while (descriptors_.rows + take > options_.max_descriptors && quota_ > 1) Thin();
-  const int take_now = std::min(take, quota_);
+  while (rows_ + take > options_.max_descriptors && quota_ > 1) Thin();
+  const int take_now = std::min({take, quota_, options_.max_descriptors - rows_});
   for (int k = 0; k < take_now; ++k) {
     const int row = static_cast<int>(static_cast<long>(k) * n / take_now);  // evenly spread over the frame's list
-    descriptors_.push_back(q.row(row));
+    q.row(row).copyTo(descriptors_.row(rows_++));
     frame_of_row_.push_back(frame_id);
     rank_in_frame_.push_back(k);
   }
@@ -46,18 +52,21 @@ void GlobalIndex::Add(int frame_id, const Features& features) {
 }
 
 void GlobalIndex::Thin() {
-  cv::Mat kept;
-  std::vector<int> frames;
-  std::vector<int> ranks;
-  for (int r = 0; r < descriptors_.rows; ++r) {
-    if (rank_in_frame_[static_cast<size_t>(r)] % 2 != 0) continue;
-    kept.push_back(descriptors_.row(r));
-    frames.push_back(frame_of_row_[static_cast<size_t>(r)]);
-    ranks.push_back(rank_in_frame_[static_cast<size_t>(r)] / 2);
+  index_.reset();  // the tree borrows rows that are about to move
+  index_rows_ = 0;
+  int kept = 0;
+  for (int r = 0; r < rows_; ++r) {
+    const auto rs = static_cast<size_t>(r);
+    if (rank_in_frame_[rs] % 2 != 0) continue;
+    const auto ks = static_cast<size_t>(kept);
+    if (kept != r) descriptors_.row(r).copyTo(descriptors_.row(kept));
+    frame_of_row_[ks] = frame_of_row_[rs];
+    rank_in_frame_[ks] = rank_in_frame_[rs] / 2;
+    ++kept;
   }
-  descriptors_ = kept;
-  frame_of_row_ = std::move(frames);
-  rank_in_frame_ = std::move(ranks);
+  rows_ = kept;
+  frame_of_row_.resize(static_cast<size_t>(kept));
+  rank_in_frame_.resize(static_cast<size_t>(kept));
   quota_ = std::max(1, quota_ / 2);
   dirty_ = true;
   ++thinnings_;
@@ -66,7 +75,8 @@ void GlobalIndex::Thin() {
 void GlobalIndex::Release() {
   index_.reset();
   index_rows_ = 0;
-  descriptors_ = cv::Mat();
+  rows_ = 0;
+  descriptors_.release();
   frame_of_row_.clear();
   frame_of_row_.shrink_to_fit();
   rank_in_frame_.clear();
@@ -78,24 +88,29 @@ void GlobalIndex::Release() {
 
 std::vector<int> GlobalIndex::Query(const Features& features, int max_results, bool allow_stale) {
   std::vector<int> out;
-  if (descriptors_.rows < 2 || features.descriptors.rows == 0) return out;
+  if (rows_ < 2 || features.descriptors.rows == 0 || features.descriptors.cols != kDescriptorSize) return out;
   const bool stale_ok = allow_stale && index_ && added_since_build_ < options_.rebuild_every_frames;
   if (dirty_ && !stale_ok) {
     added_since_build_ = 0;
     // Rebuilt lazily: relocalisation is rare, adding frames is not.
-    index_frame_of_row_ = frame_of_row_;  // rows of the built tree, valid even after a later Thin()
-    // cv::flann::Index keeps its own copy of the data: the float rows are a temporary here.
+    index_frame_of_row_.assign(frame_of_row_.begin(), frame_of_row_.end());  // within the reserved capacity
     index_.reset();
-    index_ = std::make_unique<cv::flann::Index>(DequantizeDescriptors(descriptors_), cv::flann::KDTreeIndexParams(4),
-                                                cvflann::FLANN_DIST_L2);
-    index_rows_ = descriptors_.rows;
+    const cvflann::Matrix<unsigned char> rows(descriptors_.ptr<unsigned char>(), static_cast<size_t>(rows_),
+                                              static_cast<size_t>(kDescriptorSize));
+    index_ = std::make_unique<Tree>(rows, cvflann::KDTreeIndexParams(4));
+    index_->buildIndex();
+    index_rows_ = rows_;
     dirty_ = false;
   }
-  const cv::Mat query =
-      features.descriptors.type() == CV_32F ? features.descriptors : DequantizeDescriptors(features.descriptors);
+  cv::Mat query = QuantizeDescriptors(features.descriptors);
+  if (!query.isContinuous()) query = query.clone();
   cv::Mat indices(query.rows, 2, CV_32S);
   cv::Mat dists(query.rows, 2, CV_32F);
-  index_->knnSearch(query, indices, dists, 2, cv::flann::SearchParams(64));
+  cvflann::Matrix<unsigned char> query_rows(query.ptr<unsigned char>(), static_cast<size_t>(query.rows),
+                                            static_cast<size_t>(kDescriptorSize));
+  cvflann::Matrix<int> index_rows(indices.ptr<int>(), static_cast<size_t>(query.rows), 2);
+  cvflann::Matrix<float> dist_rows(dists.ptr<float>(), static_cast<size_t>(query.rows), 2);
+  index_->knnSearch(query_rows, index_rows, dist_rows, 2, cvflann::SearchParams(64));
   const float ratio_sq = static_cast<float>(options_.ratio * options_.ratio);
   std::map<int, int> votes;
   for (int q = 0; q < query.rows; ++q) {

@@ -32,7 +32,7 @@ class GlobalIndex {
   // the kd-tree is rebuilt only after `rebuild_every_frames` additions: a per-frame query then costs a search, not a
   // rebuild, and misses only the newest frames (which recency matching covers anyway).
   [[nodiscard]] std::vector<int> Query(const Features& features, int max_results, bool allow_stale = false);
-  [[nodiscard]] size_t size() const { return static_cast<size_t>(descriptors_.rows); }
+  [[nodiscard]] size_t size() const { return static_cast<size_t>(rows_); }
   [[nodiscard]] int per_frame_quota() const { return quota_; }
   [[nodiscard]] int thinnings() const { return thinnings_; }  // times every frame's share was halved
   // Frees the index (the end of the flight does not relocalise).
@@ -45,10 +45,16 @@ class GlobalIndex {
 
   GlobalIndexOptions options_;
   int quota_;
-  cv::Mat descriptors_;  // CV_8U rows
+  // The kd-tree searches the 8-bit rows in place (L2 over bytes ranks neighbours exactly as over the dequantised
+  // floats): no float copy, and every buffer is sized once for max_descriptors, so building the tree late in a long
+  // flight does not raise the resident memory by a copy of the data.
+  static constexpr int kDescriptorSize = 128;  // SIFT
+  using Tree = cvflann::Index<cvflann::L2<unsigned char>>;
+  cv::Mat descriptors_;  // CV_8U, max_descriptors rows allocated once; the first rows_ are in use
+  int rows_ = 0;
   std::vector<int> frame_of_row_;
   std::vector<int> rank_in_frame_;  // 0..quota-1, used to thin evenly
-  std::unique_ptr<cv::flann::Index> index_;
+  std::unique_ptr<Tree> index_;  // borrows descriptors_' rows [0, index_rows_): reset before they move
   int index_rows_ = 0;  // rows of the built tree
   std::vector<int> index_frame_of_row_;
   bool dirty_ = true;

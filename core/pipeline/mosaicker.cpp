@@ -146,10 +146,10 @@ void Mosaicker::ReleaseColdEdges() {
 }
 
 bool Mosaicker::LoadEdgePoints(const std::vector<const Edge*>& edges) {
-  auto& all = graph_.mutable_edges();
   for (const Edge* e : edges) {
     if (e->points_resident) continue;
-    Edge& edge = all[static_cast<size_t>(e - all.data())];
+    // The list borrows the graph's edges read-only; the graph (this object's) owns them mutably.
+    Edge& edge = const_cast<Edge&>(*e);
     std::string error;
     if (!edge_store_.Load(&edge, &error)) {
       spdlog::error("{}", error);
@@ -345,6 +345,9 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     st.stored_file = paths_.frames() + "/" + prepared.stored_name;
   } else if (!StoreFrameBytes(frame, prepared.encoded, &st, &error)) {
     st.failure = error;
+    // The session is to blame unless the source's file itself went away (a vanishing source is the source's error).
+    std::error_code ec;
+    if (frame.source_path.empty() || fs::exists(frame.source_path, ec)) storage_failure_ = error;
     spdlog::error("{}", error);
     return FrameOutcome::kFailed;
   }
@@ -359,6 +362,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   } else {
     if (!feature_store_.Put(id, feats, &error)) {
       st.failure = error;
+      storage_failure_ = error;
       spdlog::error("{}", error);
       return FrameOutcome::kFailed;
     }
@@ -366,8 +370,11 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     if (journal_.is_open() &&
         !journal_.AddFrame({id, st.name, fs::path(st.stored_file).filename().string(), st.timestamp_ns,
                             st.original_size.width, st.original_size.height},
-                           &error))
+                           &error)) {
+      // The frame itself is stored, but a journal that cannot grow means the disk is full: stop here.
       spdlog::error("{}; a resumed run would take this frame from the source again", error);
+      storage_failure_ = error;
+    }
   }
   st.has_features = true;
   // Match on the 8-bit values, exactly what later queries from the store will see.

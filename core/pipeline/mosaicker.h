@@ -70,6 +70,9 @@ class Mosaicker {
 
   [[nodiscard]] size_t frames_in() const { return frames_.size(); }
   [[nodiscard]] int registered_count() const { return final_registered_; }
+  // Why the session could not store an accepted frame (disk full, storage gone); empty while all is well. Once set,
+  // the caller stops taking frames: what is already in the session stays whole and a resumed run continues it.
+  [[nodiscard]] const std::string& storage_failure() const { return storage_failure_; }
   [[nodiscard]] double residual_rms_px() const { return final_rms_; }
   [[nodiscard]] const StageStats& stage_stats() const { return stats_; }
 
@@ -131,7 +134,7 @@ class Mosaicker {
   size_t edge_bytes_released_ = 0;
   size_t edges_reloaded_ = 0;     // points read back during the flight (a solve needed a cold edge)
   UnionFind components_;
-  std::vector<FrameState> frames_;
+  std::deque<FrameState> frames_;  // grows chunk by chunk: no doubling copy in a long flight
   std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
   std::unordered_map<int, Mat3> mosaic_from_work_;  // per frame, in its component's coordinates
   std::deque<std::pair<int, int>> retry_;           // (frame id, attempts)
@@ -141,6 +144,7 @@ class Mosaicker {
   int best_inliers_ = 0;
   int registered_since_full_ = 0;
   size_t dropped_frames_ = 0;
+  std::string storage_failure_;
   int relocalized_ = 0;
   int retried_ok_ = 0;
   int merges_ = 0;

@@ -34,7 +34,7 @@ bool WriteFeatures(const std::string& path, const Features& f, std::string* erro
   ok = (std::fclose(fp) == 0) && ok;
   if (!ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
     std::remove(tmp.c_str());
-    *error = "write failed: " + path;
+    *error = "write failed (disk full?): " + path;
     return false;
   }
   return true;
