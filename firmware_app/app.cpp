@@ -2,7 +2,9 @@
 
 #include <spdlog/spdlog.h>
 
+#include <chrono>
 #include <csignal>
+#include <cstdio>
 #include <memory>
 #include <thread>
 #include <unordered_set>
@@ -14,8 +16,13 @@
 #include "core/util/bounded_queue.h"
 #include "core/util/clock.h"
 #include "core/util/memory.h"
+#include "hal/common/camera_options.h"
 #include "hal/replay/replay_source.h"
 #include "hal/sim/sim_source.h"
+#include "hal/v4l2/v4l2_source.h"
+#ifdef UAVM_HAVE_LIBCAMERA
+#include "hal/libcamera/libcamera_source.h"
+#endif
 
 namespace uavm::app {
 
@@ -40,7 +47,19 @@ std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::strin
     // A simulated flight over a real image (plan YAML: see hal/sim/sim_plan.h); frames are rendered, not decoded.
     return std::make_unique<hal::SimSource>(hal::SimOptions{arg, "", "", 0});
   }
-  *error = "unknown source '" + s + "' (expected replay:PATH or sim:PLAN.yaml)";
+  if (scheme == "v4l2" || scheme == "libcamera") {
+    // A live camera: v4l2:/dev/videoN?width=..&height=..&format=..&fps=.. (hal/common/camera_options.h).
+    hal::CameraOptions o;
+    if (!hal::ParseCameraOptions(arg, &o, error)) return nullptr;
+    if (scheme == "v4l2") return std::make_unique<hal::V4l2Source>(o);
+#ifdef UAVM_HAVE_LIBCAMERA
+    return std::make_unique<hal::LibcameraSource>(o);
+#else
+    *error = "this build has no libcamera back-end (configure with -DUAVM_WITH_LIBCAMERA=ON, needs libcamera-dev)";
+    return nullptr;
+#endif
+  }
+  *error = "unknown source '" + s + "' (expected replay:PATH, sim:PLAN.yaml, v4l2:/dev/videoN or libcamera:N)";
   return nullptr;
 }
 
@@ -97,6 +116,27 @@ bool ResumeFromJournal(const SessionPaths& paths, const JournalContents& journal
 }
 
 }  // namespace
+
+int ListCameras() {
+  const auto v4l2 = hal::ListV4l2Devices();
+  std::printf("V4L2 (%zu nodes):\n", v4l2.size());
+  for (const auto& d : v4l2) {
+    std::printf("  v4l2:%s  %s (%s, %s)%s\n", d.path.c_str(), d.card.c_str(), d.driver.c_str(), d.bus.c_str(),
+                d.capture ? "" : "  [no single-planar capture]");
+    for (const auto& f : d.formats) std::printf("      %s\n", f.c_str());
+  }
+#ifdef UAVM_HAVE_LIBCAMERA
+  std::string error;
+  const auto cams = hal::ListLibcameraCameras(&error);
+  if (!error.empty()) std::printf("libcamera: %s\n", error.c_str());
+  std::printf("libcamera (%zu cameras):\n", cams.size());
+  for (const auto& c : cams) std::printf("  %s\n", c.c_str());
+#else
+  std::printf("libcamera: not built (UAVM_WITH_LIBCAMERA=OFF)\n");
+#endif
+  std::fflush(stdout);
+  return kExitOk;
+}
 
 void InstallStopHandlers() {
   struct sigaction sa {};
@@ -232,13 +272,18 @@ int Run(const RunConfig& config) {
       break;
     }
     const auto& stats = mosaicker.stage_stats();
+    // Test hook (--process-delay-ms): a slow consumer, so that a live camera's drop-oldest queue is exercised.
+    if (config.process_delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(config.process_delay_ms));
     if (mosaicker.frames_in() % 10 == 0)
       spdlog::info("{} frames, median {:.0f} ms/frame, RSS {:.0f} MiB", mosaicker.frames_in(),
                    stats.Get("frame_total").median, CurrentRssMiB());
   }
   capture.join();
   source->Close();
-  mosaicker.RecordDropped(queue.dropped());
+  // Frames lost to a slow consumer: in this queue, and in a camera source's own capture queue.
+  const hal::CaptureCounters counters = source->Counters();
+  mosaicker.RecordDropped(queue.dropped() + counters.dropped);
+  mosaicker.RecordCapture(counters);
   if (g_stop_signal != 0)
     spdlog::warn("signal {} received: capture stopped; registering and compositing the {} frames received",
                  static_cast<int>(g_stop_signal), mosaicker.frames_in());

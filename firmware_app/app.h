@@ -15,19 +15,23 @@ enum ExitCode : int {
 };
 
 struct RunConfig {
-  std::string source;  // replay:PATH (folder or video)
+  std::string source;  // replay:PATH (folder or video), sim:PLAN.yaml, v4l2:/dev/videoN?..., libcamera:N?...
   std::string out_dir;
   int max_frames = 0;  // 0 = all
   int stride = 1;
   // Continue the session in out_dir from its journal: the frames it accepted are registered again from the session
   // (no detection, same result), then the source goes on after them, skipping inputs the journal already has.
   bool resume = false;
+  int process_delay_ms = 0;  // test hook: sleep this long per processed frame (a slow consumer)
   PipelineOptions pipeline;
 };
 
 // SIGINT / SIGTERM: the capture stops, and what was received is registered and composited (exit 0 when that
 // succeeds). A second signal does not interrupt the compositing: use SIGKILL, then --resume.
 void InstallStopHandlers();
+
+// --list-cameras: prints what the V4L2 and libcamera back-ends see. Returns an ExitCode.
+[[nodiscard]] int ListCameras();
 
 // The onboard loop: capture thread -> bounded queue -> registration -> outputs. Returns an ExitCode.
 [[nodiscard]] int Run(const RunConfig& config);

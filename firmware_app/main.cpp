@@ -3,6 +3,7 @@
 
 #include <malloc.h>
 
+#include <cstdio>
 #include <cstdlib>
 
 #include <CLI/CLI.hpp>
@@ -11,6 +12,7 @@
 
 #include "core/util/memory.h"
 #include "firmware_app/app.h"
+#include "hal/common/camera_options.h"
 
 int main(int argc, char** argv) {
   using namespace uavm;
@@ -30,11 +32,18 @@ int main(int argc, char** argv) {
       "uavmosaic-onboard: registers a drone's frames as they arrive and writes a mosaic, without camera poses.\n"
       "Exit codes: 0 ok; 2 bad command line or config; 3 source cannot be opened or failed mid-run; "
       "4 output directory not creatable/writable or disk full; 5 no frame could be registered."};
+  bool list_cameras = false;
   cli.add_option("--source", config.source,
-                 "Frame source: replay:DIR (images, natural filename order) or "
-                 "replay:FILE.mp4 (video)")
-      ->required();
-  cli.add_option("--out", config.out_dir, "Session directory to write (created if missing)")->required();
+                 "Frame source (required): replay:DIR (images, natural filename order), replay:FILE.mp4 (video), "
+                 "sim:PLAN.yaml, v4l2:/dev/videoN[?KEYS] (V4L2 camera, mmap streaming) or libcamera:N|ID[?KEYS] "
+                 "(libcamera camera, N-th or by id). Camera KEYS: " +
+                     hal::CameraOptionsHelp() +
+                     "; e.g. v4l2:/dev/video0?width=640&height=480&format=YUYV&fps=30");
+  cli.add_option("--out", config.out_dir, "Session directory to write (created if missing; required)");
+  cli.add_flag("--list-cameras", list_cameras, "Print the cameras the V4L2 and libcamera back-ends see, and exit");
+  cli.add_option("--process-delay-ms", config.process_delay_ms,
+                 "Testing: sleep this long per processed frame (a slow consumer: a camera's queue drops frames)")
+      ->check(CLI::NonNegativeNumber);
   cli.add_option("--config", config_file, "YAML config; command-line options override it")->check(CLI::ExistingFile);
   cli.add_flag("--resume", config.resume,
                "Continue the session in --out after an interruption (kill, power loss): its journaled frames are "
@@ -80,6 +89,7 @@ int main(int argc, char** argv) {
     return e.get_exit_code() == 0 ? cli.exit(e) : (cli.exit(e), app::kExitUsage);
   }
   spdlog::set_level(spdlog::level::from_str(log_level));
+  if (list_cameras) return app::ListCameras();
   CountLogWarnings();  // report.json says how many warnings and errors the run logged
   std::string why;
   if (!p.Check(&why)) {
@@ -89,6 +99,11 @@ int main(int argc, char** argv) {
   if (print_config) {
     std::fputs(ToYaml(p).c_str(), stdout);
     return app::kExitOk;
+  }
+  if (config.source.empty() || config.out_dir.empty()) {
+    std::fprintf(stderr, "%s is required\nRun with --help for more information.\n",
+                 config.source.empty() ? "--source" : "--out");
+    return app::kExitUsage;
   }
   app::InstallStopHandlers();
   return app::Run(config);

@@ -63,6 +63,8 @@ class Mosaicker {
   // An input the source could not turn into a frame (corrupt, empty, not an image).
   void RecordSkipped(const std::string& file, const std::string& reason, bool journal = true);
   void RecordDropped(size_t count) { dropped_frames_ = count; }
+  // A live camera's counters (captured, dropped in its own queue, driver gaps, reconnects): report.json "camera".
+  void RecordCapture(const hal::CaptureCounters& counters) { capture_ = counters; }
   // The memory plan the options were sized with (reported in report.json).
   void SetMemoryPlan(const MemoryPlan& plan) { memory_plan_ = plan; }
   // Final solve, session files and mosaic. Returns false on an output failure (message in `error`).
@@ -144,6 +146,7 @@ class Mosaicker {
   int best_inliers_ = 0;
   int registered_since_full_ = 0;
   size_t dropped_frames_ = 0;
+  hal::CaptureCounters capture_;
   std::string storage_failure_;
   int relocalized_ = 0;
   int retried_ok_ = 0;

@@ -236,6 +236,10 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   report["frames_decoded"] = frames_.size();
   report["registered"] = final_registered_;
   report["dropped_by_queue"] = dropped_frames_;
+  report["camera"] = {{"captured", capture_.captured},
+                      {"dropped_in_source", capture_.dropped},
+                      {"driver_gaps", capture_.driver_gaps},
+                      {"reconnects", capture_.reconnects}};
   report["residual_rms_px"] = final_rms_;
   report["residual_median_px"] = residual_median_;
   report["residual_units"] = refine_.ok ? "transfer error, pixels of the target frame at working resolution"

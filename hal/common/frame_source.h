@@ -34,6 +34,14 @@ struct DecodeHint {
   int min_long_side = 0;  // 0 = full resolution
 };
 
+// Counters of a live camera source for report.json (all zero for replay and simulation).
+struct CaptureCounters {
+  uint64_t captured = 0;     // frames the driver delivered to the source
+  uint64_t dropped = 0;      // dropped by the source's own queue (the consumer was slower than the camera)
+  uint64_t driver_gaps = 0;  // frames the driver skipped itself (gaps in its sequence numbers: no buffer was free)
+  uint64_t reconnects = 0;   // times the device was lost (ENODEV, EIO, unplugged) and opened again
+};
+
 class FrameSource {
  public:
   virtual ~FrameSource() = default;
@@ -45,6 +53,8 @@ class FrameSource {
   // True when frames come from storage: the consumer may apply back-pressure instead of dropping.
   [[nodiscard]] virtual bool IsReplay() const = 0;
   void SetDecodeHint(const DecodeHint& hint) { hint_ = hint; }
+  // Thread-safe: may be read while another thread is in Next().
+  [[nodiscard]] virtual CaptureCounters Counters() const { return {}; }
 
  protected:
   DecodeHint hint_;

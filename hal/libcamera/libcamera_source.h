@@ -1,0 +1,93 @@
+#pragma once
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "hal/common/camera_options.h"
+#include "hal/common/capture_queue.h"
+#include "hal/common/frame_source.h"
+
+namespace libcamera {
+class Camera;
+class CameraManager;
+class FrameBufferAllocator;
+class Request;
+class Stream;
+}  // namespace libcamera
+
+namespace uavm::hal {
+
+// A libcamera camera as a FrameSource (--source libcamera:N or libcamera:<camera id>), on Debian 12's libcamera 0.0.3.
+// One viewfinder-role stream of options.width x height in options.format (libcamera's RGB888/BGR888 are this
+// project's BGR24/RGB24 by memory order); options.buffers FrameBuffers allocated once by a FrameBufferAllocator, one
+// Request per buffer, created once and reused; every plane mmapped once. A completed request becomes a CapturedBuffer
+// in the same bounded drop-oldest CaptureQueue as V4l2Source; releasing it re-queues the request.
+// Device loss (the camera's `disconnected` signal, a failed request, or no frame for 2 s): logged, the camera is
+// stopped and released, a new CameraManager rescans, and the camera (same id) is configured again, with back-off for
+// up to options.reconnect_s; successes counted in Counters().reconnects.
+// libcamera allows one CameraManager per process: do not list cameras while a LibcameraSource is open.
+class LibcameraSource final : public FrameSource, private BufferPool {
+ public:
+  explicit LibcameraSource(CameraOptions options);
+  ~LibcameraSource() override;
+  LibcameraSource(const LibcameraSource&) = delete;
+  LibcameraSource& operator=(const LibcameraSource&) = delete;
+
+  [[nodiscard]] Status Open(std::string* error) override;
+  [[nodiscard]] Status Next(Frame* frame, std::string* error) override;
+  void Close() override;
+  [[nodiscard]] std::string Describe() const override;
+  [[nodiscard]] bool IsReplay() const override { return false; }
+  [[nodiscard]] CaptureCounters Counters() const override;
+
+  [[nodiscard]] const std::string& camera_id() const { return camera_id_; }
+
+ private:
+  struct Slot;
+  [[nodiscard]] bool Start(std::string* error);  // manager, camera, configuration, buffers, requests, start
+  void Stop();                                   // the reverse; waits for every handle out to come back
+  void OnRequestCompleted(libcamera::Request* request);
+  void OnDisconnected();
+  void Return(uint32_t slot, uint64_t generation) noexcept override;
+  void WatchLoop();
+
+  CameraOptions options_;
+  std::string camera_id_;
+  std::unique_ptr<libcamera::CameraManager> manager_;
+  std::shared_ptr<libcamera::Camera> camera_;
+  std::unique_ptr<libcamera::FrameBufferAllocator> allocator_;
+  libcamera::Stream* stream_ = nullptr;  // borrowed from camera_
+  std::vector<std::unique_ptr<Slot>> slots_;
+  int stride_ = 0;
+  CaptureQueue queue_;
+
+  std::mutex mutex_;  // guards running_, generation_, outstanding_ against Stop()
+  std::condition_variable returned_;
+  bool running_ = false;
+  uint64_t generation_ = 0;
+  int outstanding_ = 0;
+
+  std::thread watch_;  // detects loss and reconnects
+  std::atomic<bool> stop_{false};
+  std::atomic<bool> lost_{false};
+  std::atomic<bool> failed_{false};
+  std::mutex failure_mutex_;
+  std::string failure_;
+  std::atomic<int64_t> last_frame_ns_{0};
+  std::atomic<uint64_t> captured_{0};
+  std::atomic<uint64_t> driver_gaps_{0};
+  std::atomic<uint64_t> reconnects_{0};
+  uint64_t last_sequence_ = 0;
+  bool have_sequence_ = false;
+  uint64_t delivered_ = 0;
+};
+
+// What --list-cameras prints for libcamera: one line per camera (id, model, stream formats of the viewfinder role).
+// Creates (and destroys) its own CameraManager.
+[[nodiscard]] std::vector<std::string> ListLibcameraCameras(std::string* error);
+
+}  // namespace uavm::hal
