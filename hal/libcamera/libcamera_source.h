@@ -26,9 +26,10 @@ namespace uavm::hal {
 // project's BGR24/RGB24 by memory order); options.buffers FrameBuffers allocated once by a FrameBufferAllocator, one
 // Request per buffer, created once and reused; every plane mmapped once. A completed request becomes a CapturedBuffer
 // in the same bounded drop-oldest CaptureQueue as V4l2Source; releasing it re-queues the request.
-// Device loss (the camera's `disconnected` signal, a failed request, or no frame for 2 s): logged, the camera is
-// stopped and released, a new CameraManager rescans, and the camera (same id) is configured again, with back-off for
-// up to options.reconnect_s; successes counted in Counters().reconnects.
+// Device loss (the camera's `disconnected` signal, a failed request, or no frame for 2 s): logged, and Next() then
+// returns kError with the reason. No reconnect: libcamera 0.0.3 aborts the process in Camera::stop() when the device
+// is gone (a FATAL assertion in PipelineHandler::stop, seen on vimc unbind) and allows one CameraManager per process,
+// so the lost camera is abandoned (kept allocated until exit) instead. options.reconnect_s is not used here.
 // libcamera allows one CameraManager per process: do not list cameras while a LibcameraSource is open.
 class LibcameraSource final : public FrameSource, private BufferPool {
  public:
@@ -54,6 +55,7 @@ class LibcameraSource final : public FrameSource, private BufferPool {
   void OnDisconnected();
   void Return(uint32_t slot, uint64_t generation) noexcept override;
   void WatchLoop();
+  void Abandon();  // gives up a lost camera without stopping it (libcamera 0.0.3 aborts there)
 
   CameraOptions options_;
   std::string camera_id_;
