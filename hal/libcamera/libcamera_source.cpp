@@ -184,10 +184,8 @@ bool LibcameraSource::Start(std::string* error) {
 void LibcameraSource::OnRequestCompleted(lc::Request* request) {
   // libcamera's pipeline thread: must not block. A cancelled request (stop) is simply not re-queued.
   if (request->status() == lc::Request::RequestCancelled) return;
-  const auto slot_index = static_cast<uint32_t>(request->cookie());
-  if (slot_index >= slots_.size()) return;
-  Slot& slot = *slots_[slot_index];
-  const lc::FrameMetadata& md = slot.buffer->metadata();
+  // Counted as outstanding before slots_ is touched: Stop() and Abandon() wait for outstanding_ == 0 after clearing
+  // running_, so the slots stay valid while this runs.
   uint64_t generation;
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -195,6 +193,15 @@ void LibcameraSource::OnRequestCompleted(lc::Request* request) {
     ++outstanding_;
     generation = generation_;
   }
+  const auto slot_index = static_cast<uint32_t>(request->cookie());
+  if (slot_index >= slots_.size()) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    --outstanding_;
+    returned_.notify_all();
+    return;
+  }
+  Slot& slot = *slots_[slot_index];
+  const lc::FrameMetadata& md = slot.buffer->metadata();
   RawImage raw;
   raw.data = slot.planes.empty() ? nullptr : slot.planes[0];
   raw.width = options_.width;
@@ -357,8 +364,8 @@ std::string LibcameraSource::Describe() const {
 
 CaptureCounters LibcameraSource::Counters() const {
   CaptureCounters c;
+  c.dropped = queue_.dropped();  // before `captured` (see V4l2Source::Counters)
   c.captured = captured_;
-  c.dropped = queue_.dropped();
   c.driver_gaps = driver_gaps_;
   c.reconnects = reconnects_;
   return c;

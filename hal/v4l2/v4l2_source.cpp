@@ -156,8 +156,8 @@ std::string V4l2Source::Describe() const {
 
 CaptureCounters V4l2Source::Counters() const {
   CaptureCounters c;
+  c.dropped = queue_.dropped();  // before `captured`: a frame counted as captured is pushed (maybe dropped) after
   c.captured = captured_;
-  c.dropped = queue_.dropped();
   c.driver_gaps = driver_gaps_;
   c.reconnects = reconnects_;
   return c;

@@ -20,10 +20,11 @@ exec 9>"$CACHE_BASE/.lock"
 flock 9  # two test runs (release and ASan builds) share one cache
 
 # Which kernel: the one linux-image-amd64 points at now; when apt knows none (offline), the newest cached one.
-KVER=""
-if dep=$(apt-cache depends linux-image-amd64 2>/dev/null | sed -n 's/.*Depends: linux-image-\(6\.1\.[^ ]*-amd64\)$/\1/p' | head -1) &&
-  [ -n "$dep" ]; then
-  KVER="$dep"
+kernel_abi() { apt-cache depends linux-image-amd64 2>/dev/null | sed -n 's/.*Depends: linux-image-\(6\.1\.[^ ]*-amd64\)$/\1/p' | head -1; }
+KVER="$(kernel_abi || true)"
+if [ -z "$KVER" ] && [ "$(id -u)" = 0 ]; then
+  apt-get update -qq >&2 || true  # a fresh machine whose package lists were never fetched
+  KVER="$(kernel_abi || true)"
 fi
 if [ -z "$KVER" ] || [ ! -f "$CACHE_BASE/$KVER/READY" ]; then
   newest=$(ls -1 "$CACHE_BASE" 2>/dev/null | grep -E '^6\.1\.' | while read -r d; do

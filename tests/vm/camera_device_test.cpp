@@ -193,8 +193,9 @@ TEST(Vivid, SlowConsumerDropsOldestAndCounts) {
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));
   const CaptureCounters c = source.Counters();
   EXPECT_GE(c.captured, 10u) << "vivid delivered too few frames in 1.5 s";
-  // All but the 2 queued were dropped (the driver never ran out of buffers: the capture thread kept dequeuing).
-  EXPECT_EQ(c.dropped + 2, c.captured);
+  // All but the 2 queued were dropped (one more may be between dequeue and queue while the counters are read).
+  EXPECT_GE(c.captured - c.dropped, 2u);
+  EXPECT_LE(c.captured - c.dropped, 3u);
   Frame f;
   ASSERT_EQ(source.Next(&f, &err), Status::kOk) << err;
   ASSERT_EQ(source.Next(&f, &err), Status::kOk) << err;
@@ -355,8 +356,12 @@ TEST(Onboard, DropsAndCountsWithSlowProcessing) {
   // Small frames and work size: the VM's emulated CPU runs SIFT ~50x slower than the host.
   const fs::path out = fs::temp_directory_path() / "onboard_session";
   fs::remove_all(out);
+  // One SIFT pass per frame (no lowering of the contrast threshold to reach more keypoints on the colour bars).
+  const fs::path config = fs::temp_directory_path() / "onboard_vm.yaml";
+  std::ofstream(config) << "features:\n  target_min_features: 10\n";
   const std::string cmd = std::string(UAVM_ONBOARD_BIN) + " --source 'v4l2:" + node +
                           "?width=320&height=180&format=YUYV&fps=30' --out " + out.string() +
+                          " --config " + config.string() +
                           " --max-frames 50 --process-delay-ms 150 --work-size 160 --max-features 200 --bands 0 "
                           "--preview-every 0 --no-tiff --log-level info > " + (ResultsDir() / "onboard.log").string() + " 2>&1";
   const int64_t t0 = MonotonicNs();
