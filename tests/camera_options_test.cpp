@@ -45,16 +45,16 @@ TEST(CameraOptions, LibcameraIdWithSpaces) {
 
 TEST(CameraOptions, Errors) {
   const char* bad[] = {
-      "/dev/video0?width=abc",         // not a number
-      "/dev/video0?width=641",         // odd
-      "/dev/video0?height=8",          // too small
-      "/dev/video0?format=H264",       // unsupported format
-      "/dev/video0?colour=red",        // unknown key
-      "/dev/video0?width",             // no value
-      "/dev/video0?buffers=4&queue=4", // the driver would have no buffer left to fill
+      "/dev/video0?width=abc",          // not a number
+      "/dev/video0?width=641",          // odd
+      "/dev/video0?height=8",           // too small
+      "/dev/video0?format=H264",        // unsupported format
+      "/dev/video0?colour=red",         // unknown key
+      "/dev/video0?width",              // no value
+      "/dev/video0?buffers=4&queue=4",  // the driver would have no buffer left to fill
       "/dev/video0?fps=-1",
       "/dev/video0?reconnect_s=-3",
-      "?width=640",                    // no device
+      "?width=640",  // no device
       "/dev/video0?width=640x",
   };
   for (const char* spec : bad) {

@@ -81,12 +81,18 @@ bool ParseCameraOptions(const std::string& spec, CameraOptions* options, std::st
       const std::string key = kv.substr(0, eq);
       const std::string value = kv.substr(eq + 1);
       bool ok = true;
-      if (key == "width") ok = ParseInt(key, value, 1, 1 << 16, &options->width, error);
-      else if (key == "height") ok = ParseInt(key, value, 1, 1 << 16, &options->height, error);
-      else if (key == "fps") ok = ParseInt(key, value, 0, 100000, &options->fps, error);
-      else if (key == "buffers") ok = ParseInt(key, value, 0, 1000, &options->buffers, error);
-      else if (key == "queue") ok = ParseInt(key, value, 0, 1000, &options->queue, error);
-      else if (key == "reconnect_s") ok = ParseSeconds(key, value, &options->reconnect_s, error);
+      if (key == "width")
+        ok = ParseInt(key, value, 1, 1 << 16, &options->width, error);
+      else if (key == "height")
+        ok = ParseInt(key, value, 1, 1 << 16, &options->height, error);
+      else if (key == "fps")
+        ok = ParseInt(key, value, 0, 100000, &options->fps, error);
+      else if (key == "buffers")
+        ok = ParseInt(key, value, 0, 1000, &options->buffers, error);
+      else if (key == "queue")
+        ok = ParseInt(key, value, 0, 1000, &options->queue, error);
+      else if (key == "reconnect_s")
+        ok = ParseSeconds(key, value, &options->reconnect_s, error);
       else if (key == "format") {
         ok = ParsePixelFormat(value, &options->format);
         if (!ok) *error = "camera option format=" + value + ": expected YUYV, NV12, MJPEG, RGB24 or BGR24";

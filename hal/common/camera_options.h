@@ -11,8 +11,8 @@ namespace uavm::hal {
 //   libcamera:0?width=640&height=480&format=RGB24      (libcamera:N = N-th camera, or libcamera:<camera id>)
 // Every key is optional; an unknown key or a bad value is an error.
 struct CameraOptions {
-  std::string device;         // /dev/videoN for V4L2; index or camera id for libcamera
-  int width = 640;            // requested size; the driver's nearest size is refused unless equal (no surprises)
+  std::string device;  // /dev/videoN for V4L2; index or camera id for libcamera
+  int width = 640;     // requested size; the driver's nearest size is refused unless equal (no surprises)
   int height = 480;
   PixelFormat format = PixelFormat::kYuyv;
   int fps = 30;               // requested frame rate (0 = the driver's default)

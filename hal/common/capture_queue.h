@@ -28,7 +28,11 @@ class CapturedBuffer {
   // `pool` is borrowed.
   CapturedBuffer(BufferPool* pool, uint32_t slot, uint64_t generation, RawImage image, int64_t timestamp_ns,
                  uint64_t sequence)
-      : pool_(pool), slot_(slot), generation_(generation), image_(image), timestamp_ns_(timestamp_ns),
+      : pool_(pool),
+        slot_(slot),
+        generation_(generation),
+        image_(image),
+        timestamp_ns_(timestamp_ns),
         sequence_(sequence) {}
   CapturedBuffer(CapturedBuffer&& o) noexcept { *this = std::move(o); }
   CapturedBuffer& operator=(CapturedBuffer&& o) noexcept {
@@ -55,7 +59,7 @@ class CapturedBuffer {
   [[nodiscard]] bool valid() const { return pool_ != nullptr; }
   [[nodiscard]] const RawImage& image() const { return image_; }
   [[nodiscard]] int64_t timestamp_ns() const { return timestamp_ns_; }  // driver timestamp, CLOCK_MONOTONIC ns
-  [[nodiscard]] uint64_t sequence() const { return sequence_; }          // driver frame counter
+  [[nodiscard]] uint64_t sequence() const { return sequence_; }         // driver frame counter
 
  private:
   BufferPool* pool_ = nullptr;

@@ -10,12 +10,18 @@ namespace uavm::hal {
 bool ParsePixelFormat(const std::string& name, PixelFormat* format) {
   std::string n = name;
   std::transform(n.begin(), n.end(), n.begin(), [](unsigned char c) { return static_cast<char>(std::toupper(c)); });
-  if (n == "YUYV") *format = PixelFormat::kYuyv;
-  else if (n == "NV12") *format = PixelFormat::kNv12;
-  else if (n == "MJPEG" || n == "MJPG") *format = PixelFormat::kMjpeg;
-  else if (n == "RGB24") *format = PixelFormat::kRgb24;
-  else if (n == "BGR24") *format = PixelFormat::kBgr24;
-  else return false;
+  if (n == "YUYV")
+    *format = PixelFormat::kYuyv;
+  else if (n == "NV12")
+    *format = PixelFormat::kNv12;
+  else if (n == "MJPEG" || n == "MJPG")
+    *format = PixelFormat::kMjpeg;
+  else if (n == "RGB24")
+    *format = PixelFormat::kRgb24;
+  else if (n == "BGR24")
+    *format = PixelFormat::kBgr24;
+  else
+    return false;
   return true;
 }
 

@@ -24,10 +24,10 @@ enum class PixelFormat {
 // One captured image in driver memory (borrowed: only valid while its buffer is held).
 struct RawImage {
   const uint8_t* data = nullptr;
-  size_t bytes = 0;   // bytes used
+  size_t bytes = 0;  // bytes used
   int width = 0;
   int height = 0;
-  int stride = 0;     // bytes per line of the first plane (0 = packed)
+  int stride = 0;  // bytes per line of the first plane (0 = packed)
   PixelFormat format = PixelFormat::kYuyv;
 };
 

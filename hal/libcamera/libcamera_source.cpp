@@ -1,12 +1,12 @@
 #include "hal/libcamera/libcamera_source.h"
 
+#include <libcamera/libcamera.h>
 #include <spdlog/spdlog.h>
 #include <sys/mman.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
-#include <libcamera/libcamera.h>
 #include <map>
 
 #include "core/util/clock.h"
@@ -49,7 +49,9 @@ struct LibcameraSource::Slot {
 LibcameraSource::LibcameraSource(CameraOptions options)
     : options_(std::move(options)), queue_(static_cast<size_t>(std::max(1, options_.queue))) {}
 
-LibcameraSource::~LibcameraSource() { Close(); }
+LibcameraSource::~LibcameraSource() {
+  Close();
+}
 
 Status LibcameraSource::Open(std::string* error) {
   if (!options_.Check(error)) return Status::kError;
@@ -80,8 +82,8 @@ bool LibcameraSource::Start(std::string* error) {
     camera_ = manager_->get(want);
   }
   if (!camera_) {
-    *error = "libcamera: no camera '" + want + "' (" + std::to_string(cameras.size()) +
-             " found; --list-cameras shows them)";
+    *error =
+        "libcamera: no camera '" + want + "' (" + std::to_string(cameras.size()) + " found; --list-cameras shows them)";
     return false;
   }
   camera_id_ = camera_->id();
@@ -277,17 +279,21 @@ void LibcameraSource::WatchLoop() {
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
     if (stop_) break;
     std::string why;
-    if (lost_) why = "disconnected or a request failed";
-    else if (MonotonicNs() - last_frame_ns_ > kStallNs) why = "no frame for 2000 ms";
-    else continue;
+    if (lost_)
+      why = "disconnected or a request failed";
+    else if (MonotonicNs() - last_frame_ns_ > kStallNs)
+      why = "no frame for 2000 ms";
+    else
+      continue;
     // libcamera 0.0.3 cannot take a camera whose device went away down again: Camera::stop() ends in a FATAL
     // assertion (PipelineHandler::stop: queuedRequests_ not empty: the driver never returns the buffers), which
     // aborts the process, and a second CameraManager is refused while the first lives. So the lost camera is
     // abandoned as it is (its objects stay allocated, reachable, until the process exits; no reconnect), and the
     // source reports the loss: the program finishes with what it received. The V4L2 back-end reconnects.
-    spdlog::error("libcamera '{}': device lost ({}); libcamera 0.0.3 cannot restart a lost camera in-process: the "
-                  "source stops (use v4l2:/dev/videoN to get reconnection)",
-                  camera_id_, why);
+    spdlog::error(
+        "libcamera '{}': device lost ({}); libcamera 0.0.3 cannot restart a lost camera in-process: the "
+        "source stops (use v4l2:/dev/videoN to get reconnection)",
+        camera_id_, why);
     queue_.Clear();
     {
       std::unique_lock<std::mutex> lock(mutex_);

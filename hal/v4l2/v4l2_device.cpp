@@ -49,7 +49,9 @@ std::string FourccString(uint32_t f) {
   return s;
 }
 
-std::string Errno(const char* what) { return std::string(what) + ": " + std::strerror(errno); }
+std::string Errno(const char* what) {
+  return std::string(what) + ": " + std::strerror(errno);
+}
 
 std::string CString(const uint8_t* s, size_t n) {
   return std::string(reinterpret_cast<const char*>(s), strnlen(reinterpret_cast<const char*>(s), n));
@@ -57,7 +59,9 @@ std::string CString(const uint8_t* s, size_t n) {
 
 }  // namespace
 
-V4l2Device::~V4l2Device() { Close(); }
+V4l2Device::~V4l2Device() {
+  Close();
+}
 
 Status V4l2Device::Open(const CameraOptions& o, std::string* error) {
   Close();
@@ -282,8 +286,8 @@ std::vector<V4l2DeviceInfo> ListV4l2Devices() {
         if (Xioctl(fd, VIDIOC_ENUM_FMT, &fd_desc) != 0) break;
         std::string line = FourccString(fd_desc.pixelformat);
         const char* ours = nullptr;  // this project's name for it, when V4l2Source takes it
-        for (PixelFormat pf : {PixelFormat::kYuyv, PixelFormat::kNv12, PixelFormat::kMjpeg, PixelFormat::kRgb24,
-                               PixelFormat::kBgr24})
+        for (PixelFormat pf :
+             {PixelFormat::kYuyv, PixelFormat::kNv12, PixelFormat::kMjpeg, PixelFormat::kRgb24, PixelFormat::kBgr24})
           if (ToFourcc(pf) == fd_desc.pixelformat) ours = ToString(pf);
         for (uint32_t j = 0; j < 8; ++j) {
           v4l2_frmsizeenum fs{};

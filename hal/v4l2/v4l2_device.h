@@ -75,7 +75,7 @@ struct V4l2DeviceInfo {
   std::string card;
   std::string driver;
   std::string bus;
-  bool capture = false;  // single-planar video capture with streaming I/O (usable by V4l2Source)
+  bool capture = false;              // single-planar video capture with streaming I/O (usable by V4l2Source)
   std::vector<std::string> formats;  // "YUYV 640x480 1280x720 ..." one per pixel format
 };
 

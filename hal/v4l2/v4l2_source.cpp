@@ -14,7 +14,9 @@ namespace uavm::hal {
 namespace {
 constexpr int kPollMs = 100;
 // No frame for this long while streaming = the device is lost: 2 s, or 3 frame periods of a slower camera.
-int64_t StallNs(double fps) { return std::max<int64_t>(2'000'000'000, fps > 0 ? static_cast<int64_t>(3e9 / fps) : 0); }
+int64_t StallNs(double fps) {
+  return std::max<int64_t>(2'000'000'000, fps > 0 ? static_cast<int64_t>(3e9 / fps) : 0);
+}
 }  // namespace
 
 V4l2Source::V4l2Source(CameraOptions options)
@@ -22,7 +24,9 @@ V4l2Source::V4l2Source(CameraOptions options)
       name_(std::filesystem::path(options_.device).filename().string()),
       queue_(static_cast<size_t>(std::max(1, options_.queue))) {}
 
-V4l2Source::~V4l2Source() { Close(); }
+V4l2Source::~V4l2Source() {
+  Close();
+}
 
 Status V4l2Source::Open(std::string* error) {
   if (!options_.Check(error)) return Status::kError;
@@ -49,8 +53,7 @@ void V4l2Source::CaptureLoop() {
     if (w == V4l2Device::Wait::kFrame) {
       last_frame_ns = MonotonicNs();
       ++captured_;
-      if (have_sequence && buffer.sequence() > last_sequence + 1)
-        driver_gaps_ += buffer.sequence() - last_sequence - 1;
+      if (have_sequence && buffer.sequence() > last_sequence + 1) driver_gaps_ += buffer.sequence() - last_sequence - 1;
       have_sequence = true;
       last_sequence = buffer.sequence();
       (void)queue_.Push(std::move(buffer));  // never blocks; drops (and re-queues) the oldest when full

@@ -99,9 +99,7 @@ void ExpectColourBars(const cv::Mat& bgr, const std::string& what) {
   const int bar = bgr.cols / 8;
   const int y0 = bgr.rows / 2;
   const int h = bgr.rows / 4;
-  auto mean_of = [&](int k) {
-    return cv::mean(bgr(cv::Rect(k * bar + bar / 4, y0, bar / 2, h)));
-  };
+  auto mean_of = [&](int k) { return cv::mean(bgr(cv::Rect(k * bar + bar / 4, y0, bar / 2, h))); };
   const cv::Scalar white = mean_of(0), yellow = mean_of(1), red = mean_of(5), blue = mean_of(6), black = mean_of(7);
   // 75 % white is ~191 on every channel; allow for range/matrix choices (limited range, BT.601 vs 709).
   for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(white[ch], 180, 25) << what << " white bar, channel " << ch;
@@ -201,8 +199,8 @@ TEST(Vivid, SlowConsumerDropsOldestAndCounts) {
   ASSERT_EQ(source.Next(&f, &err), Status::kOk) << err;
   // The second frame out is at most a few frame periods old: old frames did not pile up.
   EXPECT_LT(MonotonicNs() - f.timestamp_ns, 500'000'000);
-  Note("DROP v4l2 vivid queue=2 after 1.5 s without consumer: captured " + std::to_string(c.captured) +
-       ", dropped " + std::to_string(c.dropped));
+  Note("DROP v4l2 vivid queue=2 after 1.5 s without consumer: captured " + std::to_string(c.captured) + ", dropped " +
+       std::to_string(c.dropped));
 }
 
 // Writes a platform device's name into a driver's sysfs bind/unbind file (a real unplug / replug of the device).
@@ -360,10 +358,11 @@ TEST(Onboard, DropsAndCountsWithSlowProcessing) {
   const fs::path config = fs::temp_directory_path() / "onboard_vm.yaml";
   std::ofstream(config) << "features:\n  target_min_features: 10\n";
   const std::string cmd = std::string(UAVM_ONBOARD_BIN) + " --source 'v4l2:" + node +
-                          "?width=320&height=180&format=YUYV&fps=30' --out " + out.string() +
-                          " --config " + config.string() +
+                          "?width=320&height=180&format=YUYV&fps=30' --out " + out.string() + " --config " +
+                          config.string() +
                           " --max-frames 50 --process-delay-ms 150 --work-size 160 --max-features 200 --bands 0 "
-                          "--preview-every 0 --no-tiff --log-level info > " + (ResultsDir() / "onboard.log").string() + " 2>&1";
+                          "--preview-every 0 --no-tiff --log-level info > " +
+                          (ResultsDir() / "onboard.log").string() + " 2>&1";
   const int64_t t0 = MonotonicNs();
   const int status = std::system(cmd.c_str());
   const double seconds = static_cast<double>(MonotonicNs() - t0) * 1e-9;
