@@ -128,18 +128,24 @@ TEST_P(VividTest, CapturesFramesInFormat) {
   Captured c;
   CaptureFrames(&source, kFrames, 640, 480, &c);
   const CaptureCounters counters = source.Counters();
+  const double open_s = static_cast<double>(MonotonicNs() - opened) * 1e-9;
   source.Close();
   ASSERT_EQ(c.images.size(), static_cast<size_t>(kFrames));
   ExpectMonotonicTimestamps(c, opened);
   EXPECT_GE(counters.captured, static_cast<uint64_t>(kFrames));
+  // Every captured frame was delivered or dropped (2 at most still queued when the counters were read).
+  EXPECT_LE(counters.captured - counters.dropped - static_cast<uint64_t>(kFrames), 3u);
   ExpectColourBars(c.images.back(), GetParam());
   cv::imwrite((ResultsDir() / (std::string("vivid_") + GetParam() + ".png")).string(), c.images.back());
-  const double fps = FpsOf(c);
-  EXPECT_GT(fps, 5.0);  // vivid paces frames at the requested 30 fps; a TCG guest may fall behind, not to nothing
-  Note("RATE v4l2 vivid " + std::string(GetParam()) + " 640x480: " + std::to_string(fps) +
-       " fps by driver timestamps, " + std::to_string(kFrames / c.seconds) + " fps delivered through Next() (" +
-       std::to_string(counters.captured) + " captured, " + std::to_string(counters.dropped) + " dropped, " +
-       std::to_string(counters.driver_gaps) + " driver gaps)");
+  // The capture rate: frames the driver handed to the source per second (vivid paces them at 25 fps; a loaded TCG
+  // guest falls behind, not to nothing). The consumer's rate (conversion; slow under ASan) is reported beside it.
+  const double capture_fps = static_cast<double>(counters.captured) / open_s;
+  EXPECT_GT(capture_fps, 5.0);
+  Note("RATE v4l2 vivid " + std::string(GetParam()) + " 640x480: captured " + std::to_string(capture_fps) +
+       " fps (" + std::to_string(counters.captured) + " frames in " + std::to_string(open_s) + " s, " +
+       std::to_string(counters.dropped) + " dropped, " + std::to_string(counters.driver_gaps) +
+       " driver gaps); delivered through Next(): " + std::to_string(kFrames / c.seconds) + " fps, " +
+       std::to_string(FpsOf(c)) + " fps by their driver timestamps");
 }
 
 INSTANTIATE_TEST_SUITE_P(Formats, VividTest, ::testing::Values("YUYV", "NV12", "RGB24"));
