@@ -12,6 +12,7 @@
 #   BUDGET_MIB        memory budget passed to the program (default 256)
 #   LONG_FRAMES       frames of the long run (default 2000); SHORT_FRAMES (default 200)
 #   FLIGHTS_REAL      real flights (default "caliterra brighton_beach"; "" = none)
+#   EXTRA_ARGS        more arguments for every run (e.g. "--config exp.yaml" to compare a setting)
 #   UAVM_BUILD_DIR    build tree (default <repo>/build); UAVM_RESULTS_DIR (default bench/results)
 set -euo pipefail
 export LC_ALL=C
@@ -19,7 +20,7 @@ export LC_ALL=C
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 if [[ $# -lt 1 || $# -gt 2 || $1 == -h || $1 == --help ]]; then
-  sed -n '2,16p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,17p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 # shellcheck source=bench/lib.sh
@@ -53,7 +54,8 @@ run() {
   local dir=$OUT_DIR/$name
   rm -rf "$dir"
   log "$name: $source $*"
-  run_watched "$dir" 0 0 "$OURS_BIN" --source "$source" --out "$dir" --memory-budget "$BUDGET_MIB" "$@"
+  # shellcheck disable=SC2086 # EXTRA_ARGS is a list of words
+  run_watched "$dir" 0 0 "$OURS_BIN" --source "$source" --out "$dir" --memory-budget "$BUDGET_MIB" "$@" ${EXTRA_ARGS:-}
   local peak report=$dir/report.json
   peak=$(peak_mib)
   PEAK[$name]=$W_PEAK_KB

@@ -17,6 +17,7 @@
 #include "core/util/clock.h"
 #include "core/util/memory.h"
 #include "hal/common/camera_options.h"
+#include "firmware_app/service_notifier.h"
 #include "hal/replay/replay_source.h"
 #include "hal/sim/sim_source.h"
 #include "hal/v4l2/v4l2_source.h"
@@ -207,6 +208,8 @@ int Run(const RunConfig& config) {
     }
     spdlog::info("resumed {} frames from the session", mosaicker.frames_in());
   }
+  ServiceNotifier notifier;
+  notifier.Ready(fmt::format("capturing from {} into {}", source->Describe(), config.out_dir));
   BoundedQueue<Item> queue(
       static_cast<size_t>(pipeline.queue_capacity),
       source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock : BoundedQueue<Item>::Policy::kDropOldest);
@@ -250,14 +253,14 @@ int Run(const RunConfig& config) {
     queue.Close();
   });
 
+  int registered_live = 0;  // joined the first frame's part of the map during the flight (the status line)
   while (auto item = queue.Pop()) {
     if (item->status == hal::Status::kSkipped) {
       mosaicker.RecordSkipped(item->name, item->message);
       continue;
     }
     try {
-      const auto outcome = mosaicker.AddFrame(std::move(item->prepared));
-      (void)outcome;
+      if (mosaicker.AddFrame(std::move(item->prepared)) == FrameOutcome::kRegistered) ++registered_live;
     } catch (const std::exception& e) {
       spdlog::error("frame {} could not be registered: {}", item->name, e.what());
     }
@@ -271,6 +274,7 @@ int Run(const RunConfig& config) {
       queue.Close();
       break;
     }
+    notifier.Progress(static_cast<int>(mosaicker.frames_in()), registered_live, CurrentRssMiB());
     const auto& stats = mosaicker.stage_stats();
     // Test hook (--process-delay-ms): a slow consumer, so that a live camera's drop-oldest queue is exercised.
     if (config.process_delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(config.process_delay_ms));
@@ -289,7 +293,13 @@ int Run(const RunConfig& config) {
                  static_cast<int>(g_stop_signal), mosaicker.frames_in());
   if (source_failed) spdlog::error("source stopped: {} (finishing with what was received)", source_error);
 
-  if (!mosaicker.Finish(&error)) {
+  notifier.Stopping(fmt::format("flight over after {} frames: final solve and mosaic", mosaicker.frames_in()));
+  bool finished = false;
+  {
+    const WatchdogHeartbeat heartbeat(&notifier);  // the end solves and compositing have no frame loop to feed it
+    finished = mosaicker.Finish(&error);
+  }
+  if (!finished) {
     spdlog::error("cannot write the session (output not writable or disk full): {}", error);
     return kExitOutputError;
   }
