@@ -24,7 +24,9 @@ struct PipelineOptions {
   int full_solve_every = 10;  // full adjustment every max(N, size/20) registered frames, and on a merge
   int solve_window = 300;     // frames those solves move (the newest); 0 = the whole component
   int journal_sync_every = 1;  // accepted frames between fdatasyncs of journal.jsonl (a power cut loses fewer)
-  int trim_heap_every = 20;   // frames between returns of free heap pages to the kernel; 0 = never
+  // Frames between returns of free heap pages to the kernel (malloc_trim); 0 = never. Every 5 rather than 20: peak
+  // RSS of a 2000-frame flight 222 instead of 229 MiB (200 frames: 205 either way), no measurable time cost.
+  int trim_heap_every = 5;
   int preview_every = 5;      // live.jpg every N frames; 0 = off
   int preview_side = 1024;
   double mosaic_scale = 0.5;    // mosaic.tif GSD relative to the reference frame's original resolution
