@@ -52,6 +52,9 @@ set(CPACK_DEBIAN_PACKAGE_DEPENDS
 libopencv-features2d406, libopencv-flann406, libopencv-calib3d406, libopencv-videoio406, libopencv-stitching406, \
 libgdal32, libexiv2-27, libjpeg62-turbo, libyaml-cpp0.7, libspdlog1.10, libfmt9, libsystemd0, \
 libgoogle-glog0v6, libcholmod3, libcxsparse3, libatlas3-base")
+if(UAVM_WITH_LIBCAMERA)  # the libcamera capture back-end (hal/libcamera) is built in
+  string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libcamera0.0.3")
+endif()
 # The conffiles dpkg keeps when the operator edited them.
 file(WRITE ${PROJECT_BINARY_DIR}/packaging/conffiles "/etc/uavmosaic/onboard.yaml\n/etc/default/uavmosaic-onboard\n")
 set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA ${PROJECT_BINARY_DIR}/packaging/conffiles ${PROJECT_SOURCE_DIR}/packaging/postinst

@@ -6,7 +6,7 @@ PACKAGES=(
   build-essential cmake ninja-build pkg-config
   libopencv-dev libeigen3-dev libgdal-dev gdal-bin libexiv2-dev
   libcli11-dev libspdlog-dev libyaml-cpp-dev nlohmann-json3-dev
-  libceres-dev libsystemd-dev systemd
+  libceres-dev libsystemd-dev systemd file
   libcamera-dev libcamera-ipa
   libgtest-dev libgmock-dev libbenchmark-dev
   "$@"

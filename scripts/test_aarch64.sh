@@ -13,7 +13,7 @@ NATIVE="${UAVM_BUILD_DIR:-$ROOT/build}"
 BUILD="${UAVM_AARCH64_BUILD_DIR:-$ROOT/build-aarch64}"
 t0=$(date +%s)
 SYSROOT=$(bash "$ROOT/scripts/make_sysroot.sh" | tail -n 1)
-export QEMU_LD_PREFIX="$SYSROOT"  # what an aarch64 program exec'd by a test needs (binfmt_misc, below)
+export QEMU_LD_PREFIX="$SYSROOT"  # for aarch64 programs that tests start themselves (needs binfmt_misc for qemu-aarch64)
 
 if [ ! -f "$BUILD/CMakeCache.txt" ]; then
   cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DUAVM_BUILD_BENCH=OFF \
