@@ -16,8 +16,8 @@
 #include "core/util/bounded_queue.h"
 #include "core/util/clock.h"
 #include "core/util/memory.h"
-#include "hal/common/camera_options.h"
 #include "firmware_app/service_notifier.h"
+#include "hal/common/camera_options.h"
 #include "hal/replay/replay_source.h"
 #include "hal/sim/sim_source.h"
 #include "hal/v4l2/v4l2_source.h"
@@ -31,7 +31,9 @@ namespace {
 
 volatile std::sig_atomic_t g_stop_signal = 0;
 
-void OnStopSignal(int sig) { g_stop_signal = sig; }
+void OnStopSignal(int sig) {
+  g_stop_signal = sig;
+}
 
 std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::string* error) {
   const std::string& s = config.source;
@@ -210,9 +212,9 @@ int Run(const RunConfig& config) {
   }
   ServiceNotifier notifier;
   notifier.Ready(fmt::format("capturing from {} into {}", source->Describe(), config.out_dir));
-  BoundedQueue<Item> queue(
-      static_cast<size_t>(pipeline.queue_capacity),
-      source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock : BoundedQueue<Item>::Policy::kDropOldest);
+  BoundedQueue<Item> queue(static_cast<size_t>(pipeline.queue_capacity), source->IsReplay()
+                                                                             ? BoundedQueue<Item>::Policy::kBlock
+                                                                             : BoundedQueue<Item>::Policy::kDropOldest);
   bool source_failed = false;
   bool storage_stopped = false;
   std::string source_error;
@@ -267,9 +269,10 @@ int Run(const RunConfig& config) {
     if (!mosaicker.storage_failure().empty()) {
       // Disk full (or the storage went away): taking more frames would only lose them. What is stored stays valid,
       // and a resumed run takes the rest from the source.
-      spdlog::error("the session cannot store frames any more (disk full?): capture stopped after {} frames; "
-                    "free space and run again with --resume",
-                    mosaicker.frames_in());
+      spdlog::error(
+          "the session cannot store frames any more (disk full?): capture stopped after {} frames; "
+          "free space and run again with --resume",
+          mosaicker.frames_in());
       storage_stopped = true;
       queue.Close();
       break;

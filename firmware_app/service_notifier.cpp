@@ -1,11 +1,10 @@
 #include "firmware_app/service_notifier.h"
 
+#include <spdlog/fmt/fmt.h>
 #include <systemd/sd-daemon.h>
 
 #include <cstdlib>
 #include <string>
-
-#include <spdlog/fmt/fmt.h>
 
 namespace uavm::app {
 

@@ -64,7 +64,8 @@ TEST(ServiceNotifyTest, ReadyWatchdogStatusAndStoppingReachTheNotifySocket) {
   bool stopping = false;
   for (const auto& m : messages) {
     if (m.find("WATCHDOG=1") != std::string::npos) ++watchdogs;
-    if (m.find("STATUS=") != std::string::npos && m.find("registered, RSS") != std::string::npos) ++statuses_with_frames;
+    if (m.find("STATUS=") != std::string::npos && m.find("registered, RSS") != std::string::npos)
+      ++statuses_with_frames;
     if (m.find("STOPPING=1") != std::string::npos) stopping = true;
   }
   EXPECT_GE(watchdogs, 1);

@@ -54,8 +54,8 @@ class GlobalIndex {
   int rows_ = 0;
   std::vector<int> frame_of_row_;
   std::vector<int> rank_in_frame_;  // 0..quota-1, used to thin evenly
-  std::unique_ptr<Tree> index_;  // borrows descriptors_' rows [0, index_rows_): reset before they move
-  int index_rows_ = 0;  // rows of the built tree
+  std::unique_ptr<Tree> index_;     // borrows descriptors_' rows [0, index_rows_): reset before they move
+  int index_rows_ = 0;              // rows of the built tree
   std::vector<int> index_frame_of_row_;
   bool dirty_ = true;
   int added_since_build_ = 0;

@@ -367,10 +367,9 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
       return FrameOutcome::kFailed;
     }
     // Accepted: its bytes and features are in the session, so a resumed run will find it.
-    if (journal_.is_open() &&
-        !journal_.AddFrame({id, st.name, fs::path(st.stored_file).filename().string(), st.timestamp_ns,
-                            st.original_size.width, st.original_size.height},
-                           &error)) {
+    if (journal_.is_open() && !journal_.AddFrame({id, st.name, fs::path(st.stored_file).filename().string(),
+                                                  st.timestamp_ns, st.original_size.width, st.original_size.height},
+                                                 &error)) {
       // The frame itself is stored, but a journal that cannot grow means the disk is full: stop here.
       spdlog::error("{}; a resumed run would take this frame from the source again", error);
       storage_failure_ = error;
@@ -484,8 +483,8 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     st.failure.clear();
     // Full solves get rarer as the component grows (every max(N, size/20) frames): their cost grows with the
     // flight, and between them each new frame is still solved against all its neighbours, old strips included.
-    const int solved = options_.solve_window > 0 ? std::min(components_.SizeOf(id), options_.solve_window)
-                                                 : components_.SizeOf(id);
+    const int solved =
+        options_.solve_window > 0 ? std::min(components_.SizeOf(id), options_.solve_window) : components_.SizeOf(id);
     const int interval = std::max(options_.full_solve_every, solved / 20);
     if (++registered_since_full_ >= interval || merged) FullSolve(components_.Find(id));
     TryRetries(id, index, feats);

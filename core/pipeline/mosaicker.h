@@ -12,8 +12,8 @@
 #include "core/pipeline/memory_budget.h"
 #include "core/pipeline/options.h"
 #include "core/session/edge_store.h"
-#include "core/session/journal.h"
 #include "core/session/feature_store.h"
+#include "core/session/journal.h"
 #include "core/session/session_dir.h"
 #include "core/util/memory.h"
 #include "core/util/stats.h"
@@ -123,7 +123,7 @@ class Mosaicker {
   SiftExtractor extractor_;
   FeatureStore feature_store_;
   GlobalIndex global_index_;
-  std::vector<int> keyframes_;   // frames in the global index
+  std::vector<int> keyframes_;     // frames in the global index
   size_t frames_not_indexed_ = 0;  // registered over ground the index already has
   MatchGraph graph_;
   EdgeStore edge_store_;
@@ -131,12 +131,12 @@ class Mosaicker {
   size_t resumed_frames_ = 0;
   int fds_at_start_ = -1;       // open file descriptors when the flight began and when it ended: a long flight must
   int fds_at_flight_end_ = -1;  // not leak any  // frames taken from the journal of an interrupted run
-  size_t release_cursor_ = 0;     // edges before it have been considered by ReleaseColdEdges
-  size_t edges_released_ = 0;     // edges whose points went to disk during the flight
+  size_t release_cursor_ = 0;   // edges before it have been considered by ReleaseColdEdges
+  size_t edges_released_ = 0;   // edges whose points went to disk during the flight
   size_t edge_bytes_released_ = 0;
-  size_t edges_reloaded_ = 0;     // points read back during the flight (a solve needed a cold edge)
+  size_t edges_reloaded_ = 0;  // points read back during the flight (a solve needed a cold edge)
   UnionFind components_;
-  std::deque<FrameState> frames_;  // grows chunk by chunk: no doubling copy in a long flight
+  std::deque<FrameState> frames_;                   // grows chunk by chunk: no doubling copy in a long flight
   std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
   std::unordered_map<int, Mat3> mosaic_from_work_;  // per frame, in its component's coordinates
   std::deque<std::pair<int, int>> retry_;           // (frame id, attempts)
@@ -159,10 +159,10 @@ class Mosaicker {
   double residual_median_ = 0.0;
   RefineResult refine_;
   MemoryPlan memory_plan_;
-  double flight_peak_rss_mib_ = 0.0;  // peak RSS when the last frame was registered
-  double flight_end_rss_mib_ = 0.0;   // RSS then
-  double solve_peak_rss_mib_ = 0.0;   // peak of the end-of-flight solves (from flight end)
-  double compose_peak_rss_mib_ = 0.0; // peak of writing the session files and the mosaic (from the solves' end)
+  double flight_peak_rss_mib_ = 0.0;   // peak RSS when the last frame was registered
+  double flight_end_rss_mib_ = 0.0;    // RSS then
+  double solve_peak_rss_mib_ = 0.0;    // peak of the end-of-flight solves (from flight end)
+  double compose_peak_rss_mib_ = 0.0;  // peak of writing the session files and the mosaic (from the solves' end)
   HeapStats flight_end_heap_;
   MotionModel refined_model_ = MotionModel::kAffine;
   TransferStats holdout_linear_;  // held-out correspondences under the linear solution, then the final one

@@ -701,7 +701,8 @@ TEST(DiskFullTest, MidFlightStopsAtOnceAndResumeFinishesTheFlight) {
   env.out = roomy;
   env.args.push_back("--resume");
   const RunResult resumed = RunOnboard(env);
-  SCOPED_TRACE("program log (resumed):\n" + resumed.log.substr(resumed.log.size() > 6000 ? resumed.log.size() - 6000 : 0));
+  SCOPED_TRACE("program log (resumed):\n" +
+               resumed.log.substr(resumed.log.size() > 6000 ? resumed.log.size() - 6000 : 0));
   ASSERT_TRUE(resumed.exited);
   EXPECT_EQ(resumed.exit_code, 0);
   ExpectNothingCorrupted(env.out);
