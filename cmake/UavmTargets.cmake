@@ -1,6 +1,9 @@
 # Shared compile settings for every uavmosaic target.
 add_library(uavm_warnings INTERFACE)
 target_compile_options(uavm_warnings INTERFACE -Wall -Wextra -Wconversion -Wno-sign-conversion)
+# No fused multiply-add contraction: aarch64 GCC fuses a*b+c by default, x86-64 cannot without -mfma, and the two
+# builds must compute the same mosaic (the cross build is checked against the native one to 0.5 px).
+target_compile_options(uavm_warnings INTERFACE -ffp-contract=off)
 if(UAVM_WERROR)
   target_compile_options(uavm_warnings INTERFACE -Werror)
 endif()

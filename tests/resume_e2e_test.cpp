@@ -16,6 +16,7 @@
 
 #include "core/session/journal.h"
 #include "core/session/session_dir.h"
+#include "tests/test_env.h"
 
 namespace uavm {
 namespace {
@@ -34,8 +35,9 @@ pid_t Start(const fs::path& out, bool resume) {
   const pid_t pid = ::fork();
   if (pid == 0) {
     std::vector<std::string> args = {UAVM_ONBOARD_BIN, "--source", "replay:" + kFlight, "--out", out.string(),
-                                     "--log-level", "error"};
+                                     "--log-level",    "error"};
     if (resume) args.emplace_back("--resume");
+    for (const auto& a : test::EmulationArgs()) args.push_back(a);
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
@@ -147,8 +149,7 @@ TEST(ResumeTest, KilledAnywhereResumesToTheSameMosaic) {
     std::uniform_int_distribution<size_t> frames(1 + slot * (inputs - 1) / 5, (slot + 1) * (inputs - 1) / 5);
     points.push_back({frames(rng), std::uniform_real_distribution<double>(0.0, 0.2)(rng)});
   }
-  for (int k = 0; k < 2; ++k)
-    points.push_back({0, std::uniform_real_distribution<double>(0.0, 0.6 * compose_s)(rng)});
+  for (int k = 0; k < 2; ++k) points.push_back({0, std::uniform_real_distribution<double>(0.0, 0.6 * compose_s)(rng)});
 
   int killed = 0;
   int killed_while_compositing = 0;
@@ -185,10 +186,11 @@ TEST(ResumeTest, KilledAnywhereResumesToTheSameMosaic) {
     for (const auto& [name, m] : ref.maps) EXPECT_EQ(s.maps.count(name), 1u) << name << " not registered";
     const double diff = MaxCornerDistance(ref, s);
     EXPECT_LE(diff, 0.5);
-    std::printf("kill %zu (%s, +%.2f s): %zu frames journaled, resumed to %zu/%zu registered, max corner "
-                "difference %.4f px\n",
-                k, !was_killed ? "run ended first" : (point.after_frames > 0 ? "flight" : "tile writes"),
-                point.delay_s, journaled, s.maps.size(), inputs, diff);
+    std::printf(
+        "kill %zu (%s, +%.2f s): %zu frames journaled, resumed to %zu/%zu registered, max corner "
+        "difference %.4f px\n",
+        k, !was_killed ? "run ended first" : (point.after_frames > 0 ? "flight" : "tile writes"), point.delay_s,
+        journaled, s.maps.size(), inputs, diff);
     // Each frame is journaled once, however often the session was interrupted.
     ASSERT_TRUE(ReadJournal((dir / "journal.jsonl").string(), &journal, &err)) << err;
     EXPECT_EQ(journal.frames.size(), inputs);

@@ -13,6 +13,8 @@
 #include <string>
 #include <vector>
 
+#include "tests/test_env.h"
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -40,8 +42,13 @@ TEST(ServiceNotifyTest, ReadyWatchdogStatusAndStoppingReachTheNotifySocket) {
       ::_exit(126);
     const std::string source = std::string("replay:") + UAVM_TEST_DATA + "/brighton_beach_small/images";
     const std::string out = (root / "session").string();
-    ::execl(UAVM_ONBOARD_BIN, UAVM_ONBOARD_BIN, "--source", source.c_str(), "--out", out.c_str(), "--no-tiff",
-            "--max-frames", "6", static_cast<char*>(nullptr));
+    std::vector<std::string> args = {UAVM_ONBOARD_BIN, "--source",     source, "--out", out,
+                                     "--no-tiff",      "--max-frames", "6"};
+    for (const auto& a : uavm::test::EmulationArgs()) args.push_back(a);
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    ::execv(argv[0], argv.data());
     ::_exit(127);
   }
   int status = 0;

@@ -12,10 +12,6 @@ namespace uavm {
 namespace {
 constexpr double kQuantScale = 512.0;
 
-cv::Mat AsFloat(const cv::Mat& d) {
-  if (d.type() == CV_32F) return d;
-  return DequantizeDescriptors(d);
-}
 }  // namespace
 
 bool MatchOptions::Check(std::string* why) const {
@@ -48,21 +44,32 @@ cv::Mat DequantizeDescriptors(const cv::Mat& q) {
 }
 
 DescriptorIndex::DescriptorIndex(const Features& features, const MatchOptions& options)
-    : descriptors_(AsFloat(features.descriptors).clone()), rows_(features.descriptors.rows), options_(options) {
+    : rows_(features.descriptors.rows), options_(options) {
+  descriptors_ = QuantizeDescriptors(features.descriptors);
+  if (!descriptors_.isContinuous() || descriptors_.data == features.descriptors.data) {
+    descriptors_ = descriptors_.clone();
+  }
   if (rows_ >= 2) {
-    index_ = std::make_unique<cv::flann::Index>(descriptors_, cv::flann::KDTreeIndexParams(options.flann_trees),
-                                                cvflann::FLANN_DIST_L2);
+    const cvflann::Matrix<unsigned char> rows(descriptors_.ptr<unsigned char>(), static_cast<size_t>(rows_),
+                                              static_cast<size_t>(descriptors_.cols));
+    index_ = std::make_unique<Tree>(rows, cvflann::KDTreeIndexParams(options.flann_trees));
+    index_->buildIndex();
   }
 }
 
 std::vector<cv::DMatch> DescriptorIndex::Match(const cv::Mat& query_descriptors) const {
   std::vector<cv::DMatch> out;
-  if (!index_ || query_descriptors.rows < 1) return out;
-  const cv::Mat query = AsFloat(query_descriptors);
+  if (!index_ || query_descriptors.rows < 1 || query_descriptors.cols != descriptors_.cols) return out;
+  cv::Mat query = QuantizeDescriptors(query_descriptors);
+  if (!query.isContinuous()) query = query.clone();
   cv::Mat indices(query.rows, 2, CV_32S);
   cv::Mat dists(query.rows, 2, CV_32F);
-  index_->knnSearch(query, indices, dists, 2, cv::flann::SearchParams(options_.flann_checks));
-  const float ratio_sq = static_cast<float>(options_.ratio * options_.ratio);  // FLANN L2 returns squared distances
+  cvflann::Matrix<unsigned char> query_rows(query.ptr<unsigned char>(), static_cast<size_t>(query.rows),
+                                            static_cast<size_t>(query.cols));
+  cvflann::Matrix<int> index_rows(indices.ptr<int>(), static_cast<size_t>(query.rows), 2);
+  cvflann::Matrix<float> dist_rows(dists.ptr<float>(), static_cast<size_t>(query.rows), 2);
+  index_->knnSearch(query_rows, index_rows, dist_rows, 2, cvflann::SearchParams(options_.flann_checks));
+  const float ratio_sq = static_cast<float>(options_.ratio * options_.ratio);  // squared distances
   std::unordered_map<int, size_t> best_for_train;
   for (int q = 0; q < query.rows; ++q) {
     const int t = indices.at<int>(q, 0);

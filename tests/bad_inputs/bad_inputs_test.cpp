@@ -30,6 +30,7 @@
 
 #include "core/session/journal.h"
 #include "core/session/session_dir.h"
+#include "tests/test_env.h"
 
 namespace uavm {
 namespace {
@@ -474,6 +475,11 @@ size_t CountFiles(const fs::path& dir) {
 
 RunResult RunOnboard(const Env& env) {
   std::vector<std::string> args = {UAVM_ONBOARD_BIN, "--source", env.source, "--out", env.out.string()};
+  const bool sets_work = std::find(env.args.begin(), env.args.end(), "--work-size") != env.args.end() ||
+                         std::find(env.args.begin(), env.args.end(), "--max-features") != env.args.end();
+  if (!sets_work) {
+    for (const auto& a : test::EmulationArgs()) args.push_back(a);
+  }
   args.insert(args.end(), env.args.begin(), env.args.end());
   const fs::path log = env.root / "log.txt";
   const pid_t pid = ::fork();

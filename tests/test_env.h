@@ -1,0 +1,48 @@
+#pragma once
+// What a test needs to know about where it runs. The aarch64 suite runs under qemu-user (CMAKE_CROSSCOMPILING_EMULATOR,
+// UAVM_EMULATED=1 set by tests/CMakeLists.txt), where SIFT runs 35-50x slower than natively: the end-to-end tests
+// then run the onboard program on a smaller working copy and on fewer frames, so the whole suite still runs.
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace uavm::test {
+
+inline bool Emulated() {
+  const char* v = std::getenv("UAVM_EMULATED");
+  return v != nullptr && std::string(v) == "1";
+}
+
+// Extra uavmosaic-onboard options under emulation: a 480 px working copy with at most 1000 keypoints (about a fifth of
+// the native work per frame). Empty natively.
+inline std::vector<std::string> EmulationArgs() {
+  if (!Emulated()) return {};
+  return {"--work-size", "480", "--max-features", "1000"};
+}
+inline std::string EmulationArgsString() {
+  std::string s;
+  for (const auto& a : EmulationArgs()) s += " " + a;
+  return s;
+}
+
+// Natively `images` itself; under emulation a folder under `scratch` holding (symlinks to) its first `emulated_frames`
+// images in name order, so an end-to-end test flies a shorter stretch of the same flight.
+inline std::filesystem::path FlightForTest(const std::filesystem::path& images, size_t emulated_frames,
+                                           const std::filesystem::path& scratch) {
+  namespace fs = std::filesystem;
+  if (!Emulated()) return images;
+  std::vector<fs::path> files;
+  for (const auto& e : fs::directory_iterator(images))
+    if (e.is_regular_file()) files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+  const fs::path out = scratch / "emulated_flight";
+  fs::remove_all(out);
+  fs::create_directories(out);
+  for (size_t i = 0; i < files.size() && i < emulated_frames; ++i)
+    fs::create_symlink(files[i], out / files[i].filename());
+  return out;
+}
+
+}  // namespace uavm::test
