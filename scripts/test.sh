@@ -16,3 +16,8 @@ bash "$ROOT/scripts/test_asan.sh"
 bash "$ROOT/scripts/setup.sh" clang
 bash "$ROOT/scripts/fuzz.sh" --runs 20000
 # ---- end of fuzzing ----------------------------------------------------------------------------------------------
+
+# ---- aarch64: the cross build (sysroot made once, cached in /var/cache/uavmosaic), the arm64 package, the aarch64
+# program against the native one on a real flight (transforms within 0.5 px), and the whole suite under qemu-aarch64.
+bash "$ROOT/scripts/test_aarch64.sh"
+# ---- end of aarch64 ------------------------------------------------------------------------------------------------

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <random>
 
+#include "core/util/portable_random.h"
+
 namespace uavm {
 namespace {
 
@@ -41,10 +43,7 @@ LoopScene MakeLoop(int n, double noise_px, unsigned seed) {
     const Mat3 centre = Similarity(scale, a + M_PI / 2, radius * std::cos(a), radius * std::sin(a));
     scene.truth.push_back(centre * Translation(-kW / 2.0, -kH / 2.0));
   }
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> noise(0, noise_px);
-  std::uniform_real_distribution<double> ux(0, kW - 1);
-  std::uniform_real_distribution<double> uy(0, kH - 1);
+  PortableRandom rng(seed);  // the same scene on x86-64 and aarch64 (the suite also runs emulated)
   for (int i = 0; i < n; ++i) {
     const int j = (i + 1) % n;
     Edge e;
@@ -52,11 +51,11 @@ LoopScene MakeLoop(int n, double noise_px, unsigned seed) {
     e.tgt = j;
     const Mat3 tgt_from_src = scene.truth[static_cast<size_t>(j)].inverse() * scene.truth[static_cast<size_t>(i)];
     while (e.src_points.size() < 40) {
-      const Vec2 p(ux(rng), uy(rng));
+      const Vec2 p(rng.Uniform(0, kW - 1), rng.Uniform(0, kH - 1));
       const Vec2 q = Apply(tgt_from_src, p);
       if (q.x() < 0 || q.y() < 0 || q.x() > kW - 1 || q.y() > kH - 1) continue;
       e.src_points.push_back(p);
-      e.tgt_points.push_back(q + Vec2(noise(rng), noise(rng)));
+      e.tgt_points.push_back(q + Vec2(rng.Normal(noise_px), rng.Normal(noise_px)));
     }
     e.num_inliers = static_cast<int>(e.src_points.size());
     // The pair's own estimate, from its noisy points (what RANSAC would hand over).

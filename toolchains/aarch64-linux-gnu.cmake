@@ -46,4 +46,6 @@ endif()
 set(CMAKE_EXE_LINKER_FLAGS_INIT "-Wl,-rpath-link,${UAVM_SYSROOT}/usr/lib/aarch64-linux-gnu -Wl,-rpath-link,${UAVM_SYSROOT}/lib/aarch64-linux-gnu")
 
 # -L: the emulated binaries load the sysroot's dynamic loader and libraries.
-set(CMAKE_CROSSCOMPILING_EMULATOR "qemu-aarch64;-L;${UAVM_SYSROOT}")
+# Through env: the programs a test starts itself (exec of an aarch64 binary, through binfmt_misc, see
+# scripts/binfmt_aarch64.sh) find the sysroot's libraries too, and tests know they run emulated (tests/test_env.h).
+set(CMAKE_CROSSCOMPILING_EMULATOR "env;UAVM_EMULATED=1;QEMU_LD_PREFIX=${UAVM_SYSROOT};qemu-aarch64;-L;${UAVM_SYSROOT}")

@@ -11,6 +11,8 @@
 #include <sstream>
 #include <variant>
 
+#include "core/util/portable_random.h"
+
 namespace uavm::hal {
 
 namespace {
@@ -53,21 +55,7 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"seed", &p.seed}};
 }
 
-// Portable draws: std::normal_distribution differs between standard libraries, and the flight must not.
-class Draws {
- public:
-  explicit Draws(uint64_t seed) : gen_(seed) {}
-  double Uniform() { return static_cast<double>(gen_() >> 11) * 0x1.0p-53; }  // [0, 1)
-  double Symmetric() { return 2.0 * Uniform() - 1.0; }                        // [-1, 1)
-  double Normal() {
-    const double u1 = 1.0 - Uniform();  // (0, 1]: log is finite
-    const double u2 = Uniform();
-    return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPi * u2);
-  }
-
- private:
-  std::mt19937_64 gen_;
-};
+using Draws = PortableRandom;  // the flight must not change with the machine that makes it
 
 }  // namespace
 
