@@ -61,6 +61,10 @@ GeorefFit Mosaicker::GeorefCanvas(const std::vector<int>& component, std::vector
   const double scale = std::abs(fit.world_from_pixel(0, 0));
   if (std::abs(fit.world_from_pixel(0, 1)) < 1e-9 * scale) fit.world_from_pixel(0, 1) = 0;
   if (std::abs(fit.world_from_pixel(1, 0)) < 1e-9 * scale) fit.world_from_pixel(1, 0) = 0;
+  if (fit.model == "similarity") {  // square pixels, exactly (the two differ by rounding only)
+    fit.world_from_pixel(0, 0) = scale;
+    fit.world_from_pixel(1, 1) = -scale;
+  }
   fit.gsd_m = std::sqrt(std::abs(fit.world_from_pixel.leftCols<2>().determinant()));
   fit.rotation_deg = std::atan2(-fit.world_from_pixel(1, 0), fit.world_from_pixel(0, 0)) * 180.0 / M_PI;
   spdlog::info(
