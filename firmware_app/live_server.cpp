@@ -1,6 +1,7 @@
 #include "firmware_app/live_server.h"
 
 #include <httplib.h>
+#include <pthread.h>
 #include <spdlog/spdlog.h>
 
 #include <condition_variable>
@@ -51,6 +52,7 @@ class BoundedPool : public httplib::TaskQueue {
 
  private:
   void Work() {
+    pthread_setname_np(pthread_self(), "uavm-http");  // bench/http_load.sh measures these threads' CPU
     for (;;) {
       std::function<void()> fn;
       {
@@ -145,6 +147,7 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     ++refused_;
     res.status = 503;
     res.set_header("Retry-After", "1");
+    res.set_header("Connection", "close");  // no keep-alive on the accepting thread
     res.set_content("busy\n", "text/plain");
     return true;
   };
@@ -210,7 +213,10 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     server_.reset();
     return false;
   }
-  listener_ = std::thread([this] { server_->listen_after_bind(); });
+  listener_ = std::thread([this] {
+    pthread_setname_np(pthread_self(), "uavm-http-acc");
+    server_->listen_after_bind();
+  });
   spdlog::info("live view on http://{}:{}/ (/live.jpg, /status.json)", o.host, port_);
   return true;
 }

@@ -232,6 +232,15 @@ TEST_F(ProductsE2ETest, BrowserShowsTheMosaic) {
   ASSERT_EQ(gps_exit_, 0);
   ASSERT_FALSE(test::ChromiumBinary().empty()) << "chromium missing: run scripts/setup.sh";
   ASSERT_TRUE(fs::exists(gps_ / "leaflet" / "leaflet.js"));
+  // The page's layers: one footprint per registered frame (lon/lat near the flight), one line per graph.csv edge.
+  const auto fp = ReadJson(gps_ / "footprints.geojson");
+  ASSERT_EQ(fp["features"].size(), 18u);
+  for (const auto& f : fp["features"])
+    for (const auto& c : f["geometry"]["coordinates"][0]) {
+      EXPECT_NEAR(c[0].get<double>(), -91.994, 0.005);
+      EXPECT_NEAR(c[1].get<double>(), 46.843, 0.005);
+    }
+  EXPECT_EQ(ReadJson(gps_ / "graph.geojson")["features"].size(), ReadCsv(gps_ / "graph.csv").size() - 1);
   const cv::Mat shot = test::Screenshot("file://" + (gps_ / "index.html").string(), gps_ / "browser");
   ASSERT_FALSE(shot.empty());
   cv::Scalar mean;
