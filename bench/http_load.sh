@@ -110,7 +110,7 @@ res=$here/results/http-load-$stamp-vm.md
   echo "Data: \`$data\` ($(ls "$data" | wc -l) frames), $repeats runs each, alternating; with --http: $clients client threads on"
   echo "loopback fetching /live.jpg and /status.json, pause between requests $pace_ms ms ($total_req requests, $total_ok answered 200)."
   echo "The client (one Python process, persistent connections) runs on the same cores as the frame loop."
-  echo "Machine: $(nproc) cores, $(uname -r), shared with other sessions (noise of a few % between runs)."
+  echo "Machine: $(nproc) cores, $(uname -r), shared with other sessions; load average at the end: $(cut -d' ' -f1-3 /proc/loadavg)."
   echo
   echo "| run | --http | median frame_total ms | CPU of the server threads / whole process (sampled every 0.5 s) |"
   echo "|---|---|---|---|"
