@@ -16,7 +16,9 @@
 #include "core/util/bounded_queue.h"
 #include "core/util/clock.h"
 #include "core/util/memory.h"
+#include "firmware_app/live_server.h"
 #include "firmware_app/service_notifier.h"
+#include "firmware_app/status_line.h"
 #include "hal/common/camera_options.h"
 #include "hal/replay/replay_source.h"
 #include "hal/sim/sim_source.h"
@@ -187,6 +189,38 @@ int Run(const RunConfig& config) {
         plan.relocalization_mib, plan.EndMiB(), plan.image_cache_mib, plan.blend_mib, pipeline.mosaic.tile_size);
   Mosaicker mosaicker(pipeline, paths);
   mosaicker.SetMemoryPlan(plan);
+  StatusLine status_line;
+  // The live view (off by default). Declared before the loop's state so it stops last; it only ever reads copies.
+  LiveServer live;
+  const bool serving = !config.http.empty();
+  if (serving) {
+    LiveServer::Options lo;
+    lo.leaflet_dir = pipeline.leaflet_dir;
+    if (!ParseHostPort(config.http, &lo.host, &lo.port)) {
+      spdlog::error("--http: expected HOST:PORT, got '{}'", config.http);
+      return kExitUsage;
+    }
+    if (!live.Start(lo, &error)) {
+      spdlog::error("--http: {}", error);
+      return kExitUsage;
+    }
+    mosaicker.SetPreviewListener(
+        [&live](std::shared_ptr<const std::string> jpeg) { live.PublishJpeg(std::move(jpeg)); });
+  }
+  const int64_t run_start_ns = MonotonicNs();
+  LiveStatus live_status;
+  live_status.budget_mib = plan.budget_mib;
+  const auto publish = [&](const char* state, bool wait) {
+    live_status.state = state;
+    live_status.frames_in = static_cast<int>(mosaicker.frames_in());
+    live_status.uptime_s = static_cast<double>(MonotonicNs() - run_start_ns) * 1e-9;
+    live_status.fps = live_status.uptime_s > 0 ? live_status.frames_in / live_status.uptime_s : 0.0;
+    live_status.median_frame_ms = mosaicker.stage_stats().Get("frame_total").median;
+    live_status.rss_mib = CurrentRssMiB();
+    live_status.last_error = status_line.last_error();
+    if (serving) live.PublishStatus(live_status, wait);
+  };
+  publish("starting", true);
   JournalContents journal;
   const std::string journal_path = paths.Join("journal.jsonl");
   if (config.resume) {
@@ -278,12 +312,21 @@ int Run(const RunConfig& config) {
       break;
     }
     notifier.Progress(static_cast<int>(mosaicker.frames_in()), registered_live, CurrentRssMiB());
+    live_status.registered = registered_live;
+    live_status.dropped = static_cast<int>(queue.dropped());
+    publish("flying", false);
+    if (status_line.tty())
+      status_line.Update(
+          fmt::format("{} frames | {:.1f} fps | {} registered | {} dropped | {:.0f} ms/frame | RSS {:.0f} MiB",
+                      live_status.frames_in, live_status.fps, registered_live, live_status.dropped,
+                      live_status.median_frame_ms, live_status.rss_mib));
     const auto& stats = mosaicker.stage_stats();
     // Test hook (--process-delay-ms): a slow consumer, so that a live camera's drop-oldest queue is exercised.
     if (config.process_delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(config.process_delay_ms));
-    if (mosaicker.frames_in() % 10 == 0)
-      spdlog::info("{} frames, median {:.0f} ms/frame, RSS {:.0f} MiB", mosaicker.frames_in(),
-                   stats.Get("frame_total").median, CurrentRssMiB());
+    if (mosaicker.frames_in() % 10 == 0 && !status_line.tty())
+      spdlog::info("{} frames, median {:.0f} ms/frame, {:.1f} fps, {} registered, RSS {:.0f} MiB",
+                   mosaicker.frames_in(), stats.Get("frame_total").median, live_status.fps, registered_live,
+                   CurrentRssMiB());
   }
   capture.join();
   source->Close();
@@ -296,12 +339,17 @@ int Run(const RunConfig& config) {
                  static_cast<int>(g_stop_signal), mosaicker.frames_in());
   if (source_failed) spdlog::error("source stopped: {} (finishing with what was received)", source_error);
 
+  status_line.Finish();
+  live_status.dropped = static_cast<int>(queue.dropped() + counters.dropped);
+  publish("finishing", true);
   notifier.Stopping(fmt::format("flight over after {} frames: final solve and mosaic", mosaicker.frames_in()));
   bool finished = false;
   {
     const WatchdogHeartbeat heartbeat(&notifier);  // the end solves and compositing have no frame loop to feed it
     finished = mosaicker.Finish(&error);
   }
+  live_status.registered = mosaicker.registered_count();
+  publish(finished ? "done" : "failed", true);
   if (!finished) {
     spdlog::error("cannot write the session (output not writable or disk full): {}", error);
     return kExitOutputError;

@@ -23,6 +23,7 @@ struct RunConfig {
   // (no detection, same result), then the source goes on after them, skipping inputs the journal already has.
   bool resume = false;
   int process_delay_ms = 0;  // test hook: sleep this long per processed frame (a slow consumer)
+  std::string http;          // live view HOST:PORT (firmware_app/live_server.h); empty = off
   PipelineOptions pipeline;
 };
 

@@ -9,6 +9,7 @@ PACKAGES=(
   libceres-dev libsystemd-dev systemd file
   libcamera-dev libcamera-ipa
   libgtest-dev libgmock-dev libbenchmark-dev
+  libcpp-httplib-dev libjs-leaflet chromium python3-gdal curl
   "$@"
 )
 missing=()

@@ -146,7 +146,7 @@ TEST(ResumeTest, KilledAnywhereResumesToTheSameMosaic) {
   const double compose_s = ref.report["composite_ms"].get<double>() / 1000.0;
 
   // Kill points: five after a random number of accepted frames (spread over the flight), two while tiles are being
-  // written (mosaic.tif.part exists), each with a random delay.
+  // written (mosaic.tiled.tif.part, the compositor's file before the COG copy, exists), each with a random delay.
   std::mt19937 rng(20261121);
   struct KillPoint {
     size_t after_frames;  // 0: during the compositing
@@ -167,7 +167,7 @@ TEST(ResumeTest, KilledAnywhereResumesToTheSameMosaic) {
     const fs::path dir = TempDir("kill" + std::to_string(k));
     const auto ready = [&] {
       return point.after_frames > 0 ? JournaledFrames(dir / "journal.jsonl") >= point.after_frames
-                                    : fs::exists(dir / "mosaic.tif.part");
+                                    : fs::exists(dir / "mosaic.tiled.tif.part");
     };
     const int status = KillWhen(Start(dir, false), ready, point.delay_s);
     const bool was_killed = WIFSIGNALED(status);

@@ -1,9 +1,8 @@
 #include "core/mosaic/gdal_writer.h"
 
-#include <cstdio>
-
 #include <gdal_priv.h>
 
+#include <cstdio>
 #include <opencv2/imgproc.hpp>
 #include <vector>
 
@@ -118,6 +117,13 @@ bool GdalTiffWriter::Write(const cv::Mat& image, const cv::Mat& mask, cv::Point 
     if (!WriteRgba(impl_->ds, static_cast<int>(level), small, small_mask, otl, error)) return false;
   }
   return true;
+}
+
+void GdalTiffWriter::SetGeoreference(const std::array<double, 6>& geo_transform, const std::string& crs_wkt) {
+  if (impl_->ds == nullptr) return;
+  std::array<double, 6> gt = geo_transform;
+  impl_->ds->SetGeoTransform(gt.data());
+  if (!crs_wkt.empty()) impl_->ds->SetProjection(crs_wkt.c_str());
 }
 
 bool GdalTiffWriter::Close(std::string* error) {

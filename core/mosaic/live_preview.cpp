@@ -62,6 +62,7 @@ bool LivePreview::Write(const std::string& path, std::string* error) const {
     *error = "JPEG encode failed";
     return false;
   }
+  last_jpeg_ = std::make_shared<const std::string>(bytes.begin(), bytes.end());
   FILE* f = std::fopen(tmp.c_str(), "wb");
   if (f == nullptr) {
     *error = "cannot write " + tmp;

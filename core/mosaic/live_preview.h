@@ -1,4 +1,5 @@
 #pragma once
+#include <memory>
 #include <opencv2/core.hpp>
 #include <string>
 
@@ -15,6 +16,8 @@ class LivePreview {
   void Add(const cv::Mat& thumbnail_bgr, const Mat3& mosaic_from_thumbnail);
   [[nodiscard]] bool Write(const std::string& path, std::string* error) const;
   [[nodiscard]] const cv::Mat& image() const { return canvas_; }
+  // The JPEG bytes of the last Write(), shared (immutable) with readers such as the live HTTP server.
+  [[nodiscard]] std::shared_ptr<const std::string> last_jpeg() const { return last_jpeg_; }
 
  private:
   int side_;
@@ -22,6 +25,7 @@ class LivePreview {
   Mat3 view_from_mosaic_ = Mat3::Identity();
   bool empty_ = true;
   cv::Rect2d content_;  // mosaic coordinates covered so far
+  mutable std::shared_ptr<const std::string> last_jpeg_;
 };
 
 }  // namespace uavm

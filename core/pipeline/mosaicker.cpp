@@ -223,6 +223,7 @@ void Mosaicker::UpdatePreview(int id, const cv::Mat& work_bgr) {
   if (static_cast<int>(frames_.size()) % options_.preview_every == 0) {
     std::string err;
     if (!preview_.Write(paths_.Join("live.jpg"), &err)) spdlog::warn("live preview: {}", err);
+    if (preview_listener_) preview_listener_(preview_.last_jpeg());
   }
 }
 

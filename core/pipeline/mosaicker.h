@@ -1,6 +1,8 @@
 #pragma once
 #include <deque>
+#include <functional>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -78,6 +80,11 @@ class Mosaicker {
   [[nodiscard]] double residual_rms_px() const { return final_rms_; }
   [[nodiscard]] const StageStats& stage_stats() const { return stats_; }
 
+  // Called from the frame loop with each new live.jpg's bytes (e.g. the live HTTP server); must not block.
+  void SetPreviewListener(std::function<void(std::shared_ptr<const std::string>)> listener) {
+    preview_listener_ = std::move(listener);
+  }
+
  private:
   struct FrameState {
     int id = -1;
@@ -117,6 +124,14 @@ class Mosaicker {
   // Whether frame `id` adds new ground to the relocalisation index (see GlobalIndexOptions::keyframe_spacing).
   [[nodiscard]] bool IsNewGround(int id);
   [[nodiscard]] bool WriteOutputs(const std::vector<int>& component, std::string* error);
+  // Fits the georeference to the component's frame centres and EXIF GPS; when it succeeds the canvas is placed again
+  // through `place` turned north-up (canvas_from_original updated), so that mosaic.tif needs no warp.
+  [[nodiscard]] GeorefFit GeorefCanvas(const std::vector<int>& component, std::vector<Mat3>* canvas_from_original,
+                                       const std::function<void(const Mat3&)>& place);
+  // mosaic.tiled.tif -> COG mosaic.tif, then mosaic.kmz, tiles/, index.html. Returns the report's "products" block.
+  [[nodiscard]] nlohmann::json MakeProducts(const std::vector<int>& component,
+                                            const std::vector<Mat3>& canvas_from_original, bool have_tiff);
+  [[nodiscard]] nlohmann::json GeorefJson() const;
 
   PipelineOptions options_;
   SessionPaths paths_;
@@ -142,6 +157,10 @@ class Mosaicker {
   std::deque<std::pair<int, int>> retry_;           // (frame id, attempts)
   std::vector<SkippedInput> skipped_;
   LivePreview preview_;
+  GeorefFit georef_;
+  std::function<void(std::shared_ptr<const std::string>)> preview_listener_;
+  double georef_rotation_removed_deg_ = 0;
+  int georef_gps_frames_ = 0;
   StageStats stats_;
   int best_inliers_ = 0;
   int registered_since_full_ = 0;

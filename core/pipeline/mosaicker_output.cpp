@@ -72,36 +72,41 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
                      ref_px_per_px.end());
     const double median = ref_px_per_px[ref_px_per_px.size() / 2];
     if (median > 0 && std::isfinite(median)) scale /= median;
-    for (int attempt = 0; attempt < 2; ++attempt) {
-      const Mat3 out_from_mosaic_work = ResizeMap(scale, scale) * ref.work_from_original.inverse();
-      double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
-      for (int id : component) {
-        const FrameState& f = frames_[static_cast<size_t>(id)];
-        canvas_from_original[static_cast<size_t>(id)] =
-            out_from_mosaic_work * mosaic_from_work_[id] * f.work_from_original;
-        for (const auto& p :
-             Footprint(canvas_from_original[static_cast<size_t>(id)], f.original_size.width, f.original_size.height)) {
-          minx = std::min<double>(minx, p.x);
-          miny = std::min<double>(miny, p.y);
-          maxx = std::max<double>(maxx, p.x);
-          maxy = std::max<double>(maxy, p.y);
+    // Placement on the canvas; `pre` (linear) turns the canvas, e.g. north-up once the flight is georeferenced.
+    const auto place = [&](const Mat3& pre) {
+      for (int attempt = 0; attempt < 2; ++attempt) {
+        const Mat3 out_from_mosaic_work = pre * ResizeMap(scale, scale) * ref.work_from_original.inverse();
+        double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
+        for (int id : component) {
+          const FrameState& f = frames_[static_cast<size_t>(id)];
+          canvas_from_original[static_cast<size_t>(id)] =
+              out_from_mosaic_work * mosaic_from_work_[id] * f.work_from_original;
+          for (const auto& p : Footprint(canvas_from_original[static_cast<size_t>(id)], f.original_size.width,
+                                         f.original_size.height)) {
+            minx = std::min<double>(minx, p.x);
+            miny = std::min<double>(miny, p.y);
+            maxx = std::max<double>(maxx, p.x);
+            maxy = std::max<double>(maxy, p.y);
+          }
         }
+        const double w = std::ceil(maxx) - std::floor(minx) + 1;
+        const double h = std::ceil(maxy) - std::floor(miny) + 1;
+        if (std::max(w, h) > options_.max_canvas_side && attempt == 0) {
+          const double shrink = options_.max_canvas_side / std::max(w, h);
+          spdlog::warn("canvas {:.0f}x{:.0f} exceeds max_canvas_side {}; mosaic_scale {:.3f} -> {:.3f}", w, h,
+                       options_.max_canvas_side, scale, scale * shrink);
+          scale *= shrink * 0.999;
+          continue;
+        }
+        const Mat3 shift = Translation(-std::floor(minx), -std::floor(miny));
+        for (int id : component)
+          canvas_from_original[static_cast<size_t>(id)] = shift * canvas_from_original[static_cast<size_t>(id)];
+        canvas = cv::Size(static_cast<int>(w), static_cast<int>(h));
+        break;
       }
-      const double w = std::ceil(maxx) - std::floor(minx) + 1;
-      const double h = std::ceil(maxy) - std::floor(miny) + 1;
-      if (std::max(w, h) > options_.max_canvas_side && attempt == 0) {
-        const double shrink = options_.max_canvas_side / std::max(w, h);
-        spdlog::warn("canvas {:.0f}x{:.0f} exceeds max_canvas_side {}; mosaic_scale {:.3f} -> {:.3f}", w, h,
-                     options_.max_canvas_side, scale, scale * shrink);
-        scale *= shrink * 0.999;
-        continue;
-      }
-      const Mat3 shift = Translation(-std::floor(minx), -std::floor(miny));
-      for (int id : component)
-        canvas_from_original[static_cast<size_t>(id)] = shift * canvas_from_original[static_cast<size_t>(id)];
-      canvas = cv::Size(static_cast<int>(w), static_cast<int>(h));
-      break;
-    }
+    };
+    place(Mat3::Identity());
+    georef_ = GeorefCanvas(component, &canvas_from_original, place);
   }
 
   // transforms.csv
@@ -141,8 +146,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     for (size_t k = 0; k < e.src_points.size(); ++k) {
       const Vec2 a = Apply(src_orig, e.src_points[k]);
       const Vec2 b = Apply(tgt_orig, e.tgt_points[k]);
-      const int n = std::snprintf(line, sizeof(line), "%d,%d,%.7g,%.7g,%.7g,%.7g\n", e.src, e.tgt, a.x(), a.y(), b.x(),
-                                  b.y());
+      const int n =
+          std::snprintf(line, sizeof(line), "%d,%d,%.7g,%.7g,%.7g,%.7g\n", e.src, e.tgt, a.x(), a.y(), b.x(), b.y());
       corr_csv.Write(std::string_view(line, static_cast<size_t>(std::max(0, n))));
     }
     // The solves are done: the compositor gets the memory (the points stay in edges.bin).
@@ -203,15 +208,17 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     auto load = [&](int id) { return LoadForCanvas(frames_[static_cast<size_t>(id)].stored_file, load_of[id]); };
     GdalTiffWriter tiff;
     const bool write_tiff = options_.write_tiff;
-    if (write_tiff && !tiff.Open(paths_.Join("mosaic.tif"), canvas, options_.mosaic.tiff_block,
-                                 options_.mosaic.tile_size, options_.mosaic.build_overviews,
-                                 options_.mosaic.gdal_cache_mib, error))
+    // The compositor writes a tiled GeoTIFF; MakeProducts() copies it into the COG mosaic.tif.
+    if (write_tiff &&
+        !tiff.Open(paths_.Join("mosaic.tiled.tif"), canvas, options_.mosaic.tiff_block, options_.mosaic.tile_size,
+                   options_.mosaic.build_overviews, options_.mosaic.gdal_cache_mib, error))
       return false;
     composite = Composite(inputs, canvas, load, options_.mosaic, write_tiff ? &tiff : nullptr);
     if (!composite.ok) {
       *error = "composite failed: " + composite.error;
       return false;
     }
+    if (write_tiff && georef_.ok) tiff.SetGeoreference(GdalGeoTransform(georef_.world_from_pixel), georef_.crs_wkt);
     if (write_tiff && !tiff.Close(error)) return false;
     composite_ms_ = composite.ms;
     compose_peak_rss_mib_ = HighWaterRssMiB();
@@ -223,6 +230,7 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
                  canvas.width, canvas.height, scale, composite.frames_used, composite.frames_dropped_by_overlap,
                  composite.tiles_written, composite.ms);
   }
+  nlohmann::json products = MakeProducts(component, canvas_from_original, options_.write_tiff && !component.empty());
   {
     std::string err;
     if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err))
@@ -343,6 +351,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
                       {"frames_unreadable", composite.frames_unreadable},
                       {"tiles", composite.tiles_written},
                       {"image_loads", composite.image_loads}};
+  report["georef"] = GeorefJson();
+  report["products"] = products;
   return WriteFileAtomic(paths_.Join("report.json"), report.dump(2) + "\n", error);
 }
 

@@ -97,6 +97,13 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"mosaic", "build_overviews", &o.mosaic.build_overviews},
       {"mosaic", "threads", &o.mosaic.threads},
       {"mosaic", "gdal_cache_mib", &o.mosaic.gdal_cache_mib},
+      {"georef", "inlier_threshold_m", &o.georef.inlier_threshold_m},
+      {"georef", "min_points", &o.georef.min_points},
+      {"georef", "affine_min_points", &o.georef.affine_min_points},
+      {"georef", "affine_min_spread_m", &o.georef.affine_min_spread_m},
+      {"georef", "allow_affine", &o.georef.allow_affine},
+      {"products", "write", &o.write_products},
+      {"products", "max_tiles", &o.tiles.max_tiles},
   };
 }
 
@@ -122,14 +129,16 @@ bool PipelineOptions::Check(std::string* why) const {
   if (solve_window < 0) return Fail(why, "solve_window must be >= 0 (0 = whole component)");
   if (trim_heap_every < 0) return Fail(why, "trim_heap_every must be >= 0 (0 = never)");
   if (journal_sync_every < 1) return Fail(why, "journal_sync_every must be >= 1");
+  if (!georef.Check(why)) return false;
+  if (tiles.max_tiles < 1) return Fail(why, "products.max_tiles must be >= 1");
   if (preview_every < 0 || preview_side < 64) return Fail(why, "preview_every >= 0 and preview_side >= 64");
   if (!(mosaic_scale > 0 && mosaic_scale <= 4)) return Fail(why, "mosaic_scale must be in (0,4]");
   if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");
   if (feature_cache_mib < 1) return Fail(why, "feature_cache_mib must be >= 1");
   if (memory_budget_mib < 0) return Fail(why, "memory_budget_mib must be >= 0 (0 = no budget)");
   if (queue_capacity < 1 || queue_capacity > 1024) return Fail(why, "queue_capacity must be in [1,1024]");
-  return features.Check(why) && matching.Check(why) && relocalization.Check(why) && adjust.Check(why) && refine.Check(why) &&
-         mosaic.Check(why);
+  return features.Check(why) && matching.Check(why) && relocalization.Check(why) && adjust.Check(why) &&
+         refine.Check(why) && mosaic.Check(why);
 }
 
 bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error) {

@@ -4,6 +4,8 @@
 #include "core/adjust/affine_adjuster.h"
 #include "core/adjust/global_refiner.h"
 #include "core/features/sift.h"
+#include "core/georef/georef.h"
+#include "core/georef/products.h"
 #include "core/matching/global_index.h"
 #include "core/matching/pair_matcher.h"
 #include "core/mosaic/compositor.h"
@@ -21,13 +23,13 @@ struct PipelineOptions {
   int retry_list_size = 16;   // frames that matched nothing, retried against later frames
   int retry_per_frame = 2;
   int retry_max_attempts = 60;
-  int full_solve_every = 10;  // full adjustment every max(N, size/20) registered frames, and on a merge
-  int solve_window = 300;     // frames those solves move (the newest); 0 = the whole component
+  int full_solve_every = 10;   // full adjustment every max(N, size/20) registered frames, and on a merge
+  int solve_window = 300;      // frames those solves move (the newest); 0 = the whole component
   int journal_sync_every = 1;  // accepted frames between fdatasyncs of journal.jsonl (a power cut loses fewer)
   // Frames between returns of free heap pages to the kernel (malloc_trim); 0 = never. Every 5 rather than 20: peak
   // RSS of a 2000-frame flight 222 instead of 229 MiB (200 frames: 205 either way), no measurable time cost.
   int trim_heap_every = 5;
-  int preview_every = 5;      // live.jpg every N frames; 0 = off
+  int preview_every = 5;  // live.jpg every N frames; 0 = off
   int preview_side = 1024;
   double mosaic_scale = 0.5;    // mosaic.tif GSD relative to the reference frame's original resolution
   int max_canvas_side = 60000;  // guards against a runaway transform making a giant canvas
@@ -45,6 +47,11 @@ struct PipelineOptions {
   // End-of-flight refinement of the linear solution; `model` (top-level key) picks affine or homography maps.
   RefineOptions refine;
   CompositorOptions mosaic;
+  // Georeferencing from EXIF GPS and the map products (COG, KMZ, web tiles, index.html): core/georef.
+  GeorefOptions georef;
+  bool write_products = true;  // mosaic.kmz, tiles/, index.html (mosaic.tif is a COG whenever it is written)
+  TileOptions tiles;
+  std::string leaflet_dir = "/usr/share/javascript/leaflet";  // Debian's libjs-leaflet, copied into the session
 
   [[nodiscard]] bool Check(std::string* why) const;
 };

@@ -1,0 +1,68 @@
+#pragma once
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "core/geometry/transform.h"
+
+namespace uavm {
+
+// Georeferencing of a pose-free mosaic: a map from mosaic pixels to a projected CRS (the flight's UTM zone), fitted to
+// the registered frames' centres and their EXIF GPS positions. GPS is noisy (a few metres, occasional jumps), so the
+// fit is robust: a similarity from RANSAC over pairs, refitted on its inliers; an affine only when enough well-spread
+// frames support it (it absorbs a slightly anisotropic mosaic but is ill-posed for a single flight line).
+struct GeorefOptions {
+  double inlier_threshold_m = 15.0;  // consumer GPS is good to a few metres; jumps are tens of metres
+  int min_points = 3;                // a similarity from 2 would have no redundancy at all
+  int affine_min_points = 10;
+  // The affine needs spread in both directions: the smaller principal spread of the centres, in metres.
+  double affine_min_spread_m = 30.0;
+  bool allow_affine = true;
+  int ransac_iterations = 500;
+
+  [[nodiscard]] bool Check(std::string* why) const;
+};
+
+struct GeoPoint {
+  int id = -1;
+  Vec2 pixel;  // mosaic pixel (pixel centres, (0,0) = centre of the top-left pixel)
+  double latitude_deg = 0;
+  double longitude_deg = 0;
+};
+
+struct GeorefFit {
+  bool ok = false;
+  std::string failure;         // why not, when !ok
+  std::string model = "none";  // "similarity" | "affine"
+  int epsg = 0;                // 326zz (north) / 327zz (south)
+  std::string crs_wkt;
+  // (easting, northing) = world_from_pixel * (x, y, 1), for pixel centres.
+  Eigen::Matrix<double, 2, 3> world_from_pixel = Eigen::Matrix<double, 2, 3>::Zero();
+  int points = 0;
+  int inliers = 0;
+  double rms_m = 0;      // residual RMS of the inliers, metres
+  double rms_all_m = 0;  // of every point
+  double max_inlier_m = 0;
+  double gsd_m = 0;         // ground sampling distance: metres per mosaic pixel (sqrt |det|)
+  double rotation_deg = 0;  // of the pixel grid against grid north (0 = north-up)
+  std::vector<int> inlier_ids;
+  std::vector<double> residuals_m;  // per point, in input order
+};
+
+// EPSG code of the WGS 84 / UTM zone holding (lat, lon) (Norway/Svalbard exceptions ignored).
+[[nodiscard]] int UtmEpsg(double latitude_deg, double longitude_deg);
+
+// Transforms between WGS 84 lat/lon (degrees) and the projected CRS `epsg` (x = easting, y = northing).
+// Returns false when PROJ cannot build the transformation.
+[[nodiscard]] bool LatLonToProjected(int epsg, const std::vector<double>& lat, const std::vector<double>& lon,
+                                     std::vector<Vec2>* out, std::string* error);
+[[nodiscard]] bool ProjectedToLatLon(int epsg, const std::vector<Vec2>& xy, std::vector<double>* lat,
+                                     std::vector<double>* lon, std::string* error);
+[[nodiscard]] std::string EpsgWkt(int epsg);
+
+[[nodiscard]] GeorefFit FitGeoref(const std::vector<GeoPoint>& points, const GeorefOptions& options);
+
+// GDAL geotransform of the pixel grid (GDAL's origin is the top-left pixel's corner, not its centre).
+[[nodiscard]] std::array<double, 6> GdalGeoTransform(const Eigen::Matrix<double, 2, 3>& world_from_pixel);
+
+}  // namespace uavm

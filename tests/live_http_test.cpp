@@ -1,0 +1,158 @@
+// The live view of uavmosaic-onboard (--http): /status.json, /live.jpg and the live Leaflet page while a replay runs
+// (slowed with --process-delay-ms), concurrent clients on loopback, and a clean end of the run.
+#include <arpa/inet.h>
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <netinet/in.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <thread>
+
+#include "tests/browser_shot.h"
+
+namespace uavm {
+namespace {
+
+namespace fs = std::filesystem;
+const std::string kData = UAVM_TEST_DATA;
+
+int FreePort() {
+  const int s = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  a.sin_port = 0;
+  socklen_t len = sizeof(a);
+  if (::bind(s, reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0 ||
+      ::getsockname(s, reinterpret_cast<sockaddr*>(&a), &len) != 0) {
+    ::close(s);
+    return -1;
+  }
+  ::close(s);
+  return ntohs(a.sin_port);
+}
+
+pid_t Spawn(const std::string& cmd) {
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    ::execl("/bin/sh", "sh", "-c", ("exec " + cmd).c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  return pid;
+}
+
+TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
+  const fs::path out = fs::temp_directory_path() / ("uavm_live_http_" + std::to_string(::getpid()));
+  fs::remove_all(out);
+  const int port = FreePort();
+  ASSERT_GT(port, 0);
+  // ~2.4 s per frame: the run lasts long enough to look at it.
+  const pid_t pid =
+      Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + kData + "/brighton_beach_small/images --out " +
+            out.string() + " --http 127.0.0.1:" + std::to_string(port) +
+            " --process-delay-ms 1500 --preview-every 1 --log-level warn");
+  ASSERT_GT(pid, 0);
+  httplib::Client client("127.0.0.1", port);
+  client.set_connection_timeout(1, 0);
+  client.set_read_timeout(5, 0);
+  // Wait for the server and the first picture.
+  nlohmann::json status;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto res = client.Get("/status.json");
+    if (res && res->status == 200) {
+      status = nlohmann::json::parse(res->body);
+      if (status["jpeg_seq"].get<long>() > 0 && status["frames_in"].get<int>() >= 2) break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  ASSERT_FALSE(status.is_null()) << "no /status.json";
+  for (const char* key : {"state", "frames_in", "registered", "dropped", "fps", "rss_mib", "budget_mib", "last_error",
+                          "median_frame_ms", "jpeg_seq"})
+    EXPECT_TRUE(status.contains(key)) << key;
+  EXPECT_EQ(status["state"], "flying");
+  EXPECT_GE(status["registered"].get<int>(), 1);
+  EXPECT_LE(status["registered"].get<int>(), status["frames_in"].get<int>());
+  EXPECT_GT(status["fps"].get<double>(), 0.0);
+  EXPECT_GT(status["rss_mib"].get<double>(), 10.0);
+  EXPECT_EQ(status["budget_mib"].get<double>(), 256.0);
+
+  auto jpg = client.Get("/live.jpg");
+  ASSERT_TRUE(jpg);
+  ASSERT_EQ(jpg->status, 200);
+  EXPECT_EQ(jpg->get_header_value("Content-Type"), "image/jpeg");
+  const cv::Mat img = cv::imdecode(std::vector<uchar>(jpg->body.begin(), jpg->body.end()), cv::IMREAD_COLOR);
+  ASSERT_FALSE(img.empty());
+  cv::Scalar unused;
+  EXPECT_GT(cv::countNonZero(img.reshape(1) > 20), static_cast<int>(img.total()) / 20);  // frames are drawn on it
+
+  // Concurrent clients (bounded: 4 x 15 requests): every answer is 200, or 503 when the pool is full.
+  std::atomic<int> ok{0}, busy{0}, bad{0};
+  std::vector<std::thread> load;
+  for (int t = 0; t < 4; ++t)
+    load.emplace_back([&, t] {
+      httplib::Client c("127.0.0.1", port);
+      c.set_read_timeout(5, 0);
+      for (int i = 0; i < 15; ++i) {
+        auto r = c.Get((i + t) % 2 == 0 ? "/live.jpg" : "/status.json");
+        if (r && r->status == 200)
+          ++ok;
+        else if (r && r->status == 503)
+          ++busy;
+        else
+          ++bad;
+      }
+    });
+  for (auto& th : load) th.join();
+  EXPECT_EQ(bad.load(), 0);
+  EXPECT_GT(ok.load(), 30);
+
+  // The live page in a real browser, from the server: it shows the live picture.
+  ASSERT_FALSE(test::ChromiumBinary().empty()) << "chromium missing: run scripts/setup.sh";
+  const cv::Mat shot =
+      test::Screenshot("http://127.0.0.1:" + std::to_string(port) + "/", out.string() + "_browser", 4000);
+  ASSERT_FALSE(shot.empty());
+  cv::Scalar mean;
+  const double share = test::ContentShare(shot, &mean);
+  std::printf("live page: %.0f %% of the view is the live picture\n", 100 * share);
+  EXPECT_GT(share, 0.10);
+  const cv::Scalar ref = test::ContentMean(img);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(mean[c], ref[c], 30) << "channel " << c;
+
+  // The run finishes normally, every frame registered despite the clients.
+  int wstatus = 0;
+  ASSERT_EQ(::waitpid(pid, &wstatus, 0), pid);
+  ASSERT_TRUE(WIFEXITED(wstatus));
+  EXPECT_EQ(WEXITSTATUS(wstatus), 0);
+  std::ifstream in(out / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  EXPECT_EQ(report["registered"].get<int>(), 18);
+  // After the run the server is gone.
+  EXPECT_FALSE(client.Get("/status.json"));
+  if (!::testing::Test::HasFailure()) {
+    fs::remove_all(out);
+    fs::remove_all(out.string() + "_browser");
+  }
+}
+
+TEST(LiveHttpTest, BadAddressIsAUsageError) {
+  const std::string cmd = std::string(UAVM_ONBOARD_BIN) + " --source replay:" + kData +
+                          "/brighton_beach_small/images --out /tmp/uavm_live_bad_" + std::to_string(::getpid()) +
+                          " --http nonsense --log-level off";
+  const int status = std::system(cmd.c_str());
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 2);
+  fs::remove_all("/tmp/uavm_live_bad_" + std::to_string(::getpid()));
+}
+
+}  // namespace
+}  // namespace uavm
