@@ -19,7 +19,7 @@ PACKAGES=(
   libc6-dev libstdc++-12-dev linux-libc-dev
   libopencv-dev libeigen3-dev libgdal-dev libexiv2-dev libjpeg-dev
   libcli11-dev libspdlog-dev libyaml-cpp-dev nlohmann-json3-dev
-  libceres-dev libsystemd-dev libcamera-dev
+  libceres-dev libsystemd-dev libcamera-dev libcpp-httplib-dev
   libgtest-dev libgmock-dev libbenchmark-dev
 )
 STAMP_TEXT="bookworm arm64 v1: ${PACKAGES[*]}"
