@@ -1,0 +1,67 @@
+#pragma once
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "core/stereo/sgm.h"
+
+namespace uavm::stereo {
+
+// A pinhole camera with OpenCV distortion; projection m = K [R | -R c] X (c = camera centre in world coordinates).
+struct StereoCamera {
+  cv::Matx33d K = cv::Matx33d::eye();
+  cv::Vec<double, 5> dist{0, 0, 0, 0, 0};  // OpenCV order k1 k2 p1 p2 k3
+  cv::Matx33d R = cv::Matx33d::eye();      // camera_from_world rotation
+  cv::Vec3d c{0, 0, 0};
+  cv::Size size;
+};
+
+struct ColoredPoint {
+  cv::Vec3f xyz;  // world coordinates
+  cv::Vec3b bgr;
+};
+
+struct PairDepthOptions {
+  // Depth range (along the optical axis of the first camera, world units) that sets the disparity search range.
+  // max_disparity > 0 overrides the range from depths.
+  double min_depth = 1.0;
+  double max_depth = 1.0e4;
+  int max_disparity = 0;
+  int max_disparity_cap = 320;  // at matching resolution; a wider range is clipped at the far end (min_depth)
+  // Matching resolution: images are scaled by this factor after rectification (0.5 = half size) for speed.
+  double image_scale = 1.0;
+  // Keep one point per step x step block of the left rectified image (1 = every pixel).
+  int sample_step = 1;
+  // Pixels whose disparity was filled (not measured) are never triangulated; this also drops points whose
+  // triangulation angle is below this (degrees).
+  double min_triangulation_angle_deg = 1.0;
+  SgmOptions sgm;
+
+  [[nodiscard]] bool Check(std::string* why = nullptr) const;
+};
+
+// The rectification of a pair: rectified image k = remap(image k, map_x[k], map_y[k]); rectified camera k has
+// intrinsics P[k](:,0:3) and rotation R_rect[k] * cam.R; Q maps (x, y, disparity, 1) of rectified left to the left
+// rectified camera frame. `swapped` = the first camera is the right one of the rectified pair.
+struct RectifiedPair {
+  cv::Mat map_x[2], map_y[2];
+  cv::Matx33d R_rect[2];
+  cv::Matx34d P[2];
+  cv::Matx44d Q;
+  cv::Size size;
+  bool swapped = false;  // true: rectified left = camera 2
+};
+
+// Rectification of cam1/cam2 from their relative pose (indices 0/1 of the result are LEFT/RIGHT of the rectified
+// pair, i.e. camera 2 first when swapped).
+[[nodiscard]] bool RectifyCameras(const StereoCamera& cam1, const StereoCamera& cam2, RectifiedPair* rectified,
+                                  std::string* error = nullptr);
+
+// Rectify from the relative pose, dense disparity (SGM + left-right check), triangulate -> world points with colours
+// from img1/img2 (the left rectified image). Only measured (not hole-filled) disparities give points.
+[[nodiscard]] bool DensePointsFromPair(const cv::Mat& img1, const StereoCamera& cam1, const cv::Mat& img2,
+                                       const StereoCamera& cam2, const PairDepthOptions& opts,
+                                       std::vector<ColoredPoint>* points, std::string* error);
+
+}  // namespace uavm::stereo

@@ -1,0 +1,44 @@
+#pragma once
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace uavm::stereo {
+
+// Semi-global matching on a rectified pair (epipolar lines = image rows, disparity = x_left - x_right >= 0).
+struct SgmOptions {
+  int min_disparity = 0;
+  int num_disparities = 64;  // disparities searched: min_disparity .. min_disparity + num_disparities - 1
+  // Census window (odd sizes; at most 64 bits in total).
+  int census_width = 9;
+  int census_height = 7;
+  // Weight of the absolute horizontal-gradient difference added to the census Hamming cost (0 = census only).
+  int gradient_weight = 1;
+  // Smoothness penalties per path step: P1 for |d change| = 1, P2 for larger jumps; P2 is divided by (1 + the
+  // intensity step / p2_gradient_scale) so that depth jumps are cheaper on image edges.
+  int p1 = 10;
+  int p2 = 120;
+  int p2_min = 30;
+  double p2_gradient_scale = 0.0;  // 0 = constant P2
+  int num_paths = 8;               // 4 or 8
+  // Best cost must beat the second best (outside +-1) by this percentage.
+  int uniqueness_ratio = 5;
+  // Left-right check tolerance in pixels (< 0 = no check).
+  double lr_tolerance = 1.0;
+  // Speckle removal: regions smaller than speckle_size pixels whose disparity varies by <= speckle_range are invalid.
+  int speckle_size = 100;
+  double speckle_range = 2.0;
+  // Fill invalid pixels from the lower (background) of the nearest valid neighbours along the row, then median.
+  bool fill_holes = true;
+  int median_size = 3;  // 0, 3 or 5
+  int threads = 0;      // 0 = OpenCV's default
+
+  [[nodiscard]] bool Check(std::string* why = nullptr) const;
+};
+
+// Disparity of the LEFT image, CV_32FC1, NaN where there is none. `left` and `right` are 8-bit gray or BGR of the
+// same size. `measured` (optional, CV_8UC1): 255 where the disparity passed the checks, 0 where it was hole-filled.
+[[nodiscard]] bool ComputeDisparity(const cv::Mat& left, const cv::Mat& right, const SgmOptions& options,
+                                    cv::Mat* disparity, std::string* error = nullptr, cv::Mat* measured = nullptr);
+
+}  // namespace uavm::stereo
