@@ -1,8 +1,7 @@
 #pragma once
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "core/stereo/sgm.h"
 
@@ -28,7 +27,7 @@ struct PairDepthOptions {
   double min_depth = 1.0;
   double max_depth = 1.0e4;
   int max_disparity = 0;
-  int max_disparity_cap = 320;  // at matching resolution; a wider range is clipped at the far end (min_depth)
+  int max_disparity_cap = 320;  // at matching resolution; a wider range loses its nearest depths
   // Matching resolution: images are scaled by this factor after rectification (0.5 = half size) for speed.
   double image_scale = 1.0;
   // Keep one point per step x step block of the left rectified image (1 = every pixel).
@@ -41,20 +40,21 @@ struct PairDepthOptions {
   [[nodiscard]] bool Check(std::string* why = nullptr) const;
 };
 
-// The rectification of a pair: rectified image k = remap(image k, map_x[k], map_y[k]); rectified camera k has
-// intrinsics P[k](:,0:3) and rotation R_rect[k] * cam.R; Q maps (x, y, disparity, 1) of rectified left to the left
-// rectified camera frame. `swapped` = the first camera is the right one of the rectified pair.
+// The rectification of a pair. Both rectified cameras share the rotation world_to_rect (x axis = baseline c1 -> c2,
+// z = mean viewing direction) and the intrinsics K (fx = fy): camera 1 is always the LEFT one, with positive
+// disparity d = x1 - x2 = f * baseline / z_rect (a pair whose baseline points the other way in the images is simply
+// rotated by 180 degrees, no swap is needed). Rectified image k = remap(image k, map_x[k], map_y[k]).
 struct RectifiedPair {
-  cv::Mat map_x[2], map_y[2];
-  cv::Matx33d R_rect[2];
-  cv::Matx34d P[2];
-  cv::Matx44d Q;
+  cv::Mat map_x[2], map_y[2];    // CV_32FC1, size `size`
+  cv::Matx33d rect_from_cam[2];  // rotation from original camera k to the rectified frame (initUndistortRectifyMap R)
+  cv::Matx33d rect_from_world;
+  cv::Matx33d K;
+  double baseline = 0.0;  // |c2 - c1|
   cv::Size size;
-  bool swapped = false;  // true: rectified left = camera 2
 };
 
-// Rectification of cam1/cam2 from their relative pose (indices 0/1 of the result are LEFT/RIGHT of the rectified
-// pair, i.e. camera 2 first when swapped).
+// Rectification of cam1/cam2 from their poses; the rectified frame covers both images' footprints (capped at
+// 2x the larger input dimension).
 [[nodiscard]] bool RectifyCameras(const StereoCamera& cam1, const StereoCamera& cam2, RectifiedPair* rectified,
                                   std::string* error = nullptr);
 

@@ -1,7 +1,8 @@
 #pragma once
-#include <string>
-
+#include <cstdint>
 #include <opencv2/core.hpp>
+#include <string>
+#include <vector>
 
 namespace uavm::stereo {
 
@@ -34,6 +35,24 @@ struct SgmOptions {
   int threads = 0;      // 0 = OpenCV's default
 
   [[nodiscard]] bool Check(std::string* why = nullptr) const;
+};
+
+// The matcher with its work buffers (cost volume and path sums, ~5 bytes per pixel and disparity), kept between
+// calls so that repeated matching does not pay for fresh pages each time.
+class SgmMatcher {
+ public:
+  explicit SgmMatcher(const SgmOptions& options) : options_(options) {}
+  const SgmOptions& options() const { return options_; }
+  void set_options(const SgmOptions& options) { options_ = options; }
+  // As ComputeDisparity below.
+  [[nodiscard]] bool Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* disparity,
+                             std::string* error = nullptr, cv::Mat* measured = nullptr);
+  void ReleaseBuffers();
+
+ private:
+  SgmOptions options_;
+  std::vector<uint8_t> cost_;
+  std::vector<uint16_t> sum_[2];
 };
 
 // Disparity of the LEFT image, CV_32FC1, NaN where there is none. `left` and `right` are 8-bit gray or BGR of the
