@@ -4,10 +4,14 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
-#include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <limits>
 #include <memory>
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
@@ -76,27 +80,110 @@ struct CostParams {
   int gradient_weight = 0;
 };
 
-// Matching cost of one row: Hamming distance of census strings plus the clipped difference of horizontal gradients.
-// Disparities that fall outside the right image get a neutral cost, so that the paths carry their neighbours' value.
-UAVM_HOT void CostRow(const uint64_t* __restrict cl, const uint64_t* __restrict cr, const int16_t* __restrict gl,
-                      const int16_t* __restrict gr, const CostParams& p, uint8_t* __restrict out) {
-  const uint8_t neutral = static_cast<uint8_t>(24 + 4 * p.gradient_weight);
-  for (int x = 0; x < p.width; ++x) {
-    uint8_t* c = out + static_cast<size_t>(x) * p.stride;
-    const uint64_t l = cl[x];
-    const int g = gl[x];
-    // Valid k: 0 <= x - min_disp - k < width.
-    const int k_lo = std::clamp(x - p.min_disp - (p.width - 1), 0, p.num_disp);
-    const int k_hi = std::clamp(x - p.min_disp + 1, k_lo, p.num_disp);
-    for (int k = 0; k < k_lo; ++k) c[k] = neutral;
-    const int base = x - p.min_disp;
-    for (int k = k_lo; k < k_hi; ++k) {
-      const int ham = std::popcount(l ^ cr[base - k]);
-      const int grad = std::min(std::abs(g - gr[base - k]), 15) * p.gradient_weight;
-      c[k] = static_cast<uint8_t>(std::min(ham + grad, 255));
+// Matching cost of one row, disparity-major (t[k * width + x]): Hamming distance of census strings plus the clipped
+// difference of horizontal gradients. Disparities that fall outside the right image get a neutral cost, so that the
+// paths carry their neighbours' value. The row is transposed into the pixel-major volume afterwards.
+inline uint8_t NeutralCost(const CostParams& p) {
+  return static_cast<uint8_t>(24 + 4 * p.gradient_weight);
+}
+
+// Valid x for disparity index k: 0 <= x - min_disp - k < width.
+inline void ValidRange(const CostParams& p, int k, int* x_lo, int* x_hi) {
+  *x_lo = std::clamp(p.min_disp + k, 0, p.width);
+  *x_hi = std::clamp(p.width + p.min_disp + k, *x_lo, p.width);
+}
+
+void CostRowScalar(const uint64_t* __restrict cl, const uint64_t* __restrict cr, const int16_t* __restrict gl,
+                   const int16_t* __restrict gr, const CostParams& p, uint8_t* __restrict t) {
+  const uint8_t neutral = NeutralCost(p);
+  for (int k = 0; k < p.num_disp; ++k) {
+    uint8_t* row = t + static_cast<size_t>(k) * p.width;
+    int x_lo, x_hi;
+    ValidRange(p, k, &x_lo, &x_hi);
+    const int shift = p.min_disp + k;
+    for (int x = 0; x < x_lo; ++x) row[x] = neutral;
+    for (int x = x_lo; x < x_hi; ++x) {
+      const int ham = std::popcount(cl[x] ^ cr[x - shift]);
+      const int grad = std::min(std::abs(gl[x] - gr[x - shift]), 15) * p.gradient_weight;
+      row[x] = static_cast<uint8_t>(std::min(ham + grad, 255));
     }
-    for (int k = k_hi; k < p.num_disp; ++k) c[k] = neutral;
-    for (int k = p.num_disp; k < p.stride; ++k) c[k] = 255;
+    for (int x = x_hi; x < p.width; ++x) row[x] = neutral;
+  }
+}
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define UAVM_HAVE_AVX2_COST 1
+// Four 64-bit census XORs counted at once with the nibble-table popcount (AVX2 has no 64-bit popcount).
+__attribute__((target("avx2"))) void CostRowAvx2(const uint64_t* __restrict cl, const uint64_t* __restrict cr,
+                                                 const int16_t* __restrict gl, const int16_t* __restrict gr,
+                                                 const CostParams& p, uint8_t* __restrict t) {
+  const uint8_t neutral = NeutralCost(p);
+  const __m256i table =
+      _mm256_setr_epi8(0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4, 0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4);
+  const __m256i low4 = _mm256_set1_epi8(0x0f);
+  const __m256i zero = _mm256_setzero_si256();
+  const __m256i cap = _mm256_set1_epi32(15);
+  const __m256i weight = _mm256_set1_epi32(p.gradient_weight);
+  const __m256i max255 = _mm256_set1_epi32(255);
+  // Low byte of each 64-bit lane -> bytes 0, 1 (lower 128-bit half) and 2, 3 (upper half), then OR of the halves.
+  const __m256i gather = _mm256_setr_epi8(0, 8, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, 0, 8,
+                                          -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1);
+  for (int k = 0; k < p.num_disp; ++k) {
+    uint8_t* row = t + static_cast<size_t>(k) * p.width;
+    int x_lo, x_hi;
+    ValidRange(p, k, &x_lo, &x_hi);
+    const int shift = p.min_disp + k;
+    for (int x = 0; x < x_lo; ++x) row[x] = neutral;
+    int x = x_lo;
+    for (; x + 4 <= x_hi; x += 4) {
+      const __m256i a = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(cl + x));
+      const __m256i b = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(cr + x - shift));
+      const __m256i v = _mm256_xor_si256(a, b);
+      const __m256i lo = _mm256_shuffle_epi8(table, _mm256_and_si256(v, low4));
+      const __m256i hi = _mm256_shuffle_epi8(table, _mm256_and_si256(_mm256_srli_epi16(v, 4), low4));
+      const __m256i ham = _mm256_sad_epu8(_mm256_add_epi8(lo, hi), zero);  // 4 x u64
+      const __m256i ga = _mm256_cvtepi16_epi64(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(gl + x)));
+      const __m256i gb = _mm256_cvtepi16_epi64(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(gr + x - shift)));
+      // Only the low 32 bits of each 64-bit lane matter below.
+      const __m256i grad =
+          _mm256_mullo_epi32(_mm256_min_epi32(_mm256_abs_epi32(_mm256_sub_epi32(ga, gb)), cap), weight);
+      const __m256i sum = _mm256_min_epi32(_mm256_add_epi32(ham, grad), max255);
+      const __m256i bytes = _mm256_shuffle_epi8(sum, gather);
+      const int four =
+          _mm_cvtsi128_si32(_mm_or_si128(_mm256_castsi256_si128(bytes), _mm256_extracti128_si256(bytes, 1)));
+      std::memcpy(row + x, &four, 4);
+    }
+    for (; x < x_hi; ++x) {
+      const int ham = std::popcount(cl[x] ^ cr[x - shift]);
+      const int grad = std::min(std::abs(gl[x] - gr[x - shift]), 15) * p.gradient_weight;
+      row[x] = static_cast<uint8_t>(std::min(ham + grad, 255));
+    }
+    for (x = x_hi; x < p.width; ++x) row[x] = neutral;
+  }
+}
+#endif
+
+// Cost of row y into the pixel-major volume (stride disparities per pixel, padding = 255).
+void CostRow(const uint64_t* cl, const uint64_t* cr, const int16_t* gl, const int16_t* gr, const CostParams& p,
+             std::vector<uint8_t>* scratch, uint8_t* out) {
+  scratch->resize(static_cast<size_t>(p.num_disp) * p.width);
+#ifdef UAVM_HAVE_AVX2_COST
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  if (avx2) {
+    CostRowAvx2(cl, cr, gl, gr, p, scratch->data());
+  } else {
+    CostRowScalar(cl, cr, gl, gr, p, scratch->data());
+  }
+#else
+  CostRowScalar(cl, cr, gl, gr, p, scratch->data());
+#endif
+  const cv::Mat t(p.num_disp, p.width, CV_8UC1, scratch->data());
+  cv::Mat dst(p.width, p.num_disp, CV_8UC1, out, static_cast<size_t>(p.stride));
+  cv::transpose(t, dst);
+  if (p.stride > p.num_disp) {
+    for (int x = 0; x < p.width; ++x)
+      std::memset(out + static_cast<size_t>(x) * p.stride + p.num_disp, 255,
+                  static_cast<size_t>(p.stride - p.num_disp));
   }
 }
 
@@ -219,7 +306,7 @@ void Sweep(const uint8_t* cost, const cv::Mat& gray, const CostParams& p, const 
 // packed as (cost << 16 | k) so that every search is a plain (vectorised) minimum.
 UAVM_HOT void SelectRow(const uint16_t* __restrict row_a, const uint16_t* __restrict row_b, const CostParams& p,
                         int uniqueness, float* __restrict dl, int* __restrict il, uint32_t* __restrict right,
-                        uint16_t* __restrict sp) {
+                        uint16_t* __restrict sp, uint32_t* __restrict pk) {
   const int w = p.width;
   const int s = p.stride;
   const int n = p.num_disp;
@@ -230,17 +317,20 @@ UAVM_HOT void SelectRow(const uint16_t* __restrict row_a, const uint16_t* __rest
     const uint16_t* b = row_b + static_cast<size_t>(x) * s;
     for (int k = 0; k < s; ++k) sp[k] = static_cast<uint16_t>(a[k] + b[k]);
     uint32_t packed = 0xFFFFFFFFu;
-    for (int k = 0; k < n; ++k)
-      packed = std::min(packed, (static_cast<uint32_t>(sp[k]) << 16) | static_cast<uint32_t>(k));
+    for (int k = 0; k < n; ++k) {
+      pk[k] = (static_cast<uint32_t>(sp[k]) << 16) | static_cast<uint32_t>(k);
+      packed = std::min(packed, pk[k]);
+    }
     const int best = static_cast<int>(packed & 0xFFFFu);
     const int best_cost = static_cast<int>(packed >> 16);
     // Right view: pixel x_r = x - min_disp - k, for k in range and x_r inside the image.
     const int k_lo = std::max(0, x - p.min_disp - (w - 1));
     const int k_hi = std::min(n - 1, x - p.min_disp);
-    for (int k = k_lo; k <= k_hi; ++k) {
-      const int xr = x - p.min_disp - k;
-      right[xr] = std::min(right[xr], (static_cast<uint32_t>(sp[k]) << 16) | static_cast<uint32_t>(k));
-    }
+    // Written with ascending x_r (descending k) so that the loop vectorises.
+    const uint32_t* top = pk + k_hi;
+    uint32_t* r = right + (x - p.min_disp - k_hi);
+    const int count = k_hi - k_lo + 1;
+    for (int j = 0; j < count; ++j) r[j] = std::min(r[j], top[-j]);
     uint16_t second = 0xFFFFu;
     for (int k = 0; k < best - 1; ++k) second = std::min(second, sp[k]);
     for (int k = best + 2; k < n; ++k) second = std::min(second, sp[k]);
@@ -270,10 +360,11 @@ void SelectDisparities(const uint16_t* sum_a, const uint16_t* sum_b, const CostP
   cv::parallel_for_(cv::Range(0, p.height), [&](const cv::Range& rows) {
     std::vector<uint32_t> right(static_cast<size_t>(w));
     std::vector<uint16_t> sp(static_cast<size_t>(p.stride));
+    std::vector<uint32_t> pk(static_cast<size_t>(p.stride));
     for (int y = rows.start; y < rows.end; ++y) {
       const size_t row = static_cast<size_t>(y) * w * p.stride;
       SelectRow(sum_a + row, sum_b + row, p, o.uniqueness_ratio, left->ptr<float>(y), left_int->ptr<int>(y),
-                right.data(), sp.data());
+                right.data(), sp.data(), pk.data());
       int* ir = right_int->ptr<int>(y);
       for (int x = 0; x < w; ++x) ir[x] = right[x] == 0xFFFFFFFFu ? -1 : static_cast<int>(right[x] & 0xFFFFu);
     }
@@ -366,15 +457,6 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
   p.stride = (options.num_disparities + 15) / 16 * 16;
   p.gradient_weight = options.gradient_weight;
 
-  const bool prof = std::getenv("UAVM_SGM_PROFILE") != nullptr;  // TEMP
-  double t0 = (double)cv::getTickCount();
-  auto lap = [&](const char* what) {
-    if (prof) {
-      double t = (double)cv::getTickCount();
-      std::fprintf(stderr, "%s %.1f ms  ", what, (t - t0) * 1000 / cv::getTickFrequency());
-      t0 = t;
-    }
-  };
   const cv::Mat cl = Census(gl, options.census_width, options.census_height);
   const cv::Mat cr = Census(gr, options.census_width, options.census_height);
   cv::Mat sl, sr;
@@ -383,18 +465,17 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
   cv::Sobel(gr, sr, CV_16S, 1, 0, 3, 0.125);
 
   const size_t volume = static_cast<size_t>(p.width) * p.height * p.stride;
-  lap("census");
   if (cost_.size() < volume) cost_.resize(volume);
   uint8_t* cost = cost_.data();
   cv::parallel_for_(cv::Range(0, p.height), [&](const cv::Range& rows) {
+    std::vector<uint8_t> scratch;
     for (int y = rows.start; y < rows.end; ++y) {
-      CostRow(cl.ptr<uint64_t>(y), cr.ptr<uint64_t>(y), sl.ptr<int16_t>(y), sr.ptr<int16_t>(y), p,
+      CostRow(cl.ptr<uint64_t>(y), cr.ptr<uint64_t>(y), sl.ptr<int16_t>(y), sr.ptr<int16_t>(y), p, &scratch,
               cost + static_cast<size_t>(y) * p.width * p.stride);
     }
   });
 
-  // The two sweeps are independent: one per core, each into its own sum, added afterwards.
-  lap("cost");
+  // The two sweeps are independent: one per core, each into its own sum (added during the selection).
   for (auto& sum : sum_)
     if (sum.size() < volume) sum.resize(volume);
   uint16_t* sum_forward = sum_[0].data();
@@ -402,14 +483,11 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
   cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& r) {
     for (int k = r.start; k < r.end; ++k) Sweep(cost, gl, p, options, k == 0, k == 0 ? sum_forward : sum_backward);
   });
-  lap("sweeps");
 
-  lap("add");
   cv::Mat disp, left_int, right_int;
   SelectDisparities(sum_forward, sum_backward, p, options, &disp, &left_int, &right_int);
 
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  lap("select");
   if (options.lr_tolerance >= 0.0) {
     for (int y = 0; y < p.height; ++y) {
       float* d = disp.ptr<float>(y);
@@ -461,8 +539,6 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
       disp = filtered;
     }
   }
-  lap("post");
-  if (prof) std::fprintf(stderr, "\n");
   *disparity = disp;
   if (options.threads > 0) cv::setNumThreads(saved_threads);
   return true;
