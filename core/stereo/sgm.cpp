@@ -530,7 +530,12 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
     FillHoles(&disp);
     if (options.median_size > 0) {
       // medianBlur on float supports 3 and 5; NaN cannot remain after filling unless a whole row was empty.
-      cv::Mat finite_mask = disp == disp;  // NaN != NaN
+      cv::Mat finite_mask(disp.size(), CV_8UC1);
+      for (int y = 0; y < disp.rows; ++y) {
+        const float* d = disp.ptr<float>(y);
+        uint8_t* m = finite_mask.ptr<uint8_t>(y);
+        for (int x = 0; x < disp.cols; ++x) m[x] = std::isfinite(d[x]) ? 255 : 0;
+      }
       cv::Mat filtered;
       cv::Mat tmp = disp.clone();
       tmp.setTo(0.0f, ~finite_mask);
