@@ -8,6 +8,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -60,6 +61,11 @@ struct Geometry {
   cv::Vec3d c2;
   cv::Vec3d tilt1, tilt2;  // Rodrigues vectors
 };
+
+// Short test names in CTest (gtest would print the parameter's bytes).
+void PrintTo(const Geometry& g, std::ostream* os) {
+  *os << g.name;
+}
 
 class RectifyTest : public ::testing::TestWithParam<Geometry> {};
 

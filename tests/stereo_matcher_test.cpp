@@ -6,6 +6,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <ostream>
 #include <string>
 
 #include "core/stereo/sgm.h"
@@ -49,6 +50,11 @@ struct PairCase {
   int num_disparities;
   double max_bad2;  // measured 4.8 % (tsukuba) and 1.6 % (venus) with the defaults; limits leave ~50 % margin
 };
+
+// Short test names in CTest (gtest would print the parameter's bytes).
+void PrintTo(const PairCase& c, std::ostream* os) {
+  *os << c.name;
+}
 
 class MiddleburyTest : public ::testing::TestWithParam<PairCase> {};
 
@@ -165,6 +171,20 @@ TEST(StereoMatcher, RejectsBadInput) {
   bad.num_paths = 5;
   EXPECT_FALSE(ComputeDisparity(a, a, bad, &disp, &error));
   EXPECT_TRUE(SgmOptions{}.Check());
+}
+
+TEST(StereoMatcher, RefusesWorkBuffersOverTheMemoryLimit) {
+  cv::Mat left, right;
+  ShiftedPair(5.0, &left, &right);
+  SgmOptions options;
+  options.num_disparities = 64;  // 320 x 240 x 64 x 5 bytes = 23.4 MiB
+  options.max_memory_mib = 16;
+  cv::Mat disp;
+  std::string error;
+  EXPECT_FALSE(ComputeDisparity(left, right, options, &disp, &error));
+  EXPECT_NE(error.find("MiB"), std::string::npos) << error;
+  options.max_memory_mib = 32;
+  EXPECT_TRUE(ComputeDisparity(left, right, options, &disp, &error)) << error;
 }
 
 }  // namespace

@@ -116,29 +116,43 @@ bool DensePointsFromPair(const cv::Mat& img1, const StereoCamera& cam1, const cv
   if (img1.empty() || img2.empty()) return Fail(error, "empty image");
   if (img1.size() != cam1.size || img2.size() != cam2.size) return Fail(error, "image size differs from camera size");
   if (img1.depth() != CV_8U || img2.depth() != CV_8U) return Fail(error, "images must be 8-bit");
+  for (const cv::Mat* img : {&img1, &img2})
+    if (img->channels() != 1 && img->channels() != 3 && img->channels() != 4)
+      return Fail(error, "images must have 1, 3 or 4 channels");
   RectifiedPair rect;
   if (!RectifyCameras(cam1, cam2, &rect, error)) return false;
 
   cv::Mat r1, r2;
   cv::remap(img1, r1, rect.map_x[0], rect.map_y[0], cv::INTER_LINEAR, cv::BORDER_CONSTANT);
   cv::remap(img2, r2, rect.map_x[1], rect.map_y[1], cv::INTER_LINEAR, cv::BORDER_CONSTANT);
-  const double s = opts.image_scale;
+  // Disparity range at matching scale s: d = f * b * s / z. The scale is lowered until the matcher's buffers
+  // (5 bytes per pixel and disparity) fit its memory limit.
+  SgmOptions sgm = opts.sgm;
+  double s = opts.image_scale;
+  for (;;) {
+    const double fb = rect.K(0, 0) * rect.baseline * s;
+    if (opts.max_disparity > 0) {
+      sgm.min_disparity = 0;
+      sgm.num_disparities = std::min(opts.max_disparity, opts.max_disparity_cap);
+    } else {
+      const int d_min = static_cast<int>(std::floor(fb / opts.max_depth));
+      const int d_max = static_cast<int>(std::ceil(fb / opts.min_depth));
+      sgm.min_disparity = std::max(0, d_min - 1);
+      sgm.num_disparities = std::clamp(d_max + 2 - sgm.min_disparity, 2, opts.max_disparity_cap);
+    }
+    const double mib = 5.0 * (rect.size.width * s) * (rect.size.height * s) * ((sgm.num_disparities + 15) / 16 * 16) /
+                       (1024.0 * 1024.0);
+    if (mib <= 0.95 * sgm.max_memory_mib || s < 0.05) break;
+    s *= 0.9;
+  }
   cv::Mat m1 = r1, m2 = r2;
+  double sx = 1.0, sy = 1.0;
   if (s < 1.0) {
     cv::resize(r1, m1, cv::Size(), s, s, cv::INTER_AREA);
     cv::resize(r2, m2, cv::Size(), s, s, cv::INTER_AREA);
-  }
-  // Disparity range at matching resolution: d = f * b / z.
-  const double fb = rect.K(0, 0) * rect.baseline * s;
-  SgmOptions sgm = opts.sgm;
-  if (opts.max_disparity > 0) {
-    sgm.min_disparity = 0;
-    sgm.num_disparities = std::min(opts.max_disparity, opts.max_disparity_cap);
-  } else {
-    const int d_min = static_cast<int>(std::floor(fb / opts.max_depth));
-    const int d_max = static_cast<int>(std::ceil(fb / opts.min_depth));
-    sgm.min_disparity = std::max(0, d_min - 1);
-    sgm.num_disparities = std::clamp(d_max + 2 - sgm.min_disparity, 2, opts.max_disparity_cap);
+    // cv::resize maps with exactly fx = fy = s (not the ratio of the rounded sizes).
+    sx = s;
+    sy = s;
   }
   cv::Mat disp, measured;
   if (!ComputeDisparity(m1, m2, sgm, &disp, error, &measured)) return false;
@@ -162,9 +176,9 @@ bool DensePointsFromPair(const cv::Mat& img1, const StereoCamera& cam1, const cv
     for (int x = 0; x < disp.cols; x += opts.sample_step) {
       if (!m[x] || !std::isfinite(d[x]) || d[x] <= 0.0f) continue;
       // Back to full rectified resolution (pixel centres scale about the corner).
-      const double u = (x + 0.5) / s - 0.5;
-      const double v = (y + 0.5) / s - 0.5;
-      const double dd = d[x] / s;
+      const double u = (x + 0.5) / sx - 0.5;
+      const double v = (y + 0.5) / sy - 0.5;
+      const double dd = d[x] / sx;
       const int ui = static_cast<int>(std::lround(u));
       const int vi = static_cast<int>(std::lround(v));
       const int u2 = static_cast<int>(std::lround(u - dd));
@@ -184,6 +198,9 @@ bool DensePointsFromPair(const cv::Mat& img1, const StereoCamera& cam1, const cv
       p.xyz = cv::Vec3f(static_cast<float>(world[0]), static_cast<float>(world[1]), static_cast<float>(world[2]));
       if (r1.channels() == 3) {
         p.bgr = r1.at<cv::Vec3b>(vi, ui);
+      } else if (r1.channels() == 4) {
+        const cv::Vec4b v4 = r1.at<cv::Vec4b>(vi, ui);
+        p.bgr = cv::Vec3b(v4[0], v4[1], v4[2]);
       } else {
         const uint8_t g = r1.at<uint8_t>(vi, ui);
         p.bgr = cv::Vec3b(g, g, g);

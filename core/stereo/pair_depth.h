@@ -28,7 +28,8 @@ struct PairDepthOptions {
   double max_depth = 1.0e4;
   int max_disparity = 0;
   int max_disparity_cap = 320;  // at matching resolution; a wider range loses its nearest depths
-  // Matching resolution: images are scaled by this factor after rectification (0.5 = half size) for speed.
+  // Matching resolution: images are scaled by this factor after rectification (0.5 = half size) for speed; it is
+  // lowered further when the matcher's buffers would exceed sgm.max_memory_mib.
   double image_scale = 1.0;
   // Keep one point per step x step block of the left rectified image (1 = every pixel).
   int sample_step = 1;

@@ -420,6 +420,7 @@ bool SgmOptions::Check(std::string* why) const {
   if (speckle_size < 0 || speckle_range < 0) return bad("speckle settings must be >= 0");
   if (median_size != 0 && median_size != 3 && median_size != 5) return bad("median_size must be 0, 3 or 5");
   if (threads < 0) return bad("threads must be >= 0");
+  if (max_memory_mib < 1) return bad("max_memory_mib must be >= 1");
   return true;
 }
 
@@ -465,6 +466,15 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
   cv::Sobel(gr, sr, CV_16S, 1, 0, 3, 0.125);
 
   const size_t volume = static_cast<size_t>(p.width) * p.height * p.stride;
+  const double need_mib = 5.0 * static_cast<double>(volume) / (1024.0 * 1024.0);
+  if (need_mib > options.max_memory_mib) {
+    if (options.threads > 0) cv::setNumThreads(saved_threads);
+    return Fail(error, "matching " + std::to_string(p.width) + "x" + std::to_string(p.height) + " pixels over " +
+                           std::to_string(p.num_disp) + " disparities needs " +
+                           std::to_string(static_cast<int>(need_mib)) + " MiB, more than the limit of " +
+                           std::to_string(options.max_memory_mib) +
+                           " MiB: reduce the disparity range or the image size");
+  }
   if (cost_.size() < volume) cost_.resize(volume);
   uint8_t* cost = cost_.data();
   cv::parallel_for_(cv::Range(0, p.height), [&](const cv::Range& rows) {

@@ -35,6 +35,8 @@ struct SgmOptions {
   bool fill_holes = true;
   int median_size = 3;  // 0, 3 or 5
   int threads = 0;      // 0 = OpenCV's default
+  // The work buffers take 5 bytes per pixel and disparity (rounded up to 16); larger problems are refused.
+  int max_memory_mib = 4096;
 
   [[nodiscard]] bool Check(std::string* why = nullptr) const;
 };
@@ -58,7 +60,8 @@ class SgmMatcher {
 };
 
 // Disparity of the LEFT image, CV_32FC1, NaN where there is none. `left` and `right` are 8-bit gray or BGR of the
-// same size. `measured` (optional, CV_8UC1): 255 where the disparity passed the checks, 0 where it was hole-filled.
+// same size. Fails (with a message) when the work buffers would exceed options.max_memory_mib. `measured` (optional,
+// CV_8UC1): 255 where the disparity passed the checks, 0 where it was hole-filled.
 [[nodiscard]] bool ComputeDisparity(const cv::Mat& left, const cv::Mat& right, const SgmOptions& options,
                                     cv::Mat* disparity, std::string* error = nullptr, cv::Mat* measured = nullptr);
 
