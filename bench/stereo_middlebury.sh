@@ -34,7 +34,7 @@ PNG=$RESULTS_DIR/$NAME-teddy.png
   echo "git $(git -C "$REPO" rev-parse --short HEAD 2>/dev/null || echo '?'); data $DATA_DIR; extra args: ${EXTRA_ARGS:-none}"
   echo
   echo "bad-T = % of pixels with known GT whose |disparity - GT| > T px; a pixel without disparity counts as wrong."
-  echo "Ours: census 9x7 + gradient cost, SGM, LR check, parabola sub-pixel, speckle filter, hole fill, 3x3 median."
+  echo "Ours: census 9x7 + gradient cost, SGM, LR check, equiangular sub-pixel fit, speckle filter, hole fill, 3x3 median."
   echo "SGBM: StereoSGBM(0, ndisp, 5, P1=8*3*25, P2=32*3*25, disp12MaxDiff=1, preFilterCap=63, uniqueness=10,"
   echo "speckle 100/32, MODE_SGBM_3WAY); invalid SGBM pixels count as wrong. Time: median of $RUNS interleaved runs."
   echo

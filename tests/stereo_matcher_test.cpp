@@ -129,7 +129,8 @@ TEST(StereoMatcher, SubPixelShiftOfTexture) {
       }
     EXPECT_LT(bad, static_cast<int>(0.01 * static_cast<double>(inner.total()))) << "shift " << shift;
     ASSERT_GT(n, 0);
-    EXPECT_LT(sum_abs / n, 0.2) << "mean sub-pixel error, shift " << shift;
+    // Measured 0.095 px at x.25 / x.75 and 0.053 px at x.5 (a parabola fit gave 0.16 px at x.25).
+    EXPECT_LT(sum_abs / n, 0.13) << "mean sub-pixel error, shift " << shift;
   }
 }
 
