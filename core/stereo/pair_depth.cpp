@@ -163,6 +163,12 @@ bool DensePointsFromPair(const cv::Mat& img1, const StereoCamera& cam1, const cv
             cv::BORDER_CONSTANT);
   cv::remap(cv::Mat(img2.size(), CV_8UC1, cv::Scalar(255)), inside2, rect.map_x[1], rect.map_y[1], cv::INTER_NEAREST,
             cv::BORDER_CONSTANT);
+  // Census windows that reach the black outside of a footprint match badly: keep away from the border by the
+  // window's reach (at matching scale).
+  const int reach = static_cast<int>(std::ceil(std::max(sgm.census_width, sgm.census_height) / (2.0 * s))) + 1;
+  const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1));
+  cv::erode(inside1, inside1, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+  cv::erode(inside2, inside2, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(0));
 
   const double f = rect.K(0, 0);
   const double cx = rect.K(0, 2);
