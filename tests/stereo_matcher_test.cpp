@@ -202,6 +202,27 @@ TEST(StereoMatcher, RejectsBadInput) {
   EXPECT_TRUE(SgmOptions{}.Check());
 }
 
+TEST(StereoMatcher, TinyImagesAndWideRanges) {
+  // Images smaller than the census window and disparity ranges wider than the image must not read out of bounds
+  // (checked under ASan) and still give one value per pixel.
+  cv::RNG rng(5);
+  for (const cv::Size size : {cv::Size(1, 1), cv::Size(3, 2), cv::Size(17, 5), cv::Size(40, 9)}) {
+    for (const int paths : {4, 8}) {
+      cv::Mat a(size, CV_8UC1), b(size, CV_8UC1);
+      rng.fill(a, cv::RNG::UNIFORM, 0, 256);
+      rng.fill(b, cv::RNG::UNIFORM, 0, 256);
+      SgmOptions options;
+      options.num_disparities = 48;
+      options.num_paths = paths;
+      cv::Mat disp;
+      std::string error;
+      ASSERT_TRUE(ComputeDisparity(a, b, options, &disp, &error)) << error;
+      EXPECT_EQ(disp.size(), size);
+      EXPECT_EQ(disp.type(), CV_32FC1);
+    }
+  }
+}
+
 TEST(StereoMatcher, RefusesWorkBuffersOverTheMemoryLimit) {
   cv::Mat left, right;
   ShiftedPair(5.0, &left, &right);
