@@ -32,6 +32,9 @@ int RunReconstructCommand(int argc, char** argv) {
   app.add_option("--threads", opts.threads, "worker threads (features, matching, bundle adjustment)");
   app.add_option("--feature-scale", opts.feature_scale, "SIFT resolution relative to the stored frames (1 = full)");
   app.add_option("--max-features", opts.max_features, "SIFT keypoints per frame");
+  app.add_option("--contrast-threshold", opts.contrast_threshold, "SIFT start contrast threshold");
+  app.add_option("--guided-radius", opts.guided_radius,
+                 "matching window around the onboard maps' prediction, fraction of the long image side");
   app.add_option("--colmap-import", opts.colmap_import_dir, "initial poses and intrinsics from a COLMAP text model");
   app.add_option("--dense-scale", opts.dense_image_scale, "dense matching resolution relative to the frames");
   app.add_option("--dense-step", opts.dense_sample_step, "one dense point per N x N rectified pixels");
@@ -91,8 +94,9 @@ int RunReconstructCommand(int argc, char** argv) {
     return 4;
   }
   if (previews) {
-    cv::imwrite(out_dir + "/preview_cloud.png", sfm::RenderCloudTopView(result.dense, 1000));
-    cv::imwrite(out_dir + "/preview_dsm.png", sfm::RenderDsm(result.dsm, -9999.0f, 1000));
+    const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};
+    cv::imwrite(out_dir + "/preview_cloud.png", sfm::RenderCloudTopView(result.dense, 900), png);
+    cv::imwrite(out_dir + "/preview_dsm.png", sfm::RenderDsm(result.dsm, -9999.0f, 900), png);
   }
   js["camera_model_exif"] = opts.camera_model;
   js["coordinates"] = {{"ply_and_colmap_offset_xy", {result.offset.x(), result.offset.y()}},

@@ -9,6 +9,7 @@ PACKAGES=(
   libceres-dev libsystemd-dev systemd file
   libcamera-dev libcamera-ipa
   libgtest-dev libgmock-dev libbenchmark-dev
+  jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
   "$@"
 )
 missing=()

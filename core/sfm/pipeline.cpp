@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -146,7 +147,9 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
   std::atomic<size_t> done{0};
   FeatureOptions fo;
   fo.max_features = options.max_features;
-  fo.target_min_features = options.max_features / 2;
+  // A higher start threshold than the onboard one: offline, repeatable (contrasted) keypoints matter more than many.
+  fo.contrast_threshold = options.contrast_threshold;
+  fo.target_min_features = options.max_features / 4;
   fo.max_scale_space_mib = 1200;  // bands the 4000 px frames: two threads stay within a few GiB
   const SiftExtractor sift(fo);
   // Each worker runs a single-threaded SIFT; OpenCV's own pool would oversubscribe the cores.
@@ -199,38 +202,78 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
   std::sort(pairs.begin(), pairs.end());
   pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
   std::vector<std::vector<FeatureMatch>> pair_matches(pairs.size());
+  std::vector<std::array<int, 2>> pair_counts(pairs.size(), {0, 0});  // candidates, F inliers
   done = 0;
   ParallelFor(pairs.size(), options.threads, [&](size_t k) {
     const auto [a, b] = pairs[k];
     const FrameFeatures& fa = feats[a];
     const FrameFeatures& fb = feats[b];
     if (fa.points.size() < 8 || fb.points.size() < 8) return;
-    cv::flann::Index ia(fb.descriptors, cv::flann::KDTreeIndexParams(4));
-    cv::flann::Index ib(fa.descriptors, cv::flann::KDTreeIndexParams(4));
-    cv::Mat idx_ab, d_ab, idx_ba, d_ba;
-    ia.knnSearch(fa.descriptors, idx_ab, d_ab, 2, cv::flann::SearchParams(64));
-    ib.knnSearch(fb.descriptors, idx_ba, d_ba, 1, cv::flann::SearchParams(64));
+    // Guided matching: the onboard maps predict where a keypoint of `a` lies in `b`; only keypoints of `b` within
+    // guided_radius of that prediction are candidates. At full resolution this keeps the ratio test meaningful (the
+    // unguided nearest neighbour among 8000 fine-scale features is too often a look-alike).
+    const Mat3 b_from_a = frames[b]->mosaic_from_frame.inverse() * frames[a]->mosaic_from_frame;
+    const double radius = options.guided_radius * std::max(frames[a]->width, frames[a]->height);
+    const double cell = radius;
+    const int gw = static_cast<int>(frames[b]->width / cell) + 1, gh = static_cast<int>(frames[b]->height / cell) + 1;
+    std::vector<std::vector<int>> grid(static_cast<size_t>(gw * gh));
+    for (size_t j = 0; j < fb.points.size(); ++j) {
+      const int gx = std::clamp(static_cast<int>(fb.points[j].x() / cell), 0, gw - 1);
+      const int gy = std::clamp(static_cast<int>(fb.points[j].y() / cell), 0, gh - 1);
+      grid[static_cast<size_t>(gy * gw + gx)].push_back(static_cast<int>(j));
+    }
+    // Best and second-best candidate per keypoint of a; best per keypoint of b (for the mutual check).
+    std::vector<int> best_a(fa.points.size(), -1);
+    std::vector<float> d1_a(fa.points.size(), 1e30f), d2_a(fa.points.size(), 1e30f);
+    std::vector<int> best_b(fb.points.size(), -1);
+    std::vector<float> d1_b(fb.points.size(), 1e30f);
+    for (size_t i = 0; i < fa.points.size(); ++i) {
+      const Vec2 q = Apply(b_from_a, fa.points[i]);
+      const int gx = static_cast<int>(std::floor(q.x() / cell)), gy = static_cast<int>(std::floor(q.y() / cell));
+      const cv::Mat da = fa.descriptors.row(static_cast<int>(i));
+      for (int y = gy - 1; y <= gy + 1; ++y) {
+        for (int x = gx - 1; x <= gx + 1; ++x) {
+          if (x < 0 || y < 0 || x >= gw || y >= gh) continue;
+          for (int j : grid[static_cast<size_t>(y * gw + x)]) {
+            if ((fb.points[static_cast<size_t>(j)] - q).norm() > radius) continue;
+            const float d = static_cast<float>(cv::norm(da, fb.descriptors.row(j), cv::NORM_L2SQR));
+            if (d < d1_a[i]) {
+              d2_a[i] = d1_a[i];
+              d1_a[i] = d;
+              best_a[i] = j;
+            } else if (d < d2_a[i]) {
+              d2_a[i] = d;
+            }
+            if (d < d1_b[static_cast<size_t>(j)]) {
+              d1_b[static_cast<size_t>(j)] = d;
+              best_b[static_cast<size_t>(j)] = static_cast<int>(i);
+            }
+          }
+        }
+      }
+    }
     std::vector<cv::Point2f> pa, pb;
     std::vector<FeatureMatch> cand;
-    const float r2 = static_cast<float>(options.ratio * options.ratio);  // FLANN L2 distances are squared
-    for (int i = 0; i < idx_ab.rows; ++i) {
-      const int j = idx_ab.at<int>(i, 0);
-      if (j < 0 || d_ab.at<float>(i, 0) > r2 * d_ab.at<float>(i, 1)) continue;
-      if (idx_ba.at<int>(j, 0) != i) continue;  // mutual best
-      cand.push_back({static_cast<int>(a), i, static_cast<int>(b), j, d_ab.at<float>(i, 0)});
-      pa.emplace_back(static_cast<float>(fa.points[static_cast<size_t>(i)].x()),
-                      static_cast<float>(fa.points[static_cast<size_t>(i)].y()));
+    const float r2 = static_cast<float>(options.ratio * options.ratio);  // squared distances
+    for (size_t i = 0; i < fa.points.size(); ++i) {
+      const int j = best_a[i];
+      if (j < 0 || d1_a[i] > r2 * d2_a[i]) continue;
+      if (best_b[static_cast<size_t>(j)] != static_cast<int>(i)) continue;  // mutual best
+      cand.push_back({static_cast<int>(a), static_cast<int>(i), static_cast<int>(b), j, d1_a[i]});
+      pa.emplace_back(static_cast<float>(fa.points[i].x()), static_cast<float>(fa.points[i].y()));
       pb.emplace_back(static_cast<float>(fb.points[static_cast<size_t>(j)].x()),
                       static_cast<float>(fb.points[static_cast<size_t>(j)].y()));
     }
+    pair_counts[k][0] = static_cast<int>(cand.size());
     if (static_cast<int>(cand.size()) >= options.min_pair_inliers) {
       std::vector<uchar> mask;
-      const cv::Mat F = cv::findFundamentalMat(pa, pb, cv::FM_RANSAC, options.fundamental_threshold_px, 0.999, mask);
+      const cv::Mat F = cv::findFundamentalMat(pa, pb, cv::FM_RANSAC, options.fundamental_threshold_px, 0.9999, mask);
       if (!F.empty()) {
         std::vector<FeatureMatch> inl;
         for (size_t i = 0; i < cand.size(); ++i) {
           if (mask[i]) inl.push_back(cand[i]);
         }
+        pair_counts[k][1] = static_cast<int>(inl.size());
         if (static_cast<int>(inl.size()) >= options.min_pair_inliers) pair_matches[k] = std::move(inl);
       }
     }
@@ -245,6 +288,14 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
   timings["matching_s"] = Seconds(t0);
   js["pairs_listed"] = pairs.size();
   js["pairs_verified"] = pairs_ok;
+  {
+    nlohmann::json jp = nlohmann::json::array();
+    for (size_t k = 0; k < pairs.size(); ++k) {
+      jp.push_back(
+          {frames[pairs[k].first]->index, frames[pairs[k].second]->index, pair_counts[k][0], pair_counts[k][1]});
+    }
+    js["pair_matches"] = jp;  // [src, tgt, guided candidates, F inliers]
+  }
   js["matches"] = all_matches.size();
 
   // 4. Tracks.

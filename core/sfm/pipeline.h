@@ -16,10 +16,14 @@ struct PipelineOptions {
   int threads = 2;
   // Features are re-detected in the stored frames at this fraction of the original resolution (1 = full).
   double feature_scale = 1.0;
-  int max_features = 8000;
+  int max_features = 12000;
+  double contrast_threshold = 0.02;  // SIFT start threshold (lowered only when fewer than max_features/4 are found)
   double ratio = 0.8;
-  double fundamental_threshold_px = 1.5;  // RANSAC on F, original-resolution pixels
-  int min_pair_inliers = 30;
+  // Matching is guided by the onboard maps: candidates within this fraction of the long image side of the predicted
+  // position.
+  double guided_radius = 0.04;
+  double fundamental_threshold_px = 3.0;  // RANSAC on F, original-resolution pixels (F ignores the lens distortion)
+  int min_pair_inliers = 15;
   std::string camera_model;  // EXIF Model for the sensor table
   double default_hfov_deg = 70.0;
   std::string colmap_import_dir;  // non-empty: initial poses and intrinsics from a COLMAP text model
