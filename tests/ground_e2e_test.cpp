@@ -19,7 +19,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-int Run(const std::string& cmd) {
+int RunCommand(const std::string& cmd) {
   const int status = std::system(cmd.c_str());
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
@@ -28,11 +28,11 @@ TEST(GroundE2e, BrightonBeachSmall) {
   const fs::path tmp = fs::temp_directory_path() / ("uavm_ground_e2e_" + std::to_string(::getpid()));
   fs::remove_all(tmp);
   const fs::path session = tmp / "session", out = tmp / "ground";
-  ASSERT_EQ(Run(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + UAVM_TEST_DATA +
-                "/brighton_beach_small/images --out " + session.string() + " --log-level warn --no-tiff"),
+  ASSERT_EQ(RunCommand(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + UAVM_TEST_DATA +
+                       "/brighton_beach_small/images --out " + session.string() + " --log-level warn --no-tiff"),
             0);
-  ASSERT_EQ(Run(std::string(UAVM_GROUND_BIN) + " " + session.string() + " --out " + out.string() +
-                " --threads 2 --render-previews 2>" + (tmp / "stderr.txt").string()),
+  ASSERT_EQ(RunCommand(std::string(UAVM_GROUND_BIN) + " " + session.string() + " --out " + out.string() +
+                       " --threads 2 --render-previews 2>" + (tmp / "stderr.txt").string()),
             0);
   for (const char* f : {"cloud.ply", "dsm.tif", "summary.json", "sparse/cameras.txt", "sparse/images.txt",
                         "sparse/points3D.txt", "preview_cloud.png", "preview_dsm.png"}) {
