@@ -39,6 +39,7 @@ int RunReconstructCommand(int argc, char** argv) {
   app.add_option("--dense-scale", opts.dense_image_scale, "dense matching resolution relative to the frames");
   app.add_option("--dense-step", opts.dense_sample_step, "one dense point per N x N rectified pixels");
   app.add_option("--max-dense-pairs", opts.max_dense_pairs, "stereo pairs for the dense cloud");
+  app.add_option("--pairs-per-image", opts.dense_pairs_per_image, "stereo partners chosen per image");
   app.add_option("--dsm-cell", opts.dsm_cell_m, "DSM cell size in metres (0 = automatic)");
   app.add_option("--hfov", opts.default_hfov_deg, "horizontal field of view (deg) when EXIF gives no focal length");
   app.add_flag("--refine-k3", opts.refine_k3, "also refine the radial k3 term");

@@ -42,8 +42,8 @@ std::vector<StereoPairChoice> SelectStereoPairs(const Reconstruction& rec, const
   for (size_t p = 0; p < rec.points.size(); ++p) {
     for (const auto& o : rec.points[p].track) seen[static_cast<size_t>(o.image)].push_back(p);
   }
-  std::vector<StereoPairChoice> best(n);
-  std::vector<double> best_score(n, 1e30);
+  // Per image its candidates (score, choice); the best pairs_per_image are kept.
+  std::vector<std::vector<std::pair<double, StereoPairChoice>>> cands(n);
   for (size_t i = 0; i < n; ++i) {
     if (seen[i].size() < 20) continue;
     std::vector<double> depth;
@@ -60,28 +60,29 @@ std::vector<StereoPairChoice> SelectStereoPairs(const Reconstruction& rec, const
       const double ratio = (rec.images[i].pose.c - rec.images[j].pose.c).norm() / med;
       if (overlap < options.min_overlap || ratio < options.min_baseline_ratio || ratio > options.max_baseline_ratio)
         continue;
-      const double score = std::abs(ratio - options.target_baseline_ratio) - 0.1 * overlap;
-      if (score < best_score[i]) {
-        best_score[i] = score;
-        StereoPairChoice c;
-        c.image1 = static_cast<int>(i);
-        c.image2 = static_cast<int>(j);
-        c.baseline_ratio = ratio;
-        c.overlap = overlap;
-        // Depth range with margin: the sparse points' 1st..99th percentile.
-        c.min_depth = 0.7 * depth[depth.size() / 100];
-        c.max_depth = 1.4 * depth[depth.size() - 1 - depth.size() / 100];
-        best[i] = c;
-      }
+      StereoPairChoice c;
+      c.image1 = static_cast<int>(i);
+      c.image2 = static_cast<int>(j);
+      c.baseline_ratio = ratio;
+      c.overlap = overlap;
+      // Depth range with margin: the sparse points' 1st..99th percentile.
+      c.min_depth = 0.7 * depth[depth.size() / 100];
+      c.max_depth = 1.4 * depth[depth.size() - 1 - depth.size() / 100];
+      cands[i].emplace_back(std::abs(ratio - options.target_baseline_ratio) - 0.1 * overlap, c);
+    }
+    std::sort(cands[i].begin(), cands[i].end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    if (static_cast<int>(cands[i].size()) > options.pairs_per_image) {
+      cands[i].resize(static_cast<size_t>(options.pairs_per_image));
     }
   }
   std::vector<std::pair<double, StereoPairChoice>> chosen;
   std::set<std::pair<int, int>> have;
   for (size_t i = 0; i < n; ++i) {
-    if (best[i].image1 < 0) continue;
-    const auto key = std::minmax(best[i].image1, best[i].image2);
-    if (!have.insert(key).second) continue;
-    chosen.emplace_back(best_score[i], best[i]);
+    for (const auto& [score, c] : cands[i]) {
+      const auto key = std::minmax(c.image1, c.image2);
+      if (!have.insert(key).second) continue;
+      chosen.emplace_back(score, c);
+    }
   }
   std::sort(chosen.begin(), chosen.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
   std::vector<StereoPairChoice> out;

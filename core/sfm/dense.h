@@ -15,6 +15,7 @@ struct DenseOptions {
   int max_pairs = 40;
   double min_baseline_ratio = 0.05, max_baseline_ratio = 0.6, target_baseline_ratio = 0.25;
   double min_overlap = 0.3;
+  int pairs_per_image = 2;  // the best partners of each image (two: one along the strip, often one across)
   int threads = 1;
 };
 
@@ -25,8 +26,8 @@ struct StereoPairChoice {
   double min_depth = 0.0, max_depth = 0.0;
 };
 
-// Pairs for dense matching: per image the partner whose baseline-to-height ratio is closest to the target among
-// those with enough overlap, duplicates removed, best first, at most max_pairs.
+// Pairs for dense matching: per image the pairs_per_image partners whose baseline-to-height ratio is closest to the
+// target among those with enough overlap, duplicates removed, best first, at most max_pairs.
 [[nodiscard]] std::vector<StereoPairChoice> SelectStereoPairs(const Reconstruction& rec, const DenseOptions& options);
 
 struct DenseReport {

@@ -633,6 +633,7 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
     dopt.image_scale = options.dense_image_scale;
     dopt.sample_step = options.dense_sample_step;
     dopt.max_pairs = options.max_dense_pairs;
+    dopt.pairs_per_image = options.dense_pairs_per_image;
     dopt.min_baseline_ratio = options.min_baseline_ratio;
     dopt.max_baseline_ratio = options.max_baseline_ratio;
     dopt.target_baseline_ratio = options.target_baseline_ratio;

@@ -38,6 +38,7 @@ struct PipelineOptions {
   double dense_image_scale = 0.5;
   int dense_sample_step = 2;
   int max_dense_pairs = 40;
+  int dense_pairs_per_image = 2;
   double min_baseline_ratio = 0.05, max_baseline_ratio = 0.6, target_baseline_ratio = 0.25;
   double min_pair_overlap = 0.3;        // share of the sparse points of one image seen by the other
   int fusion_min_pairs = 2;             // a DSM cell's points are kept when at least this many pairs agree there
