@@ -10,6 +10,7 @@ PACKAGES=(
   libcamera-dev libcamera-ipa
   libgtest-dev libgmock-dev libbenchmark-dev
   libcpp-httplib-dev libjs-leaflet chromium python3-gdal curl
+  jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
   "$@"
 )
 missing=()

@@ -1,0 +1,217 @@
+#include "core/sfm/bundle_adjuster.h"
+
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+
+#include <cmath>
+
+namespace uavm::sfm {
+
+size_t Reconstruction::NumObservations() const {
+  size_t n = 0;
+  for (const auto& p : points) n += p.track.size();
+  return n;
+}
+
+double Reconstruction::ReprojectionRms() const {
+  double sum = 0.0;
+  size_t n = 0;
+  for (const auto& p : points) {
+    for (const auto& o : p.track) {
+      const auto& im = images[static_cast<size_t>(o.image)];
+      const auto proj = Project(camera, im.pose, p.X);
+      if (!proj) continue;
+      sum += (*proj - im.keypoints[static_cast<size_t>(o.feature)]).squaredNorm();
+      ++n;
+    }
+  }
+  return n ? std::sqrt(sum / static_cast<double>(n)) : 0.0;
+}
+
+bool BundleOptions::Check(std::string* why) const {
+  if (!(loss_scale_px > 0.0)) {
+    *why = "bundle: loss_scale_px must be > 0";
+    return false;
+  }
+  if (max_iterations < 1 || threads < 1) {
+    *why = "bundle: max_iterations and threads must be >= 1";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+// Intrinsics block: f cx cy k1 k2 p1 p2 k3 (fx = fy: square pixels).
+constexpr int kIntrinsics = 8;
+
+struct ReprojectionCost {
+  ReprojectionCost(double x, double y) : x(x), y(y) {}
+  template <typename T>
+  bool operator()(const T* const intr, const T* const rot, const T* const centre, const T* const point,
+                  T* residual) const {
+    T d[3] = {point[0] - centre[0], point[1] - centre[1], point[2] - centre[2]};
+    T p[3];
+    ceres::AngleAxisRotatePoint(rot, d, p);
+    const T xn = p[0] / p[2], yn = p[1] / p[2];
+    const T r2 = xn * xn + yn * yn;
+    const T radial = T(1) + r2 * (intr[3] + r2 * (intr[4] + r2 * intr[7]));
+    const T xd = xn * radial + T(2) * intr[5] * xn * yn + intr[6] * (r2 + T(2) * xn * xn);
+    const T yd = yn * radial + intr[5] * (r2 + T(2) * yn * yn) + T(2) * intr[6] * xn * yn;
+    residual[0] = intr[0] * xd + intr[1] - T(x);
+    residual[1] = intr[0] * yd + intr[2] - T(y);
+    return true;
+  }
+  double x, y;
+};
+
+struct FocalPrior {
+  FocalPrior(double f0, double sigma) : f0(f0), sigma(sigma) {}
+  template <typename T>
+  bool operator()(const T* const intr, T* residual) const {
+    residual[0] = (intr[0] - T(f0)) / T(sigma);
+    return true;
+  }
+  double f0, sigma;
+};
+
+struct CentrePrior {
+  CentrePrior(const Eigen::Vector3d& c, double sxy, double sz) : c(c), sxy(sxy), sz(sz) {}
+  template <typename T>
+  bool operator()(const T* const centre, T* residual) const {
+    residual[0] = (centre[0] - T(c.x())) / T(sxy);
+    residual[1] = (centre[1] - T(c.y())) / T(sxy);
+    residual[2] = (centre[2] - T(c.z())) / T(sz);
+    return true;
+  }
+  Eigen::Vector3d c;
+  double sxy, sz;
+};
+
+}  // namespace
+
+bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSummary* summary, std::string* error) {
+  if (!options.Check(error)) return false;
+  if (rec->images.size() < 2 || rec->points.empty()) {
+    *error = "bundle: needs at least two images and one point";
+    return false;
+  }
+  Camera& cam = rec->camera;
+  const double f0 = cam.fx;
+  double intr[kIntrinsics] = {cam.fx, cam.cx, cam.cy, cam.k1, cam.k2, cam.p1, cam.p2, cam.k3};
+  const size_t n_images = rec->images.size();
+  std::vector<std::array<double, 3>> rot(n_images), centre(n_images);
+  for (size_t i = 0; i < n_images; ++i) {
+    const Eigen::Matrix3d R = rec->images[i].pose.R;
+    ceres::RotationMatrixToAngleAxis(ceres::ColumnMajorAdapter3x3(R.data()), rot[i].data());
+    for (int k = 0; k < 3; ++k) centre[i][static_cast<size_t>(k)] = rec->images[i].pose.c(k);
+  }
+  summary->rms_before_px = rec->ReprojectionRms();
+
+  ceres::Problem problem;
+  ceres::LossFunction* loss = nullptr;
+  if (options.loss == BundleOptions::Loss::kHuber) loss = new ceres::HuberLoss(options.loss_scale_px);
+  if (options.loss == BundleOptions::Loss::kCauchy) loss = new ceres::CauchyLoss(options.loss_scale_px);
+  std::vector<bool> used(n_images, false);
+  for (auto& p : rec->points) {
+    for (const auto& o : p.track) {
+      const size_t i = static_cast<size_t>(o.image);
+      const auto& kp = rec->images[i].keypoints[static_cast<size_t>(o.feature)];
+      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionCost, 2, kIntrinsics, 3, 3, 3>(
+          new ReprojectionCost(kp.x(), kp.y()));
+      // One loss object for all blocks: the problem reference-counts it and deletes it once.
+      problem.AddResidualBlock(cost, loss, intr, rot[i].data(), centre[i].data(), p.X.data());
+      used[i] = true;
+    }
+  }
+  int n_priors = 0;
+  for (size_t i = 0; i < n_images && i < options.centre_priors.size(); ++i) {
+    if (!options.centre_priors[i] || !used[i]) continue;
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CentrePrior, 3, 3>(new CentrePrior(
+                                 *options.centre_priors[i], options.prior_sigma_xy_m, options.prior_sigma_z_m)),
+                             nullptr, centre[i].data());
+    ++n_priors;
+  }
+  // Gauge: the priors, or one image and one coordinate of another.
+  int fixed = options.fixed_image;
+  if (fixed < 0 || fixed >= static_cast<int>(n_images) || !used[static_cast<size_t>(fixed)]) {
+    fixed = -1;
+    for (size_t i = 0; i < n_images && fixed < 0; ++i) {
+      if (used[i]) fixed = static_cast<int>(i);
+    }
+  }
+  int scale = options.scale_image;
+  const auto& cf = rec->images[static_cast<size_t>(fixed)].pose.c;
+  if (scale < 0 || scale >= static_cast<int>(n_images) || scale == fixed || !used[static_cast<size_t>(scale)]) {
+    double best = -1.0;
+    for (size_t i = 0; i < n_images; ++i) {
+      const double d = (rec->images[i].pose.c - cf).norm();
+      if (used[i] && static_cast<int>(i) != fixed && d > best) {
+        best = d;
+        scale = static_cast<int>(i);
+      }
+    }
+  }
+  if (n_priors < 3) {
+    problem.SetParameterBlockConstant(rot[static_cast<size_t>(fixed)].data());
+    problem.SetParameterBlockConstant(centre[static_cast<size_t>(fixed)].data());
+  }
+  if (scale >= 0 && n_priors < 3) {
+    const Eigen::Vector3d d = rec->images[static_cast<size_t>(scale)].pose.c - cf;
+    int axis = 0;
+    d.cwiseAbs().maxCoeff(&axis);
+    problem.SetManifold(centre[static_cast<size_t>(scale)].data(), new ceres::SubsetManifold(3, {axis}));
+  }
+  std::vector<int> held;
+  if (!options.refine_focal) held.push_back(0);
+  if (!options.refine_principal_point) held.insert(held.end(), {1, 2});
+  if (!options.refine_radial) held.insert(held.end(), {3, 4});
+  if (!options.refine_tangential) held.insert(held.end(), {5, 6});
+  if (!options.refine_k3 || !options.refine_radial) held.push_back(7);
+  if (held.size() == kIntrinsics) {
+    problem.SetParameterBlockConstant(intr);
+  } else if (!held.empty()) {
+    problem.SetManifold(intr, new ceres::SubsetManifold(kIntrinsics, held));
+  }
+  if (options.focal_prior_sigma > 0.0 && options.refine_focal) {
+    problem.AddResidualBlock(
+        new ceres::AutoDiffCostFunction<FocalPrior, 1, kIntrinsics>(new FocalPrior(f0, options.focal_prior_sigma * f0)),
+        nullptr, intr);
+  }
+
+  ceres::Solver::Options sopts;
+  sopts.linear_solver_type = ceres::SPARSE_SCHUR;
+  sopts.max_num_iterations = options.max_iterations;
+  sopts.num_threads = options.threads;
+  sopts.function_tolerance = 1e-8;
+  sopts.parameter_tolerance = 1e-10;
+  sopts.logging_type = ceres::SILENT;
+  ceres::Solver::Summary s;
+  ceres::Solve(sopts, &problem, &s);
+  if (!s.IsSolutionUsable()) {
+    *error = "bundle: " + s.message;
+    return false;
+  }
+  cam.fx = cam.fy = intr[0];
+  cam.cx = intr[1];
+  cam.cy = intr[2];
+  cam.k1 = intr[3];
+  cam.k2 = intr[4];
+  cam.p1 = intr[5];
+  cam.p2 = intr[6];
+  cam.k3 = intr[7];
+  for (size_t i = 0; i < n_images; ++i) {
+    Eigen::Matrix3d R;
+    ceres::AngleAxisToRotationMatrix(rot[i].data(), ceres::ColumnMajorAdapter3x3(R.data()));
+    rec->images[i].pose.R = R;
+    rec->images[i].pose.c = Eigen::Vector3d(centre[i][0], centre[i][1], centre[i][2]);
+  }
+  summary->rms_after_px = rec->ReprojectionRms();
+  summary->iterations = static_cast<int>(s.iterations.size());
+  summary->seconds = s.total_time_in_seconds;
+  summary->converged = s.termination_type == ceres::CONVERGENCE;
+  summary->report = s.BriefReport();
+  return true;
+}
+
+}  // namespace uavm::sfm

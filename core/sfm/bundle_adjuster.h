@@ -1,0 +1,50 @@
+#pragma once
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/sfm/reconstruction.h"
+
+namespace uavm::sfm {
+
+struct BundleOptions {
+  enum class Loss { kTrivial, kHuber, kCauchy };
+  Loss loss = Loss::kHuber;
+  double loss_scale_px = 1.0;
+  bool refine_focal = true;
+  bool refine_principal_point = true;
+  bool refine_radial = true;  // k1 k2 (k3 with refine_k3)
+  bool refine_k3 = false;
+  bool refine_tangential = true;  // p1 p2
+  // Weak prior that keeps the focal length near its start value (sigma as a fraction of f): a nadir flight over flat
+  // ground cannot separate focal length from flying height. 0 = none.
+  double focal_prior_sigma = 0.0;
+  int max_iterations = 100;
+  int threads = 1;
+  // Gauge: image `fixed_image` is held fixed, and one coordinate (the largest) of the centre of `scale_image`
+  // (relative to the fixed one) fixes the scale. -1 = automatic: image 0 and the image farthest from it.
+  int fixed_image = -1;
+  int scale_image = -1;
+  // Camera-centre priors (GPS east/north, relative altitude), one entry per image or empty. With three or more the
+  // priors fix the gauge (no image is held) and keep a nadir flight from bending into a dome, which focal length and
+  // radial distortion otherwise allow.
+  std::vector<std::optional<Eigen::Vector3d>> centre_priors;
+  double prior_sigma_xy_m = 2.0;
+  double prior_sigma_z_m = 1.0;
+  [[nodiscard]] bool Check(std::string* why) const;
+};
+
+struct BundleSummary {
+  double rms_before_px = 0.0;
+  double rms_after_px = 0.0;
+  int iterations = 0;
+  double seconds = 0.0;
+  bool converged = false;
+  std::string report;  // Ceres' one-line report
+};
+
+// Adjusts poses, points and the shared intrinsics in place (Ceres, Schur solver).
+[[nodiscard]] bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSummary* summary,
+                                std::string* error);
+
+}  // namespace uavm::sfm

@@ -1,0 +1,69 @@
+#pragma once
+#include <functional>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "core/sfm/bundle_adjuster.h"
+#include "core/sfm/products.h"
+#include "core/sfm/reconstruction.h"
+#include "core/sfm/session_import.h"
+#include "core/sfm/triangulation.h"
+
+namespace uavm::sfm {
+
+struct PipelineOptions {
+  int threads = 2;
+  // Features are re-detected in the stored frames at this fraction of the original resolution (1 = full).
+  double feature_scale = 1.0;
+  int max_features = 12000;
+  double contrast_threshold = 0.02;  // SIFT start threshold (lowered only when fewer than max_features/4 are found)
+  double ratio = 0.8;
+  // Matching is guided by the onboard maps: candidates within this fraction of the long image side of the predicted
+  // position.
+  double guided_radius = 0.04;
+  double fundamental_threshold_px = 3.0;  // RANSAC on F, original-resolution pixels (F ignores the lens distortion)
+  int min_pair_inliers = 15;
+  std::string camera_model;  // EXIF Model for the sensor table
+  double default_hfov_deg = 70.0;
+  std::string colmap_import_dir;  // non-empty: initial poses and intrinsics from a COLMAP text model
+  // Rejection after each BA round: reprojection thresholds per round (pixels); the first triangulation with the
+  // initial poses uses initial_reprojection_px.
+  double initial_reprojection_px = 60.0;
+  std::vector<double> round_reprojection_px = {8.0, 3.0, 2.0};
+  double min_triangulation_angle_deg = 1.0;
+  bool refine_k3 = false;
+  // Dense.
+  bool dense = true;
+  double dense_image_scale = 0.5;
+  int dense_sample_step = 2;
+  int max_dense_pairs = 40;
+  int dense_pairs_per_image = 2;
+  double min_baseline_ratio = 0.05, max_baseline_ratio = 0.6, target_baseline_ratio = 0.25;
+  double min_pair_overlap = 0.3;        // share of the sparse points of one image seen by the other
+  int fusion_min_pairs = 2;             // a DSM cell's points are kept when at least this many pairs agree there
+  double dsm_cell_m = 0.0;              // 0 = automatic from the dense sampling
+  double fusion_tolerance_cells = 2.0;  // agreement with the cell median, in cell sizes
+  [[nodiscard]] bool Check(std::string* why) const;
+};
+
+struct PipelineResult {
+  Reconstruction rec;
+  std::vector<CloudPoint> dense;  // fused cloud (world coordinates, relative to `offset`)
+  cv::Mat1f dsm;
+  DsmGrid grid;
+  Eigen::Vector2d offset = Eigen::Vector2d::Zero();  // world x,y = local + offset (UTM easting/northing)
+  double z_offset = 0.0;
+  std::string crs_wkt;  // empty = local coordinates
+  int epsg = 0;
+  nlohmann::json summary;
+};
+
+using ProgressFn = std::function<void(const std::string& stage, size_t done, size_t total)>;
+
+// The whole offline reconstruction of a session: features, matching of graph.csv's used pairs, tracks, initial
+// poses, triangulation, BA rounds, georeferencing, dense pairs, fusion, DSM.
+[[nodiscard]] bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
+                               const ProgressFn& progress, PipelineResult* result, std::string* error);
+
+}  // namespace uavm::sfm

@@ -1,0 +1,55 @@
+#pragma once
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace uavm::sfm {
+
+struct CloudPoint {
+  cv::Vec3f xyz;
+  cv::Vec3b bgr;
+};
+
+// Binary little-endian PLY: vertex x y z float, red green blue uchar.
+[[nodiscard]] bool WritePly(const std::string& path, const std::vector<CloudPoint>& points, std::string* error);
+// Reads what WritePly writes (and any binary_little_endian PLY with exactly those vertex properties).
+[[nodiscard]] bool ReadPly(const std::string& path, std::vector<CloudPoint>* points, std::string* error);
+
+// WGS84 -> UTM of a fixed zone (GDAL/PROJ OGRCoordinateTransformation).
+class UtmProjection {
+ public:
+  // Zone from the longitude / hemisphere from the latitude of a point of the flight.
+  [[nodiscard]] bool Init(double lat_deg, double lon_deg, std::string* error);
+  [[nodiscard]] std::optional<Eigen::Vector2d> Forward(double lat_deg, double lon_deg) const;
+  [[nodiscard]] int epsg() const { return epsg_; }
+  [[nodiscard]] std::string wkt() const { return wkt_; }
+  ~UtmProjection();
+
+ private:
+  void* transform_ = nullptr;  // OGRCoordinateTransformation*
+  int epsg_ = 0;
+  std::string wkt_;
+};
+
+// The raster grid of a DSM: cell (col, row) covers x in [x0 + col*cell, x0 + (col+1)*cell), y in
+// [y0 - (row+1)*cell, y0 - row*cell) (north up).
+struct DsmGrid {
+  double x0 = 0.0, y0 = 0.0, cell = 1.0;
+  int width = 0, height = 0;
+};
+
+// Per-cell median height of points whose (x, y) fall in the grid. Cells without a point are `nodata`.
+[[nodiscard]] cv::Mat1f RasterizeMedian(const std::vector<CloudPoint>& points, const DsmGrid& grid, float nodata);
+
+// float32 single-band GeoTIFF with nodata; `wkt` empty = no CRS (local metres). Coordinates are `offset` + grid.
+[[nodiscard]] bool WriteDsmGeoTiff(const std::string& path, const cv::Mat1f& dsm, const DsmGrid& grid,
+                                   const Eigen::Vector2d& offset, const std::string& wkt, float nodata,
+                                   std::string* error);
+
+// PNG previews: a top view of the cloud (colours, z-buffered by height) and the DSM (hillshade-tinted colour ramp).
+[[nodiscard]] cv::Mat RenderCloudTopView(const std::vector<CloudPoint>& points, int long_side);
+[[nodiscard]] cv::Mat RenderDsm(const cv::Mat1f& dsm, float nodata, int long_side);
+
+}  // namespace uavm::sfm

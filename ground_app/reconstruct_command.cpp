@@ -1,0 +1,116 @@
+// `uavmosaic-ground SESSION_DIR --out DIR`: the offline reconstruction of a flight (core/sfm/pipeline.h) and its
+// products: cloud.ply, dsm.tif, sparse/ (COLMAP text model), summary.json, optional PNG previews.
+#include "ground_app/reconstruct_command.h"
+
+#include <CLI/CLI.hpp>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <thread>
+
+#include "core/sfm/colmap_io.h"
+#include "core/sfm/pipeline.h"
+#include "core/sfm/products.h"
+#include "core/sfm/session_import.h"
+#include "hal/common/metadata.h"
+
+namespace uavm::ground {
+
+int RunReconstructCommand(int argc, char** argv) {
+  CLI::App app{"uavmosaic-ground: sparse + dense 3-D reconstruction of a uavmosaic session directory"};
+  std::string session_dir, out_dir;
+  sfm::PipelineOptions opts;
+  opts.threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  bool previews = false;
+  bool no_dense = false;
+  app.add_option("session", session_dir, "session directory written by uavmosaic-onboard")->required();
+  app.add_option("--out", out_dir, "output directory (created)")->required();
+  app.add_option("--threads", opts.threads, "worker threads (features, matching, bundle adjustment)");
+  app.add_option("--feature-scale", opts.feature_scale, "SIFT resolution relative to the stored frames (1 = full)");
+  app.add_option("--max-features", opts.max_features, "SIFT keypoints per frame");
+  app.add_option("--contrast-threshold", opts.contrast_threshold, "SIFT start contrast threshold");
+  app.add_option("--guided-radius", opts.guided_radius,
+                 "matching window around the onboard maps' prediction, fraction of the long image side");
+  app.add_option("--colmap-import", opts.colmap_import_dir, "initial poses and intrinsics from a COLMAP text model");
+  app.add_option("--dense-scale", opts.dense_image_scale, "dense matching resolution relative to the frames");
+  app.add_option("--dense-step", opts.dense_sample_step, "one dense point per N x N rectified pixels");
+  app.add_option("--max-dense-pairs", opts.max_dense_pairs, "stereo pairs for the dense cloud");
+  app.add_option("--pairs-per-image", opts.dense_pairs_per_image, "stereo partners chosen per image");
+  app.add_option("--dsm-cell", opts.dsm_cell_m, "DSM cell size in metres (0 = automatic)");
+  app.add_option("--hfov", opts.default_hfov_deg, "horizontal field of view (deg) when EXIF gives no focal length");
+  app.add_flag("--refine-k3", opts.refine_k3, "also refine the radial k3 term");
+  app.add_flag("--no-dense", no_dense, "sparse only (the DSM is rasterised from the sparse points)");
+  app.add_flag("--render-previews", previews, "write preview_cloud.png and preview_dsm.png");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+  opts.dense = !no_dense;
+  std::string error;
+  if (!opts.Check(&error)) {
+    std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
+    return 2;
+  }
+  std::error_code ec;
+  std::filesystem::create_directories(out_dir + "/sparse", ec);
+  if (ec) {
+    std::fprintf(stderr, "uavmosaic-ground: cannot create %s: %s\n", out_dir.c_str(), ec.message().c_str());
+    return 4;
+  }
+  // Camera model (sensor table) from the first stored frame's EXIF.
+  {
+    sfm::Session s;
+    if (sfm::ReadSession(session_dir, &s, &error) && !s.frames.empty()) {
+      for (const auto& f : s.frames) {
+        if (f.stored_file.empty()) continue;
+        const auto md = hal::ReadMetadata(session_dir + "/" + f.stored_file);
+        opts.camera_model = md.model;
+        break;
+      }
+    }
+  }
+  std::mutex progress_mutex;
+  auto progress = [&](const std::string& stage, size_t done, size_t total) {
+    std::lock_guard<std::mutex> lock(progress_mutex);
+    std::fprintf(stderr, "\r[%s] %zu/%zu%s", stage.c_str(), done, total, done == total ? "\n" : "");
+    std::fflush(stderr);
+  };
+  sfm::PipelineResult result;
+  if (!sfm::RunPipeline(session_dir, opts, progress, &result, &error)) {
+    std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
+    return 5;
+  }
+  const auto t_out = std::chrono::steady_clock::now();
+  auto& js = result.summary;
+  if (!sfm::WritePly(out_dir + "/cloud.ply", result.dense, &error) ||
+      !sfm::WriteColmapText(result.rec, out_dir + "/sparse", &error) ||
+      !sfm::WriteDsmGeoTiff(out_dir + "/dsm.tif", result.dsm, result.grid, result.offset, result.crs_wkt, -9999.0f,
+                            &error)) {
+    std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
+    return 4;
+  }
+  if (previews) {
+    const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};
+    cv::imwrite(out_dir + "/preview_cloud.png", sfm::RenderCloudTopView(result.dense, 900), png);
+    cv::imwrite(out_dir + "/preview_dsm.png", sfm::RenderDsm(result.dsm, -9999.0f, 900), png);
+  }
+  js["camera_model_exif"] = opts.camera_model;
+  js["coordinates"] = {{"ply_and_colmap_offset_xy", {result.offset.x(), result.offset.y()}},
+                       {"note",
+                        "cloud.ply and sparse/ are in local coordinates: add the offset for the CRS ("
+                        "dsm.tif is georeferenced with it)"}};
+  js["outputs"] = {"cloud.ply", "dsm.tif", "sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt"};
+  js["timings"]["write_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_out).count();
+  std::ofstream(out_dir + "/summary.json") << js.dump(2) << '\n';
+  std::fprintf(stderr, "uavmosaic-ground: %zu frames, %zu sparse points, BA RMS %.3f -> %.3f px, %zu dense points\n",
+               result.rec.images.size(), result.rec.points.size(), js.value("ba_rms_before_px", 0.0),
+               js.value("ba_rms_after_px", 0.0), result.dense.size());
+  return 0;
+}
+
+}  // namespace uavm::ground

@@ -1,0 +1,6 @@
+#pragma once
+
+namespace uavm::ground {
+// `SESSION_DIR --out DIR [options]`; argv[0] is the program name. Returns the process exit code.
+int RunReconstructCommand(int argc, char** argv);
+}  // namespace uavm::ground

@@ -1,0 +1,74 @@
+// Synthetic aerial scenes for the sfm tests: nadir-ish cameras over gently rolling ground, exact observations.
+#pragma once
+#include <Eigen/Geometry>
+#include <random>
+
+#include "core/sfm/reconstruction.h"
+
+namespace uavm::sfm::testing {
+
+inline Camera TestCamera() {
+  Camera c;
+  c.width = 1600;
+  c.height = 1200;
+  c.fx = c.fy = 1400.0;
+  c.cx = 801.3;
+  c.cy = 597.8;
+  c.k1 = -0.08;
+  c.k2 = 0.03;
+  c.p1 = 4e-4;
+  c.p2 = -3e-4;
+  return c;
+}
+
+// Camera at c looking down (z down in camera = -world z) with yaw and small tilts (radians).
+inline Pose NadirPose(const Eigen::Vector3d& c, double yaw, double tilt_x = 0.0, double tilt_y = 0.0) {
+  Eigen::Matrix3d down;
+  down << 1, 0, 0, 0, -1, 0, 0, 0, -1;  // camera x = east, y = south, z = down
+  const Eigen::Matrix3d Rw =
+      (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(tilt_x, Eigen::Vector3d::UnitX()) *
+       Eigen::AngleAxisd(tilt_y, Eigen::Vector3d::UnitY()))
+          .toRotationMatrix();
+  Pose p;
+  p.R = down * Rw.transpose();
+  p.c = c;
+  return p;
+}
+
+inline double Terrain(double x, double y) {
+  return 6.0 * std::sin(x / 15.0) * std::cos(y / 11.0) + 0.02 * x;
+}
+
+// 3 x 4 grid of cameras at 60 m, points on the terrain, each point observed by every camera that sees it.
+inline Reconstruction MakeScene(double noise_px, unsigned seed, int n_points = 1500) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, noise_px);
+  std::uniform_real_distribution<double> ux(-40.0, 70.0), uy(-30.0, 50.0), ang(-0.08, 0.08);
+  Reconstruction rec;
+  rec.camera = TestCamera();
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 4; ++k) {
+      Image im;
+      im.frame_index = r * 4 + k;
+      im.name = "img" + std::to_string(im.frame_index) + ".jpg";
+      im.pose = NadirPose(Eigen::Vector3d(k * 12.0, r * 14.0, 60.0 + 0.5 * k), 0.1 * r, ang(rng), ang(rng));
+      rec.images.push_back(im);
+    }
+  }
+  for (int i = 0; i < n_points; ++i) {
+    const double x = ux(rng), y = uy(rng);
+    Point3D p;
+    p.X = Eigen::Vector3d(x, y, Terrain(x, y));
+    for (size_t c = 0; c < rec.images.size(); ++c) {
+      const auto m = Project(rec.camera, rec.images[c].pose, p.X);
+      if (!m || m->x() < 0 || m->y() < 0 || m->x() > rec.camera.width - 1 || m->y() > rec.camera.height - 1) continue;
+      auto& kps = rec.images[c].keypoints;
+      kps.push_back(*m + Eigen::Vector2d(noise(rng), noise(rng)));
+      p.track.push_back({static_cast<int>(c), static_cast<int>(kps.size() - 1)});
+    }
+    if (p.track.size() >= 2) rec.points.push_back(p);
+  }
+  return rec;
+}
+
+}  // namespace uavm::sfm::testing
