@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "tests/browser_shot.h"
+#include "tests/test_env.h"
 
 namespace uavm {
 namespace {
@@ -59,7 +60,7 @@ TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   const pid_t pid =
       Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + kData + "/brighton_beach_small/images --out " +
             out.string() + " --http 127.0.0.1:" + std::to_string(port) +
-            " --process-delay-ms 1500 --preview-every 1 --log-level warn");
+            " --process-delay-ms 1500 --preview-every 1 --log-level warn" + test::EmulationArgsString());
   ASSERT_GT(pid, 0);
   httplib::Client client("127.0.0.1", port);
   client.set_connection_timeout(1, 0);

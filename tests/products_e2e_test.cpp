@@ -17,6 +17,7 @@
 
 #include "core/session/session_dir.h"
 #include "tests/browser_shot.h"
+#include "tests/test_env.h"
 
 namespace uavm {
 namespace {
@@ -25,7 +26,8 @@ namespace fs = std::filesystem;
 const std::string kData = UAVM_TEST_DATA;
 
 int RunOnboard(const std::string& args) {
-  const std::string cmd = std::string(UAVM_ONBOARD_BIN) + " " + args + " --log-level warn";
+  const std::string cmd =
+      std::string(UAVM_ONBOARD_BIN) + " " + args + test::EmulationArgsString() + " --log-level warn";
   const int status = std::system(cmd.c_str());
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
