@@ -19,5 +19,8 @@ bash "$ROOT/scripts/fuzz.sh" --runs 20000
 
 # ---- aarch64: the cross build (sysroot made once, cached in /var/cache/uavmosaic), the arm64 package, the aarch64
 # program against the native one on a real flight (transforms within 0.5 px), and the whole suite under qemu-aarch64.
-bash "$ROOT/scripts/test_aarch64.sh"
+# The emulated suite (test_aarch64.sh step 5) is left out of CI for now: at native test sizes it takes over two hours
+# under qemu-user on 2 cores (measured 2026-11-22: 54 of 198 tests in 14 min, each end-to-end test 4-5 min). Run it
+# with `scripts/test_aarch64.sh` (UAVM_AARCH64_SUITE=1, the default there).
+UAVM_AARCH64_SUITE=0 bash "$ROOT/scripts/test_aarch64.sh"
 # ---- end of aarch64 ------------------------------------------------------------------------------------------------

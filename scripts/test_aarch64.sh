@@ -23,7 +23,7 @@ t_build=$(date +%s)
 cmake --build "$BUILD" -j "$(nproc)" >"$BUILD/aarch64-build.log" 2>&1 || { tail -40 "$BUILD/aarch64-build.log"; exit 1; }
 echo "aarch64: build $(($(date +%s) - t_build)) s"
 stripped=$(mktemp)
-for b in firmware_app/uavmosaic-onboard tools/uavmosaic-sim tools/uavmosaic-eval; do
+for b in firmware_app/uavmosaic-onboard ground_app/uavmosaic-ground tools/uavmosaic-sim tools/uavmosaic-eval; do
   aarch64-linux-gnu-strip -o "$stripped" "$BUILD/$b"
   printf 'aarch64: %-28s %6d KiB (stripped %d KiB)\n' "$(basename "$b")" "$(($(stat -c %s "$BUILD/$b") / 1024))" \
     "$(($(stat -c %s "$stripped") / 1024))"

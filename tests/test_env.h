@@ -1,7 +1,7 @@
 #pragma once
 // What a test needs to know about where it runs. The aarch64 suite runs under qemu-user (CMAKE_CROSSCOMPILING_EMULATOR,
-// UAVM_EMULATED=1 set by tests/CMakeLists.txt), where SIFT runs 35-50x slower than natively: the end-to-end tests
-// then run the onboard program on a smaller working copy and on fewer frames, so the whole suite still runs.
+// UAVM_EMULATED=1 set by the cross toolchain's emulator command), where SIFT runs 35-50x slower than natively: heavy
+// tests then do less work (fewer frames), so the whole suite still runs.
 #include <algorithm>
 #include <cstdlib>
 #include <filesystem>
@@ -15,11 +15,12 @@ inline bool Emulated() {
   return v != nullptr && std::string(v) == "1";
 }
 
-// Extra uavmosaic-onboard options under emulation: a 480 px working copy with at most 1000 keypoints (about a fifth of
-// the native work per frame). Empty natively.
+// Extra uavmosaic-onboard options under emulation. Empty for now: a 480 px working copy with 1000 keypoints was
+// measured to lose 2 of brighton_beach_small's 18 frames and to save only 10 % of the emulated time (260 s against
+// 288 s; the time goes elsewhere than SIFT), so end-to-end tests run with the native settings. The hook stays for
+// the next reduction (shorter flights, see FlightForTest).
 inline std::vector<std::string> EmulationArgs() {
-  if (!Emulated()) return {};
-  return {"--work-size", "480", "--max-features", "1000"};
+  return {};
 }
 inline std::string EmulationArgsString() {
   std::string s;
