@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # bench/http_load.sh BUILD_DIR DATA_DIR [REPEATS] [CLIENTS] [PACE_MS]: the live HTTP server's effect on the frame loop.
-# The same replay of DATA_DIR (e.g. /work/shared/data/brighton_beach/images) runs without --http and with --http while
+# The same replay of DATA_DIR (e.g. ../shared/data/brighton_beach/images beside the project) runs without --http and with --http while
 # CLIENTS client threads (Python, persistent connections) on loopback fetch /live.jpg and /status.json back to back (bounded: at most 5000 requests per
 # loop; PACE_MS > 0 sleeps that long between a loop's requests, as a live page polling would). Runs alternate (off, on, off, on, ...) so that load from other processes hits both alike. Prints the median
 # per-frame frame_total (ms, report.json stages_ms) of each run, the medians over runs and the ratio, and saves the
@@ -14,7 +14,7 @@ clients=${4:-4}
 pace_ms=${5:-0}
 bin=$build/firmware_app/uavmosaic-onboard
 here=$(cd "$(dirname "$0")" && pwd)
-work=$(mktemp -d /tmp/uavm_http_load.XXXXXX)
+work=$(mktemp -d "${TMPDIR:-/tmp}/uavm_http_load.XXXXXX")
 trap 'rm -rf "$work"' EXIT
 port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
 

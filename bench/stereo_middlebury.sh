@@ -2,7 +2,7 @@
 # stereo_middlebury.sh DATA_DIR [RUNS]
 #
 # Dense matcher (core/stereo SGM) vs OpenCV StereoSGBM (block 5, MODE_SGBM_3WAY, same numDisparities) on the six
-# Middlebury pairs in DATA_DIR (= /work/shared/data/middlebury_stereo): bad-1, bad-2 (no disparity = wrong) and the
+# Middlebury pairs in DATA_DIR (e.g. ../shared/data/middlebury_stereo beside the project): bad-1, bad-2 (no disparity = wrong) and the
 # median time of RUNS (default 5) interleaved runs. Writes $UAVM_RESULTS_DIR/stereo-middlebury-<date>-<host>.md and a
 # colour-mapped disparity PNG of teddy (GT | ours | SGBM) beside it.
 #

@@ -16,12 +16,7 @@ namespace {
 namespace fs = std::filesystem;
 const std::string kData = UAVM_TEST_DATA;
 
-int RunOnboard(const std::string& args) {
-  const std::string cmd =
-      std::string(UAVM_ONBOARD_BIN) + " " + args + test::EmulationArgsString() + " --log-level warn";
-  const int status = std::system(cmd.c_str());
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
+using test::RunOnboard;
 
 fs::path TempDir(const std::string& name) {
   const fs::path p = fs::temp_directory_path() / ("uavm_e2e_" + name + "_" + std::to_string(::getpid()));

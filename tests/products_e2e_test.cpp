@@ -25,12 +25,7 @@ namespace {
 namespace fs = std::filesystem;
 const std::string kData = UAVM_TEST_DATA;
 
-int RunOnboard(const std::string& args) {
-  const std::string cmd =
-      std::string(UAVM_ONBOARD_BIN) + " " + args + test::EmulationArgsString() + " --log-level warn";
-  const int status = std::system(cmd.c_str());
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
+using test::RunOnboard;
 
 nlohmann::json ReadJson(const fs::path& p) {
   std::ifstream in(p);

@@ -2,6 +2,8 @@
 // What a test needs to know about where it runs. The aarch64 suite runs under qemu-user (CMAKE_CROSSCOMPILING_EMULATOR,
 // UAVM_EMULATED=1 set by the cross toolchain's emulator command), where SIFT runs 35-50x slower than natively: heavy
 // tests then do less work (fewer frames), so the whole suite still runs.
+#include <sys/wait.h>
+
 #include <algorithm>
 #include <cstdlib>
 #include <filesystem>
@@ -45,5 +47,15 @@ inline std::filesystem::path FlightForTest(const std::filesystem::path& images, 
     fs::create_symlink(files[i], out / files[i].filename());
   return out;
 }
+
+#ifdef UAVM_ONBOARD_BIN
+// Runs uavmosaic-onboard with `args` (shell syntax, redirections allowed) plus the emulation options, logging warnings
+// only; returns its exit code, -1 when it did not exit normally.
+inline int RunOnboard(const std::string& args) {
+  const std::string cmd = std::string(UAVM_ONBOARD_BIN) + " " + args + EmulationArgsString() + " --log-level warn";
+  const int status = std::system(cmd.c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+#endif
 
 }  // namespace uavm::test
