@@ -17,11 +17,13 @@ struct RansacOptions {
   uint64_t seed = 0x5eed;
 
   [[nodiscard]] bool Check(std::string* why) const {
-    if (!(max_error > 0)) return (why && (*why = "ransac.max_error must be > 0", true)), false;
-    if (!(confidence > 0 && confidence < 1)) return (why && (*why = "ransac.confidence must be in (0,1)", true)), false;
-    if (min_iterations < 1 || max_iterations < min_iterations)
-      return (why && (*why = "ransac iterations: need 1 <= min_iterations <= max_iterations", true)), false;
-    return true;
+    const char* problem = nullptr;
+    if (!(max_error > 0)) problem = "ransac.max_error must be > 0";
+    else if (!(confidence > 0 && confidence < 1)) problem = "ransac.confidence must be in (0,1)";
+    else if (min_iterations < 1 || max_iterations < min_iterations)
+      problem = "ransac iterations: need 1 <= min_iterations <= max_iterations";
+    if (problem && why) *why = problem;
+    return problem == nullptr;
   }
 };
 

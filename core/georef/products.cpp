@@ -220,8 +220,11 @@ bool WriteTiles(const std::string& tif, const std::string& dir, bool geographic,
     *error = "tiles: PROJ failed on the mosaic's outline";
     return false;
   }
-  const auto [mx0, mx1] = std::minmax_element(mx.begin(), mx.end());
-  const auto [my0, my1] = std::minmax_element(my.begin(), my.end());
+  // Plain values, not structured bindings: clang 14 cannot capture those in the lambda below.
+  const double mx_min = *std::min_element(mx.begin(), mx.end());
+  const double mx_max = *std::max_element(mx.begin(), mx.end());
+  const double my_min = *std::min_element(my.begin(), my.end());
+  const double my_max = *std::max_element(my.begin(), my.end());
   set->west = *std::min_element(lx.begin(), lx.end());
   set->east = *std::max_element(lx.begin(), lx.end());
   set->south = *std::min_element(ly.begin(), ly.end());
@@ -230,15 +233,15 @@ bool WriteTiles(const std::string& tif, const std::string& dir, bool geographic,
   // Finest zoom: a tile pixel on the ground no larger than the GSD; coarsest: the whole mosaic in one tile.
   const double world = 2 * kWebMercatorHalf;
   set->max_zoom = std::clamp(static_cast<int>(Log2Ceil(world * std::cos(lat) / (kTile * gsd_m))), 0, 24);
-  const double extent = std::max(*mx1 - *mx0, *my1 - *my0);
+  const double extent = std::max(mx_max - mx_min, my_max - my_min);
   set->min_zoom = std::clamp(static_cast<int>(std::floor(std::log2(world / extent))), 0, set->max_zoom);
   const auto tile_range = [&](int z, int* x0, int* x1, int* y0, int* y1) {
     const double span = world / std::ldexp(1.0, z);
     const int n = 1 << z;
-    *x0 = std::clamp(static_cast<int>(std::floor((*mx0 + kWebMercatorHalf) / span)), 0, n - 1);
-    *x1 = std::clamp(static_cast<int>(std::floor((*mx1 + kWebMercatorHalf) / span)), 0, n - 1);
-    *y0 = std::clamp(static_cast<int>(std::floor((kWebMercatorHalf - *my1) / span)), 0, n - 1);
-    *y1 = std::clamp(static_cast<int>(std::floor((kWebMercatorHalf - *my0) / span)), 0, n - 1);
+    *x0 = std::clamp(static_cast<int>(std::floor((mx_min + kWebMercatorHalf) / span)), 0, n - 1);
+    *x1 = std::clamp(static_cast<int>(std::floor((mx_max + kWebMercatorHalf) / span)), 0, n - 1);
+    *y0 = std::clamp(static_cast<int>(std::floor((kWebMercatorHalf - my_max) / span)), 0, n - 1);
+    *y1 = std::clamp(static_cast<int>(std::floor((kWebMercatorHalf - my_min) / span)), 0, n - 1);
   };
   for (;;) {
     long total = 0;
