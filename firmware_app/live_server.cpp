@@ -86,7 +86,10 @@ font:12px monospace;border-radius:4px}</style></head>
 <body><div id="map"></div><div id="s">waiting for the first picture&hellip;</div>
 <script>
 var map = L.map('map', {crs: L.CRS.Simple, minZoom: -4, zoomSnap: 0});
-var overlay = null, seq = -1;
+var overlay = null, seq = -1, followed = true;
+// The view follows the growing mosaic until the operator pans or zooms.
+map.getContainer().addEventListener('pointerdown', function () { followed = false; });
+map.getContainer().addEventListener('wheel', function () { followed = false; });
 function show(st) {
   document.getElementById('s').textContent = st.state + ' | frames ' + st.frames_in + ' | registered ' +
     st.registered + ' | dropped ' + st.dropped + ' | ' + st.fps.toFixed(1) + ' fps | RSS ' +
@@ -96,8 +99,9 @@ function show(st) {
   var img = new Image();
   img.onload = function () {
     var b = [[-img.naturalHeight, 0], [0, img.naturalWidth]];
-    if (!overlay) { overlay = L.imageOverlay(img.src, b).addTo(map); map.fitBounds(b); }
+    if (!overlay) { overlay = L.imageOverlay(img.src, b).addTo(map); }
     else { overlay.setBounds(L.latLngBounds(b)); overlay.setUrl(img.src); }
+    if (followed) map.fitBounds(b, {animate: false});
   };
   img.src = '/live.jpg?seq=' + seq;
 }

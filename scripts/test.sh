@@ -7,8 +7,8 @@
 # Each step prints its wall time ("test.sh: <step> N s") so that a slow CI run shows where the time went.
 #
 # The whole suite under AddressSanitizer + UndefinedBehaviorSanitizer (scripts/test_asan.sh) is not part of this run:
-# on CI's 2 cores its build and run take ~35 min (measured 2026-11-22: the suite alone 943 s), which with the
-# emulated aarch64 suite would break CI's time budget. The fuzzers above are built with both sanitizers; run
+# it is a third full build, and CI's run of 2026-11-22 spent 943 s in that suite alone, which together with the
+# emulated aarch64 suite breaks CI's time budget on 2 cores. The fuzzers above are built with both sanitizers; run
 # scripts/test_asan.sh before a release and after changes to memory handling.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"

@@ -9,6 +9,8 @@
 #include "core/eval/image_score.h"
 #include "hal/sim/sim_plan.h"
 
+#include "tests/test_env.h"
+
 namespace uavm::eval {
 namespace {
 
@@ -120,13 +122,16 @@ TEST(EvaluatorTest, AffineFloorIsZeroForNadirAndPositiveForTilt) {
 }
 
 TEST(ImageScoreTest, AnAffineWarpOfTheCanvasScoresBelowOnePixel) {
-  const cv::Mat canvas = cv::imread(kCanvas, cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION);
+  cv::Mat canvas = cv::imread(kCanvas, cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION);
   ASSERT_FALSE(canvas.empty());
+  const double k = test::EmulationImageScale();  // half size under emulation: shift, size and test points with it
+  if (k != 1.0) cv::resize(canvas, canvas, cv::Size(), k, k, cv::INTER_AREA);
   // mosaic_from_canvas: scale 0.8, 12 degrees, shift.
   const double c = 0.8 * std::cos(0.21), s = 0.8 * std::sin(0.21);
-  const cv::Matx23d a(c, -s, 150.0, s, c, 20.0);
+  const cv::Matx23d a(c, -s, 150.0 * k, s, c, 20.0 * k);
   cv::Mat mosaic;
-  cv::warpAffine(canvas, mosaic, a, cv::Size(1100, 900), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+  cv::warpAffine(canvas, mosaic, a, cv::Size(static_cast<int>(1100 * k), static_cast<int>(900 * k)), cv::INTER_LINEAR,
+                 cv::BORDER_CONSTANT);
   cv::Mat alpha;
   cv::warpAffine(cv::Mat(canvas.size(), CV_8U, cv::Scalar(255)), alpha, a, mosaic.size(), cv::INTER_NEAREST);
   cv::Mat bgra;
@@ -143,7 +148,7 @@ TEST(ImageScoreTest, AnAffineWarpOfTheCanvasScoresBelowOnePixel) {
   Mat3 m = Mat3::Identity();
   m.topRows<2>() << a(0, 0), a(0, 1), a(0, 2), a(1, 0), a(1, 1), a(1, 2);
   const Mat3 expect = m.inverse();
-  for (const auto& p : {Vec2(100, 100), Vec2(900, 700)})
+  for (const auto& p : {Vec2(100 * k, 100 * k), Vec2(900 * k, 700 * k)})
     EXPECT_LT((Apply(score.canvas_from_mosaic, p) - Apply(expect, p)).norm(), 1.0);
 }
 

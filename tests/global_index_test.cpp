@@ -19,6 +19,8 @@ TEST(GlobalIndexTest, RelocalisesARotatedFrameAmongRealFrames) {
   GlobalIndex index(o);
   cv::Mat probe_src;
   for (int i = 18; i <= 35; ++i) {
+    // Under emulation every other frame (27 among them), at half size: still more than the cap holds, so it thins.
+    if (test::Emulated() && i % 2 == 0) continue;
     char name[32];
     std::snprintf(name, sizeof(name), "DJI_%04d.JPG", i);
     cv::Mat img = cv::imread(dir + name, cv::IMREAD_GRAYSCALE);

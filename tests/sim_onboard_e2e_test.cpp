@@ -10,16 +10,20 @@
 #include "core/session/session_dir.h"
 #include "hal/sim/sim_writer.h"
 
+#include "tests/test_env.h"
+
 namespace uavm {
 namespace {
 
 namespace fs = std::filesystem;
 const std::string kCanvas = std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg";
 
-// 3 strips x 5 frames of 400x300 at gsd 1 over the 1000x750 canvas; forward overlap 0.7, side overlap 0.3.
-const std::string kPlan =
-    "frame_width: 400\nframe_height: 300\ngsd: 1.0\nstrips: 3\nstrip_length: 480\n"
-    "forward_overlap: 0.7\nside_overlap: 0.3\nseed: 3\n";
+// 3 strips x 5 frames of 400x300 at gsd 1 over the 1000x750 canvas; forward overlap 0.7, side overlap 0.3. Under
+// emulation 2 strips (an outbound and a return strip still meet), a third less SIFT under qemu.
+const int kStrips = test::Emulated() ? 2 : 3;
+const int kFrames = 5 * kStrips;
+const std::string kPlan = "frame_width: 400\nframe_height: 300\ngsd: 1.0\nstrips: " + std::to_string(kStrips) +
+                          "\nstrip_length: 480\nforward_overlap: 0.7\nside_overlap: 0.3\nseed: 3\n";
 
 struct FlightRun {
   eval::EvalResult result;
@@ -46,7 +50,7 @@ void FlyAndEvaluate(const std::string& name, const std::string& plan, FlightRun*
   std::vector<eval::GtRow> gt;
   ASSERT_TRUE(ReadTextFile((run->dir / "flight/gt.csv").string(), &text, &err)) << err;
   ASSERT_TRUE(eval::ParseGroundTruthCsv(text, &gt, &err)) << err;
-  ASSERT_EQ(gt.size(), 15u);
+  ASSERT_EQ(gt.size(), static_cast<size_t>(kFrames));
   const cv::Size size(400, 300);
   ASSERT_TRUE(eval::EvaluateSession(rows, gt, size, &run->result, &err)) << err;
   ASSERT_TRUE(eval::EvaluateSession(eval::AffineFloorSession(gt), gt, size, &run->affine_floor, &err)) << err;
@@ -100,7 +104,7 @@ TEST(SimOnboardE2ETest, OneDegreeTiltWithTheHomographyModelGoesBelowTheAffineFlo
   ASSERT_TRUE(ParseTransformsCsv(text, &rows, &err)) << err;
   int projective = 0;
   for (const auto& r : rows) projective += IsAffine(r.mosaic_from_frame, 1e-12) ? 0 : 1;
-  EXPECT_GT(projective, 10);  // the session carries the perspective rows (h20, h21)
+  EXPECT_GT(projective, 2 * kFrames / 3);  // the session carries the perspective rows (h20, h21)
   fs::remove_all(run.dir);
 }
 

@@ -1,5 +1,6 @@
 #include "core/mosaic/live_preview.h"
 
+#include <cmath>
 #include <cstdio>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -55,10 +56,24 @@ void LivePreview::Add(const cv::Mat& thumb, const Mat3& mosaic_from_thumb) {
   empty_ = false;
 }
 
+cv::Rect LivePreview::ContentInView() const {
+  const cv::Rect whole(0, 0, canvas_.cols, canvas_.rows);
+  if (empty_) return whole;
+  const Vec2 a = Apply(view_from_mosaic_, Vec2(content_.x, content_.y));
+  const Vec2 b = Apply(view_from_mosaic_, Vec2(content_.x + content_.width, content_.y + content_.height));
+  constexpr int kMargin = 4;
+  const cv::Point lo(static_cast<int>(std::floor(std::min(a.x(), b.x()))) - kMargin,
+                     static_cast<int>(std::floor(std::min(a.y(), b.y()))) - kMargin);
+  const cv::Point hi(static_cast<int>(std::ceil(std::max(a.x(), b.x()))) + kMargin,
+                     static_cast<int>(std::ceil(std::max(a.y(), b.y()))) + kMargin);
+  const cv::Rect r = cv::Rect(lo, hi) & whole;
+  return r.area() > 0 ? r : whole;
+}
+
 bool LivePreview::Write(const std::string& path, std::string* error) const {
   const std::string tmp = path + ".tmp";
   std::vector<uchar> bytes;
-  if (!cv::imencode(".jpg", canvas_, bytes, {cv::IMWRITE_JPEG_QUALITY, 85})) {
+  if (!cv::imencode(".jpg", canvas_(ContentInView()), bytes, {cv::IMWRITE_JPEG_QUALITY, 85})) {
     *error = "JPEG encode failed";
     return false;
   }

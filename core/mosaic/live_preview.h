@@ -9,7 +9,9 @@ namespace uavm {
 
 // The operator's progress picture: a fixed-size canvas (memory does not grow with the flight) onto which each newly
 // registered frame's thumbnail is pasted with its transform at the time. When the flight leaves the canvas, the
-// picture is shrunk to make room. Written atomically (temp file + rename) so a viewer never sees half a JPEG.
+// picture is shrunk to make room. The JPEG holds the part of the canvas the flight covers (the canvas keeps room to
+// grow; a viewer should not have to show it). Written atomically (temp file + rename) so a viewer never sees half a
+// JPEG.
 class LivePreview {
  public:
   explicit LivePreview(int canvas_side = 1024);
@@ -20,6 +22,8 @@ class LivePreview {
   [[nodiscard]] std::shared_ptr<const std::string> last_jpeg() const { return last_jpeg_; }
 
  private:
+  [[nodiscard]] cv::Rect ContentInView() const;  // the covered part of the canvas, in canvas pixels
+
   int side_;
   cv::Mat canvas_;
   Mat3 view_from_mosaic_ = Mat3::Identity();
