@@ -53,6 +53,8 @@ int main(int argc, char** argv) {
                  "Memory budget of the whole program, MiB; caches, pools and feature detection fit into it "
                  "(0 = none)");
   cli.add_option("--max-features", p.features.max_features, "Keypoints kept per frame");
+  cli.add_option("--min-features", p.features.target_min_features,
+                 "Below this many keypoints a frame is detected again at a lower contrast threshold (0 = never)");
   cli.add_option("--mosaic-scale", p.mosaic_scale,
                  "mosaic.tif resolution relative to the reference frame's original pixels (1 = full resolution)");
   cli.add_option("--quicklook-size", p.mosaic.quicklook_long_side, "Longest side of mosaic.png, px");

@@ -19,7 +19,8 @@ ServiceNotifier::ServiceNotifier() {
 void ServiceNotifier::Ready(const std::string& status) {
   if (!under_systemd_) return;
   sd_notifyf(0, "READY=1\nSTATUS=%s", status.c_str());
-  last_progress_ = std::chrono::steady_clock::now();
+  // last_progress_ stays at the epoch: the first frame's progress goes out at once, not a second later (a short
+  // replay could otherwise end without one frame count in `systemctl status`).
 }
 
 void ServiceNotifier::Progress(int frames, int registered, double rss_mib) {
