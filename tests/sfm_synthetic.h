@@ -1,9 +1,9 @@
 // Synthetic aerial scenes for the sfm tests: nadir-ish cameras over gently rolling ground, exact observations.
 #pragma once
 #include <Eigen/Geometry>
-#include <random>
 
 #include "core/sfm/reconstruction.h"
+#include "core/util/portable_random.h"
 
 namespace uavm::sfm::testing {
 
@@ -41,9 +41,9 @@ inline double Terrain(double x, double y) {
 
 // 3 x 4 grid of cameras at 60 m, points on the terrain, each point observed by every camera that sees it.
 inline Reconstruction MakeScene(double noise_px, unsigned seed, int n_points = 1500) {
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> noise(0.0, noise_px);
-  std::uniform_real_distribution<double> ux(-40.0, 70.0), uy(-30.0, 50.0), ang(-0.08, 0.08);
+  // The same scene on every platform (core/util/portable_random.h), each draw in its own statement (the order in
+  // which a call's arguments are evaluated is unspecified).
+  PortableRandom rng(seed);
   Reconstruction rec;
   rec.camera = TestCamera();
   for (int r = 0; r < 3; ++r) {
@@ -51,19 +51,27 @@ inline Reconstruction MakeScene(double noise_px, unsigned seed, int n_points = 1
       Image im;
       im.frame_index = r * 4 + k;
       im.name = "img" + std::to_string(im.frame_index) + ".jpg";
-      im.pose = NadirPose(Eigen::Vector3d(k * 12.0, r * 14.0, 60.0 + 0.5 * k), 0.1 * r, ang(rng), ang(rng));
+      const double tilt_x = rng.Uniform(-0.08, 0.08);
+      const double tilt_y = rng.Uniform(-0.08, 0.08);
+      im.pose = NadirPose(Eigen::Vector3d(k * 12.0, r * 14.0, 60.0 + 0.5 * k), 0.1 * r, tilt_x, tilt_y);
       rec.images.push_back(im);
     }
   }
   for (int i = 0; i < n_points; ++i) {
-    const double x = ux(rng), y = uy(rng);
+    const double x = rng.Uniform(-40.0, 70.0);
+    const double y = rng.Uniform(-30.0, 50.0);
     Point3D p;
     p.X = Eigen::Vector3d(x, y, Terrain(x, y));
     for (size_t c = 0; c < rec.images.size(); ++c) {
+      // Noise is drawn for every camera, seen or not: a point at the image border that one platform's rounding puts
+      // just inside and another's just outside then changes that one observation, not every draw after it.
+      const double nx = rng.Normal(noise_px);
+      const double ny = rng.Normal(noise_px);
+      const Eigen::Vector2d n(nx, ny);
       const auto m = Project(rec.camera, rec.images[c].pose, p.X);
       if (!m || m->x() < 0 || m->y() < 0 || m->x() > rec.camera.width - 1 || m->y() > rec.camera.height - 1) continue;
       auto& kps = rec.images[c].keypoints;
-      kps.push_back(*m + Eigen::Vector2d(noise(rng), noise(rng)));
+      kps.push_back(*m + n);
       p.track.push_back({static_cast<int>(c), static_cast<int>(kps.size() - 1)});
     }
     if (p.track.size() >= 2) rec.points.push_back(p);
