@@ -4,9 +4,11 @@
 #   2. the aarch64-release preset built in build-aarch64/ (UAVM_AARCH64_BUILD_DIR);
 #   3. the arm64 .deb: installed into a scratch root, its unit verified, its program run (tests/package/);
 #   4. end to end: the aarch64 uavmosaic-onboard on the bundled brighton_beach_small flight must register every frame,
-#      with transforms within 0.5 px of the native build's (scripts/compare_sessions.py);
-#   5. the whole CTest suite under emulation (UAVM_AARCH64_SUITE=0 leaves it out, as scripts/test.sh does: it takes
-#      37 min for 156 of its 198 tests on 2 cores when last measured, with most of the reductions of tests/test_env.h).
+#      with transforms within 0.5 px of the native build's (scripts/compare_sessions.py). Both runs use the emulated
+#      suite's settings (320 px working copy, one SIFT pass: 2 min under qemu); UAVM_AARCH64_PARITY=full runs the
+#      product's defaults instead (1000 px: 9.5 min under qemu on 2 cores; 18/18 frames, 0.0000 px on 2026-11-22);
+#   5. the whole CTest suite under emulation, with the reductions of tests/test_env.h (UAVM_AARCH64_SUITE=0 leaves
+#      it out).
 # Needs the native build (scripts/build.sh) for step 4.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -37,12 +39,15 @@ bash "$ROOT/tests/package/package_test.sh" "$BUILD" qemu-aarch64 -L "$SYSROOT"
 WORK=$(mktemp -d "${TMPDIR:-/tmp}/uavm_aarch64.XXXXXX")
 trap 'rm -rf "$WORK"' EXIT
 FLIGHT="replay:$ROOT/tests/data/brighton_beach_small/images"
+PARITY_ARGS=(--work-size 320 --min-features 0)  # tests/test_env.h's EmulationArgs
+[ "${UAVM_AARCH64_PARITY:-emulated}" = full ] && PARITY_ARGS=()
 [ -x "$NATIVE/firmware_app/uavmosaic-onboard" ] || bash "$ROOT/scripts/build.sh"
-"$NATIVE/firmware_app/uavmosaic-onboard" --source "$FLIGHT" --out "$WORK/native" --no-tiff --log-level warn
+"$NATIVE/firmware_app/uavmosaic-onboard" --source "$FLIGHT" --out "$WORK/native" --no-tiff --log-level warn \
+  "${PARITY_ARGS[@]}"
 t_e2e=$(date +%s)
 qemu-aarch64 -L "$SYSROOT" "$BUILD/firmware_app/uavmosaic-onboard" --source "$FLIGHT" --out "$WORK/aarch64" \
-  --no-tiff --log-level warn
-echo "aarch64: brighton_beach_small under qemu-aarch64: $(($(date +%s) - t_e2e)) s"
+  --no-tiff --log-level warn "${PARITY_ARGS[@]}"
+echo "aarch64: brighton_beach_small under qemu-aarch64 (${PARITY_ARGS[*]:-defaults}): $(($(date +%s) - t_e2e)) s"
 python3 "$ROOT/scripts/compare_sessions.py" "$WORK/native" "$WORK/aarch64" --max-px 0.5
 frames=$(ls "$ROOT/tests/data/brighton_beach_small/images" | grep -ci '\.jpg$')
 registered=$(awk -F, 'NR > 1 && $3 == 1' "$WORK/aarch64/transforms.csv" | wc -l)

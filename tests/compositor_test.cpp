@@ -1,18 +1,16 @@
 #include "core/mosaic/compositor.h"
 
+#include <gdal_priv.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <filesystem>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "core/mosaic/gdal_writer.h"
 #include "core/mosaic/selection.h"
 #include "tests/test_env.h"
-
-#include <gdal_priv.h>
-#include <unistd.h>
-
-#include <filesystem>
 
 namespace uavm {
 namespace {
@@ -166,8 +164,8 @@ TEST(CompositorTest, CanvasWiderThan32767PxComposesCorrectly) {
     cv::Mat got(win.size(), CV_8UC3);
     for (int b = 0; b < 3; ++b) {
       cv::Mat plane(win.size(), CV_8UC1);
-      ASSERT_EQ(ds->GetRasterBand(b + 1)->RasterIO(GF_Read, win.x, win.y, win.width, win.height, plane.data,
-                                                    win.width, win.height, GDT_Byte, 0, 0),
+      ASSERT_EQ(ds->GetRasterBand(b + 1)->RasterIO(GF_Read, win.x, win.y, win.width, win.height, plane.data, win.width,
+                                                   win.height, GDT_Byte, 0, 0),
                 CE_None);
       // The TIFF is RGB(A); the ground is BGR.
       cv::insertChannel(plane, got, 2 - b);

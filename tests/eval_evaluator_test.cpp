@@ -8,8 +8,7 @@
 #include "core/eval/ground_truth.h"
 #include "core/eval/image_score.h"
 #include "hal/sim/sim_plan.h"
-
-#include "tests/test_env.h"
+#include "tests/test_image.h"
 
 namespace uavm::eval {
 namespace {
@@ -122,10 +121,10 @@ TEST(EvaluatorTest, AffineFloorIsZeroForNadirAndPositiveForTilt) {
 }
 
 TEST(ImageScoreTest, AnAffineWarpOfTheCanvasScoresBelowOnePixel) {
-  cv::Mat canvas = cv::imread(kCanvas, cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION);
+  const cv::Mat canvas =
+      test::ScaledForEmulation(cv::imread(kCanvas, cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION));
   ASSERT_FALSE(canvas.empty());
   const double k = test::EmulationImageScale();  // half size under emulation: shift, size and test points with it
-  if (k != 1.0) cv::resize(canvas, canvas, cv::Size(), k, k, cv::INTER_AREA);
   // mosaic_from_canvas: scale 0.8, 12 degrees, shift.
   const double c = 0.8 * std::cos(0.21), s = 0.8 * std::sin(0.21);
   const cv::Matx23d a(c, -s, 150.0 * k, s, c, 20.0 * k);

@@ -5,7 +5,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "tests/test_env.h"
+#include "tests/test_image.h"
 
 namespace uavm {
 namespace {
@@ -23,17 +23,16 @@ TEST(GlobalIndexTest, RelocalisesARotatedFrameAmongRealFrames) {
     if (test::Emulated() && i % 2 == 0) continue;
     char name[32];
     std::snprintf(name, sizeof(name), "DJI_%04d.JPG", i);
-    cv::Mat img = cv::imread(dir + name, cv::IMREAD_GRAYSCALE);
+    const cv::Mat img = test::ScaledForEmulation(cv::imread(dir + name, cv::IMREAD_GRAYSCALE));
     ASSERT_FALSE(img.empty());
-    const double scale = test::EmulationImageScale();
-    if (scale != 1.0) cv::resize(img, img, cv::Size(), scale, scale, cv::INTER_AREA);
     if (i == 27) probe_src = img;
     index.Add(i, sift.Extract(img));
   }
   EXPECT_LE(index.size(), 2048u);
   EXPECT_LT(index.per_frame_quota(), o.descriptors_per_frame);  // it thinned instead of forgetting frames
   cv::Mat rotated;
-  const cv::Mat r = cv::getRotationMatrix2D(cv::Point2f(static_cast<float>(probe_src.cols) / 2, static_cast<float>(probe_src.rows) / 2), 150.0, 0.85);
+  const cv::Mat r = cv::getRotationMatrix2D(
+      cv::Point2f(static_cast<float>(probe_src.cols) / 2, static_cast<float>(probe_src.rows) / 2), 150.0, 0.85);
   cv::warpAffine(probe_src, rotated, r, probe_src.size());
   const auto ranked = index.Query(sift.Extract(rotated), 3);
   ASSERT_FALSE(ranked.empty());

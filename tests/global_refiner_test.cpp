@@ -4,9 +4,9 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <iostream>
 #include <opencv2/calib3d.hpp>
 #include <random>
-#include <iostream>
 
 #include "core/adjust/affine_adjuster.h"
 
@@ -160,8 +160,8 @@ TEST(GlobalRefiner, NoiseFreeTiltedFlightIsRecoveredExactly) {
   const auto [affine_rms, affine_max] = ModelFreeError(s, T);
   RefineOptions o;
   o.model = MotionModel::kHomography;
-  const RefineResult r = RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0,
-                                      HalfDiagonals(s.truth.size()), o, &T);
+  const RefineResult r =
+      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &T);
   ASSERT_TRUE(r.ok) << r.failure;
   const auto [rms, max] = ModelFreeError(s, T);
   EXPECT_GT(affine_rms, 0.5);  // a 1.5 degree tilt is beyond what an affine explains
@@ -181,8 +181,8 @@ TEST(GlobalRefiner, HomographyBeatsTheAffineFloorWithNoise) {
       RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &affine).ok);
   o.model = MotionModel::kHomography;
   auto homography = start;
-  const RefineResult r = RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0,
-                                      HalfDiagonals(s.truth.size()), o, &homography);
+  const RefineResult r =
+      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &homography);
   ASSERT_TRUE(r.ok) << r.failure;
   const auto [affine_rms, affine_max] = ModelFreeError(s, affine);
   const auto [rms, max] = ModelFreeError(s, homography);
@@ -220,8 +220,8 @@ TEST(GlobalRefiner, AffineRefinementHasNoShrinkBias) {
     linear_sum += MeanRelativeScale(s, T);
     RefineOptions o;
     o.model = MotionModel::kAffine;
-    const RefineResult r = RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0,
-                                        HalfDiagonals(s.truth.size()), o, &T);
+    const RefineResult r =
+        RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &T);
     ASSERT_TRUE(r.ok) << r.failure;
     refined_sum += MeanRelativeScale(s, T);
   }
@@ -248,12 +248,12 @@ TEST(GlobalRefiner, OutliersBeyondTheInlierThresholdAreDropped) {
       }
   auto T = AffineStart(s);
   RefineOptions o;
-  const RefineResult r = RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0,
-                                      HalfDiagonals(s.truth.size()), o, &T);
+  const RefineResult r =
+      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &T);
   ASSERT_TRUE(r.ok) << r.failure;
   EXPECT_NEAR(static_cast<double>(r.outliers), static_cast<double>(injected), 0.1 * static_cast<double>(injected));
-  EXPECT_LT(r.final_rms_px, 0.6);       // inliers: the 0.3 px noise on both sides, ~0.42 px per axis pair
-  EXPECT_GT(r.final_all_rms_px, 1.5);   // the outliers are still there when all are counted
+  EXPECT_LT(r.final_rms_px, 0.6);      // inliers: the 0.3 px noise on both sides, ~0.42 px per axis pair
+  EXPECT_GT(r.final_all_rms_px, 1.5);  // the outliers are still there when all are counted
   const auto [rms, max] = ModelFreeError(s, T);
   EXPECT_LT(rms, 0.3);
   EXPECT_LT(max, 1.5);
@@ -277,8 +277,8 @@ TEST(GlobalRefiner, FixedFramesStayAndOptionsAreChecked) {
   const auto before = tilted;
   RefineOptions strict;
   strict.max_perspective_ratio = 1.0001;
-  const RefineResult refused = RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0,
-                                            HalfDiagonals(s.truth.size()), strict, &tilted);
+  const RefineResult refused =
+      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), strict, &tilted);
   EXPECT_FALSE(refused.ok);
   EXPECT_NE(refused.failure.find("implausible perspective"), std::string::npos) << refused.failure;
   for (const auto& [id, m] : before) EXPECT_EQ(tilted.at(id), m);

@@ -28,7 +28,7 @@ int RunCommand(const std::string& cmd) {
 // Under emulation (tests/test_env.h) the ground tool works on fewer keypoints and fewer, coarser stereo pairs: the
 // same stages on less work (SIFT and dense matching run ~40x slower under qemu-user).
 std::string GroundEmulationArgs() {
-  return test::Emulated() ? " --max-dense-pairs 10 --dense-scale 0.5" : "";
+  return test::Emulated() ? " --max-dense-pairs 10 --dense-scale 0.5 --feature-scale 0.5 --max-features 4000" : "";
 }
 
 TEST(GroundE2e, BrightonBeachSmall) {
@@ -36,9 +36,8 @@ TEST(GroundE2e, BrightonBeachSmall) {
   fs::remove_all(tmp);
   const fs::path session = tmp / "session", out = tmp / "ground";
   // Under emulation the first 12 frames (two strips: stereo pairs along and across them).
-  const fs::path flight =
-      test::FlightForTest(fs::path(UAVM_TEST_DATA) / "brighton_beach_small/images", 12, tmp / "flight");
-  const int frames = test::CountFrames(flight);
+  const test::FlightForTest flight(fs::path(UAVM_TEST_DATA) / "brighton_beach_small/images", 12, tmp / "flight");
+  const int frames = flight.frames();
   ASSERT_EQ(RunCommand(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + flight.string() + " --out " +
                        session.string() + " --log-level warn --no-tiff" + test::EmulationArgsString()),
             0);
@@ -52,6 +51,7 @@ TEST(GroundE2e, BrightonBeachSmall) {
   }
   std::ifstream js_in(out / "summary.json");
   const auto js = nlohmann::json::parse(js_in);
+  std::printf("ground: %s\n", js["timings"].dump().c_str());
   EXPECT_EQ(js["frames_used"].get<int>(), frames);
   const double before = js["ba_rms_before_px"].get<double>(), after = js["ba_rms_after_px"].get<double>();
   EXPECT_LT(after, before);

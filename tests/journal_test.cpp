@@ -87,19 +87,21 @@ TEST(JournalTest, RefusesWhatIsNotAJournal) {
                             "\n",
                             &c, &err));
   // Frames out of order end the journal there (a later line cannot be trusted).
-  ASSERT_TRUE(ParseJournal(R"({"type":"session","version":1})"
-                           "\n"
-                           R"({"type":"frame","id":1,"name":"x","stored":"000001_x","timestamp_ns":0,"width":2,"height":2})"
-                           "\n",
-                           &c, &err));
+  ASSERT_TRUE(
+      ParseJournal(R"({"type":"session","version":1})"
+                   "\n"
+                   R"({"type":"frame","id":1,"name":"x","stored":"000001_x","timestamp_ns":0,"width":2,"height":2})"
+                   "\n",
+                   &c, &err));
   EXPECT_TRUE(c.frames.empty());
   EXPECT_EQ(c.torn_lines, 1);
   // A path in the stored name would point outside frames/.
-  ASSERT_TRUE(ParseJournal(R"({"type":"session","version":1})"
-                           "\n"
-                           R"({"type":"frame","id":0,"name":"x","stored":"../../etc/passwd","timestamp_ns":0,"width":2,"height":2})"
-                           "\n",
-                           &c, &err));
+  ASSERT_TRUE(ParseJournal(
+      R"({"type":"session","version":1})"
+      "\n"
+      R"({"type":"frame","id":0,"name":"x","stored":"../../etc/passwd","timestamp_ns":0,"width":2,"height":2})"
+      "\n",
+      &c, &err));
   EXPECT_TRUE(c.frames.empty());
   // A missing journal is an empty one (a run killed before its first line).
   EXPECT_TRUE(ReadJournal("/nonexistent_uavm/journal.jsonl", &c, &err));

@@ -57,12 +57,11 @@ TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   const int port = FreePort();
   ASSERT_GT(port, 0);
   // Under emulation the first 8 frames (each takes longer there).
-  const fs::path flight = test::FlightForTest(kData + "/brighton_beach_small/images", 8, out.string() + "_in");
+  const test::FlightForTest flight(kData + "/brighton_beach_small/images", 8, out.string() + "_in");
   // ~2.4 s per frame: the run lasts long enough to look at it.
-  const pid_t pid =
-      Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + flight.string() + " --out " +
-            out.string() + " --http 127.0.0.1:" + std::to_string(port) +
-            " --process-delay-ms 1500 --preview-every 1 --log-level warn" + test::EmulationArgsString());
+  const pid_t pid = Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + flight.string() + " --out " +
+                          out.string() + " --http 127.0.0.1:" + std::to_string(port) +
+                          " --process-delay-ms 1500 --preview-every 1 --log-level warn" + test::EmulationArgsString());
   ASSERT_GT(pid, 0);
   httplib::Client client("127.0.0.1", port);
   client.set_connection_timeout(1, 0);
@@ -138,14 +137,13 @@ TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   EXPECT_EQ(WEXITSTATUS(wstatus), 0);
   std::ifstream in(out / "report.json");
   const auto report = nlohmann::json::parse(in);
-  EXPECT_EQ(report["registered"].get<int>(), test::CountFrames(flight));
+  EXPECT_EQ(report["registered"].get<int>(), flight.frames());
   // After the run the server is gone.
   EXPECT_FALSE(client.Get("/status.json"));
   if (!::testing::Test::HasFailure()) {
     fs::remove_all(out);
     fs::remove_all(out.string() + "_browser");
   }
-  fs::remove_all(out.string() + "_in");
 }
 
 TEST(LiveHttpTest, BadAddressIsAUsageError) {

@@ -120,12 +120,9 @@ TEST(MemoryLimitTest, RealFlightFinishesUnderAHardLimitJustAboveItsBudget) {
   if (!cgroup.ok()) GTEST_SKIP() << "cannot run under a memory cgroup here: " << cgroup.why();
   const fs::path out = fs::temp_directory_path() / ("uavm_memlimit_" + std::to_string(::getpid()));
   fs::remove_all(out);
-  fs::remove_all(out.string() + "_in");
-  const fs::path flight = test::FlightForTest(kData + "/brighton_beach_small/images", 8, out.string() + "_in");
-  std::vector<std::string> args = {"--source",        "replay:" + flight.string(),
-                                   "--out",           out.string(),
-                                   "--memory-budget", std::to_string(kBudgetMiB),
-                                   "--log-level",     "warn"};
+  const test::FlightForTest flight(kData + "/brighton_beach_small/images", 8, out.string() + "_in");
+  std::vector<std::string> args = {"--source",        "replay:" + flight.string(), "--out",       out.string(),
+                                   "--memory-budget", std::to_string(kBudgetMiB),  "--log-level", "warn"};
   for (const auto& a : test::EmulationArgs()) args.push_back(a);
   const int status = RunInCgroup(cgroup, args);
   ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0)
@@ -134,13 +131,12 @@ TEST(MemoryLimitTest, RealFlightFinishesUnderAHardLimitJustAboveItsBudget) {
   ASSERT_EQ(WEXITSTATUS(status), 0);
   std::ifstream in(out / "report.json");
   const auto report = nlohmann::json::parse(in);
-  EXPECT_EQ(report["registered"].get<int>(), test::CountFrames(flight));
+  EXPECT_EQ(report["registered"].get<int>(), flight.frames());
   EXPECT_EQ(report["memory"]["budget_mib"].get<double>(), kBudgetMiB);
   // The process's own peak stays within the budget; the cgroup's peak also counts the page cache of written files.
   EXPECT_LE(report["memory"]["peak_rss_mib"].get<double>(), kBudgetMiB + (test::Emulated() ? kEmulatorMiB : 0));
   EXPECT_GT(cgroup.PeakBytes(), 0);
   fs::remove_all(out);
-  fs::remove_all(out.string() + "_in");
 }
 
 }  // namespace

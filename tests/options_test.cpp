@@ -41,12 +41,12 @@ TEST(OptionsTest, BadConfigsGiveClearErrors) {
     const char* text;
     const char* expect;
   };
-  for (const Case& c : {Case{"work_long_sid: 800\n", "unknown key 'work_long_sid'"},
-                        Case{"matching:\n  ratoi: 0.7\n", "unknown key 'matching.ratoi'"},
-                        Case{"work_long_side: big\n", "wrong type"}, Case{"work_long_side: -5\n", "work_long_side"},
-                        Case{"matching: 3\n", "must be a mapping"},
-                        Case{"model: projective\n", "'model' must be affine or homography"},
-                        Case{"refine:\n  huber_px: -1\n", "refine:"}, Case{"[1, 2\n", "config"}}) {
+  for (const Case& c :
+       {Case{"work_long_sid: 800\n", "unknown key 'work_long_sid'"},
+        Case{"matching:\n  ratoi: 0.7\n", "unknown key 'matching.ratoi'"}, Case{"work_long_side: big\n", "wrong type"},
+        Case{"work_long_side: -5\n", "work_long_side"}, Case{"matching: 3\n", "must be a mapping"},
+        Case{"model: projective\n", "'model' must be affine or homography"},
+        Case{"refine:\n  huber_px: -1\n", "refine:"}, Case{"[1, 2\n", "config"}}) {
     PipelineOptions o;
     std::string err;
     EXPECT_FALSE(LoadOptionsYaml(WriteTemp("bad", c.text), &o, &err)) << c.text;

@@ -7,7 +7,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "tests/test_env.h"
+#include "tests/test_image.h"
 
 namespace uavm {
 namespace {
@@ -69,11 +69,10 @@ TEST(PairMatcherTest, GrafMatchesAgreeWithGroundTruthHomography) {
 
 // A real aerial frame against a known affine warp of itself: the verified pair recovers the warp.
 TEST(PairMatcherTest, RecoversKnownAffineOnAerialFrame) {
-  cv::Mat img =
-      cv::imread(std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg", cv::IMREAD_GRAYSCALE);
+  const cv::Mat img = test::ScaledForEmulation(
+      cv::imread(std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg", cv::IMREAD_GRAYSCALE));
   ASSERT_FALSE(img.empty());
   const double scale = test::EmulationImageScale();  // half size under emulation, the shift with it
-  if (scale != 1.0) cv::resize(img, img, cv::Size(), scale, scale, cv::INTER_AREA);
   Mat3 truth;
   truth << 0.9 * std::cos(0.5), -0.9 * std::sin(0.5), 250 * scale, 0.9 * std::sin(0.5), 0.9 * std::cos(0.5),
       -120 * scale, 0, 0, 1;

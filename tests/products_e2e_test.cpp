@@ -58,9 +58,9 @@ class ProductsE2ETest : public ::testing::Test {
     gps_ = fs::temp_directory_path() / ("uavm_products_gps_" + std::to_string(::getpid()));
     fs::remove_all(gps_);
     // Under emulation the first 8 frames (two strips: the georeference has spread to fit).
-    const fs::path flight = test::FlightForTest(kData + "/brighton_beach_small/images", 8, gps_.string() + "_in");
-    gps_frames_ = test::CountFrames(flight);
-    gps_exit_ = RunOnboard("--source replay:" + flight.string() + " --out " + gps_.string());
+    const test::FlightForTest flight(kData + "/brighton_beach_small/images", 8, gps_.string() + "_in");
+    gps_frames_ = flight.frames();
+    gps_exit_ = RunOnboard("--source replay:" + flight.string() + " --out " + gps_.string(), test::Products::kWrite);
     // The same frames without EXIF (OpenCV writes none): the products in a local frame.
     nogps_in_ = fs::temp_directory_path() / ("uavm_products_nogps_in_" + std::to_string(::getpid()));
     nogps_ = fs::temp_directory_path() / ("uavm_products_nogps_" + std::to_string(::getpid()));
@@ -73,7 +73,8 @@ class ProductsE2ETest : public ::testing::Test {
     for (size_t i = 0; i < 8 && i < files.size(); ++i)
       cv::imwrite((nogps_in_ / files[i].filename()).string(), cv::imread(files[i].string()),
                   {cv::IMWRITE_JPEG_QUALITY, 95});
-    nogps_exit_ = RunOnboard("--source replay:" + nogps_in_.string() + " --out " + nogps_.string());
+    nogps_exit_ =
+        RunOnboard("--source replay:" + nogps_in_.string() + " --out " + nogps_.string(), test::Products::kWrite);
   }
   static void TearDownTestSuite() {
     if (!::testing::Test::HasFailure()) {
@@ -81,7 +82,6 @@ class ProductsE2ETest : public ::testing::Test {
       fs::remove_all(nogps_);
     }
     fs::remove_all(nogps_in_);
-    fs::remove_all(gps_.string() + "_in");
   }
   static inline fs::path gps_, nogps_, nogps_in_;
   static inline int gps_exit_ = -1, nogps_exit_ = -1;

@@ -25,11 +25,10 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 // The real flight; under emulation its first 8 frames (tests/test_env.h).
-const std::string& Flight() {
-  static const std::string flight =
-      test::FlightForTest(fs::path(UAVM_TEST_DATA) / "brighton_beach_small/images", 8,
-                          fs::temp_directory_path() / ("uavm_resume_flight_" + std::to_string(::getpid())))
-          .string();
+const test::FlightForTest& Flight() {
+  static const test::FlightForTest flight(
+      fs::path(UAVM_TEST_DATA) / "brighton_beach_small/images", 8,
+      fs::temp_directory_path() / ("uavm_resume_flight_" + std::to_string(::getpid())));
   return flight;
 }
 
@@ -42,7 +41,7 @@ fs::path TempDir(const std::string& name) {
 pid_t Start(const fs::path& out, bool resume) {
   const pid_t pid = ::fork();
   if (pid == 0) {
-    std::vector<std::string> args = {UAVM_ONBOARD_BIN, "--source", "replay:" + Flight(), "--out", out.string(),
+    std::vector<std::string> args = {UAVM_ONBOARD_BIN, "--source", "replay:" + Flight().string(), "--out", out.string(),
                                      "--log-level",    "error"};
     if (resume) args.emplace_back("--resume");
     for (const auto& a : test::EmulationArgs()) args.push_back(a);
@@ -135,13 +134,13 @@ double MaxCornerDistance(const Session& a, const Session& b) {
 }
 
 TEST(ResumeTest, KilledAnywhereResumesToTheSameMosaic) {
-  ASSERT_FALSE(Flight().empty());  // made here, before any fork: children only read it
+  ASSERT_GT(Flight().frames(), 0);  // made here, before any fork: children only read it
   // The uninterrupted reference, timed from the outside.
   const fs::path ref_dir = TempDir("reference");
   const int ref_status = WaitOrSignal(Start(ref_dir, false), 600, SIGKILL);
   ASSERT_TRUE(WIFEXITED(ref_status) && WEXITSTATUS(ref_status) == 0);
   const Session ref = Load(ref_dir);
-  const size_t inputs = static_cast<size_t>(std::distance(fs::directory_iterator(Flight()), fs::directory_iterator{}));
+  const size_t inputs = static_cast<size_t>(Flight().frames());
   ASSERT_EQ(ref.maps.size(), inputs);
   // Where the compositing (tile writes) happens in that time line: the report's wall time ends with it.
   const double compose_s = ref.report["composite_ms"].get<double>() / 1000.0;
@@ -224,7 +223,7 @@ TEST(ResumeTest, KilledAnywhereResumesToTheSameMosaic) {
 }
 
 TEST(ResumeTest, SigtermFinishesWithWhatWasReceived) {
-  ASSERT_FALSE(Flight().empty());  // made here, before any fork: children only read it
+  ASSERT_GT(Flight().frames(), 0);  // made here, before any fork: children only read it
   const fs::path dir = TempDir("term");
   const int status = KillWhen(
       Start(dir, false), [&] { return JournaledFrames(dir / "journal.jsonl") >= 6; }, 0.0, SIGTERM);
@@ -239,7 +238,7 @@ TEST(ResumeTest, SigtermFinishesWithWhatWasReceived) {
   std::string err;
   ASSERT_TRUE(ReadJournal((dir / "journal.jsonl").string(), &journal, &err));
   EXPECT_TRUE(journal.finished);
-  EXPECT_LT(got, static_cast<size_t>(test::CountFrames(Flight())));  // the signal stopped the capture early
+  EXPECT_LT(got, static_cast<size_t>(Flight().frames()));  // the signal stopped the capture early
   fs::remove_all(dir);
 }
 

@@ -43,8 +43,8 @@ TEST(SiftTest, BandedDetectionAgreesWithTheWholeImage) {
   FeatureOptions whole;
   FeatureOptions banded;
   // A cap that splits detection into 3 bands (80 MiB at 1000 px).
-  const int cap = static_cast<int>(
-      std::ceil(SiftScaleSpaceMiB(gray.cols, (gray.rows + 2) / 3 + 2 * banded.band_margin)));
+  const int cap =
+      static_cast<int>(std::ceil(SiftScaleSpaceMiB(gray.cols, (gray.rows + 2) / 3 + 2 * banded.band_margin)));
   banded.max_scale_space_mib = cap;
   ASSERT_EQ(SiftBands(gray.cols, gray.rows, whole), 1);
   const int bands = SiftBands(gray.cols, gray.rows, banded);
@@ -62,15 +62,15 @@ TEST(SiftTest, BandedDetectionAgreesWithTheWholeImage) {
   int located = 0;
   for (size_t i = 0; i < b.size(); ++i) {
     for (size_t j = 0; j < a.size(); ++j) {
-      if (std::abs(a.points[j].x - b.points[i].x) > 0.05f || std::abs(a.points[j].y - b.points[i].y) > 0.05f)
-        continue;
+      if (std::abs(a.points[j].x - b.points[i].x) > 0.05f || std::abs(a.points[j].y - b.points[i].y) > 0.05f) continue;
       ++located;
       if (cv::norm(a.descriptors.row(static_cast<int>(j)), b.descriptors.row(static_cast<int>(i)), cv::NORM_L2) < 0.2)
         ++same;
       break;
     }
   }
-  std::cerr << "banded (" << bands << " bands under " << cap << " MiB): " << located << " located, " << same << " of " << b.size() << " keypoints as in the whole image\n";
+  std::cerr << "banded (" << bands << " bands under " << cap << " MiB): " << located << " located, " << same << " of "
+            << b.size() << " keypoints as in the whole image\n";
   EXPECT_GT(located, static_cast<int>(0.95 * static_cast<double>(b.size())));
   EXPECT_GT(same, static_cast<int>(0.8 * static_cast<double>(b.size())));
 }

@@ -9,7 +9,6 @@
 #include "core/eval/image_score.h"
 #include "core/session/session_dir.h"
 #include "hal/sim/sim_writer.h"
-
 #include "tests/test_env.h"
 
 namespace uavm {
@@ -38,9 +37,11 @@ void FlyAndEvaluate(const std::string& name, const std::string& plan, FlightRun*
   std::string err;
   ASSERT_EQ(source.Open(&err), hal::Status::kOk) << err;
   ASSERT_TRUE(hal::WriteSimFlight(&source, (run->dir / "flight").string(), 0, &err)) << err;
-  const std::string cmd = std::string(UAVM_ONBOARD_BIN) + " --source replay:" + (run->dir / "flight/images").string() +
-                          " --out " + (run->dir / "session").string() + " --log-level warn " + args +
-                          (test::Emulated() ? " --min-features 0" : "");  // one SIFT pass per frame under qemu
+  std::string cmd = std::string(UAVM_ONBOARD_BIN) + " --source replay:" + (run->dir / "flight/images").string() +
+                    " --out " + (run->dir / "session").string() + " --log-level warn " + args;
+  // One SIFT pass per frame and no web tiles under qemu; the flights set their own working size.
+  for (const auto& a : test::EmulationOnePassArgs()) cmd += " " + a;
+  for (const auto& a : test::EmulationProductArgs(test::Products::kSkipUnderEmulation)) cmd += " " + a;
   const int status = std::system(cmd.c_str());
   ASSERT_TRUE(WIFEXITED(status));
   ASSERT_EQ(WEXITSTATUS(status), 0);
