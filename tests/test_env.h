@@ -28,35 +28,16 @@ inline bool Emulated() {
 // brighton_beach_small (18) and caliterra_small (20) still registers this way, and the end-to-end tests' thresholds
 // hold. scripts/test_aarch64.sh's parity step runs the whole flight under emulation.
 enum class Products { kSkipUnderEmulation, kWrite };
-inline std::vector<std::string> EmulationWorkSizeArgs() {
-  if (!Emulated()) return {};
-  return {"--work-size", "320"};
-}
-inline std::vector<std::string> EmulationOnePassArgs() {
-  if (!Emulated()) return {};
-  return {"--min-features", "0"};
-}
-inline std::vector<std::string> EmulationProductArgs(Products products) {
-  if (!Emulated() || products == Products::kWrite) return {};
-  return {"--no-products"};
-}
 inline std::vector<std::string> EmulationArgs(Products products = Products::kSkipUnderEmulation) {
-  std::vector<std::string> args = EmulationWorkSizeArgs();
-  for (auto& a : EmulationOnePassArgs()) args.push_back(std::move(a));
-  for (auto& a : EmulationProductArgs(products)) args.push_back(std::move(a));
+  if (!Emulated()) return {};
+  std::vector<std::string> args = {"--work-size", "320", "--min-features", "0"};
+  if (products == Products::kSkipUnderEmulation) args.emplace_back("--no-products");
   return args;
 }
 inline std::string EmulationArgsString(Products products = Products::kSkipUnderEmulation) {
   std::string s;
   for (const auto& a : EmulationArgs(products)) s += " " + a;
   return s;
-}
-
-// Images in a replay folder.
-inline int CountFrames(const std::filesystem::path& dir) {
-  int n = 0;
-  for (const auto& e : std::filesystem::directory_iterator(dir)) n += e.is_regular_file() ? 1 : 0;
-  return n;
 }
 
 // The flight an end-to-end test replays: natively `images` itself; under emulation a folder under `scratch` holding
@@ -81,7 +62,7 @@ class FlightForTest {
       for (size_t i = 0; i < files.size() && i < emulated_frames; ++i)
         fs::create_symlink(files[i], path_ / files[i].filename());
     }
-    frames_ = CountFrames(path_);
+    for (const auto& e : fs::directory_iterator(path_)) frames_ += e.is_regular_file() ? 1 : 0;
   }
   ~FlightForTest() {
     std::error_code ignored;
