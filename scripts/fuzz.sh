@@ -3,6 +3,7 @@
 # number of executions on its corpus in fuzz/corpus/<target>/; prints target, executions, seconds, crashes.
 #
 #   scripts/fuzz.sh                      # CI: 20000 executions per target
+#   scripts/fuzz.sh --seconds 120        # each target for 120 s (the full tier, scripts/test_full.sh)
 #   scripts/fuzz.sh --runs 1000000       # the long run (bench/fuzz.sh)
 #   scripts/fuzz.sh --runs 1000000 --minimize   # ... then merge what it found into fuzz/corpus/ (minimised)
 #   scripts/fuzz.sh --target fuzz_config # one target
@@ -13,6 +14,7 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 RUNS=20000
+SECONDS_EACH=0  # > 0: a time budget per target instead of a number of executions
 BUILD_DIR="$ROOT/build-fuzz"
 MINIMIZE=0
 ONLY=""
@@ -20,10 +22,11 @@ JOBS="${UAVM_JOBS:-2}"
 while [ $# -gt 0 ]; do
   case "$1" in
     --runs) RUNS="$2"; shift 2 ;;
+    --seconds) SECONDS_EACH="$2"; RUNS=-1; shift 2 ;;
     --build-dir) BUILD_DIR="$2"; shift 2 ;;
     --minimize) MINIMIZE=1; shift ;;
     --target) ONLY="$2"; shift 2 ;;
-    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     *) echo "fuzz.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -56,7 +59,7 @@ for t in "${TARGETS[@]}"; do
   t0=$(date +%s%N)
   status=0
   # -max_len: enough for a config or a small JPEG header with EXIF/XMP; -timeout: a hang is a bug too.
-  nice -n 10 "$BUILD_DIR/fuzz/$t" -runs="$RUNS" -max_len=65536 -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+  nice -n 10 "$BUILD_DIR/fuzz/$t" -runs="$RUNS" -max_total_time="$SECONDS_EACH" -max_len=65536 -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
     -artifact_prefix="$artifacts/" "$work" "$corpus" "${regressions[@]}" >"$log" 2>&1 || status=$?
   secs=$(awk -v a="$t0" -v b="$(date +%s%N)" 'BEGIN { printf "%.1f", (b - a) / 1e9 }')
   execs=$(grep -oE 'stat::number_of_executed_units: *[0-9]+' "$log" | grep -oE '[0-9]+$' || true)

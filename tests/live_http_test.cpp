@@ -130,14 +130,18 @@ TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   const cv::Scalar ref = test::ContentMean(img);
   for (int c = 0; c < 3; ++c) EXPECT_NEAR(mean[c], ref[c], 30) << "channel " << c;
 
-  // The run finishes normally, every frame registered despite the clients.
+  // The operator ends the flight (SIGTERM, as systemd stops the service): the run finishes normally with what it
+  // received, every frame of it registered despite the clients. Not waiting out the flight keeps the test short.
+  ::kill(pid, SIGTERM);
   int wstatus = 0;
   ASSERT_EQ(::waitpid(pid, &wstatus, 0), pid);
   ASSERT_TRUE(WIFEXITED(wstatus));
   EXPECT_EQ(WEXITSTATUS(wstatus), 0);
   std::ifstream in(out / "report.json");
   const auto report = nlohmann::json::parse(in);
-  EXPECT_EQ(report["registered"].get<int>(), flight.frames());
+  EXPECT_GE(report["frames_decoded"].get<int>(), 2);
+  EXPECT_LE(report["frames_decoded"].get<int>(), flight.frames());
+  EXPECT_EQ(report["registered"].get<int>(), report["frames_decoded"].get<int>());
   // After the run the server is gone.
   EXPECT_FALSE(client.Get("/status.json"));
   if (!::testing::Test::HasFailure()) {

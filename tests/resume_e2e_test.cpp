@@ -44,7 +44,7 @@ pid_t Start(const fs::path& out, bool resume) {
     std::vector<std::string> args = {UAVM_ONBOARD_BIN, "--source", "replay:" + Flight().string(), "--out", out.string(),
                                      "--log-level",    "error"};
     if (resume) args.emplace_back("--resume");
-    for (const auto& a : test::EmulationArgs()) args.push_back(a);
+    for (const auto& a : test::LightArgs()) args.push_back(a);  // natively too: resume does not depend on it
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);

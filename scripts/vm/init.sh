@@ -27,7 +27,23 @@ $bb mount -t 9p -o trans=virtio,version=9p2000.L,msize=1048576,ro,cache=loose ho
 $bb mount -t devtmpfs devtmpfs /host/dev
 $bb mount -t proc proc /host/proc
 $bb mount -t sysfs sysfs /host/sys
+# The guest needs a writable /tmp, but a checkout or build under the host's /tmp would then be hidden: keep the
+# host's /tmp reachable at /mnt/hosttmp and bind the folders the test names back over the new tmpfs.
+$bb mkdir -p /mnt/hosttmp
+$bb mount -o bind /host/tmp /mnt/hosttmp
 $bb mount -t tmpfs tmpfs /host/tmp
+for p in "$uavm_script" "$uavm_results" $(echo "$uavm_args" | $bb tr ',' ' '); do
+  case "$p" in
+    /tmp/?*)
+      top=${p#/tmp/}
+      top=${top%%/*}
+      if [ ! -d "/host/tmp/$top" ]; then
+        $bb mkdir -p "/host/tmp/$top"
+        $bb mount -o bind "/mnt/hosttmp/$top" "/host/tmp/$top" || echo "init: cannot bind /tmp/$top"
+      fi
+      ;;
+  esac
+done
 $bb mount -t tmpfs tmpfs /host/run
 $bb mount -t tmpfs tmpfs /host/var/tmp 2>/dev/null
 # Last, so that none of the tmpfs above hides it (it may live under /tmp).
