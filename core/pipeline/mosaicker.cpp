@@ -98,17 +98,24 @@ bool Mosaicker::StoreFrameBytes(const hal::Frame& frame, const std::vector<uchar
   return true;
 }
 
-std::vector<int> Mosaicker::MembersOf(int root) {
-  std::vector<int> out;
-  for (const auto& f : frames_)
-    if (f.in_graph && components_.Find(f.id) == root) out.push_back(f.id);
-  return out;
+const std::vector<int>& Mosaicker::MembersOf(int root) {
+  static const std::vector<int> kNone;
+  // A frame that registered nothing is a component of its own, outside the graph.
+  return frames_[static_cast<size_t>(components_.Find(root))].in_graph ? components_.MembersOf(root) : kNone;
 }
 
-std::vector<const Edge*> Mosaicker::EdgesWithin(int root) {
+std::vector<const Edge*> Mosaicker::EdgesTouching(const std::unordered_set<int>& ids, int root) {
+  std::vector<size_t> indices;
+  for (int id : ids)
+    for (size_t ei : adjacency_[static_cast<size_t>(id)]) indices.push_back(ei);
+  // In the graph's order, each edge once: the adjustment then sums its terms in the same order as over all edges.
+  std::sort(indices.begin(), indices.end());
+  indices.erase(std::unique(indices.begin(), indices.end()), indices.end());
   std::vector<const Edge*> out;
-  for (const auto& e : graph_.edges())
+  for (size_t ei : indices) {
+    const Edge& e = graph_.edges()[ei];
     if (components_.Find(e.src) == root && components_.Find(e.tgt) == root) out.push_back(&e);
+  }
   return out;
 }
 
@@ -161,32 +168,36 @@ bool Mosaicker::LoadEdgePoints(const std::vector<const Edge*>& edges) {
 
 // Re-expresses every frame of `other_root`'s component by `other_fix` (new = fix * old) and unites the two.
 void Mosaicker::MergeInto(int keep_root, int other_root, const Mat3& other_fix) {
-  for (int id : MembersOf(other_root)) mosaic_from_work_[id] = other_fix * mosaic_from_work_[id];
+  for (int id : MembersOf(other_root)) {
+    mosaic_from_work_[id] = other_fix * mosaic_from_work_[id];
+    Place(id);
+  }
   components_.Unite(keep_root, other_root);
   ++merges_;
   --num_components_;
 }
 
 void Mosaicker::FullSolve(int root) {
-  const std::vector<int> members = MembersOf(root);
+  const std::vector<int>& members = MembersOf(root);  // ascending ids
   if (members.size() < 2) return;
-  const int anchor = *std::min_element(members.begin(), members.end());
+  const int anchor = members.front();
   // During the flight only the newest solve_window frames move (the rest is their fixed frame of reference): the
   // solve's memory and time stay bounded however long the flight. The end of the flight solves everything.
-  std::vector<int> order = members;
-  std::sort(order.begin(), order.end());
-  const size_t window = options_.solve_window > 0 ? static_cast<size_t>(options_.solve_window) : order.size();
-  std::unordered_set<int> variable(order.end() - static_cast<long>(std::min(window, order.size())), order.end());
+  const size_t window = options_.solve_window > 0 ? static_cast<size_t>(options_.solve_window) : members.size();
+  std::unordered_set<int> variable(members.end() - static_cast<long>(std::min(window, members.size())), members.end());
   variable.erase(anchor);
-  std::unordered_map<int, double> half_diag;
-  for (int id : members) half_diag[id] = frames_[static_cast<size_t>(id)].half_diagonal;
-  std::vector<const Edge*> edges = EdgesWithin(root);
+  std::unordered_map<int, double> half_diag;  // the adjustment weighs its terms by the moving frames' sizes only
+  for (int id : variable) half_diag[id] = frames_[static_cast<size_t>(id)].half_diagonal;
+  // Only edges that touch a moving frame take part (AdjustAffine skips the others): found through the moving frames'
+  // adjacency, so a windowed solve costs the window, not the component.
+  std::vector<const Edge*> edges = EdgesTouching(variable, components_.Find(root));
   std::vector<const Edge*> needed;
   for (const Edge* e : edges)
-    if (!e->points_resident && (variable.count(e->src) != 0 || variable.count(e->tgt) != 0)) needed.push_back(e);
+    if (!e->points_resident) needed.push_back(e);
   if (!LoadEdgePoints(needed)) spdlog::warn("full adjustment without some edges (edges.bin unreadable)");
   edges_reloaded_ += needed.size();
   const auto result = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+  for (int id : variable) Place(id);
   ReleaseColdEdges();
   if (!result.ok) spdlog::warn("full adjustment failed: {}", result.failure);
   registered_since_full_ = 0;
@@ -204,11 +215,19 @@ bool Mosaicker::IsNewGround(int id) {
   const Vec2 c = centre_of(me);
   const double radius = spacing * me.half_diagonal * LocalScale(mosaic_from_work_[id], work_centre(me));
   const int root = components_.Find(id);
-  for (int k : keyframes_) {
+  // A keyframe whose centre is that close lies in a footprint that meets this square: the grid finds it.
+  const cv::Rect2d near(c.x() - radius, c.y() - radius, 2.0 * radius, 2.0 * radius);
+  for (int k : footprints_.Query(near)) {
     const FrameState& f = frames_[static_cast<size_t>(k)];
-    if (f.in_graph && components_.Find(k) == root && (centre_of(f) - c).norm() < radius) return false;
+    if (f.keyframe && f.in_graph && components_.Find(k) == root && (centre_of(f) - c).norm() < radius) return false;
   }
   return true;
+}
+
+void Mosaicker::Place(int id) {
+  const FrameState& f = frames_[static_cast<size_t>(id)];
+  footprints_.Set(
+      id, cv::Rect2d(cv::boundingRect(Footprint(mosaic_from_work_[id], f.work_size.width, f.work_size.height))));
 }
 
 void Mosaicker::UpdatePreview(int id, const cv::Mat& work_bgr) {
@@ -448,6 +467,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     // A component of its own until a later frame connects it.
     mosaic_from_work_[id] = Mat3::Identity();
     st.in_graph = true;
+    Place(id);
     ++num_components_;
     if (id == 0) {
       spdlog::info("frame {} starts the mosaic", st.name);
@@ -481,6 +501,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
     for (size_t ei : adjacency_[static_cast<size_t>(id)]) local.push_back(&graph_.edges()[ei]);
     const auto r = AdjustAffine(local, {id}, half_diag, options_.adjust, &mosaic_from_work_);
     if (!r.ok) spdlog::warn("local adjustment of {} failed: {}", st.name, r.failure);
+    Place(id);
     st.failure.clear();
     // Full solves get rarer as the component grows (every max(N, size/20) frames): their cost grows with the
     // flight, and between them each new frame is still solved against all its neighbours, old strips included.
@@ -493,7 +514,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   }
   if (IsNewGround(id)) {
     global_index_.Add(id, feats);
-    keyframes_.push_back(id);
+    st.keyframe = true;
   } else {
     ++frames_not_indexed_;
   }
@@ -503,7 +524,10 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   stats_.Add("preview", t.ElapsedMs());
   // Every few frames, not every frame: a trim walks the arenas (~1 ms).
   if (options_.trim_heap_every > 0 && id % options_.trim_heap_every == 0) TrimHeap();
-  stats_.Add("frame_total", frame_timer.ElapsedMs());
+  const double frame_ms = frame_timer.ElapsedMs();
+  stats_.Add("frame_total", frame_ms);
+  // One line per frame at debug level: bench/flight_length.sh draws the per-frame cost along a flight from it.
+  spdlog::debug("frame {} processed in {:.1f} ms", id, frame_ms);
   return outcome;
 }
 
@@ -516,7 +540,9 @@ std::vector<int> Mosaicker::OverlapCandidates(int id, int root, const std::unord
   const double area_me = PolygonArea(fp_me);
   if (!(area_me > 0)) return out;
   std::vector<std::pair<double, int>> overlaps;
-  for (const auto& f : frames_) {
+  // Only frames whose footprint box meets this one's can overlap it: the grid gives them without a scan.
+  for (int candidate : footprints_.Query(box_me)) {
+    const FrameState& f = frames_[static_cast<size_t>(candidate)];
     if (f.id == id || !f.in_graph || exclude.count(f.id) != 0 || components_.Find(f.id) != components_.Find(root))
       continue;
     const auto fp = Footprint(mosaic_from_work_[f.id], f.work_size.width, f.work_size.height);

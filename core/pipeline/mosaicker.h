@@ -8,6 +8,8 @@
 #include <unordered_set>
 #include <vector>
 
+#include "core/geometry/footprint_grid.h"
+#include "core/graph/components.h"
 #include "core/graph/match_graph.h"
 #include "core/matching/global_index.h"
 #include "core/mosaic/live_preview.h"
@@ -97,14 +99,17 @@ class Mosaicker {
     double half_diagonal = 1.0;
     bool has_features = false;
     bool in_graph = false;  // has at least one edge or anchors its own component
+    bool keyframe = false;  // in the global (relocalisation) index
     std::string failure;    // why it is not registered (so far)
     hal::FrameMetadata metadata;
   };
 
   [[nodiscard]] bool StoreFrameBytes(const hal::Frame& frame, const std::vector<uchar>& encoded, FrameState* state,
                                      std::string* error);
-  [[nodiscard]] std::vector<const Edge*> EdgesWithin(int root);
-  [[nodiscard]] std::vector<int> MembersOf(int root);
+  // The frames of `root`'s component, ascending (none when the frame registered nothing). Valid until a merge.
+  [[nodiscard]] const std::vector<int>& MembersOf(int root);
+  // The edges of `root`'s component that touch one of `ids`, in the graph's order.
+  [[nodiscard]] std::vector<const Edge*> EdgesTouching(const std::unordered_set<int>& ids, int root);
   void AddEdge(Edge edge);
   // Gives back the points of edges whose frames have left the solve window (they stay in edges.bin).
   void ReleaseColdEdges();
@@ -123,6 +128,8 @@ class Mosaicker {
   void UpdatePreview(int id, const cv::Mat& work_bgr);
   // Whether frame `id` adds new ground to the relocalisation index (see GlobalIndexOptions::keyframe_spacing).
   [[nodiscard]] bool IsNewGround(int id);
+  // Puts frame `id` in the footprint grid where mosaic_from_work_ places it now (after every change of its map).
+  void Place(int id);
   [[nodiscard]] bool WriteOutputs(const std::vector<int>& component, std::string* error);
   // Fits the georeference to the component's frame centres and EXIF GPS; when it succeeds the canvas is placed again
   // through `place` turned north-up (canvas_from_original updated), so that mosaic.tif needs no warp.
@@ -138,7 +145,6 @@ class Mosaicker {
   SiftExtractor extractor_;
   FeatureStore feature_store_;
   GlobalIndex global_index_;
-  std::vector<int> keyframes_;     // frames in the global index
   size_t frames_not_indexed_ = 0;  // registered over ground the index already has
   MatchGraph graph_;
   EdgeStore edge_store_;
@@ -150,8 +156,9 @@ class Mosaicker {
   size_t edges_released_ = 0;   // edges whose points went to disk during the flight
   size_t edge_bytes_released_ = 0;
   size_t edges_reloaded_ = 0;  // points read back during the flight (a solve needed a cold edge)
-  UnionFind components_;
-  std::deque<FrameState> frames_;                   // grows chunk by chunk: no doubling copy in a long flight
+  Components components_;
+  FootprintGrid footprints_;       // in_graph frames' footprints, for overlap candidates and new-ground checks
+  std::deque<FrameState> frames_;  // grows chunk by chunk: no doubling copy in a long flight
   std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
   std::unordered_map<int, Mat3> mosaic_from_work_;  // per frame, in its component's coordinates
   std::deque<std::pair<int, int>> retry_;           // (frame id, attempts)

@@ -239,7 +239,7 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
 
   // report.json
   nlohmann::json report;
-  report["version"] = "0.1.0";
+  report["version"] = UAVM_VERSION;
   report["frames_in"] = frames_.size() + skipped_.size();
   report["frames_decoded"] = frames_.size();
   report["registered"] = final_registered_;
