@@ -44,6 +44,9 @@ setup_all() {
     qemu-system-x86 busybox-static kmod xz-utils
 }
 
+# The arm64 sysroot (its path, printed last, is for other callers).
+sysroot_quiet() { bash "$ROOT/scripts/make_sysroot.sh" >/dev/null; }
+
 # The camera VM's kernel and initramfs (cached outside the clone); 77 = cannot be prepared here, and the VM test then
 # reports itself skipped with the reason.
 vm_kernel() {
@@ -68,7 +71,7 @@ native_suite() {
 # The CI tier (scripts/test.sh): the cold steps first (nothing to do on a warm machine), then the tests.
 ci_tier() {
   step "setup" setup_all
-  step "sysroot" bash -c "bash '$ROOT/scripts/make_sysroot.sh' >/dev/null"
+  step "sysroot" sysroot_quiet
   step "vm kernel" vm_kernel
   step "native build" bash "$ROOT/scripts/build.sh"
   step "native suite" native_suite

@@ -21,21 +21,13 @@ bool FootprintGrid::RangeOf(const cv::Rect2d& box, CellRange* range) const {
 
 void FootprintGrid::Set(int id, const cv::Rect2d& box) {
   Remove(id);
-  if (cell_ <= 0.0) {
-    const double side = std::max(box.width, box.height);
-    if (!(side > 0.0) || !std::isfinite(side)) {  // no size to go by yet: the frame waits on the oversize list
-      if (placed_.size() <= static_cast<size_t>(id)) placed_.resize(static_cast<size_t>(id) + 1);
-      placed_[static_cast<size_t>(id)].oversize = true;
-      oversize_.push_back(id);
-      ++placed_count_;
-      return;
-    }
-    cell_ = side;
-  }
+  // The first box with a size sets the cells; until then a frame waits on the oversize list.
+  const double side = std::max(box.width, box.height);
+  if (cell_ <= 0.0 && side > 0.0 && std::isfinite(side)) cell_ = side;
   if (placed_.size() <= static_cast<size_t>(id)) placed_.resize(static_cast<size_t>(id) + 1);
   CellRange& range = placed_[static_cast<size_t>(id)];
   ++placed_count_;
-  if (!RangeOf(box, &range)) {
+  if (cell_ <= 0.0 || !RangeOf(box, &range)) {
     range = CellRange{};
     range.oversize = true;
     oversize_.push_back(id);
