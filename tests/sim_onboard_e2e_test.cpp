@@ -8,8 +8,8 @@
 #include "core/eval/evaluator.h"
 #include "core/eval/image_score.h"
 #include "core/session/session_dir.h"
-#include "hal/sim/sim_writer.h"
 #include "tests/test_env.h"
+#include "tools/sim_writer.h"
 
 namespace uavm {
 namespace {
@@ -37,7 +37,7 @@ void FlyAndEvaluate(const std::string& name, const std::string& plan, FlightRun*
   hal::SimSource source({"", plan, kCanvas, 0});
   std::string err;
   ASSERT_EQ(source.Open(&err), hal::Status::kOk) << err;
-  ASSERT_TRUE(hal::WriteSimFlight(&source, (run->dir / "flight").string(), 0, &err)) << err;
+  ASSERT_TRUE(tools::WriteSimFlight(&source, (run->dir / "flight").string(), 0, &err)) << err;
   std::string cmd = std::string(UAVM_ONBOARD_BIN) + " --source replay:" + (run->dir / "flight/images").string() +
                     " --out " + (run->dir / "session").string() + " --log-level warn " + args;
   cmd += test::EmulationArgsString();

@@ -9,7 +9,7 @@
 
 #include "core/eval/ground_truth.h"
 #include "core/session/session_dir.h"
-#include "hal/sim/sim_writer.h"
+#include "tools/sim_writer.h"
 
 namespace uavm::hal {
 namespace {
@@ -174,7 +174,7 @@ TEST(SimWriterTest, WritesImagesGroundTruthAndPlan) {
   SimSource src = Make(kNadirPlan + "jpeg_quality: 92\n");
   std::string err;
   ASSERT_EQ(src.Open(&err), Status::kOk) << err;
-  ASSERT_TRUE(WriteSimFlight(&src, dir.string(), 4, &err)) << err;
+  ASSERT_TRUE(tools::WriteSimFlight(&src, dir.string(), 4, &err)) << err;
   EXPECT_TRUE(fs::exists(dir / "images" / "frame_000003.jpg"));
   EXPECT_FALSE(fs::exists(dir / "images" / "frame_000004.jpg"));
   std::string text;

@@ -1,9 +1,9 @@
-// uavmosaic-sim: writes a simulated flight with ground truth (see hal/sim/sim_writer.h for the layout).
+// uavmosaic-sim: writes a simulated flight with ground truth (see tools/sim_writer.h for the layout).
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
 
-#include "hal/sim/sim_writer.h"
+#include "tools/sim_writer.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"Simulated drone flight over an image, with ground truth"};
@@ -27,7 +27,7 @@ int main(int argc, char** argv) {
     // A plan that parses but is wrong is a bad argument; a missing file is an unreadable input.
     return error.find("cannot read") != std::string::npos ? 3 : 2;
   }
-  if (!uavm::hal::WriteSimFlight(&source, out, options.max_frames, &error)) {
+  if (!uavm::tools::WriteSimFlight(&source, out, options.max_frames, &error)) {
     spdlog::error("{}", error);
     return 4;
   }

@@ -35,14 +35,6 @@ double SumSquares(const std::vector<double>& v) {
 
 }  // namespace
 
-double LocalScale(const Mat3& m, const Vec2& p) {
-  const double w = m(2, 0) * p.x() + m(2, 1) * p.y() + m(2, 2);
-  const Vec2 q = Apply(m, p);
-  Eigen::Matrix2d j;
-  j << m(0, 0) - q.x() * m(2, 0), m(0, 1) - q.x() * m(2, 1), m(1, 0) - q.y() * m(2, 0), m(1, 1) - q.y() * m(2, 1);
-  return std::sqrt(std::abs(j.determinant())) / std::abs(w);
-}
-
 bool FitHomography(const std::vector<Vec2>& src, const std::vector<Vec2>& tgt, const std::vector<double>& weights,
                    int iterations, Mat3* tgt_from_src) {
   const size_t n = src.size();

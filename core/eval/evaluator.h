@@ -57,7 +57,4 @@ struct EvalResult {
 [[nodiscard]] bool FitHomography(const std::vector<Vec2>& src, const std::vector<Vec2>& tgt,
                                  const std::vector<double>& weights, int iterations, Mat3* tgt_from_src);
 
-// sqrt|det| of the Jacobian of `m` at p: the local area scale of a projective map.
-[[nodiscard]] double LocalScale(const Mat3& m, const Vec2& p);
-
 }  // namespace uavm::eval

@@ -1,6 +1,5 @@
 #include "core/eval/ground_truth.h"
 
-#include <Eigen/Dense>
 #include <cstdio>
 #include <sstream>
 
@@ -86,27 +85,6 @@ bool ParseGroundTruthCsv(const std::string& text, std::vector<GtRow>* rows, std:
     rows->push_back(std::move(r));
   }
   return true;
-}
-
-Mat3 ClosestAffine(const Mat3& projective, int width, int height, int grid) {
-  // Two independent linear least-squares problems (one per output coordinate) sharing the design matrix [x y 1].
-  const int n = grid * grid;
-  Eigen::MatrixXd a(n, 3);
-  Eigen::MatrixXd b(n, 2);
-  int k = 0;
-  for (int j = 0; j < grid; ++j) {
-    for (int i = 0; i < grid; ++i, ++k) {
-      const Vec2 p((width - 1.0) * i / (grid - 1), (height - 1.0) * j / (grid - 1));
-      const Vec2 q = Apply(projective, p);
-      a.row(k) << p.x(), p.y(), 1.0;
-      b.row(k) << q.x(), q.y();
-    }
-  }
-  const Eigen::MatrixXd x = a.colPivHouseholderQr().solve(b);
-  Mat3 m = Mat3::Identity();
-  m.row(0) = x.col(0).transpose();
-  m.row(1) = x.col(1).transpose();
-  return m;
 }
 
 }  // namespace uavm::eval

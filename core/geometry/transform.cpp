@@ -1,5 +1,6 @@
 #include "core/geometry/transform.h"
 
+#include <Eigen/QR>
 #include <Eigen/SVD>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
@@ -97,6 +98,27 @@ double LocalScale(const Mat3& m, const Vec2& at) {
   const double j10 = (m(1, 0) - p.y() * m(2, 0)) / w;
   const double j11 = (m(1, 1) - p.y() * m(2, 1)) / w;
   return std::sqrt(std::abs(j00 * j11 - j01 * j10));
+}
+
+Mat3 ClosestAffine(const Mat3& projective, int width, int height, int grid) {
+  // Two independent linear least-squares problems (one per output coordinate) sharing the design matrix [x y 1].
+  const int n = grid * grid;
+  Eigen::MatrixXd a(n, 3);
+  Eigen::MatrixXd b(n, 2);
+  int k = 0;
+  for (int j = 0; j < grid; ++j) {
+    for (int i = 0; i < grid; ++i, ++k) {
+      const Vec2 p((width - 1.0) * i / (grid - 1), (height - 1.0) * j / (grid - 1));
+      const Vec2 q = Apply(projective, p);
+      a.row(k) << p.x(), p.y(), 1.0;
+      b.row(k) << q.x(), q.y();
+    }
+  }
+  const Eigen::MatrixXd x = a.colPivHouseholderQr().solve(b);
+  Mat3 m = Mat3::Identity();
+  m.row(0) = x.col(0).transpose();
+  m.row(1) = x.col(1).transpose();
+  return m;
 }
 
 }  // namespace uavm

@@ -40,6 +40,9 @@ struct LinearPart {
 // sqrt |det J| of tgt_from_src's Jacobian at `at`: target pixels per source pixel there (exact for projective maps,
 // whose upper-left 2x2 is not their Jacobian away from the origin).
 [[nodiscard]] double LocalScale(const Mat3& tgt_from_src, const Vec2& at);
+// The affine minimising the squared distance to `projective` over a grid x grid lattice of pixel centres spanning a
+// width x height frame (the simulator's ground truth for an affine model).
+[[nodiscard]] Mat3 ClosestAffine(const Mat3& projective, int width, int height, int grid = 17);
 
 [[nodiscard]] cv::Matx23d ToCvAffine(const Mat3& m);
 [[nodiscard]] cv::Matx33d ToCv(const Mat3& m);

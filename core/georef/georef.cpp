@@ -10,6 +10,8 @@
 #include <numeric>
 #include <random>
 
+#include "core/geometry/similarity.h"
+
 namespace uavm {
 
 namespace {
@@ -22,24 +24,13 @@ Vec2 ToYDown(const Vec2& en) {
   return Vec2(en.x(), -en.y());
 }
 
-// Least-squares similarity u = a x - b y + tx, v = b x + a y + ty over `idx`.
-bool FitSimilarity(const std::vector<Vec2>& px, const std::vector<Vec2>& uv, const std::vector<size_t>& idx,
-                   Affine23* out) {
-  if (idx.size() < 2) return false;
-  Eigen::MatrixXd A(2 * idx.size(), 4);
-  Eigen::VectorXd b(2 * idx.size());
-  for (size_t k = 0; k < idx.size(); ++k) {
-    const Vec2& p = px[idx[k]];
-    const Vec2& q = uv[idx[k]];
-    const auto r = static_cast<Eigen::Index>(2 * k);
-    A.row(r) << p.x(), -p.y(), 1, 0;
-    A.row(r + 1) << p.y(), p.x(), 0, 1;
-    b(r) = q.x();
-    b(r + 1) = q.y();
-  }
-  const Eigen::Vector4d s = A.colPivHouseholderQr().solve(b);
-  if (!s.allFinite() || std::hypot(s(0), s(1)) < 1e-12) return false;
-  *out << s(0), -s(1), s(2), s(1), s(0), s(3);
+// Least-squares similarity pixel -> y-down map over `idx`, as an affine 2x3.
+bool FitSimilarity23(const std::vector<Vec2>& px, const std::vector<Vec2>& uv, const std::vector<size_t>& idx,
+                     Affine23* out) {
+  Similarity2 fit;
+  if (!FitSimilarity<2>(px, uv, &fit, {.indices = &idx})) return false;
+  out->leftCols<2>() = fit.scale * fit.rotation;
+  out->col(2) = fit.translation;
   return true;
 }
 
@@ -209,7 +200,7 @@ GeorefFit FitGeoref(const std::vector<GeoPoint>& points, const GeorefOptions& o)
       }
       if ((px[a] - px[b]).norm() < 1.0) continue;
       Affine23 m;
-      if (!FitSimilarity(px, uv, {a, b}, &m)) continue;
+      if (!FitSimilarity23(px, uv, {a, b}, &m)) continue;
       auto in = Inliers(m, px, uv, o.inlier_threshold_m);
       if (in.size() > best.size()) {
         best = std::move(in);
@@ -225,7 +216,7 @@ GeorefFit FitGeoref(const std::vector<GeoPoint>& points, const GeorefOptions& o)
   Affine23 m = best_m;
   std::vector<size_t> in = best;
   for (int k = 0; k < 5; ++k) {
-    if (!FitSimilarity(px, uv, in, &m)) break;
+    if (!FitSimilarity23(px, uv, in, &m)) break;
     auto next = Inliers(m, px, uv, o.inlier_threshold_m);
     if (next == in || static_cast<int>(next.size()) < o.min_points) break;
     in = std::move(next);

@@ -8,13 +8,13 @@
 #include <list>
 #include <mutex>
 #include <opencv2/imgproc.hpp>
-#include <thread>
 #include <unordered_map>
 
 #include "core/mosaic/gdal_writer.h"
 #include "core/mosaic/selection.h"
 #include "core/mosaic/tile_blender.h"
 #include "core/util/clock.h"
+#include "core/util/parallel.h"
 
 namespace uavm {
 
@@ -167,7 +167,7 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
     if (img == nullptr || img->empty()) continue;
     // Only the owned area plus the pyramid's reach is warped and fed: each pixel is blended about once, not once
     // per overlapping frame.
-    const int reach = num_bands > 0 ? (3 << num_bands) : 0;
+    const int reach = BlendReach(num_bands);
     cv::Rect owned = cv::boundingRect(mask);
     owned = cv::Rect(owned.x - reach, owned.y - reach, owned.width + 2 * reach, owned.height + 2 * reach) &
             cv::Rect(0, 0, roi.width, roi.height);
@@ -334,7 +334,7 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
   for (const auto& f : used) geometry.push_back(MakeGeometry(f));
   // Each frame is kept decoded only over what it owns plus the pyramid's reach: with 75 % / 40 % overlaps a frame
   // owns a fifth of its area, so the cache holds ~5x more frames and decodes each about once.
-  const int reach = (options.num_bands > 0 ? (3 << options.num_bands) : 0) + 2 * kSeamStep;
+  const int reach = BlendReach(options.num_bands) + 2 * kSeamStep;
   std::vector<cv::Rect> crop(used.size());
   {
     const std::vector<cv::Rect> owned = OwnedCanvasBoxes(geometry, canvas);
@@ -391,91 +391,84 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
       tiles.push_back(cv::Rect(tx, ty, options.tile_size, options.tile_size) & canvas_rect);
   std::mutex cache_mutex;
   std::mutex out_mutex;
-  std::atomic<size_t> next_tile{0};
+  std::atomic<bool> failed{false};  // a tile write failed: the remaining tiles are skipped
   std::string write_error;
-  auto worker = [&] {
-    for (;;) {
-      const size_t t = next_tile.fetch_add(1);
-      if (t >= tiles.size()) return;
-      const cv::Rect tile = tiles[t];
-      const cv::Rect roi =
-          cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & canvas_rect;
-      std::vector<size_t> candidates;
-      for (size_t i = 0; i < geometry.size(); ++i)
-        if ((geometry[i].bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
-      if (candidates.empty()) continue;
-      // Images used by this tile are pinned (shared) so that another worker's eviction cannot free them.
-      std::vector<cv::Mat> pinned(candidates.size());
-      auto image_of = [&](size_t i, cv::Point* tl) -> const cv::Mat* {
-        *tl = crop[i].empty() ? cv::Point() : crop[i].tl();
-        const size_t k = static_cast<size_t>(std::find(candidates.begin(), candidates.end(), i) - candidates.begin());
+  // Tiles are claimed in increasing (row-major) order, as the comment above needs.
+  ParallelFor(tiles.size(), options.threads, [&](size_t t) {
+    if (failed) return;
+    const cv::Rect tile = tiles[t];
+    const cv::Rect roi =
+        cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & canvas_rect;
+    std::vector<size_t> candidates;
+    for (size_t i = 0; i < geometry.size(); ++i)
+      if ((geometry[i].bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
+    if (candidates.empty()) return;
+    // Images used by this tile are pinned (shared) so that another worker's eviction cannot free them.
+    std::vector<cv::Mat> pinned(candidates.size());
+    auto image_of = [&](size_t i, cv::Point* tl) -> const cv::Mat* {
+      *tl = crop[i].empty() ? cv::Point() : crop[i].tl();
+      const size_t k = static_cast<size_t>(std::find(candidates.begin(), candidates.end(), i) - candidates.begin());
+      if (pinned[k].empty()) {
+        {
+          std::lock_guard<std::mutex> lock(cache_mutex);
+          pinned[k] = cache.Peek(used[i].id);
+        }
         if (pinned[k].empty()) {
+          cv::Mat img;
           {
-            std::lock_guard<std::mutex> lock(cache_mutex);
-            pinned[k] = cache.Peek(used[i].id);
+            // Outside the cache lock (the other worker keeps blending) but one at a time: a full decode is the
+            // largest transient buffer of the compositor.
+            std::lock_guard<std::mutex> decode_lock(decode_mutex);
+            img = cache.loader()(used[i].id);
+            if (!img.empty() && !crop[i].empty() && img.size() == geometry[i].size && crop[i].size() != img.size())
+              img = img(crop[i]).clone();  // the full decode is freed here
           }
-          if (pinned[k].empty()) {
-            cv::Mat img;
-            {
-              // Outside the cache lock (the other worker keeps blending) but one at a time: a full decode is the
-              // largest transient buffer of the compositor.
-              std::lock_guard<std::mutex> decode_lock(decode_mutex);
-              img = cache.loader()(used[i].id);
-              if (!img.empty() && !crop[i].empty() && img.size() == geometry[i].size &&
-                  crop[i].size() != img.size())
-                img = img(crop[i]).clone();  // the full decode is freed here
+          std::lock_guard<std::mutex> lock(cache_mutex);
+          if (img.empty()) {
+            if (!reported_unreadable[i]) {
+              reported_unreadable[i] = true;
+              ++result.frames_unreadable;
+              spdlog::warn("composite: frame {} could not be loaded; its area stays empty", used[i].id);
             }
-            std::lock_guard<std::mutex> lock(cache_mutex);
-            if (img.empty()) {
-              if (!reported_unreadable[i]) {
-                reported_unreadable[i] = true;
-                ++result.frames_unreadable;
-                spdlog::warn("composite: frame {} could not be loaded; its area stays empty", used[i].id);
-              }
-            } else {
-              pinned[k] = cache.Insert(used[i].id, std::move(img));
-            }
+          } else {
+            pinned[k] = cache.Insert(used[i].id, std::move(img));
           }
         }
-        return pinned[k].empty() ? nullptr : &pinned[k];
-      };
-      cv::Mat image;
-      cv::Mat mask;
-      if (!BlendRoi(geometry, candidates, image_of, roi, options.num_bands, &image, &mask)) continue;
-      const cv::Rect inner(tile.x - roi.x, tile.y - roi.y, tile.width, tile.height);
-      const cv::Mat tile_image = image(inner);
-      const cv::Mat tile_mask = mask(inner);
-      if (cv::countNonZero(tile_mask) == 0) continue;
-      // Quick-look share of this tile.
-      const int x0 = static_cast<int>(std::lround(tile.x * q));
-      const int y0 = static_cast<int>(std::lround(tile.y * q));
-      const int x1 = std::min(result.quicklook.cols, static_cast<int>(std::lround((tile.x + tile.width) * q)));
-      const int y1 = std::min(result.quicklook.rows, static_cast<int>(std::lround((tile.y + tile.height) * q)));
-      cv::Mat small;
-      if (x1 > x0 && y1 > y0) {
-        cv::Mat bgra;
-        cv::cvtColor(tile_image, bgra, cv::COLOR_BGR2BGRA);
-        cv::insertChannel(tile_mask, bgra, 3);
-        cv::resize(bgra, small, cv::Size(x1 - x0, y1 - y0), 0, 0, cv::INTER_AREA);
       }
-      std::lock_guard<std::mutex> lock(out_mutex);
-      if (!write_error.empty()) return;
-      if (tiff != nullptr) {
-        std::string err;
-        if (!tiff->Write(tile_image, tile_mask, tile.tl(), &err)) {
-          write_error = err;
-          return;
-        }
-      }
-      ++result.tiles_written;
-      if (!small.empty()) small.copyTo(result.quicklook(cv::Rect(x0, y0, x1 - x0, y1 - y0)));
+      return pinned[k].empty() ? nullptr : &pinned[k];
+    };
+    cv::Mat image;
+    cv::Mat mask;
+    if (!BlendRoi(geometry, candidates, image_of, roi, options.num_bands, &image, &mask)) return;
+    const cv::Rect inner(tile.x - roi.x, tile.y - roi.y, tile.width, tile.height);
+    const cv::Mat tile_image = image(inner);
+    const cv::Mat tile_mask = mask(inner);
+    if (cv::countNonZero(tile_mask) == 0) return;
+    // Quick-look share of this tile.
+    const int x0 = static_cast<int>(std::lround(tile.x * q));
+    const int y0 = static_cast<int>(std::lround(tile.y * q));
+    const int x1 = std::min(result.quicklook.cols, static_cast<int>(std::lround((tile.x + tile.width) * q)));
+    const int y1 = std::min(result.quicklook.rows, static_cast<int>(std::lround((tile.y + tile.height) * q)));
+    cv::Mat small;
+    if (x1 > x0 && y1 > y0) {
+      cv::Mat bgra;
+      cv::cvtColor(tile_image, bgra, cv::COLOR_BGR2BGRA);
+      cv::insertChannel(tile_mask, bgra, 3);
+      cv::resize(bgra, small, cv::Size(x1 - x0, y1 - y0), 0, 0, cv::INTER_AREA);
     }
-  };
-  const int threads = std::max(1, std::min<int>(options.threads, static_cast<int>(tiles.size())));
-  std::vector<std::thread> pool;
-  for (int k = 1; k < threads; ++k) pool.emplace_back(worker);
-  worker();
-  for (auto& th : pool) th.join();
+    std::lock_guard<std::mutex> lock(out_mutex);
+    if (!write_error.empty()) return;
+    if (tiff != nullptr) {
+      std::string err;
+      if (!tiff->Write(tile_image, tile_mask, tile.tl(), &err)) {
+        write_error = err;
+        failed = true;
+        return;
+      }
+    }
+    ++result.tiles_written;
+    if (!small.empty()) small.copyTo(result.quicklook(cv::Rect(x0, y0, x1 - x0, y1 - y0)));
+  });
   if (!write_error.empty()) {
     result.error = write_error;
     return result;

@@ -10,6 +10,13 @@ namespace uavm {
 
 class GdalTiffWriter;
 
+// Canvas pixels a multi-band blend of `num_bands` levels reads around a pixel (0 for hard seams): what a tile's
+// margin, a frame's warped area beyond what it owns and its cached crop must cover so that the pyramid sees
+// image, not a border. The one definition: the compositor and the memory budget (via Margin()) use it.
+[[nodiscard]] constexpr int BlendReach(int num_bands) {
+  return num_bands > 0 ? 3 << num_bands : 0;
+}
+
 struct CompositorOptions {
   int tile_size = 1024;  // canvas pixels per composited tile (a multiple of tiff_block)
   int tiff_block = 512;
@@ -22,8 +29,9 @@ struct CompositorOptions {
   int gdal_cache_mib = 64;  // GDAL's block cache while the TIFF is written (tiles are written once)
 
   [[nodiscard]] bool Check(std::string* why) const;
-  // Margin around each tile so that the pyramid of the blend does not see the tile border.
-  [[nodiscard]] int Margin() const { return num_bands > 0 ? 3 << num_bands : 2; }
+  // Margin around each tile so that the pyramid of the blend does not see the tile border (a hard-seam tile still
+  // keeps 2 px).
+  [[nodiscard]] int Margin() const { return num_bands > 0 ? BlendReach(num_bands) : 2; }
 };
 
 // A frame to composite: canvas_from_image acts on the pixel grid of the image that `load` returns.

@@ -14,12 +14,13 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <set>
-#include <thread>
 #include <unordered_map>
 
 #include "core/features/sift.h"
+#include "core/geometry/similarity.h"
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/dense.h"
+#include "core/util/parallel.h"
 
 namespace uavm::sfm {
 
@@ -46,19 +47,6 @@ double Seconds(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-template <typename Fn>
-void ParallelFor(size_t n, int threads, Fn fn) {
-  std::atomic<size_t> next{0};
-  std::vector<std::thread> pool;
-  const size_t k = std::min(static_cast<size_t>(std::max(1, threads)), std::max<size_t>(n, 1));
-  for (size_t t = 0; t < k; ++t) {
-    pool.emplace_back([&] {
-      for (size_t i = next++; i < n; i = next++) fn(i);
-    });
-  }
-  for (auto& th : pool) th.join();
-}
-
 struct FrameFeatures {
   std::vector<Eigen::Vector2d> points;  // original-resolution pixels
   std::vector<cv::Vec3b> colors;
@@ -69,38 +57,6 @@ struct FrameFeatures {
 Eigen::Matrix2d Polar(const Eigen::Matrix2d& m) {
   const Eigen::JacobiSVD<Eigen::Matrix2d> svd(m, Eigen::ComputeFullU | Eigen::ComputeFullV);
   return svd.matrixU() * svd.matrixV().transpose();
-}
-
-// Least-squares similarity dst = s Q src + t, Q orthogonal (reflection allowed when allow_reflection).
-template <int D>
-bool FitSimilarity(const std::vector<Eigen::Matrix<double, D, 1>>& src,
-                   const std::vector<Eigen::Matrix<double, D, 1>>& dst, bool allow_reflection, double* s,
-                   Eigen::Matrix<double, D, D>* Q, Eigen::Matrix<double, D, 1>* t) {
-  using V = Eigen::Matrix<double, D, 1>;
-  using M = Eigen::Matrix<double, D, D>;
-  const size_t n = src.size();
-  if (n < 2) return false;
-  V ms = V::Zero(), md = V::Zero();
-  for (size_t i = 0; i < n; ++i) {
-    ms += src[i];
-    md += dst[i];
-  }
-  ms /= static_cast<double>(n);
-  md /= static_cast<double>(n);
-  M cov = M::Zero();
-  double var = 0.0;
-  for (size_t i = 0; i < n; ++i) {
-    cov += (dst[i] - md) * (src[i] - ms).transpose();
-    var += (src[i] - ms).squaredNorm();
-  }
-  if (var <= 1e-12) return false;
-  const Eigen::JacobiSVD<M> svd(cov, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  M S = M::Identity();
-  if (!allow_reflection && (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0) S(D - 1, D - 1) = -1;
-  *Q = svd.matrixU() * S * svd.matrixV().transpose();
-  *s = (svd.singularValues().asDiagonal() * S).trace() / var;
-  *t = md - *s * *Q * ms;
-  return true;
 }
 
 cv::Mat ReadFrame(const std::string& path) {
@@ -396,7 +352,11 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
         dst.push_back(gps[i]->head<2>());
       }
     }
-    if (src.size() >= 3 && FitSimilarity<2>(src, dst, true, &s, &Q, &t)) {
+    // The mosaic may be mirrored against the world (its rows go south): a reflection is allowed here.
+    if (Similarity2 fit; src.size() >= 3 && FitSimilarity<2>(src, dst, &fit, {.allow_reflection = true})) {
+      s = fit.scale;
+      Q = fit.rotation;
+      t = fit.translation;
       pose_source = "onboard_maps+gps";
     } else {
       // Without GPS: metres from the relative altitude when known, else mosaic pixels.
@@ -593,10 +553,10 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
         dst.push_back(*gps[i]);
       }
     }
-    double s = 1.0;
-    Eigen::Matrix3d Q;
-    Eigen::Vector3d t;
-    if (src.size() >= 3 && FitSimilarity<3>(src, dst, false, &s, &Q, &t)) {
+    if (Similarity3 fit; src.size() >= 3 && FitSimilarity<3>(src, dst, &fit)) {
+      const double s = fit.scale;
+      const Eigen::Matrix3d& Q = fit.rotation;
+      const Eigen::Vector3d& t = fit.translation;
       for (auto& im : rec.images) {
         im.pose.c = s * Q * im.pose.c + t;
         im.pose.R = im.pose.R * Q.transpose();

@@ -18,28 +18,13 @@ enum class Status {
 
 [[nodiscard]] const char* ToString(Status s);
 
-struct Frame {
-  uint64_t index = 0;         // position in the stream, counting skipped inputs too
-  int64_t timestamp_ns = 0;   // monotonic, ns
-  std::string source_name;    // file name for replay, "video:N" for video frames, device name for cameras
-  std::string source_path;    // full path of the original file when there is one (its bytes go into the session)
-  cv::Size original_size;     // size of the sensor image, before any reduced decoding
-  cv::Mat image;              // BGR8; may be reduced (see decode_scale) when the consumer asked for less
-  double decode_scale = 1.0;  // image.cols / original_size.width (exactly 1, 1/2, 1/4 or 1/8 for JPEG DCT scaling)
-  FrameMetadata metadata;
-};
+// The frame types live in core (core/frame/frame.h), which consumes them; these names keep hal's users unchanged.
+using Frame = ::uavm::Frame;
+using CaptureCounters = ::uavm::CaptureCounters;
 
 // What the consumer needs, so a source can decode no more than that (e.g. JPEG DCT-domain downscaling).
 struct DecodeHint {
   int min_long_side = 0;  // 0 = full resolution
-};
-
-// Counters of a live camera source for report.json (all zero for replay and simulation).
-struct CaptureCounters {
-  uint64_t captured = 0;     // frames the driver delivered to the source
-  uint64_t dropped = 0;      // dropped by the source's own queue (the consumer was slower than the camera)
-  uint64_t driver_gaps = 0;  // frames the driver skipped itself (gaps in its sequence numbers: no buffer was free)
-  uint64_t reconnects = 0;   // times the device was lost (ENODEV, EIO, unplugged) and opened again
 };
 
 class FrameSource {

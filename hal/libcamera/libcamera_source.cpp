@@ -47,7 +47,8 @@ struct LibcameraSource::Slot {
 };
 
 LibcameraSource::LibcameraSource(CameraOptions options)
-    : options_(std::move(options)), queue_(static_cast<size_t>(std::max(1, options_.queue))) {}
+    : options_(std::move(options)),
+      feed_(static_cast<size_t>(std::max(1, options_.queue)), "libcamera", cv::Size(options_.width, options_.height)) {}
 
 LibcameraSource::~LibcameraSource() {
   Close();
@@ -59,9 +60,7 @@ Status LibcameraSource::Open(std::string* error) {
     Stop();
     return Status::kError;
   }
-  stop_ = false;
-  failed_ = false;
-  queue_.Reopen();
+  feed_.Begin();
   watch_ = std::thread([this] { WatchLoop(); });
   return Status::kOk;
 }
@@ -170,7 +169,7 @@ bool LibcameraSource::Start(std::string* error) {
     ++generation_;
     outstanding_ = 0;
   }
-  have_sequence_ = false;
+  feed_.RestartSequence();
   last_frame_ns_ = MonotonicNs();
   lost_ = false;
   for (auto& slot : slots_) {
@@ -218,15 +217,11 @@ void LibcameraSource::OnRequestCompleted(lc::Request* request) {
   raw.bytes = bytes;
   CapturedBuffer handle(this, slot_index, generation, raw, static_cast<int64_t>(md.timestamp), md.sequence);
   if (md.status != lc::FrameMetadata::FrameSuccess) {
-    ++driver_gaps_;
+    feed_.CountDriverGap();
     return;  // `handle` re-queues the request
   }
   last_frame_ns_ = MonotonicNs();
-  ++captured_;
-  if (have_sequence_ && md.sequence > last_sequence_ + 1) driver_gaps_ += md.sequence - last_sequence_ - 1;
-  have_sequence_ = true;
-  last_sequence_ = md.sequence;
-  (void)queue_.Push(std::move(handle));
+  feed_.Deliver(std::move(handle));
 }
 
 void LibcameraSource::OnDisconnected() {
@@ -246,7 +241,7 @@ void LibcameraSource::Return(uint32_t slot, uint64_t generation) noexcept {
 }
 
 void LibcameraSource::Stop() {
-  queue_.Clear();
+  feed_.queue().Clear();
   {
     std::unique_lock<std::mutex> lock(mutex_);
     running_ = false;
@@ -275,9 +270,9 @@ void LibcameraSource::Stop() {
 }
 
 void LibcameraSource::WatchLoop() {
-  while (!stop_) {
+  while (feed_.running()) {
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    if (stop_) break;
+    if (!feed_.running()) break;
     std::string why;
     if (lost_)
       why = "disconnected or a request failed";
@@ -294,7 +289,7 @@ void LibcameraSource::WatchLoop() {
         "libcamera '{}': device lost ({}); libcamera 0.0.3 cannot restart a lost camera in-process: the "
         "source stops (use v4l2:/dev/videoN to get reconnection)",
         camera_id_, why);
-    queue_.Clear();
+    feed_.queue().Clear();
     {
       std::unique_lock<std::mutex> lock(mutex_);
       running_ = false;
@@ -302,14 +297,10 @@ void LibcameraSource::WatchLoop() {
       returned_.wait(lock, [&] { return outstanding_ <= 0; });
     }
     Abandon();
-    {
-      std::lock_guard<std::mutex> lock(failure_mutex_);
-      failure_ = "libcamera '" + camera_id_ + "' lost (" + why + "); not reconnectable with libcamera 0.0.3";
-    }
-    failed_ = true;
+    feed_.Fail("libcamera '" + camera_id_ + "' lost (" + why + "); not reconnectable with libcamera 0.0.3");
     break;
   }
-  queue_.Close();
+  feed_.queue().Close();
 }
 
 void LibcameraSource::Abandon() {
@@ -328,37 +319,11 @@ void LibcameraSource::Abandon() {
 }
 
 Status LibcameraSource::Next(Frame* frame, std::string* error) {
-  for (;;) {
-    std::optional<CapturedBuffer> buffer = queue_.Pop(std::chrono::milliseconds(200));
-    if (!buffer) {
-      if (failed_) {
-        std::lock_guard<std::mutex> lock(failure_mutex_);
-        *error = failure_;
-        return Status::kError;
-      }
-      if (stop_ || !watch_.joinable()) {
-        *error = "source closed";
-        return Status::kEndOfStream;
-      }
-      continue;
-    }
-    frame->index = delivered_++;
-    frame->timestamp_ns = buffer->timestamp_ns();
-    char name[64];
-    std::snprintf(name, sizeof(name), "libcamera_%019lld", static_cast<long long>(buffer->timestamp_ns()));
-    frame->source_name = name;
-    frame->source_path.clear();
-    frame->original_size = cv::Size(options_.width, options_.height);
-    frame->decode_scale = 1.0;
-    frame->metadata = FrameMetadata{};
-    const Status st = ConvertToBgr(buffer->image(), &frame->image, error);
-    buffer->Release();
-    return st;
-  }
+  return feed_.Next(frame, error);
 }
 
 void LibcameraSource::Close() {
-  stop_ = true;
+  feed_.End();
   if (watch_.joinable()) watch_.join();
   Stop();
 }
@@ -369,12 +334,7 @@ std::string LibcameraSource::Describe() const {
 }
 
 CaptureCounters LibcameraSource::Counters() const {
-  CaptureCounters c;
-  c.dropped = queue_.dropped();  // before `captured` (see V4l2Source::Counters)
-  c.captured = captured_;
-  c.driver_gaps = driver_gaps_;
-  c.reconnects = reconnects_;
-  return c;
+  return feed_.Counters();
 }
 
 std::vector<std::string> ListLibcameraCameras(std::string* error) {

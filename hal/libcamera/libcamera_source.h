@@ -7,8 +7,8 @@
 #include <thread>
 #include <vector>
 
+#include "hal/common/camera_feed.h"
 #include "hal/common/camera_options.h"
-#include "hal/common/capture_queue.h"
 #include "hal/common/frame_source.h"
 
 namespace libcamera {
@@ -65,7 +65,7 @@ class LibcameraSource final : public FrameSource, private BufferPool {
   libcamera::Stream* stream_ = nullptr;  // borrowed from camera_
   std::vector<std::unique_ptr<Slot>> slots_;
   int stride_ = 0;
-  CaptureQueue queue_;
+  CameraFeed feed_;  // frames named "libcamera_<timestamp>"
 
   std::mutex mutex_;  // guards running_, generation_, outstanding_ against Stop()
   std::condition_variable returned_;
@@ -73,19 +73,9 @@ class LibcameraSource final : public FrameSource, private BufferPool {
   uint64_t generation_ = 0;
   int outstanding_ = 0;
 
-  std::thread watch_;  // detects loss and reconnects
-  std::atomic<bool> stop_{false};
+  std::thread watch_;  // detects loss
   std::atomic<bool> lost_{false};
-  std::atomic<bool> failed_{false};
-  std::mutex failure_mutex_;
-  std::string failure_;
   std::atomic<int64_t> last_frame_ns_{0};
-  std::atomic<uint64_t> captured_{0};
-  std::atomic<uint64_t> driver_gaps_{0};
-  std::atomic<uint64_t> reconnects_{0};
-  uint64_t last_sequence_ = 0;
-  bool have_sequence_ = false;
-  uint64_t delivered_ = 0;
 };
 
 // What --list-cameras prints for libcamera: one line per camera (id, model, stream formats of the viewfinder role).

@@ -10,8 +10,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
-#include "core/eval/evaluator.h"
-#include "core/eval/ground_truth.h"
+#include "core/geometry/transform.h"
 #include "core/util/clock.h"
 
 namespace uavm::hal {
@@ -99,12 +98,12 @@ bool SimSource::Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uc
   truth->index = i;
   truth->pose = pose;
   truth->canvas_from_frame = CanvasFromFrame(plan_, pose);
-  truth->affine = eval::ClosestAffine(truth->canvas_from_frame, size.width, size.height);
+  truth->affine = ClosestAffine(truth->canvas_from_frame, size.width, size.height);
 
   // Bilinear sampling aliases when a frame pixel covers several canvas pixels: sample a pre-reduced canvas
   // (quarter-octave levels) so the remaining reduction is below 2^(1/4).
   const Vec2 centre((size.width - 1.0) / 2, (size.height - 1.0) / 2);
-  const double s = eval::LocalScale(truth->canvas_from_frame, centre);
+  const double s = LocalScale(truth->canvas_from_frame, centre);
   const int level = s > 1.0 ? static_cast<int>(std::floor(std::log2(s) * 4.0)) : 0;
   const cv::Mat& src = CanvasLevel(level);
   const Mat3 src_from_frame =

@@ -1,12 +1,10 @@
 #pragma once
-#include <atomic>
 #include <cstdint>
-#include <mutex>
 #include <string>
 #include <thread>
 
+#include "hal/common/camera_feed.h"
 #include "hal/common/camera_options.h"
-#include "hal/common/capture_queue.h"
 #include "hal/common/frame_source.h"
 #include "hal/v4l2/v4l2_device.h"
 
@@ -43,19 +41,10 @@ class V4l2Source final : public FrameSource {
   bool Reconnect(const std::string& why);
 
   CameraOptions options_;
-  std::string name_;  // "video0": frame names are name_ + "_" + timestamp
   V4l2Device device_;
-  CaptureQueue queue_;
+  CameraFeed feed_;  // frames named after the device node ("video0_<timestamp>")
   std::thread thread_;
-  std::atomic<bool> stop_{false};
-  std::atomic<bool> failed_{false};  // the capture thread gave up; failure_ says why
-  mutable std::mutex failure_mutex_;
-  std::string failure_;
   double actual_fps_ = 0;
-  std::atomic<uint64_t> captured_{0};
-  std::atomic<uint64_t> driver_gaps_{0};
-  std::atomic<uint64_t> reconnects_{0};
-  uint64_t delivered_ = 0;  // consumer side
 };
 
 }  // namespace uavm::hal

@@ -1,4 +1,4 @@
-#include "hal/sim/sim_writer.h"
+#include "tools/sim_writer.h"
 
 #include <filesystem>
 #include <opencv2/imgcodecs.hpp>
@@ -6,11 +6,11 @@
 #include "core/eval/ground_truth.h"
 #include "core/session/session_dir.h"
 
-namespace uavm::hal {
+namespace uavm::tools {
 
 namespace fs = std::filesystem;
 
-bool WriteSimFlight(SimSource* source, const std::string& out_dir, int max_frames, std::string* error) {
+bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_frames, std::string* error) {
   std::error_code ec;
   const fs::path root(out_dir);
   fs::create_directories(root / "images", ec);
@@ -19,11 +19,11 @@ bool WriteSimFlight(SimSource* source, const std::string& out_dir, int max_frame
     return false;
   }
   std::vector<eval::GtRow> rows;
-  Frame frame;
+  hal::Frame frame;
   while (max_frames <= 0 || static_cast<int>(rows.size()) < max_frames) {
-    const Status st = source->Next(&frame, error);
-    if (st == Status::kEndOfStream) break;
-    if (st != Status::kOk) return false;
+    const hal::Status st = source->Next(&frame, error);
+    if (st == hal::Status::kEndOfStream) break;
+    if (st != hal::Status::kOk) return false;
     const fs::path file = root / "images" / frame.source_name;
     const auto& bytes = source->last_encoded();
     std::string contents;
@@ -38,18 +38,18 @@ bool WriteSimFlight(SimSource* source, const std::string& out_dir, int max_frame
       contents.assign(png.begin(), png.end());
     }
     if (!WriteFileAtomic(file.string(), contents, error)) return false;
-    const SimTruth& t = source->last_truth();
+    const hal::SimTruth& t = source->last_truth();
     rows.push_back({static_cast<int>(frame.index), frame.source_name, t.canvas_from_frame, t.affine});
   }
   if (rows.empty()) {
     *error = "the flight has no frames";
     return false;
   }
-  SimPlan plan = source->plan();
+  hal::SimPlan plan = source->plan();
   plan.canvas = fs::absolute(plan.canvas, ec).string();
-  const std::string yaml = "# effective plan of this simulated flight (uavmosaic-sim)\n" + ToYaml(plan);
+  const std::string yaml = "# effective plan of this simulated flight (uavmosaic-sim)\n" + hal::ToYaml(plan);
   return WriteFileAtomic((root / "gt.csv").string(), eval::FormatGroundTruthCsv(rows), error) &&
          WriteFileAtomic((root / "plan.yaml").string(), yaml, error);
 }
 
-}  // namespace uavm::hal
+}  // namespace uavm::tools

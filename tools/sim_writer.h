@@ -3,7 +3,7 @@
 
 #include "hal/sim/sim_source.h"
 
-namespace uavm::hal {
+namespace uavm::tools {
 
 // Writes a simulated flight so it can be replayed (`--source replay:OUT/images`) and evaluated later:
 //   OUT/images/frame_000000.jpg ...  (.png when the plan has no JPEG round trip; JPEG files hold exactly the bytes
@@ -11,6 +11,8 @@ namespace uavm::hal {
 //   OUT/gt.csv                        ground truth (core/eval/ground_truth.h)
 //   OUT/plan.yaml                     the effective plan, canvas path made absolute
 // `source` must be open; it is consumed from its current position. max_frames 0 = all.
-[[nodiscard]] bool WriteSimFlight(SimSource* source, const std::string& out_dir, int max_frames, std::string* error);
+// In tools/, not hal/sim: it writes the evaluator's format (core/eval), which the onboard program must not link.
+[[nodiscard]] bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_frames,
+                                  std::string* error);
 
-}  // namespace uavm::hal
+}  // namespace uavm::tools
