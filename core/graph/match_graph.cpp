@@ -74,4 +74,9 @@ std::vector<int> MatchGraph::LargestComponent(double relative, int absolute_floo
   return best;
 }
 
+void RoundToFloat(Edge* edge) {
+  for (auto* v : {&edge->src_points, &edge->tgt_points, &edge->holdout_src_points, &edge->holdout_tgt_points})
+    for (auto& p : *v) p = Vec2(static_cast<float>(p.x()), static_cast<float>(p.y()));
+}
+
 }  // namespace uavm

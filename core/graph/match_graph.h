@@ -25,6 +25,10 @@ struct Edge {
   bool points_resident = true;
 };
 
+// Rounds the edge's points to float precision: what a spilled edge keeps (edges.bin), so that an edge read back gives
+// the same solution as one that never left memory.
+void RoundToFloat(Edge* edge);
+
 class UnionFind {
  public:
   int Add();  // returns the new element's id (ids are dense, 0..n-1)

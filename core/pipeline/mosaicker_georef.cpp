@@ -156,10 +156,10 @@ nlohmann::json Mosaicker::MakeProducts(const std::vector<int>& component, const 
       frames.push_back(m);
     }
     std::vector<MapEdge> edges;
-    for (const Edge& e : graph_.edges())
+    for (const Edge& e : engine_.edges())
       edges.push_back({e.src, e.tgt, e.num_inliers,
                        in.count(e.src) != 0 && in.count(e.tgt) != 0 &&
-                           graph_.EdgeCounts(e, options_.relative_inlier_fraction, options_.matching.min_inliers)});
+                           engine_.EdgeCounts(e)});
     const bool page = WriteWebPage(paths_.root, options_.leaflet_dir, tiles, georef_, frames, edges, &err);
     if (!page) spdlog::warn("index.html: {}", err);
     j["web_page"] = page;

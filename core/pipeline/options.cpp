@@ -116,17 +116,7 @@ bool Fail(std::string* why, const std::string& msg) {
 
 bool PipelineOptions::Check(std::string* why) const {
   if (work_long_side < 64 || work_long_side > 16384) return Fail(why, "work_long_side must be in [64,16384]");
-  if (recent_candidates < 1 || overlap_candidates < 0)
-    return Fail(why, "recent_candidates >= 1, overlap_candidates >= 0");
-  if (!(min_overlap_fraction > 0 && min_overlap_fraction < 1))
-    return Fail(why, "min_overlap_fraction must be in (0,1)");
-  if (!(relative_inlier_fraction >= 0 && relative_inlier_fraction < 1))
-    return Fail(why, "relative_inlier_fraction must be in [0,1)");
-  if (relocalization_candidates < 0 || bridge_candidates < 0 || retry_list_size < 0 || retry_per_frame < 0 ||
-      retry_max_attempts < 1)
-    return Fail(why, "relocalization/retry settings must be >= 0");
-  if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
-  if (solve_window < 0) return Fail(why, "solve_window must be >= 0 (0 = whole component)");
+  if (!RegistrationOptions::Check(why)) return false;
   if (trim_heap_every < 0) return Fail(why, "trim_heap_every must be >= 0 (0 = never)");
   if (journal_sync_every < 1) return Fail(why, "journal_sync_every must be >= 1");
   if (!georef.Check(why)) return false;
@@ -137,8 +127,7 @@ bool PipelineOptions::Check(std::string* why) const {
   if (feature_cache_mib < 1) return Fail(why, "feature_cache_mib must be >= 1");
   if (memory_budget_mib < 0) return Fail(why, "memory_budget_mib must be >= 0 (0 = no budget)");
   if (queue_capacity < 1 || queue_capacity > 1024) return Fail(why, "queue_capacity must be in [1,1024]");
-  return features.Check(why) && matching.Check(why) && relocalization.Check(why) && adjust.Check(why) &&
-         refine.Check(why) && mosaic.Check(why);
+  return features.Check(why) && mosaic.Check(why);
 }
 
 bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error) {

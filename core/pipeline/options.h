@@ -9,22 +9,14 @@
 #include "core/matching/global_index.h"
 #include "core/matching/pair_matcher.h"
 #include "core/mosaic/compositor.h"
+#include "core/registration/registration_engine.h"
 
 namespace uavm {
 
-struct PipelineOptions {
+// The onboard program's options: the registration engine's (a base, so that its YAML keys and defaults are
+// defined once) and what the session, preview, compositor and products take.
+struct PipelineOptions : RegistrationOptions {
   int work_long_side = 1000;           // working resolution for features and registration (never upscaled)
-  int recent_candidates = 2;           // K: the last K frames are always candidates
-  int overlap_candidates = 3;          // M: plus up to M frames whose footprint overlaps (closes loops between strips)
-  double min_overlap_fraction = 0.15;  // of the new frame's area, for an overlap candidate
-  double relative_inlier_fraction = 0.05;  // seed method: an edge needs 5 % of the best pair's inliers
-  int relocalization_candidates = 4;
-  int bridge_candidates = 2;  // while the flight is in pieces: frames of other components tried per frame
-  int retry_list_size = 16;   // frames that matched nothing, retried against later frames
-  int retry_per_frame = 2;
-  int retry_max_attempts = 60;
-  int full_solve_every = 10;   // full adjustment every max(N, size/20) registered frames, and on a merge
-  int solve_window = 300;      // frames those solves move (the newest); 0 = the whole component
   int journal_sync_every = 1;  // accepted frames between fdatasyncs of journal.jsonl (a power cut loses fewer)
   // Frames between returns of free heap pages to the kernel (malloc_trim); 0 = never. Every 5 rather than 20: peak
   // RSS of a 2000-frame flight 222 instead of 229 MiB (200 frames: 205 either way), no measurable time cost.
@@ -41,11 +33,7 @@ struct PipelineOptions {
   bool write_tiff = true;
 
   FeatureOptions features;
-  MatchOptions matching;
-  GlobalIndexOptions relocalization;
-  AdjustOptions adjust;
-  // End-of-flight refinement of the linear solution; `model` (top-level key) picks affine or homography maps.
-  RefineOptions refine;
+  // (matching, relocalization, adjust and refine are the engine's; refine's `model` is a top-level key.)
   CompositorOptions mosaic;
   // Georeferencing from EXIF GPS and the map products (COG, KMZ, web tiles, index.html): core/georef.
   GeorefOptions georef;

@@ -140,11 +140,6 @@ size_t EdgeStore::Release(Edge* edge) {
   return bytes;
 }
 
-void RoundToFloat(Edge* edge) {
-  for (auto* v : {&edge->src_points, &edge->tgt_points, &edge->holdout_src_points, &edge->holdout_tgt_points})
-    for (auto& p : *v) p = Vec2(static_cast<float>(p.x()), static_cast<float>(p.y()));
-}
-
 size_t PointBytes(const Edge& edge) {
   return sizeof(Vec2) * (edge.src_points.capacity() + edge.tgt_points.capacity() + edge.holdout_src_points.capacity() +
                          edge.holdout_tgt_points.capacity());

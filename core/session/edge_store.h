@@ -40,8 +40,6 @@ class EdgeStore {
   uint64_t bytes_written_ = 0;
 };
 
-// Rounds the edge's points to float precision (what edges.bin keeps).
-void RoundToFloat(Edge* edge);
 // Bytes an edge's resident points take.
 [[nodiscard]] size_t PointBytes(const Edge& edge);
 

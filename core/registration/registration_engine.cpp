@@ -1,0 +1,541 @@
+#include "core/registration/registration_engine.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <stdexcept>
+
+#include "core/util/clock.h"
+
+namespace uavm {
+
+namespace {
+
+Edge EdgeFromPair(int src, int tgt, PairResult&& r) {
+  Edge e;
+  e.src = src;
+  e.tgt = tgt;
+  e.num_matches = r.num_matches;
+  e.num_inliers = r.num_inliers;
+  e.tgt_from_src = r.tgt_from_src;
+  e.src_points = std::move(r.src_points);
+  e.tgt_points = std::move(r.tgt_points);
+  e.holdout_src_points = std::move(r.holdout_src_points);
+  e.holdout_tgt_points = std::move(r.holdout_tgt_points);
+  return e;
+}
+
+bool Fail(std::string* why, const char* msg) {
+  if (why != nullptr) *why = msg;
+  return false;
+}
+
+}  // namespace
+
+bool RegistrationOptions::Check(std::string* why) const {
+  if (recent_candidates < 1 || overlap_candidates < 0)
+    return Fail(why, "recent_candidates >= 1, overlap_candidates >= 0");
+  if (!(min_overlap_fraction > 0 && min_overlap_fraction < 1))
+    return Fail(why, "min_overlap_fraction must be in (0,1)");
+  if (!(relative_inlier_fraction >= 0 && relative_inlier_fraction < 1))
+    return Fail(why, "relative_inlier_fraction must be in [0,1)");
+  if (relocalization_candidates < 0 || bridge_candidates < 0 || retry_list_size < 0 || retry_per_frame < 0 ||
+      retry_max_attempts < 1)
+    return Fail(why, "relocalization/retry settings must be >= 0");
+  if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
+  if (solve_window < 0) return Fail(why, "solve_window must be >= 0 (0 = whole component)");
+  return matching.Check(why) && relocalization.Check(why) && adjust.Check(why) && refine.Check(why);
+}
+
+// What one frame's matching found so far: the candidates tried and the verified edges (new frame = tgt).
+struct RegistrationEngine::Candidates {
+  int id = -1;
+  const Features* feats = nullptr;
+  const DescriptorIndex* index = nullptr;
+  std::unordered_set<int> tried;
+  std::vector<Edge> found;
+  bool have_estimate = false;  // Map(id) holds a first estimate once a candidate matched
+  int root = -1;               // the base component: the largest one the found edges touch
+};
+
+RegistrationEngine::RegistrationEngine(const RegistrationOptions& options, FeatureProvider* features,
+                                       EdgeSpill* spill)
+    : options_(options), features_(features), spill_(spill), global_index_(options.relocalization) {
+  std::string why;
+  if (!options_.Check(&why)) throw std::invalid_argument("registration options: " + why);
+  if (features_ == nullptr) throw std::invalid_argument("registration engine: no feature provider");
+}
+
+int RegistrationEngine::AddFrame(cv::Size work_size) {
+  const int id = static_cast<int>(frames_.size());
+  FrameRecord& f = frames_.emplace_back();
+  f.work_size = work_size;
+  f.half_diagonal = 0.5 * std::hypot(work_size.width, work_size.height);
+  adjacency_.emplace_back();
+  components_.Add();
+  graph_.AddNode(id);
+  return id;
+}
+
+void RegistrationEngine::SetFailure(int id, std::string why) { Record(id).failure = std::move(why); }
+
+RegistrationCounters RegistrationEngine::counters() const {
+  RegistrationCounters c = counters_;
+  c.relocalization_thinnings = global_index_.thinnings();
+  return c;
+}
+
+const std::vector<int>& RegistrationEngine::MembersOf(int root) {
+  static const std::vector<int> kNone;
+  // A frame that registered nothing is a component of its own, outside the graph.
+  return Record(components_.Find(root)).in_graph ? components_.MembersOf(root) : kNone;
+}
+
+std::vector<const Edge*> RegistrationEngine::EdgesTouching(const std::unordered_set<int>& ids, int root) {
+  std::vector<size_t> indices;
+  for (int id : ids)
+    for (size_t ei : adjacency_.at(static_cast<size_t>(id))) indices.push_back(ei);
+  // In the graph's order, each edge once: the adjustment then sums its terms in the same order as over all edges.
+  std::sort(indices.begin(), indices.end());
+  indices.erase(std::unique(indices.begin(), indices.end()), indices.end());
+  std::vector<const Edge*> out;
+  for (size_t ei : indices) {
+    const Edge& e = graph_.edges()[ei];
+    if (components_.Find(e.src) == root && components_.Find(e.tgt) == root) out.push_back(&e);
+  }
+  return out;
+}
+
+void RegistrationEngine::AddEdge(Edge edge) {
+  best_inliers_ = std::max(best_inliers_, edge.num_inliers);
+  RoundToFloat(&edge);  // what the spill keeps: a reloaded edge gives the same solution
+  if (spill_ != nullptr) {
+    std::string error;
+    if (!spill_->Append(&edge, &error)) {
+      spdlog::warn("{}; edge points stay in memory from now on", error);
+      spill_ = nullptr;
+    }
+  }
+  const size_t index = graph_.edges().size();
+  adjacency_.at(static_cast<size_t>(edge.src)).push_back(index);
+  adjacency_.at(static_cast<size_t>(edge.tgt)).push_back(index);
+  graph_.AddEdge(std::move(edge));
+}
+
+void RegistrationEngine::ReleaseColdEdges() {
+  if (options_.solve_window <= 0 || spill_ == nullptr) return;
+  // Edges are appended as frames arrive, so an edge's newest frame rarely goes back in time: the scan stops at the
+  // first edge still in the window. A solve that needs a released edge after all (a merged component) reloads it.
+  const int cold_below = frames() - options_.solve_window;
+  auto& edges = graph_.mutable_edges();
+  for (; release_cursor_ < edges.size(); ++release_cursor_) {
+    Edge& e = edges[release_cursor_];
+    if (std::max(e.src, e.tgt) >= cold_below) break;
+    const size_t bytes = spill_->Release(&e);
+    if (bytes > 0) {
+      ++counters_.edges_released;
+      counters_.edge_bytes_released += bytes;
+    }
+  }
+}
+
+bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges) {
+  for (const Edge* e : edges) {
+    if (e->points_resident) continue;
+    // Without a spill no edge was ever released.
+    if (spill_ == nullptr) return false;
+    // The list borrows the graph's edges read-only; the graph (this object's) owns them mutably.
+    Edge& edge = const_cast<Edge&>(*e);
+    std::string error;
+    if (!spill_->Load(&edge, &error)) {
+      spdlog::error("{}", error);
+      return false;
+    }
+  }
+  return true;
+}
+
+// Re-expresses every frame of `other_root`'s component by `other_fix` (new = fix * old) and unites the two.
+void RegistrationEngine::MergeInto(int keep_root, int other_root, const Mat3& other_fix) {
+  for (int id : MembersOf(other_root)) {
+    SetMap(id, other_fix * Map(id));
+    Place(id);
+  }
+  components_.Unite(keep_root, other_root);
+  ++counters_.component_merges;
+  --counters_.components;
+}
+
+void RegistrationEngine::FullSolve(int root) {
+  const std::vector<int>& members = MembersOf(root);  // ascending ids
+  if (members.size() < 2) return;
+  const int anchor = members.front();
+  // During the flight only the newest solve_window frames move (the rest is their fixed frame of reference): the
+  // solve's memory and time stay bounded however long the flight. The end of the flight solves everything.
+  const size_t window = options_.solve_window > 0 ? static_cast<size_t>(options_.solve_window) : members.size();
+  std::unordered_set<int> variable(members.end() - static_cast<long>(std::min(window, members.size())), members.end());
+  variable.erase(anchor);
+  std::unordered_map<int, double> half_diag;  // the adjustment weighs its terms by the moving frames' sizes only
+  for (int id : variable) half_diag[id] = Record(id).half_diagonal;
+  // Only edges that touch a moving frame take part (AdjustAffine skips the others): found through the moving frames'
+  // adjacency, so a windowed solve costs the window, not the component.
+  std::vector<const Edge*> edges = EdgesTouching(variable, components_.Find(root));
+  std::vector<const Edge*> needed;
+  for (const Edge* e : edges)
+    if (!e->points_resident) needed.push_back(e);
+  if (!LoadEdgePoints(needed)) spdlog::warn("full adjustment without some edges (edges.bin unreadable)");
+  counters_.edges_reloaded += needed.size();
+  const auto result = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+  for (int id : variable) Place(id);
+  ReleaseColdEdges();
+  if (!result.ok) spdlog::warn("full adjustment failed: {}", result.failure);
+  registered_since_full_ = 0;
+}
+
+bool RegistrationEngine::IsNewGround(int id) {
+  const FrameRecord& me = Record(id);
+  const double spacing = options_.relocalization.keyframe_spacing;
+  // A frame that is not placed yet may be anywhere: it is indexed so that a later frame can find it.
+  if (spacing <= 0 || !me.in_graph) return true;
+  const auto centre_of = [&](int k) {
+    const FrameRecord& f = Record(k);
+    return Apply(Map(k), Vec2(0.5 * (f.work_size.width - 1), 0.5 * (f.work_size.height - 1)));
+  };
+  const Vec2 c = centre_of(id);
+  const double radius =
+      spacing * me.half_diagonal *
+      LocalScale(Map(id), Vec2(0.5 * (me.work_size.width - 1), 0.5 * (me.work_size.height - 1)));
+  const int root = components_.Find(id);
+  // A keyframe whose centre is that close lies in a footprint that meets this square: the grid finds it.
+  const cv::Rect2d near(c.x() - radius, c.y() - radius, 2.0 * radius, 2.0 * radius);
+  for (int k : footprints_.Query(near)) {
+    const FrameRecord& f = Record(k);
+    if (f.keyframe && f.in_graph && components_.Find(k) == root && (centre_of(k) - c).norm() < radius) return false;
+  }
+  return true;
+}
+
+void RegistrationEngine::Place(int id) {
+  const FrameRecord& f = Record(id);
+  footprints_.Set(id, cv::Rect2d(cv::boundingRect(Footprint(Map(id), f.work_size.width, f.work_size.height))));
+}
+
+bool RegistrationEngine::Acceptable(const PairResult& r) const {
+  return r.ok && r.num_inliers >= options_.relative_inlier_fraction * best_inliers_;
+}
+
+bool RegistrationEngine::TryJoin(int new_id, int other_id, const DescriptorIndex& index, const Features& feats) {
+  auto other = features_->Get(other_id);
+  if (!other) return false;
+  PairResult r = MatchPair(index, feats, *other, options_.matching);
+  if (!Acceptable(r)) return false;
+  Edge e = EdgeFromPair(other_id, new_id, std::move(r));
+  // mosaic_from_work(other) should become T_new * new_from_other; the other component moves with it.
+  const Mat3 fix = Map(new_id) * e.tgt_from_src * Map(other_id).inverse();
+  AddEdge(std::move(e));
+  MergeInto(components_.Find(new_id), components_.Find(other_id), fix);
+  FullSolve(components_.Find(new_id));
+  return true;
+}
+
+void RegistrationEngine::TryRetries(int new_id, const DescriptorIndex& index, const Features& feats) {
+  const int budget = std::min<int>(options_.retry_per_frame, static_cast<int>(retry_.size()));
+  for (int k = 0; k < budget; ++k) {
+    auto [id, attempts] = retry_.front();
+    retry_.pop_front();
+    if (components_.Find(id) == components_.Find(new_id)) continue;  // already joined through another frame
+    if (TryJoin(new_id, id, index, feats)) {
+      ++counters_.joined_on_retry;
+      spdlog::info("frame {} joined the mosaic on retry (via frame {})", id, new_id);
+      continue;
+    }
+    if (attempts + 1 < options_.retry_max_attempts) retry_.emplace_back(id, attempts + 1);
+  }
+}
+
+void RegistrationEngine::Bridge(int new_id, const DescriptorIndex& index, const Features& feats) {
+  // The flight is in pieces (a strip flown elsewhere first, a lost frame): look for the new frame's look-alikes in
+  // other components. The global index answers from a tree rebuilt every few frames, so this costs one search.
+  int tried = 0;
+  for (int c : global_index_.Query(feats, 2 * options_.bridge_candidates, /*allow_stale=*/true)) {
+    if (tried >= options_.bridge_candidates) break;
+    if (components_.Find(c) == components_.Find(new_id)) continue;
+    ++tried;
+    if (TryJoin(new_id, c, index, feats)) spdlog::info("frame {} joined two parts of the flight (via frame {})", new_id, c);
+  }
+}
+
+void RegistrationEngine::TryCandidate(int cand, Candidates* c) {
+  if (!c->tried.insert(cand).second) return;
+  auto other = features_->Get(cand);
+  if (!other) return;
+  MatchGuide guide;
+  const bool guided = c->have_estimate && components_.Find(cand) == components_.Find(c->found.front().src);
+  if (guided) {
+    guide.tgt_from_src = Map(c->id).inverse() * Map(cand);
+    guide.tgt_size = Record(c->id).work_size;
+  }
+  PairResult r = MatchPair(*c->index, *c->feats, *other, options_.matching, guided ? &guide : nullptr);
+  if (!Acceptable(r)) return;
+  c->found.push_back(EdgeFromPair(cand, c->id, std::move(r)));
+  if (!c->have_estimate) {
+    SetMap(c->id, Map(cand) * c->found.back().tgt_from_src.inverse());
+    c->have_estimate = true;
+  }
+}
+
+// The candidate set: 1) the last K frames in the graph; 2) the relocalisation index when they gave nothing; 3) frames
+// of the base component whose footprint overlaps the first estimate (closes loops between strips).
+void RegistrationEngine::FindCandidates(int id, Candidates* c) {
+  int taken = 0;
+  for (int k = id - 1; k >= 0 && taken < options_.recent_candidates; --k) {
+    if (!Record(k).has_features || !Record(k).in_graph) continue;
+    TryCandidate(k, c);
+    ++taken;
+  }
+  if (c->found.empty() && options_.relocalization_candidates > 0) {
+    for (int k : global_index_.Query(*c->feats, options_.relocalization_candidates)) TryCandidate(k, c);
+    if (!c->found.empty()) {
+      ++counters_.relocalized;
+      spdlog::info("frame {} relocalised against frame {}", id, c->found[0].src);
+    }
+  }
+  if (c->found.empty()) return;
+  // Base component: the largest one touched; the new frame's first estimate comes from its strongest edge there.
+  std::map<int, int> size_of_root;
+  for (const auto& e : c->found) size_of_root[components_.Find(e.src)] = components_.SizeOf(e.src);
+  const int root = std::max_element(size_of_root.begin(), size_of_root.end(), [](const auto& a, const auto& b) {
+                     return a.second < b.second;
+                   })->first;
+  c->root = root;
+  const Edge* best = nullptr;
+  for (const auto& e : c->found)
+    if (components_.Find(e.src) == root && (best == nullptr || e.num_inliers > best->num_inliers)) best = &e;
+  SetMap(id, Map(best->src) * best->tgt_from_src.inverse());
+  // (The new frame is not united with `root` yet: its component is named explicitly.)
+  for (int k : OverlapCandidates(id, root, c->tried)) TryCandidate(k, c);
+}
+
+void RegistrationEngine::StartComponent(int id, const Candidates& c) {
+  // A component of its own until a later frame connects it.
+  SetMap(id, Mat3::Identity());
+  FrameRecord& st = Record(id);
+  st.in_graph = true;
+  Place(id);
+  ++counters_.components;
+  if (id == 0) {
+    spdlog::info("frame {} starts the mosaic", id);
+    return;
+  }
+  st.failure = "no verified match with any candidate";
+  if (options_.retry_list_size > 0) {
+    if (static_cast<int>(retry_.size()) >= options_.retry_list_size) retry_.pop_front();  // oldest gives way
+    retry_.emplace_back(id, 0);
+  }
+  spdlog::info("frame {} matched none of {} candidates; kept for retry", id, c.tried.size());
+}
+
+void RegistrationEngine::Join(int id, Candidates* c) {
+  const int root = c->root;
+  FrameRecord& st = Record(id);
+  st.in_graph = true;
+  std::vector<Edge> edges = std::move(c->found);
+  // Merge every other touched component into the base one, through the new frame.
+  bool merged = false;
+  for (const auto& e : edges) {
+    const int other = components_.Find(e.src);
+    if (other == components_.Find(root) || other == components_.Find(id)) continue;
+    const Mat3 fix = Map(id) * e.tgt_from_src * Map(e.src).inverse();
+    MergeInto(components_.Find(root), other, fix);
+    merged = true;
+  }
+  components_.Unite(root, id);
+  for (auto& e : edges) AddEdge(std::move(e));
+  // Local update: only the new frame moves.
+  std::unordered_map<int, double> half_diag{{id, st.half_diagonal}};
+  std::vector<const Edge*> local;
+  for (size_t ei : adjacency_.at(static_cast<size_t>(id))) local.push_back(&graph_.edges()[ei]);
+  const auto r = AdjustAffine(local, {id}, half_diag, options_.adjust, &mosaic_from_work_);
+  if (!r.ok) spdlog::warn("local adjustment of frame {} failed: {}", id, r.failure);
+  Place(id);
+  st.failure.clear();
+  // Full solves get rarer as the component grows (every max(N, size/20) frames): their cost grows with the
+  // flight, and between them each new frame is still solved against all its neighbours, old strips included.
+  const int solved =
+      options_.solve_window > 0 ? std::min(components_.SizeOf(id), options_.solve_window) : components_.SizeOf(id);
+  const int interval = std::max(options_.full_solve_every, solved / 20);
+  if (++registered_since_full_ >= interval || merged) FullSolve(components_.Find(id));
+  TryRetries(id, *c->index, *c->feats);
+  if (counters_.components > 1 && options_.bridge_candidates > 0) Bridge(id, *c->index, *c->feats);
+}
+
+FrameOutcome RegistrationEngine::Register(int id, const Features& features, RegisterTiming* timing) {
+  if (id != frames() - 1) throw std::logic_error("RegistrationEngine::Register: only the newest frame registers");
+  StageTimer t;
+  Record(id).has_features = true;
+  const DescriptorIndex index(features, options_.matching);
+  Candidates c;
+  c.id = id;
+  c.feats = &features;
+  c.index = &index;
+  FindCandidates(id, &c);
+  if (timing != nullptr) timing->matching_ms = t.ElapsedMs();
+  t.Restart();
+  FrameOutcome outcome = FrameOutcome::kRegistered;
+  if (c.found.empty()) {
+    StartComponent(id, c);
+    if (id != 0) outcome = FrameOutcome::kNewComponent;
+  } else {
+    Join(id, &c);
+  }
+  if (IsNewGround(id)) {
+    global_index_.Add(id, features);
+    Record(id).keyframe = true;
+  } else {
+    ++counters_.frames_not_indexed;
+  }
+  if (timing != nullptr) timing->adjust_ms = t.ElapsedMs();
+  return outcome;
+}
+
+std::vector<int> RegistrationEngine::OverlapCandidates(int id, int root, const std::unordered_set<int>& exclude) {
+  std::vector<int> out;
+  if (options_.overlap_candidates <= 0) return out;
+  const FrameRecord& me = Record(id);
+  const auto fp_me = Footprint(Map(id), me.work_size.width, me.work_size.height);
+  const cv::Rect2d box_me = cv::boundingRect(fp_me);
+  const double area_me = PolygonArea(fp_me);
+  if (!(area_me > 0)) return out;
+  std::vector<std::pair<double, int>> overlaps;
+  // Only frames whose footprint box meets this one's can overlap it: the grid gives them without a scan.
+  for (int k : footprints_.Query(box_me)) {
+    const FrameRecord& f = Record(k);
+    if (k == id || !f.in_graph || exclude.count(k) != 0 || components_.Find(k) != components_.Find(root)) continue;
+    const auto fp = Footprint(Map(k), f.work_size.width, f.work_size.height);
+    if ((cv::Rect2d(cv::boundingRect(fp)) & box_me).area() <= 0) continue;
+    const double a = ConvexOverlapArea(fp_me, fp);
+    if (a / area_me >= options_.min_overlap_fraction) overlaps.emplace_back(a, k);
+  }
+  std::sort(overlaps.rbegin(), overlaps.rend());
+  for (size_t k = 0; k < overlaps.size() && static_cast<int>(k) < options_.overlap_candidates; ++k)
+    out.push_back(overlaps[k].second);
+  return out;
+}
+
+// Frames only get to choose overlap candidates when they arrive, so the first frames of a flight (and any frame
+// whose neighbours came later) have fewer edges than the rest: on simulated flights the first frame carried 3-4x the
+// error of the others. At the end, frames with fewer edges than a new frame normally makes are matched against the
+// frames that now overlap them (bounded: at most kMaxFrames frames, M candidates each).
+void RegistrationEngine::Densify() {
+  constexpr int kMaxFrames = 64;
+  const int wanted = options_.recent_candidates + options_.overlap_candidates;
+  int done = 0;
+  for (int id = 0; id < frames() && done < kMaxFrames; ++id) {
+    const FrameRecord& f = Record(id);
+    const auto& adjacent = adjacency_.at(static_cast<size_t>(id));
+    if (!f.in_graph || !f.has_features || static_cast<int>(adjacent.size()) >= wanted) continue;
+    std::unordered_set<int> linked{id};
+    for (size_t ei : adjacent) {
+      linked.insert(graph_.edges()[ei].src);
+      linked.insert(graph_.edges()[ei].tgt);
+    }
+    const std::vector<int> candidates = OverlapCandidates(id, id, linked);
+    if (candidates.empty()) continue;
+    ++done;
+    auto mine = features_->Get(id);
+    if (!mine) continue;
+    const DescriptorIndex index(*mine, options_.matching);
+    for (int other_id : candidates) {
+      auto other = features_->Get(other_id);
+      if (!other) continue;
+      MatchGuide guide;
+      guide.tgt_from_src = Map(id).inverse() * Map(other_id);
+      guide.tgt_size = f.work_size;
+      PairResult r = MatchPair(index, *mine, *other, options_.matching, &guide);
+      if (!Acceptable(r)) continue;
+      AddEdge(EdgeFromPair(other_id, id, std::move(r)));
+      ++counters_.edges_added_at_end;
+    }
+  }
+}
+
+Solution RegistrationEngine::Finish() {
+  StageTimer t;
+  Densify();
+  // Nothing after this point matches features: their memory goes to the solves (and the caller's compositor).
+  global_index_.Release();
+  features_->ReleaseAll();
+  Solution s;
+  // Largest component over edges that pass both thresholds against the final best pair.
+  s.component = graph_.LargestComponent(options_.relative_inlier_fraction, options_.matching.min_inliers);
+  if (frames_.empty()) s.component.clear();
+  std::unordered_set<int> in_component(s.component.begin(), s.component.end());
+  std::vector<const Edge*> edges;
+  for (const auto& e : graph_.edges())
+    if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 && EdgeCounts(e)) edges.push_back(&e);
+  // The final solves use every edge: the points given back during the flight come back from the spill.
+  if (!LoadEdgePoints(edges)) spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
+  s.ok = true;
+  if (s.component.size() >= 2) {
+    SolveFinal(edges, t, &s);
+  } else if (s.component.size() == 1) {
+    SetMap(s.component.front(), Mat3::Identity());
+  }
+  for (int id = 0; id < frames(); ++id) {
+    FrameRecord& f = Record(id);
+    if (in_component.count(id) != 0) continue;
+    if (f.failure.empty()) f.failure = f.has_features ? "not in the largest connected component" : "not processed";
+  }
+  return s;
+}
+
+// Re-anchors on the component's first frame (identity), solves all of it linearly, then refines: transfer errors in
+// frame pixels (no pull to shrink towards the anchor) and, with the homography model, each frame's perspective.
+void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish,
+                                    Solution* s) {
+  const int anchor = s->component.front();
+  const Mat3 fix = Map(anchor).inverse();
+  for (int id : s->component) SetMap(id, fix * Map(id));
+  std::unordered_set<int> variable(s->component.begin() + 1, s->component.end());
+  std::unordered_map<int, double> half_diag;
+  for (int id : s->component) half_diag[id] = Record(id).half_diagonal;
+  const auto r = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+  if (!r.ok) {
+    s->ok = false;
+    s->failure = "final adjustment failed: " + r.failure;
+    return;
+  }
+  s->rms_px = r.rms_px;
+  s->median_px = r.median_px;
+  s->adjust_ms = since_finish.ElapsedMs();
+  s->holdout_linear = TransferErrors(edges, mosaic_from_work_, true);
+  StageTimer refine_timer;
+  RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
+  s->model = options_.refine.model;
+  if (!rr.ok && options_.refine.model == MotionModel::kHomography) {
+    spdlog::warn("homography refinement refused ({}); refining affine maps instead", rr.failure);
+    RefineOptions affine = options_.refine;
+    affine.model = MotionModel::kAffine;
+    rr = RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
+    s->model = MotionModel::kAffine;
+  }
+  s->refine = rr;
+  s->refine_ms = refine_timer.ElapsedMs();
+  s->holdout_final = TransferErrors(edges, mosaic_from_work_, true);
+  s->holdout_inliers = TransferErrors(edges, mosaic_from_work_, true, options_.refine.outlier_px);
+  if (!rr.ok) {
+    spdlog::warn("refinement failed ({}); keeping the affine solution", rr.failure);
+    return;
+  }
+  s->rms_px = rr.final_rms_px;
+  s->median_px = rr.final_median_px;
+  spdlog::info(
+      "{} refinement: transfer error RMS {:.3f} -> {:.3f} px (held-out points {:.3f} -> {:.3f}), {} iterations, "
+      "{:.1f} s",
+      ToString(s->model), rr.initial_rms_px, rr.final_rms_px, s->holdout_linear.rms, s->holdout_final.rms,
+      rr.iterations, rr.seconds);
+}
+
+}  // namespace uavm

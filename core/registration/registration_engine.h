@@ -1,0 +1,196 @@
+#pragma once
+#include <deque>
+#include <memory>
+#include <string>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include "core/adjust/affine_adjuster.h"
+#include "core/adjust/global_refiner.h"
+#include "core/features/sift.h"
+#include "core/geometry/footprint_grid.h"
+#include "core/graph/components.h"
+#include "core/graph/match_graph.h"
+#include "core/matching/global_index.h"
+#include "core/matching/pair_matcher.h"
+#include "core/util/clock.h"
+
+namespace uavm {
+
+// What the engine needs of the frames it registers. Defaults are the onboard program's (core/pipeline/options.h maps
+// its flat YAML keys onto these).
+struct RegistrationOptions {
+  int recent_candidates = 2;               // K: the last K frames in the graph are always candidates
+  int overlap_candidates = 3;              // M: plus up to M frames whose footprint overlaps the first estimate
+  double min_overlap_fraction = 0.15;      // of the new frame's area, for an overlap candidate
+  double relative_inlier_fraction = 0.05;  // an edge needs this share of the best pair's inliers (seed method: 5 %)
+  int relocalization_candidates = 4;       // global-index look-alikes tried when the recent frames gave nothing
+  int bridge_candidates = 2;               // while the flight is in pieces: frames of other components per frame
+  int retry_list_size = 16;                // frames that matched nothing, retried against later frames
+  int retry_per_frame = 2;
+  int retry_max_attempts = 60;
+  int full_solve_every = 10;  // full adjustment every max(N, size/20) registered frames, and on a merge
+  int solve_window = 300;     // frames those solves move (the newest); 0 = the whole component
+  MatchOptions matching;
+  GlobalIndexOptions relocalization;
+  AdjustOptions adjust;
+  RefineOptions refine;
+
+  [[nodiscard]] bool Check(std::string* why) const;
+};
+
+// Earlier frames' features, borrowed by the engine for each candidate pair (the product keeps them in a bounded
+// cache over the session's features/; tests in a map). Null when a frame's features cannot be had.
+class FeatureProvider {
+ public:
+  virtual ~FeatureProvider() = default;
+  [[nodiscard]] virtual std::shared_ptr<const Features> Get(int id) = 0;
+  // Called once no more features will be asked for (end of flight): their memory can go.
+  virtual void ReleaseAll() {}
+};
+
+// Where an edge's points go once its frames leave the solve window, so that memory stays flat in a long flight
+// (edges.bin in the product). Without one, every edge keeps its points in memory.
+class EdgeSpill {
+ public:
+  virtual ~EdgeSpill() = default;
+  [[nodiscard]] virtual bool Append(Edge* edge, std::string* error) = 0;  // keeps the points resident
+  [[nodiscard]] virtual bool Load(Edge* edge, std::string* error) = 0;    // makes them resident again
+  virtual size_t Release(Edge* edge) = 0;                                 // bytes given back (0 if not stored)
+};
+
+// Outcome of one frame.
+enum class FrameOutcome { kRegistered, kNewComponent, kFailed };
+
+// The engine's record of one frame (ids are dense, 0..frames()-1, in arrival order).
+struct FrameRecord {
+  cv::Size work_size;
+  double half_diagonal = 1.0;
+  bool has_features = false;
+  bool in_graph = false;  // has at least one edge or anchors its own component
+  bool keyframe = false;  // in the global (relocalisation) index
+  std::string failure;    // why it is not registered (so far)
+};
+
+// What the engine did during the flight (report.json), counted, never scanned for.
+struct RegistrationCounters {
+  int relocalized = 0;
+  int joined_on_retry = 0;
+  int component_merges = 0;
+  int components = 0;  // during the flight
+  int edges_added_at_end = 0;
+  size_t frames_not_indexed = 0;  // registered over ground the index already has
+  size_t edges_released = 0;      // edges whose points were given to the spill during the flight
+  size_t edge_bytes_released = 0;
+  size_t edges_reloaded = 0;  // points taken back during the flight (a solve needed a cold edge)
+  int relocalization_thinnings = 0;
+};
+
+// The end-of-flight solution: the largest component solved and refined.
+struct Solution {
+  bool ok = false;
+  std::string failure;
+  std::vector<int> component;  // ascending; the first is the reference (identity)
+  double rms_px = 0.0;
+  double median_px = 0.0;
+  RefineResult refine;
+  MotionModel model = MotionModel::kAffine;
+  TransferStats holdout_linear;  // held-out correspondences under the linear solution, then the final one
+  TransferStats holdout_final;
+  TransferStats holdout_inliers;  // of those, the ones within refine.outlier_px
+  double adjust_ms = 0.0;         // from the start of Finish() to the linear solution
+  double refine_ms = 0.0;
+};
+
+// Per-frame timings of Register(), for the stage statistics.
+struct RegisterTiming {
+  double matching_ms = 0.0;
+  double adjust_ms = 0.0;
+};
+
+// Pose-free registration of a stream of frames: features in, maps (mosaic_from_work per frame) and edges out. Each
+// frame is matched against a bounded candidate set (the last K frames in the graph, the relocalisation index when
+// those fail, the M frames whose footprints overlap its first estimate), verified by RANSAC, solved locally, and every
+// few frames in a windowed full adjustment; frames that matched nothing are retried, pieces of the flight bridged.
+// Finish() keeps the largest component and solves it fully. Knows nothing of session files, reports or products.
+//
+// Per-frame cost does not grow with the flight: candidates come from a footprint grid, component membership is kept
+// incrementally, a full solve moves at most solve_window frames and reads only the edges touching them.
+class RegistrationEngine {
+ public:
+  // Borrows `features` (required) and `spill` (may be null); both must outlive the engine. Throws
+  // std::invalid_argument on options that fail Check() (start-up only).
+  RegistrationEngine(const RegistrationOptions& options, FeatureProvider* features, EdgeSpill* spill);
+
+  // A new frame of `work_size` pixels; returns its id. It takes part once Register() is called for it.
+  int AddFrame(cv::Size work_size);
+  // Registers frame `id` (the newest) with its features (descriptors as the provider will give them later).
+  [[nodiscard]] FrameOutcome Register(int id, const Features& features, RegisterTiming* timing = nullptr);
+  // Frame `id` will not be registered (e.g. it could not be stored); `why` ends in the report.
+  void SetFailure(int id, std::string why);
+  // Final solve of the largest component; the features are not needed afterwards.
+  [[nodiscard]] Solution Finish();
+
+  [[nodiscard]] int frames() const { return static_cast<int>(frames_.size()); }
+  [[nodiscard]] const FrameRecord& frame(int id) const { return frames_.at(static_cast<size_t>(id)); }
+  // Frame `id`'s map into its component's mosaic (after Finish(): the reference frame's, for the component).
+  [[nodiscard]] const Mat3& mosaic_from_work(int id) const { return mosaic_from_work_.at(id); }
+  [[nodiscard]] bool placed(int id) const { return mosaic_from_work_.count(id) != 0; }
+  [[nodiscard]] const std::deque<Edge>& edges() const { return graph_.edges(); }
+  // For writers after Finish(): they load an edge's points through the spill and give them back.
+  [[nodiscard]] std::deque<Edge>& mutable_edges() { return graph_.mutable_edges(); }
+  // Whether an edge is one of the final solution's (both frames in `component`, inliers above both thresholds).
+  [[nodiscard]] bool EdgeCounts(const Edge& e) const {
+    return graph_.EdgeCounts(e, options_.relative_inlier_fraction, options_.matching.min_inliers);
+  }
+  [[nodiscard]] RegistrationCounters counters() const;
+  [[nodiscard]] int best_inliers() const { return best_inliers_; }
+  [[nodiscard]] const RegistrationOptions& options() const { return options_; }
+
+ private:
+  struct Candidates;
+
+  [[nodiscard]] FrameRecord& Record(int id) { return frames_.at(static_cast<size_t>(id)); }
+  // Checked access to a placed frame's map; SetMap() places a frame (or moves it).
+  [[nodiscard]] Mat3& Map(int id) { return mosaic_from_work_.at(id); }
+  void SetMap(int id, const Mat3& m) { mosaic_from_work_.insert_or_assign(id, m); }
+  [[nodiscard]] const std::vector<int>& MembersOf(int root);
+  [[nodiscard]] std::vector<const Edge*> EdgesTouching(const std::unordered_set<int>& ids, int root);
+  void AddEdge(Edge edge);
+  void ReleaseColdEdges();
+  bool LoadEdgePoints(const std::vector<const Edge*>& edges);
+  void MergeInto(int keep_root, int other_root, const Mat3& other_fix);
+  void FullSolve(int root);
+  void Densify();
+  [[nodiscard]] bool Acceptable(const PairResult& r) const;
+  void TryCandidate(int cand, Candidates* c);
+  void FindCandidates(int id, Candidates* c);
+  void Join(int id, Candidates* c);
+  void StartComponent(int id, const Candidates& c);
+  [[nodiscard]] std::vector<int> OverlapCandidates(int id, int root, const std::unordered_set<int>& exclude);
+  void TryRetries(int new_id, const DescriptorIndex& index, const Features& feats);
+  bool TryJoin(int new_id, int other, const DescriptorIndex& index, const Features& feats);
+  void Bridge(int new_id, const DescriptorIndex& index, const Features& feats);
+  [[nodiscard]] bool IsNewGround(int id);
+  void Place(int id);
+  void SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish, Solution* s);
+
+  RegistrationOptions options_;
+  FeatureProvider* features_;  // borrowed
+  EdgeSpill* spill_;           // borrowed, may be null
+  GlobalIndex global_index_;
+  MatchGraph graph_;
+  Components components_;
+  FootprintGrid footprints_;     // in_graph frames' footprints, for overlap candidates and new-ground checks
+  std::deque<FrameRecord> frames_;  // grows chunk by chunk: no doubling copy in a long flight
+  std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
+  std::unordered_map<int, Mat3> mosaic_from_work_;  // per placed frame, in its component's coordinates
+  std::deque<std::pair<int, int>> retry_;           // (frame id, attempts)
+  RegistrationCounters counters_;
+  int best_inliers_ = 0;
+  int registered_since_full_ = 0;
+  size_t release_cursor_ = 0;  // edges before it have been considered by ReleaseColdEdges
+};
+
+}  // namespace uavm
