@@ -11,12 +11,15 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcpp-httplib-dev libjs-leaflet chromium python3-gdal curl
   jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
+  nodejs  # test peers (tests/telemetry/run_peer.sh: node-mavlink from the npm registry)
   "$@"
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+# Debian's nodejs comes without npm (its own package); other builds of nodejs (NodeSource) bring it and conflict.
+command -v npm >/dev/null 2>&1 || missing+=(npm)
 if [ ${#missing[@]} -eq 0 ]; then
   echo "setup: all ${#PACKAGES[@]} packages present"
   exit 0

@@ -134,7 +134,7 @@ class Mosaicker {
   std::unique_ptr<StoreEdges> store_edges_;
   RegistrationEngine engine_;
   SessionJournal journal_;
-  size_t resumed_frames_ = 0;   // frames taken from the journal of an interrupted run
+  size_t resumed_frames_ = 0;  // frames taken from the journal of an interrupted run
   ResourceLog resources_;
   std::deque<FrameState> frames_;  // grows chunk by chunk: no doubling copy in a long flight
   std::vector<SkippedInput> skipped_;

@@ -157,9 +157,8 @@ nlohmann::json Mosaicker::MakeProducts(const std::vector<int>& component, const 
     }
     std::vector<MapEdge> edges;
     for (const Edge& e : engine_.edges())
-      edges.push_back({e.src, e.tgt, e.num_inliers,
-                       in.count(e.src) != 0 && in.count(e.tgt) != 0 &&
-                           engine_.EdgeCounts(e)});
+      edges.push_back(
+          {e.src, e.tgt, e.num_inliers, in.count(e.src) != 0 && in.count(e.tgt) != 0 && engine_.EdgeCounts(e)});
     const bool page = WriteWebPage(paths_.root, options_.leaflet_dir, tiles, georef_, frames, edges, &err);
     if (!page) spdlog::warn("index.html: {}", err);
     j["web_page"] = page;

@@ -51,7 +51,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   const std::unordered_set<int> in_component(component.begin(), component.end());
   std::vector<Mat3> canvas_from_original(frames_.size(), Mat3::Identity());
   cv::Size canvas(0, 0);
-  const double scale = component.empty() ? options_.mosaic_scale : PlaceCanvas(component, &canvas_from_original, &canvas);
+  const double scale =
+      component.empty() ? options_.mosaic_scale : PlaceCanvas(component, &canvas_from_original, &canvas);
   if (!WriteTransformsCsv(in_component, canvas_from_original, error) || !WriteEdgeTables(in_component, error) ||
       !WriteFramesCsv(in_component, error) || !WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error))
     return false;
@@ -60,7 +61,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
     return false;
   nlohmann::json products = MakeProducts(component, canvas_from_original, options_.write_tiff && !component.empty());
   std::string err;
-  if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err)) spdlog::warn("live preview: {}", err);
+  if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err))
+    spdlog::warn("live preview: {}", err);
   return WriteReport(component, composite, canvas, scale, std::move(products), error);
 }
 
@@ -75,7 +77,8 @@ double Mosaicker::PlaceCanvas(const std::vector<int>& component, std::vector<Mat
   std::vector<double> ref_px_per_px;
   for (int id : component) {
     const FrameState& f = frames_[static_cast<size_t>(id)];
-    const Mat3 ref_from_original = ref.work_from_original.inverse() * engine_.mosaic_from_work(id) * f.work_from_original;
+    const Mat3 ref_from_original =
+        ref.work_from_original.inverse() * engine_.mosaic_from_work(id) * f.work_from_original;
     ref_px_per_px.push_back(
         LocalScale(ref_from_original, Vec2(0.5 * (f.original_size.width - 1), 0.5 * (f.original_size.height - 1))));
   }
@@ -145,8 +148,7 @@ bool Mosaicker::WriteEdgeTables(const std::unordered_set<int>& in_component, std
   if (!corr_csv.Open(paths_.Join("correspondences.csv"), error)) return false;
   corr_csv.Write("src,tgt,x_src,y_src,x_tgt,y_tgt\n");
   for (Edge& e : engine_.mutable_edges()) {
-    const bool used = in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 &&
-                      engine_.EdgeCounts(e);
+    const bool used = in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 && engine_.EdgeCounts(e);
     graph_csv << e.src << ',' << e.tgt << ',' << frames_[static_cast<size_t>(e.src)].name << ','
               << frames_[static_cast<size_t>(e.tgt)].name << ',' << e.num_matches << ',' << e.num_inliers << ','
               << (used ? 1 : 0) << '\n';

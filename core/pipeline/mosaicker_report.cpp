@@ -25,14 +25,15 @@ void Mosaicker::ReportRegistration(nlohmann::json* out) const {
   report["residual_rms_px"] = solution_.rms_px;
   report["residual_median_px"] = solution_.median_px;
   report["residual_units"] = solution_.refine.ok ? "transfer error, pixels of the target frame at working resolution"
-                                        : "pixels of the reference frame at working resolution";
+                                                 : "pixels of the reference frame at working resolution";
   report["holdout_rms_px"] = solution_.holdout_final.rms;
   report["holdout_median_px"] = solution_.holdout_final.median;
   report["holdout_points"] = solution_.holdout_final.count;
   report["holdout_inlier_rms_px"] = solution_.holdout_inliers.rms;
   report["holdout_inlier_share"] =
-      solution_.holdout_final.count > 0 ? static_cast<double>(solution_.holdout_inliers.count) / static_cast<double>(solution_.holdout_final.count)
-                               : 0.0;
+      solution_.holdout_final.count > 0
+          ? static_cast<double>(solution_.holdout_inliers.count) / static_cast<double>(solution_.holdout_final.count)
+          : 0.0;
   report["model"] = solution_.refine.ok ? ToString(solution_.model) : "affine";
   report["refine"] = {{"ok", solution_.refine.ok},
                       {"failure", solution_.refine.failure},
@@ -63,17 +64,18 @@ nlohmann::json Mosaicker::ReportMemory(const CompositeResult& composite) const {
   memory["plan"]["tile_size"] = options_.mosaic.tile_size;
   memory["plan"]["compositor_threads"] = options_.mosaic.threads;
   // What did not fit and went to disk or was thinned, so that the budget held.
-  memory["spilled"] = {{"feature_sets_evicted", feature_store_.evictions()},
-        {"feature_sets_reloaded", feature_store_.disk_loads()},
-        {"relocalization_thinnings", rc.relocalization_thinnings},
-        {"frames_not_indexed_same_ground", rc.frames_not_indexed},
-        {"edges_to_disk", rc.edges_released},
-        {"edge_mib_to_disk", static_cast<double>(rc.edge_bytes_released) / (1 << 20)},
-        {"edges_reloaded_in_flight", rc.edges_reloaded},
-        {"edges_bin_mib", static_cast<double>(edge_store_.bytes_written()) / (1 << 20)},
-        {"frame_redecodes", std::max(0, composite.image_loads - composite.frames_used)},
-        {"refine_correspondences_skipped", refine.num_residuals - std::min(refine.num_residuals, refine.num_used)},
-        {"frames_dropped_by_queue", dropped_frames_}};
+  memory["spilled"] = {
+      {"feature_sets_evicted", feature_store_.evictions()},
+      {"feature_sets_reloaded", feature_store_.disk_loads()},
+      {"relocalization_thinnings", rc.relocalization_thinnings},
+      {"frames_not_indexed_same_ground", rc.frames_not_indexed},
+      {"edges_to_disk", rc.edges_released},
+      {"edge_mib_to_disk", static_cast<double>(rc.edge_bytes_released) / (1 << 20)},
+      {"edges_reloaded_in_flight", rc.edges_reloaded},
+      {"edges_bin_mib", static_cast<double>(edge_store_.bytes_written()) / (1 << 20)},
+      {"frame_redecodes", std::max(0, composite.image_loads - composite.frames_used)},
+      {"refine_correspondences_skipped", refine.num_residuals - std::min(refine.num_residuals, refine.num_used)},
+      {"frames_dropped_by_queue", dropped_frames_}};
   return memory;
 }
 

@@ -4,7 +4,9 @@
 
 namespace uavm {
 
-void ResourceLog::FlightStart() { fds_at_start_ = OpenFileDescriptors(); }
+void ResourceLog::FlightStart() {
+  fds_at_start_ = OpenFileDescriptors();
+}
 
 void ResourceLog::FlightEnd() {
   flight_peak_rss_mib_ = std::max(PeakRssMiB(), HighWaterRssMiB());
@@ -19,42 +21,43 @@ void ResourceLog::SolvesEnd() {
   ResetPeakRss();
 }
 
-void ResourceLog::ComposeEnd() { compose_peak_rss_mib_ = HighWaterRssMiB(); }
+void ResourceLog::ComposeEnd() {
+  compose_peak_rss_mib_ = HighWaterRssMiB();
+}
 
 nlohmann::json ResourceLog::FdsJson() const {
   return {{"flight_start", fds_at_start_}, {"flight_end", fds_at_flight_end_}};
 }
 
 nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
-  return {
-      {"budget_mib", mp.budget_mib},
-      {"peak_rss_mib", std::max({PeakRssMiB(), flight_peak_rss_mib_, solve_peak_rss_mib_, compose_peak_rss_mib_})},
-      // Each phase's own peak (the kernel's high-water mark is reset between phases).
-      {"phase_peak_rss_mib",
-       {{"flight", flight_peak_rss_mib_}, {"solve", solve_peak_rss_mib_}, {"compose", compose_peak_rss_mib_}}},
-      {"flight_peak_rss_mib", flight_peak_rss_mib_},
-      {"flight_end_rss_mib", flight_end_rss_mib_},
-      {"flight_end_heap",
-       {{"in_use_mib", flight_end_heap_.in_use_mib},
-        {"arena_mib", flight_end_heap_.arena_mib},
-        {"mmapped_mib", flight_end_heap_.mmapped_mib}}},
-      {"plan_flight_mib", mp.FlightMiB()},
-      {"plan_end_mib", mp.EndMiB()},
-      {"plan",
-       {{"baseline_mib", mp.baseline_mib},
-        {"graph_mib", mp.graph_mib},
-        {"sift_mib", mp.sift_mib},
-        {"sift_bands", mp.sift_bands},
-        {"queue_mib", mp.queue_mib},
-        {"queue_capacity", mp.queue_capacity},
-        {"feature_cache_mib", mp.feature_cache_mib},
-        {"relocalization_mib", mp.relocalization_mib},
-        {"relocalization_descriptors", mp.relocalization_descriptors},
-        {"refine_mib", mp.refine_mib},
-        {"refine_correspondences", mp.refine_correspondences},
-        {"image_cache_mib", mp.image_cache_mib},
-        {"blend_mib", mp.blend_mib},
-        {"gdal_cache_mib", mp.gdal_cache_mib}}}};
+  return {{"budget_mib", mp.budget_mib},
+          {"peak_rss_mib", std::max({PeakRssMiB(), flight_peak_rss_mib_, solve_peak_rss_mib_, compose_peak_rss_mib_})},
+          // Each phase's own peak (the kernel's high-water mark is reset between phases).
+          {"phase_peak_rss_mib",
+           {{"flight", flight_peak_rss_mib_}, {"solve", solve_peak_rss_mib_}, {"compose", compose_peak_rss_mib_}}},
+          {"flight_peak_rss_mib", flight_peak_rss_mib_},
+          {"flight_end_rss_mib", flight_end_rss_mib_},
+          {"flight_end_heap",
+           {{"in_use_mib", flight_end_heap_.in_use_mib},
+            {"arena_mib", flight_end_heap_.arena_mib},
+            {"mmapped_mib", flight_end_heap_.mmapped_mib}}},
+          {"plan_flight_mib", mp.FlightMiB()},
+          {"plan_end_mib", mp.EndMiB()},
+          {"plan",
+           {{"baseline_mib", mp.baseline_mib},
+            {"graph_mib", mp.graph_mib},
+            {"sift_mib", mp.sift_mib},
+            {"sift_bands", mp.sift_bands},
+            {"queue_mib", mp.queue_mib},
+            {"queue_capacity", mp.queue_capacity},
+            {"feature_cache_mib", mp.feature_cache_mib},
+            {"relocalization_mib", mp.relocalization_mib},
+            {"relocalization_descriptors", mp.relocalization_descriptors},
+            {"refine_mib", mp.refine_mib},
+            {"refine_correspondences", mp.refine_correspondences},
+            {"image_cache_mib", mp.image_cache_mib},
+            {"blend_mib", mp.blend_mib},
+            {"gdal_cache_mib", mp.gdal_cache_mib}}}};
 }
 
 }  // namespace uavm

@@ -12,9 +12,9 @@ namespace uavm {
 class ResourceLog {
  public:
   void FlightStart();
-  void FlightEnd();    // after the last frame
-  void SolvesEnd();    // after the final solve
-  void ComposeEnd();   // after the mosaic is written
+  void FlightEnd();   // after the last frame
+  void SolvesEnd();   // after the final solve
+  void ComposeEnd();  // after the mosaic is written
   // report.json "memory" (with the plan it was sized by) and "open_fds".
   [[nodiscard]] nlohmann::json MemoryJson(const MemoryPlan& plan) const;
   [[nodiscard]] nlohmann::json FdsJson() const;

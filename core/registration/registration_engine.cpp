@@ -60,8 +60,7 @@ struct RegistrationEngine::Candidates {
   int root = -1;               // the base component: the largest one the found edges touch
 };
 
-RegistrationEngine::RegistrationEngine(const RegistrationOptions& options, FeatureProvider* features,
-                                       EdgeSpill* spill)
+RegistrationEngine::RegistrationEngine(const RegistrationOptions& options, FeatureProvider* features, EdgeSpill* spill)
     : options_(options), features_(features), spill_(spill), global_index_(options.relocalization) {
   std::string why;
   if (!options_.Check(&why)) throw std::invalid_argument("registration options: " + why);
@@ -79,7 +78,9 @@ int RegistrationEngine::AddFrame(cv::Size work_size) {
   return id;
 }
 
-void RegistrationEngine::SetFailure(int id, std::string why) { Record(id).failure = std::move(why); }
+void RegistrationEngine::SetFailure(int id, std::string why) {
+  Record(id).failure = std::move(why);
+}
 
 RegistrationCounters RegistrationEngine::counters() const {
   RegistrationCounters c = counters_;
@@ -204,9 +205,8 @@ bool RegistrationEngine::IsNewGround(int id) {
     return Apply(Map(k), Vec2(0.5 * (f.work_size.width - 1), 0.5 * (f.work_size.height - 1)));
   };
   const Vec2 c = centre_of(id);
-  const double radius =
-      spacing * me.half_diagonal *
-      LocalScale(Map(id), Vec2(0.5 * (me.work_size.width - 1), 0.5 * (me.work_size.height - 1)));
+  const double radius = spacing * me.half_diagonal *
+                        LocalScale(Map(id), Vec2(0.5 * (me.work_size.width - 1), 0.5 * (me.work_size.height - 1)));
   const int root = components_.Find(id);
   // A keyframe whose centre is that close lies in a footprint that meets this square: the grid finds it.
   const cv::Rect2d near(c.x() - radius, c.y() - radius, 2.0 * radius, 2.0 * radius);
@@ -263,7 +263,8 @@ void RegistrationEngine::Bridge(int new_id, const DescriptorIndex& index, const 
     if (tried >= options_.bridge_candidates) break;
     if (components_.Find(c) == components_.Find(new_id)) continue;
     ++tried;
-    if (TryJoin(new_id, c, index, feats)) spdlog::info("frame {} joined two parts of the flight (via frame {})", new_id, c);
+    if (TryJoin(new_id, c, index, feats))
+      spdlog::info("frame {} joined two parts of the flight (via frame {})", new_id, c);
   }
 }
 

@@ -182,7 +182,7 @@ class RegistrationEngine {
   GlobalIndex global_index_;
   MatchGraph graph_;
   Components components_;
-  FootprintGrid footprints_;     // in_graph frames' footprints, for overlap candidates and new-ground checks
+  FootprintGrid footprints_;        // in_graph frames' footprints, for overlap candidates and new-ground checks
   std::deque<FrameRecord> frames_;  // grows chunk by chunk: no doubling copy in a long flight
   std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
   std::unordered_map<int, Mat3> mosaic_from_work_;  // per placed frame, in its component's coordinates

@@ -1,0 +1,246 @@
+#include "hal/telemetry/mavlink.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+namespace uavm::hal::mavlink {
+
+namespace {
+
+constexpr size_t kHeaderV1 = 6;   // STX len seq sys comp msgid
+constexpr size_t kHeaderV2 = 10;  // STX len incompat compat seq sys comp msgid[3]
+constexpr size_t kSignature = 13;
+
+template <typename T>
+T Read(const Packet& p, size_t offset) {
+  T v;
+  std::memcpy(&v, p.payload.data() + offset, sizeof(T));  // little-endian on every target we build for
+  return v;
+}
+
+double Deg7(int32_t v) {
+  return static_cast<double>(v) * 1e-7;
+}
+
+std::string Text(const Packet& p, size_t offset, size_t max) {
+  const char* begin = reinterpret_cast<const char*>(p.payload.data() + offset);
+  return {begin, strnlen(begin, max)};
+}
+
+Message DecodeGpsRawInt(const Packet& p) {
+  GpsRawInt m;
+  m.time_usec = Read<uint64_t>(p, 0);
+  m.lat_deg = Deg7(Read<int32_t>(p, 8));
+  m.lon_deg = Deg7(Read<int32_t>(p, 12));
+  m.alt_msl_m = Read<int32_t>(p, 16) * 1e-3;
+  const uint16_t eph = Read<uint16_t>(p, 20);
+  if (eph != UINT16_MAX) m.eph = eph * 0.01;
+  m.fix_type = p.payload[28];
+  m.satellites = p.payload[29];
+  // Extensions (MAVLink 2 only; zero when absent): horizontal / vertical accuracy in mm.
+  const uint32_t h_acc = Read<uint32_t>(p, 34);
+  const uint32_t v_acc = Read<uint32_t>(p, 38);
+  if (h_acc > 0) m.h_acc_m = h_acc * 1e-3;
+  if (v_acc > 0) m.v_acc_m = v_acc * 1e-3;
+  return m;
+}
+
+Message DecodeGlobalPositionInt(const Packet& p) {
+  GlobalPositionInt m;
+  m.time_boot_ms = Read<uint32_t>(p, 0);
+  m.lat_deg = Deg7(Read<int32_t>(p, 4));
+  m.lon_deg = Deg7(Read<int32_t>(p, 8));
+  m.alt_msl_m = Read<int32_t>(p, 12) * 1e-3;
+  m.relative_alt_m = Read<int32_t>(p, 16) * 1e-3;
+  m.vx_mps = Read<int16_t>(p, 20) * 0.01;
+  m.vy_mps = Read<int16_t>(p, 22) * 0.01;
+  m.vz_mps = Read<int16_t>(p, 24) * 0.01;
+  const uint16_t hdg = Read<uint16_t>(p, 26);
+  if (hdg != UINT16_MAX) m.heading_deg = hdg * 0.01;
+  return m;
+}
+
+Message DecodeCameraFeedback(const Packet& p) {
+  CameraFeedback m;
+  m.time_usec = Read<uint64_t>(p, 0);
+  m.lat_deg = Deg7(Read<int32_t>(p, 8));
+  m.lon_deg = Deg7(Read<int32_t>(p, 12));
+  m.alt_msl_m = Read<float>(p, 16);
+  m.alt_rel_m = Read<float>(p, 20);
+  m.roll_deg = Read<float>(p, 24);
+  m.pitch_deg = Read<float>(p, 28);
+  m.yaw_deg = Read<float>(p, 32);
+  m.image_index = Read<uint16_t>(p, 40);
+  return m;
+}
+
+Message DecodeCameraImageCaptured(const Packet& p) {
+  CameraImageCaptured m;
+  m.time_utc_usec = Read<uint64_t>(p, 0);
+  m.time_boot_ms = Read<uint32_t>(p, 8);
+  m.lat_deg = Deg7(Read<int32_t>(p, 12));
+  m.lon_deg = Deg7(Read<int32_t>(p, 16));
+  m.alt_msl_m = Read<int32_t>(p, 20) * 1e-3;
+  m.relative_alt_m = Read<int32_t>(p, 24) * 1e-3;
+  for (size_t k = 0; k < 4; ++k) m.q[k] = Read<float>(p, 28 + 4 * k);
+  m.image_index = Read<int32_t>(p, 44);
+  m.capture_result = static_cast<int8_t>(p.payload[49]);
+  m.file_url = Text(p, 50, 205);
+  return m;
+}
+
+}  // namespace
+
+uint16_t Crc(const uint8_t* data, size_t size, uint16_t crc) {
+  for (size_t i = 0; i < size; ++i) {
+    uint8_t t = static_cast<uint8_t>(data[i] ^ (crc & 0xFF));
+    t = static_cast<uint8_t>(t ^ (t << 4));
+    crc = static_cast<uint16_t>((crc >> 8) ^ (t << 8) ^ (t << 3) ^ (t >> 4));
+  }
+  return crc;
+}
+
+std::optional<MessageInfo> InfoOf(uint32_t msgid) {
+  switch (msgid) {
+    case kHeartbeat:
+      return MessageInfo{50, 9};
+    case kSystemTime:
+      return MessageInfo{137, 12};
+    case kGpsRawInt:
+      return MessageInfo{24, 52};
+    case kAttitude:
+      return MessageInfo{39, 28};
+    case kGlobalPositionInt:
+      return MessageInfo{104, 28};
+    case kCameraFeedback:
+      return MessageInfo{52, 47};
+    case kStatustext:
+      return MessageInfo{83, 54};
+    case kCameraImageCaptured:
+      return MessageInfo{133, 255};
+    default:
+      return std::nullopt;
+  }
+}
+
+std::optional<Message> Decode(const Packet& p) {
+  switch (p.msgid) {
+    case kHeartbeat:
+      return Heartbeat{Read<uint32_t>(p, 0), p.payload[4], p.payload[5], p.payload[6], p.payload[7]};
+    case kSystemTime:
+      return SystemTime{Read<uint64_t>(p, 0), Read<uint32_t>(p, 8)};
+    case kGpsRawInt:
+      return DecodeGpsRawInt(p);
+    case kAttitude:
+      return Attitude{Read<uint32_t>(p, 0), Read<float>(p, 4), Read<float>(p, 8), Read<float>(p, 12)};
+    case kGlobalPositionInt:
+      return DecodeGlobalPositionInt(p);
+    case kCameraFeedback:
+      return DecodeCameraFeedback(p);
+    case kStatustext:
+      return Statustext{p.payload[0], Text(p, 1, 50)};
+    case kCameraImageCaptured:
+      return DecodeCameraImageCaptured(p);
+    default:
+      return std::nullopt;
+  }
+}
+
+void Parser::Feed(const uint8_t* data, size_t size, const Sink& on_packet) {
+  for (size_t i = 0; i < size; ++i) Push(data[i], on_packet);
+}
+
+size_t Parser::FrameSize() const {
+  if (buffer_[0] == kStxV1) return size_ >= 2 ? kHeaderV1 + buffer_[1] + 2 : 0;
+  if (size_ < 3) return 0;
+  return kHeaderV2 + buffer_[1] + 2 + ((buffer_[2] & kIncompatSigned) != 0 ? kSignature : 0);
+}
+
+void Parser::Push(uint8_t byte, const Sink& on_packet) {
+  if (size_ == 0 && byte != kStxV1 && byte != kStxV2) {
+    ++counters_.bytes_skipped;
+    return;
+  }
+  buffer_[size_++] = byte;
+  const size_t frame = FrameSize();
+  if (frame != 0 && size_ == frame) Complete(on_packet);
+}
+
+void Parser::Complete(const Sink& on_packet) {
+  const bool v1 = buffer_[0] == kStxV1;
+  const size_t header = v1 ? kHeaderV1 : kHeaderV2;
+  Packet& p = packet_;
+  p.version = v1 ? 1 : 2;
+  p.length = buffer_[1];
+  p.signed_packet = !v1 && (buffer_[2] & kIncompatSigned) != 0;
+  p.seq = buffer_[v1 ? 2 : 4];
+  p.sysid = buffer_[v1 ? 3 : 5];
+  p.compid = buffer_[v1 ? 4 : 6];
+  p.msgid = v1 ? buffer_[5] : (buffer_[7] | (buffer_[8] << 8) | (static_cast<uint32_t>(buffer_[9]) << 16));
+  if (!v1 && (buffer_[2] & ~kIncompatSigned) != 0) {
+    ++counters_.unsupported;  // the spec says to drop what cannot be understood
+    size_ = 0;
+    return;
+  }
+  const auto info = InfoOf(p.msgid);
+  if (info) {
+    uint16_t crc = Crc(buffer_.data() + 1, header - 1 + p.length);
+    crc = Crc(&info->crc_extra, 1, crc);
+    const uint16_t wire = static_cast<uint16_t>(buffer_[header + p.length] | (buffer_[header + p.length + 1] << 8));
+    if (crc != wire) {
+      ++counters_.crc_errors;
+      Resync(on_packet);
+      return;
+    }
+  } else {
+    ++counters_.unknown;
+  }
+  p.payload.fill(0);  // MAVLink 2 cuts trailing zero bytes: the rest of the message reads as zeros
+  std::copy_n(buffer_.begin() + static_cast<long>(header), p.length, p.payload.begin());
+  ++counters_.packets;
+  if (p.signed_packet) ++counters_.signed_packets;
+  size_ = 0;
+  if (info) on_packet(p);
+}
+
+void Parser::Resync(const Sink& on_packet) {
+  // What followed the false start byte may hold the start of a real packet (or a whole one).
+  std::array<uint8_t, kMaxPacket> rest{};
+  const size_t n = size_ - 1;
+  std::copy_n(buffer_.begin() + 1, n, rest.begin());
+  size_ = 0;
+  ++counters_.bytes_skipped;
+  for (size_t i = 0; i < n; ++i) Push(rest[i], on_packet);
+}
+
+std::string Encode(uint32_t msgid, const uint8_t* payload, size_t size, uint8_t seq, uint8_t sysid, uint8_t compid) {
+  while (size > 1 && payload[size - 1] == 0) --size;  // MAVLink 2 payload truncation (at least one byte stays)
+  std::string out(kHeaderV2 + size + 2, '\0');
+  auto* b = reinterpret_cast<uint8_t*>(out.data());
+  b[0] = kStxV2;
+  b[1] = static_cast<uint8_t>(size);
+  b[4] = seq;
+  b[5] = sysid;
+  b[6] = compid;
+  b[7] = static_cast<uint8_t>(msgid & 0xFF);
+  b[8] = static_cast<uint8_t>((msgid >> 8) & 0xFF);
+  b[9] = static_cast<uint8_t>((msgid >> 16) & 0xFF);
+  std::copy_n(payload, size, b + kHeaderV2);
+  const auto info = InfoOf(msgid);
+  uint16_t crc = Crc(b + 1, kHeaderV2 - 1 + size);
+  const uint8_t extra = info ? info->crc_extra : 0;
+  crc = Crc(&extra, 1, crc);
+  b[kHeaderV2 + size] = static_cast<uint8_t>(crc & 0xFF);
+  b[kHeaderV2 + size + 1] = static_cast<uint8_t>(crc >> 8);
+  return out;
+}
+
+std::string EncodeStatustext(uint8_t severity, const std::string& text, uint8_t seq, uint8_t sysid, uint8_t compid) {
+  std::array<uint8_t, 54> payload{};
+  payload[0] = severity;
+  std::memcpy(payload.data() + 1, text.data(), std::min<size_t>(text.size(), 50));
+  return Encode(kStatustext, payload.data(), payload.size(), seq, sysid, compid);
+}
+
+}  // namespace uavm::hal::mavlink

@@ -1,0 +1,244 @@
+// The MAVLink decoder against an independent implementation: node-mavlink (npm) writes a telemetry log with known
+// values (tests/telemetry/make_mavlink.mjs); we read it back whole, chunked, and damaged.
+#include "hal/telemetry/mavlink.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <sstream>
+
+#include "hal/telemetry/tlog.h"
+
+namespace uavm::hal::mavlink {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+std::string ReadAll(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+void WriteAll(const fs::path& p, const std::string& bytes) {
+  std::ofstream(p, std::ios::binary) << bytes;
+}
+
+class MavlinkTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new fs::path(fs::temp_directory_path() / ("uavm_mavlink_" + std::to_string(getpid())));
+    fs::create_directories(*dir_);
+    const std::string cmd = std::string("bash '") + UAVM_SOURCE_DIR + "/tests/telemetry/run_peer.sh' '" +
+                            UAVM_SOURCE_DIR + "/tests/telemetry/make_mavlink.mjs' '" + dir_->string() + "'";
+    peer_status_ = std::system(cmd.c_str());
+  }
+  static void TearDownTestSuite() {
+    std::error_code ec;
+    fs::remove_all(*dir_, ec);
+    delete dir_;
+  }
+  void SetUp() override {
+    if (std::system("command -v node >/dev/null 2>&1") != 0) GTEST_SKIP() << "node is not installed (scripts/setup.sh)";
+    ASSERT_EQ(peer_status_, 0) << "node-mavlink could not write the test log (see above)";
+    tlog_ = ReadAll(*dir_ / "flight.tlog");
+    expected_ = json::parse(ReadAll(*dir_ / "expected.json"));
+    ASSERT_GT(tlog_.size(), 1000u);
+  }
+
+  // Reads `bytes` as a .tlog; returns the decoded messages with their arrival times.
+  std::vector<std::pair<uint64_t, Message>> Read(const std::string& bytes, TlogStats* stats) const {
+    const fs::path path = *dir_ / "case.tlog";
+    WriteAll(path, bytes);
+    std::vector<std::pair<uint64_t, Message>> out;
+    std::string error;
+    EXPECT_TRUE(ReadTlog(
+        path.string(), [&](uint64_t us, const Packet& p) { out.emplace_back(us, *Decode(p)); }, stats, &error))
+        << error;
+    return out;
+  }
+
+  static fs::path* dir_;
+  static int peer_status_;
+  std::string tlog_;
+  json expected_;
+};
+
+fs::path* MavlinkTest::dir_ = nullptr;
+int MavlinkTest::peer_status_ = -1;
+
+void ExpectNear(const json& e, const char* key, double actual) {
+  if (e[key].is_null()) return;
+  EXPECT_NEAR(actual, e[key].get<double>(), 1e-6 * std::max(1.0, std::abs(e[key].get<double>()))) << e.dump();
+}
+
+// Compares one decoded message with what node-mavlink was given.
+void ExpectMatches(const json& e, const Message& m) {
+  const auto id = e["msgid"].get<uint32_t>();
+  if (id == kHeartbeat) {
+    const auto& h = std::get<Heartbeat>(m);
+    EXPECT_EQ(h.custom_mode, e["custom_mode"].get<uint32_t>());
+    EXPECT_EQ(h.type, e["type"].get<int>());
+    EXPECT_EQ(h.autopilot, e["autopilot"].get<int>());
+  } else if (id == kSystemTime) {
+    EXPECT_EQ(std::get<SystemTime>(m).time_unix_usec, e["time_unix_usec"].get<uint64_t>());
+    EXPECT_EQ(std::get<SystemTime>(m).time_boot_ms, e["time_boot_ms"].get<uint32_t>());
+  } else if (id == kGlobalPositionInt) {
+    const auto& g = std::get<GlobalPositionInt>(m);
+    ExpectNear(e, "lat_deg", g.lat_deg);
+    ExpectNear(e, "lon_deg", g.lon_deg);
+    ExpectNear(e, "alt_msl_m", g.alt_msl_m);
+    ExpectNear(e, "relative_alt_m", g.relative_alt_m);
+    ExpectNear(e, "vx_mps", g.vx_mps);
+    ExpectNear(e, "vy_mps", g.vy_mps);
+    ExpectNear(e, "vz_mps", g.vz_mps);
+    EXPECT_EQ(g.heading_deg.has_value(), !e["heading_deg"].is_null());
+    if (g.heading_deg) ExpectNear(e, "heading_deg", *g.heading_deg);
+  } else if (id == kAttitude) {
+    const auto& a = std::get<Attitude>(m);
+    ExpectNear(e, "roll_rad", a.roll_rad);
+    ExpectNear(e, "pitch_rad", a.pitch_rad);
+    ExpectNear(e, "yaw_rad", a.yaw_rad);
+  } else if (id == kGpsRawInt) {
+    const auto& g = std::get<GpsRawInt>(m);
+    ExpectNear(e, "lat_deg", g.lat_deg);
+    ExpectNear(e, "lon_deg", g.lon_deg);
+    ExpectNear(e, "alt_msl_m", g.alt_msl_m);
+    EXPECT_EQ(g.fix_type, e["fix_type"].get<int>());
+    EXPECT_EQ(g.satellites, e["satellites"].get<int>());
+    ASSERT_TRUE(g.eph.has_value());
+    ExpectNear(e, "eph", *g.eph);
+    EXPECT_EQ(g.h_acc_m.has_value(), !e["h_acc_m"].is_null());  // v1 packets carry no extensions
+    if (g.h_acc_m) ExpectNear(e, "h_acc_m", *g.h_acc_m);
+    if (g.v_acc_m) ExpectNear(e, "v_acc_m", *g.v_acc_m);
+  } else if (id == kCameraFeedback) {
+    const auto& c = std::get<CameraFeedback>(m);
+    ExpectNear(e, "lat_deg", c.lat_deg);
+    ExpectNear(e, "alt_rel_m", c.alt_rel_m);
+    ExpectNear(e, "yaw_deg", c.yaw_deg);
+    ExpectNear(e, "pitch_deg", c.pitch_deg);
+    EXPECT_EQ(c.image_index, e["image_index"].get<int>());
+  } else if (id == kCameraImageCaptured) {
+    const auto& c = std::get<CameraImageCaptured>(m);
+    ExpectNear(e, "lon_deg", c.lon_deg);
+    ExpectNear(e, "relative_alt_m", c.relative_alt_m);
+    EXPECT_EQ(c.image_index, e["image_index"].get<int>());
+    EXPECT_EQ(c.file_url, e["file_url"].get<std::string>());
+    EXPECT_FLOAT_EQ(c.q[3], 0.5f);
+  } else {
+    ADD_FAILURE() << "unexpected message " << id;
+  }
+}
+
+TEST_F(MavlinkTest, ReadsEveryMessageTheIndependentEncoderWrote) {
+  TlogStats stats;
+  const auto got = Read(tlog_, &stats);
+  ASSERT_EQ(got.size(), expected_.size());
+  for (size_t i = 0; i < got.size(); ++i) {
+    EXPECT_EQ(got[i].first, expected_[i]["unix_us"].get<uint64_t>());
+    ExpectMatches(expected_[i], got[i].second);
+  }
+  EXPECT_EQ(stats.parser.crc_errors, 0u);
+  EXPECT_EQ(stats.parser.unknown, 40u);  // SYS_STATUS, once per record group: framed and skipped
+  EXPECT_EQ(stats.resync_bytes, 0u);
+  EXPECT_FALSE(stats.truncated);
+}
+
+TEST_F(MavlinkTest, StreamParserGivesTheSamePacketsForAnyChunking) {
+  // The same bytes without the log's timestamps, as a UDP or serial stream delivers them, fed in random pieces.
+  std::string stream;
+  TlogStats stats;
+  const fs::path path = *dir_ / "split.tlog";
+  WriteAll(path, tlog_);
+  std::string error;
+  ASSERT_TRUE(ReadTlog(
+      path.string(),
+      [&](uint64_t, const Packet& p) {
+        const std::string frame = Encode(p.msgid, p.payload.data(), InfoOf(p.msgid)->length, p.seq, p.sysid, p.compid);
+        stream += frame;
+      },
+      &stats, &error));
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<size_t> piece(1, 90);
+  Parser parser;
+  std::vector<Message> got;
+  for (size_t at = 0; at < stream.size();) {
+    const size_t n = std::min(piece(rng), stream.size() - at);
+    parser.Feed(reinterpret_cast<const uint8_t*>(stream.data() + at), n,
+                [&](const Packet& p) { got.push_back(*Decode(p)); });
+    at += n;
+  }
+  ASSERT_EQ(got.size(), expected_.size());
+  for (size_t i = 0; i < got.size(); ++i) ExpectMatches(expected_[i], got[i]);
+  EXPECT_EQ(parser.counters().crc_errors, 0u);
+  EXPECT_EQ(parser.pending_bytes(), 0u);
+}
+
+TEST_F(MavlinkTest, GarbageAndBadChecksumsCostOnlyTheDamagedPackets) {
+  std::string damaged = tlog_;
+  // Flip a payload byte of the 10th record (a checksum failure) ...
+  size_t record = 0, at = 0;
+  for (int k = 0; k < 10; ++k) {
+    record = at;
+    at += 8 + (static_cast<uint8_t>(damaged[at + 8]) == kStxV1 ? 8 : 12) + static_cast<uint8_t>(damaged[at + 9]) +
+          ((static_cast<uint8_t>(damaged[at + 8]) == kStxV2 && (damaged[at + 10] & 1)) ? 13 : 0);
+  }
+  damaged[record + 8 + 12] = static_cast<char>(damaged[record + 8 + 12] ^ 0x5A);
+  // ... and put garbage full of start bytes between two later records.
+  damaged.insert(at + 300, std::string("\xfd\x09\xfe\x20\x00\xfd\xff\x01garbage", 16));
+  TlogStats stats;
+  const auto got = Read(damaged, &stats);
+  EXPECT_GE(stats.parser.crc_errors + stats.resync_bytes, 1u);
+  EXPECT_GT(stats.resync_bytes, 0u);
+  // Every record but the damaged one (and the one the garbage landed in, at most) is read.
+  EXPECT_GE(got.size(), expected_.size() - 2);
+  EXPECT_LT(got.size(), expected_.size());
+}
+
+TEST_F(MavlinkTest, TruncatedLogKeepsWhatCameBeforeTheCut) {
+  TlogStats stats;
+  const auto got = Read(tlog_.substr(0, tlog_.size() / 2 + 7), &stats);
+  EXPECT_TRUE(stats.truncated);
+  EXPECT_GT(got.size(), expected_.size() / 2 - 10);
+  EXPECT_LT(got.size(), expected_.size() / 2 + 10);
+  for (size_t i = 0; i < got.size(); ++i) ExpectMatches(expected_[i], got[i].second);
+}
+
+TEST(MavlinkFraming, SignedPacketsAreAcceptedAndUnknownFlagsDropped) {
+  std::string frame = EncodeStatustext(6, "mapper: 12 frames", 3, 1, 191);
+  // Sign it: incompatibility flag 0x01 (in the CRC), 13 signature bytes after the CRC (not checked here).
+  frame[2] = 0x01;
+  const uint16_t crc = Crc(&InfoOf(kStatustext)->crc_extra, 1,
+                           Crc(reinterpret_cast<const uint8_t*>(frame.data()) + 1, frame.size() - 3));
+  frame[frame.size() - 2] = static_cast<char>(crc & 0xFF);
+  frame[frame.size() - 1] = static_cast<char>(crc >> 8);
+  frame += std::string(13, '\x42');
+  std::string unknown_flag = EncodeStatustext(4, "x", 4, 1, 191);
+  unknown_flag[2] = 0x04;
+  Parser parser;
+  std::vector<Statustext> got;
+  const std::string bytes = frame + unknown_flag + EncodeStatustext(2, "after", 5, 1, 191);
+  parser.Feed(reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size(),
+              [&](const Packet& p) { got.push_back(std::get<Statustext>(*Decode(p))); });
+  ASSERT_EQ(got.size(), 2u);
+  EXPECT_EQ(got[0].text, "mapper: 12 frames");
+  EXPECT_EQ(got[1].text, "after");
+  EXPECT_EQ(parser.counters().signed_packets, 1u);
+  EXPECT_EQ(parser.counters().unsupported, 1u);
+}
+
+TEST(MavlinkFraming, CrcMatchesTheStandardCheckValue) {
+  // CRC-16/MCRF4XX of "123456789" is 0x6F91 (the catalogue's check value).
+  const std::string s = "123456789";
+  EXPECT_EQ(Crc(reinterpret_cast<const uint8_t*>(s.data()), s.size()), 0x6F91);
+}
+
+}  // namespace
+}  // namespace uavm::hal::mavlink
