@@ -11,7 +11,10 @@
 #include <nlohmann/json.hpp>
 #include <random>
 #include <sstream>
+#include <thread>
 
+#include "core/util/clock.h"
+#include "hal/telemetry/telemetry_source.h"
 #include "hal/telemetry/tlog.h"
 
 namespace uavm::hal::mavlink {
@@ -209,6 +212,86 @@ TEST_F(MavlinkTest, TruncatedLogKeepsWhatCameBeforeTheCut) {
   EXPECT_GT(got.size(), expected_.size() / 2 - 10);
   EXPECT_LT(got.size(), expected_.size() / 2 + 10);
   for (size_t i = 0; i < got.size(); ++i) ExpectMatches(expected_[i], got[i].second);
+}
+
+std::string PeerCommand(const std::string& script, const std::string& args) {
+  return std::string("bash '") + UAVM_SOURCE_DIR + "/tests/telemetry/run_peer.sh' '" + UAVM_SOURCE_DIR +
+         "/tests/telemetry/" + script + "' " + args;
+}
+
+TEST_F(MavlinkTest, ReplayedStillsTakeTheCameraTriggersInSequence) {
+  std::string error;
+  auto source = MakeTelemetrySource("tlog:" + (*dir_ / "flight.tlog").string(), {}, &error);
+  ASSERT_NE(source, nullptr) << error;
+  ASSERT_EQ(source->Start(&error), Status::kOk) << error;
+  std::vector<json> triggers;
+  for (const auto& e : expected_)
+    if (e["msgid"].get<uint32_t>() == kCameraFeedback) triggers.push_back(e);
+  ASSERT_EQ(triggers.size(), 8u);
+  for (size_t k = 0; k < triggers.size(); ++k) {
+    const auto pose = source->PoseFor(Frame{});
+    ASSERT_TRUE(pose.has_value());
+    EXPECT_NEAR(pose->lat_deg, triggers[k]["lat_deg"].get<double>(), 1e-9);
+    EXPECT_NEAR(*pose->relative_alt_m, 80.25, 1e-6);
+    EXPECT_NEAR(*pose->yaw_deg, 271.25, 1e-6);
+  }
+  EXPECT_FALSE(source->PoseFor(Frame{}).has_value());  // a ninth frame: no trigger left
+  const TelemetryReport r = source->Report();
+  EXPECT_EQ(r.match, "sequence");
+  EXPECT_EQ(r.frames_placed, 8u);
+  EXPECT_EQ(r.frames_without, 1u);
+}
+
+TEST_F(MavlinkTest, ReplayedStillsWithoutTriggersMatchByExifTime) {
+  const fs::path dir = *dir_ / "nocam";
+  ASSERT_EQ(std::system(PeerCommand("make_mavlink.mjs", "'" + dir.string() + "' --no-camera").c_str()), 0);
+  TelemetryOptions options;
+  options.exif_utc_offset_s = 3600;  // the camera's clock on CET
+  std::string error;
+  auto source = MakeTelemetrySource("tlog:" + (dir / "flight.tlog").string(), options, &error);
+  ASSERT_EQ(source->Start(&error), Status::kOk) << error;
+  Frame frame;
+  // 1700000002 s UTC = 2023-11-14 22:13:22 UTC = 23:13:22 CET: record 10 of the log (0.2 s apart).
+  frame.metadata.datetime_original = "2023:11:14 23:13:22";
+  const auto pose = source->PoseFor(frame);
+  ASSERT_TRUE(pose.has_value());
+  EXPECT_NEAR(pose->lat_deg, (501234567 + 10 * 91) * 1e-7, 1e-9);
+  EXPECT_NEAR(*pose->relative_alt_m, 80.1, 1e-9);
+  // A frame of another flight (a day later): refused, said so.
+  frame.metadata.datetime_original = "2023:11:15 23:13:22";
+  EXPECT_FALSE(source->PoseFor(frame).has_value());
+  EXPECT_FALSE(source->Report().log_overlaps_frames);
+  EXPECT_EQ(source->Report().match, "time");
+}
+
+TEST_F(MavlinkTest, LiveUdpLinkPlacesFramesAndLosingItIsCounted) {
+  const int port = 20000 + static_cast<int>(getpid() % 20000);
+  std::string error;
+  auto source = MakeTelemetrySource("mavlink-udp:127.0.0.1:" + std::to_string(port), {}, &error);
+  ASSERT_EQ(source->Start(&error), Status::kOk) << error;
+  // 2 s of 20 Hz telemetry from the independent encoder, in the background.
+  std::thread sender([&] { (void)std::system(PeerCommand("send_udp.mjs", std::to_string(port) + " 2 20").c_str()); });
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  Frame frame;
+  frame.timestamp_ns = MonotonicNs() - 100'000'000;
+  const auto pose = source->PoseFor(frame);
+  sender.join();
+  ASSERT_TRUE(pose.has_value()) << "no telemetry arrived";
+  EXPECT_GT(pose->lat_deg, 50.0);
+  EXPECT_LT(pose->lat_deg, 50.0 + 41e-6);
+  EXPECT_NEAR(pose->lon_deg, 8.0, 1e-9);
+  EXPECT_NEAR(*pose->relative_alt_m, 90.0, 1e-9);
+  EXPECT_NEAR(*pose->yaw_deg, 90.0, 1e-4);
+  // The link goes quiet: a frame 2.5 s later gets no pose (stale), counted, never a silent old position.
+  std::this_thread::sleep_for(std::chrono::milliseconds(2500));
+  frame.timestamp_ns = MonotonicNs();
+  EXPECT_FALSE(source->PoseFor(frame).has_value());
+  const TelemetryReport r = source->Report();
+  EXPECT_EQ(r.frames_placed, 1u);
+  EXPECT_EQ(r.frames_without, 1u);
+  EXPECT_GT(r.parser.packets, 50u);
+  EXPECT_EQ(r.parser.crc_errors, 0u);
+  source->Stop();
 }
 
 TEST(MavlinkFraming, SignedPacketsAreAcceptedAndUnknownFlagsDropped) {

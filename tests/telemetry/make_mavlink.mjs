@@ -1,10 +1,11 @@
 // Writes a MAVLink telemetry log (.tlog: 8-byte big-endian UNIX microseconds before each packet) with node-mavlink,
 // an implementation independent of ours, and the values it encoded (expected.json), for tests/mavlink_test.cpp.
-// Usage: node make_mavlink.mjs OUT_DIR
+// Usage: node make_mavlink.mjs OUT_DIR [--no-camera]  (without camera trigger messages: frames then match by time)
 import { writeFileSync, mkdirSync } from 'node:fs'
 import { MavLinkProtocolV1, MavLinkProtocolV2, common, minimal, ardupilotmega } from 'node-mavlink'
 
 const out = process.argv[2]
+const withCamera = process.argv[3] !== '--no-camera'
 mkdirSync(out, { recursive: true })
 const v1 = new MavLinkProtocolV1(1, 1)
 const v2 = new MavLinkProtocolV2(1, 1)
@@ -55,7 +56,7 @@ for (let i = 0; i < 40; ++i) {
   sys.voltageBattery = 16000
   put(v2, sys, us, null)
 
-  if (i % 5 === 4) {
+  if (withCamera && i % 5 === 4) {
     const cf = new ardupilotmega.CameraFeedback()
     cf.timeUsec = us; cf.lat = lat; cf.lng = lon; cf.altMsl = 170.5; cf.altRel = 80.25; cf.roll = 1.5; cf.pitch = -2.5
     cf.yaw = 271.25; cf.focLen = 8.8; cf.imgIdx = (i + 1) / 5; cf.targetSystem = 0; cf.camIdx = 0; cf.flags = 0

@@ -1,0 +1,370 @@
+#include "hal/telemetry/telemetry_source.h"
+
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <netdb.h>
+#include <poll.h>
+#include <spdlog/spdlog.h>
+#include <sys/socket.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <ctime>
+#include <mutex>
+#include <vector>
+
+#include "core/util/clock.h"
+
+namespace uavm::hal {
+
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+
+PositionFix FixOf(const mavlink::GlobalPositionInt& g, int64_t t_ns) {
+  return {t_ns, g.lat_deg, g.lon_deg, g.alt_msl_m, g.relative_alt_m, std::nullopt};
+}
+PositionFix FixOf(const mavlink::GpsRawInt& g, int64_t t_ns) {
+  return {t_ns, g.lat_deg, g.lon_deg, g.alt_msl_m, std::nullopt, g.h_acc_m};
+}
+AttitudeSample AttitudeOf(const mavlink::Attitude& a, int64_t t_ns) {
+  return {t_ns, a.roll_rad * kRadToDeg, a.pitch_rad * kRadToDeg, a.yaw_rad * kRadToDeg};
+}
+
+// Feeds decoded messages into a track. GLOBAL_POSITION_INT (the autopilot's fused estimate, with height above
+// take-off) wins over GPS_RAW_INT (the receiver's raw fix) once the link has shown it sends it.
+class TrackFeeder {
+ public:
+  explicit TrackFeeder(TelemetryTrack* track) : track_(track) {}
+  void Add(const mavlink::Message& m, int64_t t_ns) {
+    if (const auto* g = std::get_if<mavlink::GlobalPositionInt>(&m)) {
+      have_fused_ = true;
+      track_->AddFix(FixOf(*g, t_ns), !(g->lat_deg == 0 && g->lon_deg == 0));
+    } else if (const auto* r = std::get_if<mavlink::GpsRawInt>(&m)) {
+      if (!have_fused_) track_->AddFix(FixOf(*r, t_ns), r->fix_type >= 3);
+    } else if (const auto* a = std::get_if<mavlink::Attitude>(&m)) {
+      track_->AddAttitude(AttitudeOf(*a, t_ns));
+    }
+  }
+
+ private:
+  TelemetryTrack* track_;  // borrowed
+  bool have_fused_ = false;
+};
+
+class GeoSource final : public TelemetrySource {
+ public:
+  explicit GeoSource(std::string path) : path_(std::move(path)) {}
+  Status Start(std::string* error) override { return geo_.Load(path_, error) ? Status::kOk : Status::kError; }
+  std::optional<InterpolatedPose> PoseFor(const Frame& frame) override {
+    ++report_.frames_asked;
+    const GeoTag* tag = geo_.Find(frame.source_name);
+    if (tag == nullptr) {
+      ++report_.frames_without;
+      return std::nullopt;
+    }
+    ++report_.frames_placed;
+    InterpolatedPose p;
+    p.lat_deg = tag->lat_deg;
+    p.lon_deg = tag->lon_deg;
+    p.alt_msl_m = tag->alt_m.value_or(0.0);
+    p.h_acc_m = tag->h_acc_m;
+    p.yaw_deg = tag->kappa_deg;
+    return p;
+  }
+  TelemetryReport Report() const override {
+    TelemetryReport r = report_;
+    r.kind = "geo";
+    r.match = "name";
+    return r;
+  }
+  std::string Describe() const override { return "geo.txt " + path_ + " (" + geo_.crs() + ")"; }
+
+ private:
+  std::string path_;
+  GeoTxt geo_;
+  TelemetryReport report_;
+};
+
+// A replayed flight's log: frames find their pose by camera trigger sequence when the log has trigger messages,
+// else by EXIF time against the log's UTC time.
+class TlogSource final : public TelemetrySource {
+ public:
+  TlogSource(std::string path, const TelemetryOptions& options) : path_(std::move(path)), options_(options) {}
+  Status Start(std::string* error) override;
+  std::optional<InterpolatedPose> PoseFor(const Frame& frame) override;
+  TelemetryReport Report() const override {
+    TelemetryReport r = report_;
+    r.kind = "tlog";
+    r.match = triggers_.empty() ? "time" : "sequence";
+    if (track_) r.track = track_->counters();
+    return r;
+  }
+  std::string Describe() const override { return "telemetry log " + path_; }
+
+ private:
+  std::string path_;
+  TelemetryOptions options_;
+  std::unique_ptr<TelemetryTrack> track_;
+  std::vector<InterpolatedPose> triggers_;  // one per camera trigger, in order
+  size_t next_trigger_ = 0;
+  bool warned_overlap_ = false;
+  TelemetryReport report_;
+};
+
+Status TlogSource::Start(std::string* error) {
+  std::vector<std::pair<int64_t, mavlink::Message>> messages;
+  mavlink::TlogStats stats;
+  size_t fixes = 0;
+  const bool ok = mavlink::ReadTlog(
+      path_,
+      [&](uint64_t us, const mavlink::Packet& p) {
+        auto m = mavlink::Decode(p);
+        if (!m) return;
+        if (std::holds_alternative<mavlink::GlobalPositionInt>(*m) || std::holds_alternative<mavlink::GpsRawInt>(*m))
+          ++fixes;
+        if (const auto* c = std::get_if<mavlink::CameraFeedback>(&*m)) {
+          InterpolatedPose t;
+          t.lat_deg = c->lat_deg;
+          t.lon_deg = c->lon_deg;
+          t.alt_msl_m = c->alt_msl_m;
+          t.relative_alt_m = c->alt_rel_m;
+          t.roll_deg = c->roll_deg;
+          t.pitch_deg = c->pitch_deg;
+          t.yaw_deg = c->yaw_deg;
+          triggers_.push_back(t);
+          return;
+        }
+        messages.emplace_back(static_cast<int64_t>(us) * 1000, std::move(*m));
+      },
+      &stats, error);
+  if (!ok) return Status::kError;
+  report_.parser = stats.parser;
+  report_.resync_bytes = stats.resync_bytes;
+  report_.log_truncated = stats.truncated;
+  if (stats.parser.crc_errors + stats.resync_bytes > 0 || stats.truncated)
+    spdlog::warn("telemetry log {}: {} bad checksums, {} bytes skipped{}", path_, stats.parser.crc_errors,
+                 stats.resync_bytes, stats.truncated ? ", cut off at the end" : "");
+  // A replay holds the log's fixes (~100 B each); live links keep a bounded window.
+  track_ = std::make_unique<TelemetryTrack>(fixes + 1, options_.max_gap_ns);
+  TrackFeeder feeder(track_.get());
+  for (const auto& [t, m] : messages) feeder.Add(m, t);
+  if (triggers_.empty() && track_->counters().fixes == 0) {
+    *error = "telemetry log " + path_ + " has no position (GLOBAL_POSITION_INT, GPS_RAW_INT with a 3-D fix)";
+    return Status::kError;
+  }
+  spdlog::info("telemetry log {}: {} fixes, {} camera triggers", path_, track_->counters().fixes, triggers_.size());
+  return Status::kOk;
+}
+
+std::optional<InterpolatedPose> TlogSource::PoseFor(const Frame& frame) {
+  ++report_.frames_asked;
+  std::optional<InterpolatedPose> pose;
+  if (!triggers_.empty()) {
+    if (next_trigger_ < triggers_.size()) pose = triggers_[next_trigger_++];
+  } else if (const auto t = ExifTimeUtcNs(frame.metadata.datetime_original)) {
+    const int64_t utc = *t - static_cast<int64_t>(std::llround(options_.exif_utc_offset_s * 1e9));
+    pose = track_->At(utc);
+    const auto [first, last] = track_->span();
+    if (!pose && (utc < first - options_.max_gap_ns || utc > last + options_.max_gap_ns)) {
+      report_.log_overlaps_frames = false;
+      if (!warned_overlap_)
+        spdlog::warn(
+            "telemetry log {} does not cover frame {} (taken {}s {} the log): another flight, or a wrong "
+            "telemetry.exif_utc_offset_s? frames go on image-only",
+            path_, frame.source_name, std::llabs(utc < first ? first - utc : utc - last) / 1000000000,
+            utc < first ? "before" : "after");
+      warned_overlap_ = true;
+    }
+  }
+  ++(pose ? report_.frames_placed : report_.frames_without);
+  return pose;
+}
+
+// A live MAVLink link (UDP or serial): a thread reads it into a bounded track stamped with the monotonic clock, the
+// frames' own clock.
+class LinkSource final : public TelemetrySource {
+ public:
+  LinkSource(std::string kind, std::string target, int port_or_baud, const TelemetryOptions& options)
+      : kind_(std::move(kind)),
+        target_(std::move(target)),
+        port_or_baud_(port_or_baud),
+        options_(options),
+        track_(TelemetryTrack::kLiveCapacity, options.max_gap_ns) {}
+  ~LinkSource() override { Stop(); }
+  Status Start(std::string* error) override;
+  void Stop() override {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+    if (fd_ >= 0) close(fd_);
+    fd_ = -1;
+  }
+  std::optional<InterpolatedPose> PoseFor(const Frame& frame) override {
+    auto pose = track_.At(frame.timestamp_ns - options_.latency_ns);
+    std::lock_guard lock(mutex_);
+    ++report_.frames_asked;
+    ++(pose ? report_.frames_placed : report_.frames_without);
+    return pose;
+  }
+  TelemetryReport Report() const override {
+    std::lock_guard lock(mutex_);
+    TelemetryReport r = report_;
+    r.kind = kind_;
+    r.match = "time";
+    r.track = track_.counters();
+    r.parser = parser_counters_;
+    return r;
+  }
+  std::string Describe() const override { return kind_ + " " + target_ + ":" + std::to_string(port_or_baud_); }
+
+ private:
+  [[nodiscard]] bool OpenUdp(std::string* error);
+  [[nodiscard]] bool OpenSerial(std::string* error);
+  void ReadLoop();
+
+  std::string kind_, target_;
+  int port_or_baud_;
+  TelemetryOptions options_;
+  TelemetryTrack track_;
+  int fd_ = -1;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+  mutable std::mutex mutex_;
+  TelemetryReport report_;
+  mavlink::ParserCounters parser_counters_;
+};
+
+bool LinkSource::OpenUdp(std::string* error) {
+  addrinfo hints{};
+  hints.ai_family = AF_INET;
+  hints.ai_socktype = SOCK_DGRAM;
+  hints.ai_flags = AI_PASSIVE;
+  addrinfo* res = nullptr;
+  const std::string port = std::to_string(port_or_baud_);
+  if (getaddrinfo(target_.empty() ? nullptr : target_.c_str(), port.c_str(), &hints, &res) != 0 || res == nullptr) {
+    *error = "mavlink-udp: cannot resolve " + target_;
+    return false;
+  }
+  fd_ = socket(res->ai_family, res->ai_socktype | SOCK_CLOEXEC, 0);
+  const int one = 1;
+  setsockopt(fd_, SOL_SOCKET, SO_REUSEADDR, &one, sizeof(one));
+  const bool bound = fd_ >= 0 && bind(fd_, res->ai_addr, res->ai_addrlen) == 0;
+  freeaddrinfo(res);
+  if (!bound) *error = "mavlink-udp: cannot listen on " + target_ + ":" + port + ": " + std::strerror(errno);
+  return bound;
+}
+
+bool LinkSource::OpenSerial(std::string* error) {
+  fd_ = open(target_.c_str(), O_RDWR | O_NOCTTY | O_CLOEXEC);
+  termios tio{};
+  if (fd_ < 0 || tcgetattr(fd_, &tio) != 0) {
+    *error = "mavlink-serial: cannot open " + target_ + ": " + std::strerror(errno);
+    return false;
+  }
+  cfmakeraw(&tio);
+  const speed_t speed = port_or_baud_ == 57600    ? B57600
+                        : port_or_baud_ == 115200 ? B115200
+                        : port_or_baud_ == 921600 ? B921600
+                        : port_or_baud_ == 460800 ? B460800
+                        : port_or_baud_ == 230400 ? B230400
+                                                  : B0;
+  if (speed == B0) {
+    *error = "mavlink-serial: unsupported baud rate " + std::to_string(port_or_baud_);
+    return false;
+  }
+  cfsetispeed(&tio, speed);
+  cfsetospeed(&tio, speed);
+  if (tcsetattr(fd_, TCSANOW, &tio) != 0) {
+    *error = "mavlink-serial: cannot configure " + target_ + ": " + std::strerror(errno);
+    return false;
+  }
+  return true;
+}
+
+Status LinkSource::Start(std::string* error) {
+  if (!(kind_ == "mavlink-udp" ? OpenUdp(error) : OpenSerial(error))) return Status::kError;
+  thread_ = std::thread([this] { ReadLoop(); });
+  return Status::kOk;
+}
+
+void LinkSource::ReadLoop() {
+  mavlink::Parser parser;
+  TrackFeeder feeder(&track_);
+  std::vector<uint8_t> buf(65536);
+  while (!stop_) {
+    pollfd pfd{fd_, POLLIN, 0};
+    if (poll(&pfd, 1, 200) <= 0) continue;  // wakes up to notice Stop()
+    const ssize_t n = read(fd_, buf.data(), buf.size());
+    if (n <= 0) continue;
+    const int64_t now = MonotonicNs();
+    parser.Feed(buf.data(), static_cast<size_t>(n), [&](const mavlink::Packet& p) {
+      if (auto m = mavlink::Decode(p)) feeder.Add(*m, now);
+    });
+    std::lock_guard lock(mutex_);
+    parser_counters_ = parser.counters();
+  }
+}
+
+bool SplitLast(const std::string& s, std::string* head, int* number) {
+  const auto colon = s.rfind(':');
+  if (colon == std::string::npos) return false;
+  *head = s.substr(0, colon);
+  try {
+    size_t used = 0;
+    *number = std::stoi(s.substr(colon + 1), &used);
+    return used == s.size() - colon - 1 && *number > 0;
+  } catch (const std::exception&) {
+    return false;
+  }
+}
+
+}  // namespace
+
+std::unique_ptr<TelemetrySource> MakeTelemetrySource(const std::string& spec, const TelemetryOptions& options,
+                                                     std::string* error) {
+  const auto colon = spec.find(':');
+  const std::string kind = spec.substr(0, colon);
+  const std::string arg = colon == std::string::npos ? "" : spec.substr(colon + 1);
+  if (arg.empty()) {
+    *error = "--telemetry: expected KIND:ARG (mavlink-udp:HOST:PORT, mavlink-serial:DEVICE:BAUD, tlog:FILE, geo:FILE)";
+    return nullptr;
+  }
+  if (kind == "geo") return std::make_unique<GeoSource>(arg);
+  if (kind == "tlog") return std::make_unique<TlogSource>(arg, options);
+  if (kind == "mavlink-udp" || kind == "mavlink-serial") {
+    std::string target;
+    int number = 0;
+    if (!SplitLast(arg, &target, &number)) {
+      *error = "--telemetry " + kind + ": expected " + (kind == "mavlink-udp" ? "HOST:PORT" : "DEVICE:BAUD");
+      return nullptr;
+    }
+    return std::make_unique<LinkSource>(kind, target, number, options);
+  }
+  *error = "--telemetry: unknown kind '" + kind + "' (mavlink-udp, mavlink-serial, tlog, geo)";
+  return nullptr;
+}
+
+void ApplyPose(const InterpolatedPose& pose, FrameMetadata* m) {
+  m->latitude_deg = pose.lat_deg;
+  m->longitude_deg = pose.lon_deg;
+  m->altitude_m = pose.alt_msl_m;
+  if (pose.relative_alt_m) m->relative_altitude_m = pose.relative_alt_m;
+  if (pose.yaw_deg) m->flight_yaw_deg = pose.yaw_deg;
+}
+
+std::optional<int64_t> ExifTimeUtcNs(const std::string& s) {
+  std::tm tm{};
+  if (s.size() < 19 || std::sscanf(s.c_str(), "%d:%d:%d %d:%d:%d", &tm.tm_year, &tm.tm_mon, &tm.tm_mday, &tm.tm_hour,
+                                   &tm.tm_min, &tm.tm_sec) != 6)
+    return std::nullopt;
+  tm.tm_year -= 1900;
+  tm.tm_mon -= 1;
+  const time_t t = timegm(&tm);
+  if (t < 0) return std::nullopt;
+  return static_cast<int64_t>(t) * 1000000000LL;
+}
+
+}  // namespace uavm::hal

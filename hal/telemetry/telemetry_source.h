@@ -1,0 +1,68 @@
+#pragma once
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include "core/frame/frame.h"
+#include "hal/common/frame_source.h"
+#include "hal/telemetry/geo_txt.h"
+#include "hal/telemetry/mavlink.h"
+#include "hal/telemetry/tlog.h"
+#include "hal/telemetry/track.h"
+
+namespace uavm::hal {
+
+struct TelemetryOptions {
+  // Camera frames: how much later a frame's timestamp is than the moment the telemetry describes (the camera's
+  // exposure-to-delivery latency minus the link's); the frame is looked up at timestamp - latency.
+  int64_t latency_ns = 0;
+  int64_t max_gap_ns = 2'000'000'000;  // fixes further apart (or older) than this do not place a frame
+  // Replayed stills against a log: EXIF DateTimeOriginal is the camera's local time, the log's is UTC; this is
+  // local - UTC in seconds (e.g. 3600 for CET). Ignored when the log carries camera trigger messages (matched by
+  // sequence instead).
+  double exif_utc_offset_s = 0;
+};
+
+// What telemetry did for the flight: report.json "telemetry".
+struct TelemetryReport {
+  std::string kind;   // mavlink-udp, mavlink-serial, tlog, geo
+  std::string match;  // how frames found their pose: time, sequence, name
+  uint64_t frames_asked = 0;
+  uint64_t frames_placed = 0;   // got a position
+  uint64_t frames_without = 0;  // telemetry could not say (stale, lost, no fix, not in the file): image-only
+  TrackCounters track;
+  mavlink::ParserCounters parser;
+  uint64_t resync_bytes = 0;
+  bool log_truncated = false;
+  bool log_overlaps_frames = true;  // false: a log of another flight (times that do not meet the frames')
+};
+
+// Telemetry beside the frame source (an interface like FrameSource): where the vehicle was when each frame was taken.
+// Start() opens the link or reads the file; PoseFor() is called once per frame, in order, from the capture thread.
+// Status codes, no exceptions; a source that loses its link keeps answering nullopt (counted), the flight goes on.
+class TelemetrySource {
+ public:
+  virtual ~TelemetrySource() = default;
+  [[nodiscard]] virtual Status Start(std::string* error) = 0;
+  virtual void Stop() {}
+  [[nodiscard]] virtual std::optional<InterpolatedPose> PoseFor(const Frame& frame) = 0;
+  [[nodiscard]] virtual TelemetryReport Report() const = 0;
+  [[nodiscard]] virtual std::string Describe() const = 0;
+};
+
+// --telemetry KIND:ARG: mavlink-udp:HOST:PORT (listen), mavlink-serial:DEVICE:BAUD, tlog:FILE, geo:FILE. Null with
+// a reason in `error` for a malformed spec (start-up).
+[[nodiscard]] std::unique_ptr<TelemetrySource> MakeTelemetrySource(const std::string& spec,
+                                                                   const TelemetryOptions& options, std::string* error);
+
+// Writes `pose` into the frame's metadata (what georeferencing and frames.csv read), replacing EXIF GPS: telemetry
+// is the flight controller's filtered position, EXIF the camera's copy of it, when there is one.
+void ApplyPose(const InterpolatedPose& pose, FrameMetadata* metadata);
+
+// UNIX time (ns) of an EXIF "YYYY:MM:DD HH:MM:SS" taken as UTC; nullopt when it does not parse.
+[[nodiscard]] std::optional<int64_t> ExifTimeUtcNs(const std::string& datetime);
+
+}  // namespace uavm::hal

@@ -1,0 +1,26 @@
+// Sends a MAVLink stream over UDP with node-mavlink, as a flight controller (or mavlink-router) sends it to a GCS
+// port: GLOBAL_POSITION_INT and ATTITUDE at RATE Hz for SECONDS, latitude growing by 1e-6 deg per message from
+// 50.0, then stops (telemetry lost). Usage: node send_udp.mjs PORT SECONDS RATE
+import dgram from 'node:dgram'
+import { MavLinkProtocolV2, common } from 'node-mavlink'
+
+const [port, seconds, rate] = process.argv.slice(2).map(Number)
+const socket = dgram.createSocket('udp4')
+const protocol = new MavLinkProtocolV2(1, 1)
+let seq = 0
+const total = Math.round(seconds * rate)
+const timer = setInterval(() => {
+  if (seq >= total) {
+    clearInterval(timer)
+    socket.close()
+    return
+  }
+  const g = new common.GlobalPositionInt()
+  g.timeBootMs = seq * Math.round(1000 / rate); g.lat = 500000000 + 10 * seq; g.lon = 80000000; g.alt = 400000
+  g.relativeAlt = 90000; g.hdg = 18000
+  const a = new common.Attitude()
+  a.timeBootMs = g.timeBootMs; a.roll = 0.01; a.pitch = -0.02; a.yaw = Math.PI / 2
+  const packet = Buffer.concat([Buffer.from(protocol.serialize(g, seq & 0xff)), Buffer.from(protocol.serialize(a, seq & 0xff))])
+  socket.send(packet, port, '127.0.0.1')
+  ++seq
+}, 1000 / rate)
