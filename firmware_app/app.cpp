@@ -22,6 +22,7 @@
 #include "hal/common/camera_options.h"
 #include "hal/replay/replay_source.h"
 #include "hal/sim/sim_source.h"
+#include "hal/telemetry/telemetry_source.h"
 #include "hal/v4l2/v4l2_source.h"
 #ifdef UAVM_HAVE_LIBCAMERA
 #include "hal/libcamera/libcamera_source.h"
@@ -153,6 +154,49 @@ void InstallStopHandlers() {
   std::signal(SIGXFSZ, SIG_IGN);
 }
 
+// --telemetry: started before the first frame (a listening link must hear the fixes before the frames they place).
+// Null without --telemetry; `failed` when it was asked for and cannot start (start-up: a usage error).
+std::unique_ptr<hal::TelemetrySource> StartTelemetry(const RunConfig& config, bool* failed) {
+  *failed = false;
+  if (config.telemetry.empty()) return nullptr;
+  const auto& t = config.pipeline.telemetry;
+  hal::TelemetryOptions options;
+  options.latency_ns = static_cast<int64_t>(t.latency_ms * 1e6);
+  options.max_gap_ns = static_cast<int64_t>(t.max_gap_s * 1e9);
+  options.exif_utc_offset_s = t.exif_utc_offset_s;
+  std::string error;
+  auto source = hal::MakeTelemetrySource(config.telemetry, options, &error);
+  if (source && source->Start(&error) != hal::Status::kOk) source.reset();
+  if (!source) {
+    spdlog::error("{}", error);
+    *failed = true;
+    return nullptr;
+  }
+  spdlog::info("telemetry: {}", source->Describe());
+  return source;
+}
+
+nlohmann::json TelemetryJson(const hal::TelemetryReport& r) {
+  return {{"kind", r.kind},
+          {"match", r.match},
+          {"frames_asked", r.frames_asked},
+          {"frames_placed", r.frames_placed},
+          {"frames_without", r.frames_without},
+          {"fixes", r.track.fixes},
+          {"no_fix", r.track.no_fix},
+          {"stale", r.track.stale},
+          {"outside", r.track.outside},
+          {"out_of_order", r.track.out_of_order},
+          {"history_overwritten", r.track.overwritten},
+          {"packets", r.parser.packets},
+          {"crc_errors", r.parser.crc_errors},
+          {"unknown_messages", r.parser.unknown},
+          {"signed_packets_unverified", r.parser.signed_packets},
+          {"bytes_skipped", r.parser.bytes_skipped + r.resync_bytes},
+          {"log_truncated", r.log_truncated},
+          {"log_overlaps_frames", r.log_overlaps_frames}};
+}
+
 int Run(const RunConfig& config) {
   std::string error;
   auto source = MakeSource(config, &error);
@@ -164,6 +208,9 @@ int Run(const RunConfig& config) {
     spdlog::error("cannot open source: {}", error);
     return kExitSourceError;
   }
+  bool telemetry_failed = false;
+  auto telemetry = StartTelemetry(config, &telemetry_failed);
+  if (telemetry_failed) return kExitUsage;
   SessionPaths paths;
   if (!PrepareSessionDir(config.out_dir, &paths, &error)) {
     spdlog::error("{}", error);
@@ -274,6 +321,9 @@ int Run(const RunConfig& config) {
       if (seen.count(item.name) != 0) continue;  // accepted or skipped before the interruption
       if (item.status == hal::Status::kOk) {
         ++delivered;
+        if (telemetry) {
+          if (const auto pose = telemetry->PoseFor(frame)) hal::ApplyPose(*pose, &frame.metadata);
+        }
         // Features are computed here, on the capture side, overlapping the previous frame's matching.
         try {
           item.prepared = mosaicker.Prepare(std::move(frame));
@@ -330,6 +380,13 @@ int Run(const RunConfig& config) {
   }
   capture.join();
   source->Close();
+  if (telemetry) {
+    telemetry->Stop();
+    const hal::TelemetryReport tr = telemetry->Report();
+    spdlog::info("telemetry: {} of {} frames placed ({} without: stale, lost or not covered)", tr.frames_placed,
+                 tr.frames_asked, tr.frames_without);
+    mosaicker.SetReportSection("telemetry", TelemetryJson(tr));
+  }
   // Frames lost to a slow consumer: in this queue, and in a camera source's own capture queue.
   const hal::CaptureCounters counters = source->Counters();
   mosaicker.RecordDropped(queue.dropped() + counters.dropped);

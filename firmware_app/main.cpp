@@ -70,6 +70,11 @@ int main(int argc, char** argv) {
   cli.add_option("--refine-seconds", p.refine.max_seconds, "Time limit of the end-of-flight refinement, s (0 = none)");
   cli.add_flag(
       "--no-tiff", [&](std::int64_t) { p.write_tiff = false; }, "Do not write mosaic.tif");
+  cli.add_option("--telemetry", config.telemetry,
+                 "Where the vehicle was for each frame, instead of EXIF GPS: mavlink-udp:HOST:PORT (listen, e.g. "
+                 "0.0.0.0:14550), mavlink-serial:DEVICE:BAUD (e.g. /dev/ttyAMA0:921600), tlog:FILE (a MAVLink "
+                 "telemetry log of the replayed flight), geo:FILE (OpenDroneMap geo.txt); timing keys: telemetry.* in "
+                 "--config");
   cli.add_option("--http", config.http,
                  "Live view over HTTP on HOST:PORT (e.g. 0.0.0.0:8080): / (map page), /live.jpg, /status.json; "
                  "off by default");

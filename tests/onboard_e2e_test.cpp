@@ -4,8 +4,10 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iomanip>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 
 #include "core/session/session_dir.h"
 #include "tests/test_env.h"
@@ -81,6 +83,51 @@ TEST(OnboardE2ETest, BrightonBeachSmallRegistersEveryFrame) {
   std::string err;
   ASSERT_TRUE(ReadTextFile((out / "frames.csv").string(), &frames_csv, &err));
   EXPECT_NE(frames_csv.find("46.842607083"), std::string::npos);
+  fs::remove_all(out);
+}
+
+// --telemetry geo:FILE (OpenDroneMap geo.txt) replaces EXIF GPS: positions moved 0.001 deg north (111 m) move the
+// georeferenced map 111 m north; a frame the file does not list keeps its EXIF position and is counted.
+TEST(OnboardE2ETest, GeoTxtTelemetryPlacesTheMapAndIsReported) {
+  const fs::path exif_out = TempDir("geo_exif");
+  const fs::path out = TempDir("geo_telemetry");
+  const test::FlightForTest flight(kData + "/brighton_beach_small/images", 6, TempDir("geo_in"));
+  ASSERT_EQ(RunOnboard("--source replay:" + flight.string() + " --out " + exif_out.string()), 0);
+  std::ifstream frames_csv(exif_out / "frames.csv");
+  std::string line;
+  std::getline(frames_csv,
+               line);  // header: index,filename,stored_file,width,height,timestamp_ns,registered,lat,lon,alt
+  const fs::path geo = exif_out / "geo.txt";
+  std::ofstream geo_txt(geo);
+  geo_txt << "EPSG:4326\n";
+  int listed = 0;
+  while (std::getline(frames_csv, line)) {
+    std::vector<std::string> cells;
+    std::stringstream row(line);
+    for (std::string cell; std::getline(row, cell, ',');) cells.push_back(cell);
+    if (listed++ == 1) continue;  // the second frame is not in the file
+    geo_txt << cells[1] << ' ' << cells[8] << ' ' << std::setprecision(12) << std::stod(cells[7]) + 0.001 << ' '
+            << cells[9] << '\n';
+  }
+  geo_txt.close();
+  ASSERT_EQ(
+      RunOnboard("--source replay:" + flight.string() + " --out " + out.string() + " --telemetry geo:" + geo.string()),
+      0);
+  const auto exif = ReadJson(exif_out / "report.json");
+  const auto tele = ReadJson(out / "report.json");
+  EXPECT_EQ(tele["telemetry"]["kind"], "geo");
+  EXPECT_EQ(tele["telemetry"]["frames_placed"].get<int>(), flight.frames() - 1);
+  EXPECT_EQ(tele["telemetry"]["frames_without"].get<int>(), 1);
+  ASSERT_TRUE(tele["georef"]["georeferenced"].get<bool>());
+  const double north_shift_m =
+      tele["georef"]["geotransform"][3].get<double>() - exif["georef"]["geotransform"][3].get<double>();
+  EXPECT_NEAR(north_shift_m, 111.2, 3.0);
+  // A bad geo.txt is a start-up error with the line named, before any frame is taken.
+  std::ofstream(geo) << "EPSG:4326\nDJI_0018.JPG east north\n";
+  EXPECT_EQ(RunOnboard("--source replay:" + flight.string() + " --out " + out.string() +
+                       "_bad --telemetry geo:" + geo.string() + " 2>/dev/null"),
+            2);
+  fs::remove_all(exif_out);
   fs::remove_all(out);
 }
 

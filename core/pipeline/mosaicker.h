@@ -65,6 +65,8 @@ class Mosaicker {
   void RecordDropped(size_t count) { dropped_frames_ = count; }
   // A live camera's counters (captured, dropped in its own queue, driver gaps, reconnects): report.json "camera".
   void RecordCapture(const CaptureCounters& counters) { capture_ = counters; }
+  // A section of report.json that a unit around the pipeline fills (e.g. "telemetry"); replaces one of that name.
+  void SetReportSection(const std::string& key, nlohmann::json value) { report_sections_[key] = std::move(value); }
   // The memory plan the options were sized with (reported in report.json).
   void SetMemoryPlan(const MemoryPlan& plan) { memory_plan_ = plan; }
   // Final solve, session files and mosaic. Returns false on an output failure (message in `error`).
@@ -151,6 +153,7 @@ class Mosaicker {
   int final_registered_ = 0;
   Solution solution_;
   MemoryPlan memory_plan_;
+  nlohmann::json report_sections_ = nlohmann::json::object();
 };
 
 }  // namespace uavm

@@ -124,6 +124,7 @@ bool Mosaicker::WriteReport(const std::vector<int>& component, const CompositeRe
                       {"image_loads", composite.image_loads}};
   report["georef"] = GeorefJson();
   report["products"] = products;
+  for (const auto& [key, value] : report_sections_.items()) report[key] = value;
   return WriteFileAtomic(paths_.Join("report.json"), report.dump(2) + "\n", error);
 }
 

@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <cmath>
 #include <fstream>
 #include <functional>
 #include <set>
@@ -104,6 +105,9 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"georef", "allow_affine", &o.georef.allow_affine},
       {"products", "write", &o.write_products},
       {"products", "max_tiles", &o.tiles.max_tiles},
+      {"telemetry", "latency_ms", &o.telemetry.latency_ms},
+      {"telemetry", "max_gap_s", &o.telemetry.max_gap_s},
+      {"telemetry", "exif_utc_offset_s", &o.telemetry.exif_utc_offset_s},
   };
 }
 
@@ -121,6 +125,11 @@ bool PipelineOptions::Check(std::string* why) const {
   if (journal_sync_every < 1) return Fail(why, "journal_sync_every must be >= 1");
   if (!georef.Check(why)) return false;
   if (tiles.max_tiles < 1) return Fail(why, "products.max_tiles must be >= 1");
+  if (!(telemetry.max_gap_s > 0 && telemetry.max_gap_s <= 60))
+    return Fail(why, "telemetry.max_gap_s must be in (0,60]");
+  if (!(std::abs(telemetry.latency_ms) <= 10000)) return Fail(why, "telemetry.latency_ms must be within +-10000");
+  if (!(std::abs(telemetry.exif_utc_offset_s) <= 14 * 3600))
+    return Fail(why, "telemetry.exif_utc_offset_s must be within +-14 h");
   if (preview_every < 0 || preview_side < 64) return Fail(why, "preview_every >= 0 and preview_side >= 64");
   if (!(mosaic_scale > 0 && mosaic_scale <= 4)) return Fail(why, "mosaic_scale must be in (0,4]");
   if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");

@@ -16,7 +16,7 @@ namespace uavm {
 // The onboard program's options: the registration engine's (a base, so that its YAML keys and defaults are
 // defined once) and what the session, preview, compositor and products take.
 struct PipelineOptions : RegistrationOptions {
-  int work_long_side = 1000;           // working resolution for features and registration (never upscaled)
+  int work_long_side = 1000;   // working resolution for features and registration (never upscaled)
   int journal_sync_every = 1;  // accepted frames between fdatasyncs of journal.jsonl (a power cut loses fewer)
   // Frames between returns of free heap pages to the kernel (malloc_trim); 0 = never. Every 5 rather than 20: peak
   // RSS of a 2000-frame flight 222 instead of 229 MiB (200 frames: 205 either way), no measurable time cost.
@@ -39,7 +39,13 @@ struct PipelineOptions : RegistrationOptions {
   GeorefOptions georef;
   bool write_products = true;  // mosaic.kmz, tiles/, index.html (mosaic.tif is a COG whenever it is written)
   TileOptions tiles;
-  std::string leaflet_dir = "/usr/share/javascript/leaflet";  // Debian's libjs-leaflet, copied into the session
+  std::string leaflet_dir = "/usr/share/javascript/leaflet";
+  // Telemetry beside the frames (--telemetry; hal/telemetry): how its times meet the frames'.
+  struct Telemetry {
+    double latency_ms = 0.0;         // a camera frame is looked up at its timestamp minus this
+    double max_gap_s = 2.0;          // fixes further apart (or older) than this place no frame
+    double exif_utc_offset_s = 0.0;  // replayed stills: EXIF local time minus UTC
+  } telemetry;                       // Debian's libjs-leaflet, copied into the session
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
