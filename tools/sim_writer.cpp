@@ -2,6 +2,7 @@
 
 #include <filesystem>
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 
 #include "core/eval/ground_truth.h"
 #include "core/session/session_dir.h"
@@ -19,6 +20,12 @@ bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_
     return false;
   }
   std::vector<eval::GtRow> rows;
+  std::ostringstream geo;        // what the receiver reported (--telemetry geo:OUT/geo.txt)
+  std::ostringstream geo_truth;  // where the frame centres really were, same format
+  geo.precision(10);
+  geo_truth.precision(10);
+  geo << "EPSG:4326\n";
+  geo_truth << "EPSG:4326\n";
   hal::Frame frame;
   while (max_frames <= 0 || static_cast<int>(rows.size()) < max_frames) {
     const hal::Status st = source->Next(&frame, error);
@@ -40,6 +47,10 @@ bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_
     if (!WriteFileAtomic(file.string(), contents, error)) return false;
     const hal::SimTruth& t = source->last_truth();
     rows.push_back({static_cast<int>(frame.index), frame.source_name, t.canvas_from_frame, t.affine});
+    geo << frame.source_name << ' ' << t.gps_position.lon_deg << ' ' << t.gps_position.lat_deg << ' '
+        << t.gps_altitude_m << '\n';
+    geo_truth << frame.source_name << ' ' << t.true_position.lon_deg << ' ' << t.true_position.lat_deg << ' '
+              << t.gps_altitude_m << '\n';
   }
   if (rows.empty()) {
     *error = "the flight has no frames";
@@ -48,6 +59,9 @@ bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_
   hal::SimPlan plan = source->plan();
   plan.canvas = fs::absolute(plan.canvas, ec).string();
   const std::string yaml = "# effective plan of this simulated flight (uavmosaic-sim)\n" + hal::ToYaml(plan);
+  if (plan.gps != 0 && !(WriteFileAtomic((root / "geo.txt").string(), geo.str(), error) &&
+                         WriteFileAtomic((root / "geo_truth.txt").string(), geo_truth.str(), error)))
+    return false;
   return WriteFileAtomic((root / "gt.csv").string(), eval::FormatGroundTruthCsv(rows), error) &&
          WriteFileAtomic((root / "plan.yaml").string(), yaml, error);
 }

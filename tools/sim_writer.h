@@ -10,6 +10,8 @@ namespace uavm::tools {
 //                                     the source decoded, so replayed frames equal the emitted ones)
 //   OUT/gt.csv                        ground truth (core/eval/ground_truth.h)
 //   OUT/plan.yaml                     the effective plan, canvas path made absolute
+//   OUT/geo.txt, OUT/geo_truth.txt    with the plan's gps: each frame's reported and true position (OpenDroneMap
+//                                     geo.txt, EPSG:4326), for --telemetry geo: and for measuring against the truth
 // `source` must be open; it is consumed from its current position. max_frames 0 = all.
 // In tools/, not hal/sim: it writes the evaluator's format (core/eval), which the onboard program must not link.
 [[nodiscard]] bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_frames,

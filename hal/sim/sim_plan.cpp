@@ -52,7 +52,14 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"passes", &p.passes},
           {"pass_shift", &p.pass_shift},
           {"margin", &p.margin},
-          {"seed", &p.seed}};
+          {"seed", &p.seed},
+          {"gps", &p.gps},
+          {"origin_lat", &p.origin_lat},
+          {"origin_lon", &p.origin_lon},
+          {"metres_per_px", &p.metres_per_px},
+          {"flight_altitude_m", &p.flight_altitude_m},
+          {"gps_noise_m", &p.gps_noise_m},
+          {"gps_bias_m", &p.gps_bias_m}};
 }
 
 using Draws = PortableRandom;  // the flight must not change with the machine that makes it
@@ -62,6 +69,10 @@ using Draws = PortableRandom;  // the flight must not change with the machine th
 bool SimPlan::Check(std::string* error) const {
   if (frame_width < 16 || frame_height < 16) return Fail(error, "frame_width and frame_height must be >= 16");
   if (focal_px < 0) return Fail(error, "focal_px must be >= 0");
+  if (gps != 0 && gps != 1) return Fail(error, "gps must be 0 or 1");
+  if (!(std::abs(origin_lat) < 84 && std::abs(origin_lon) <= 180)) return Fail(error, "origin_lat/lon out of range");
+  if (!(metres_per_px > 0) || !(gps_noise_m >= 0) || !(gps_bias_m >= 0) || !(flight_altitude_m > 0))
+    return Fail(error, "metres_per_px, flight_altitude_m must be > 0; gps_noise_m, gps_bias_m >= 0");
   if (!(gsd > 0)) return Fail(error, "gsd must be > 0");
   if (strips < 0 || strip_length < 0 || strip_spacing < 0)
     return Fail(error, "strips/strip_length/spacing must be >= 0");
@@ -266,6 +277,15 @@ bool BuildFlight(const SimPlan& plan, cv::Size canvas_size, std::vector<SimPose>
   }
   for (size_t i = 0; i < n; ++i) (*poses)[i].position = centre + scale * d[i];
   return true;
+}
+
+LatLon CanvasToLatLon(const SimPlan& plan, cv::Size canvas, const Vec2& p) {
+  constexpr double kEarthRadiusM = 6378137.0;
+  const double east = (p.x() - 0.5 * (canvas.width - 1)) * plan.metres_per_px;
+  const double north = -(p.y() - 0.5 * (canvas.height - 1)) * plan.metres_per_px;
+  const double lat = plan.origin_lat + north / kEarthRadiusM * 180.0 / kPi;
+  const double lon = plan.origin_lon + east / (kEarthRadiusM * std::cos(Rad(plan.origin_lat))) * 180.0 / kPi;
+  return {lat, lon};
 }
 
 }  // namespace uavm::hal

@@ -31,6 +31,13 @@ namespace uavm::hal {
 //   pass_shift: each repeat is shifted by this fraction of the frame and strip spacing [0.5]
 //   margin: canvas pixels kept free around every footprint [2]
 //   seed: every random draw derives from it; same seed, same frames [1]
+//   gps: 1 = the flight carries GPS: each frame's metadata gets a noisy position of the ground under its centre (the
+//     canvas is a map: +x east, +y south, its centre at origin_lat/lon, metres_per_px metres per canvas pixel) [0]
+//   origin_lat, origin_lon: position of the canvas centre, degrees [46.8426, -91.9946]
+//   metres_per_px: ground metres per canvas pixel [0.1]
+//   flight_altitude_m: height above take-off at nominal altitude [80]
+//   gps_noise_m: sigma of each fix's Gaussian error, per axis [1.5]; gps_bias_m: amplitude of a slowly turning
+//     bias (one turn per 200 frames), as a receiver's error wanders [1.0]
 // The plan is fitted inside the canvas: the pattern is centred, and shrunk (spacings scaled down, logged as a
 // warning) when footprints would leave it.
 struct SimPlan {
@@ -57,6 +64,13 @@ struct SimPlan {
   double pass_shift = 0.5;
   double margin = 2.0;
   uint64_t seed = 1;
+  int gps = 0;
+  double origin_lat = 46.8426;
+  double origin_lon = -91.9946;
+  double metres_per_px = 0.1;
+  double flight_altitude_m = 80.0;
+  double gps_noise_m = 1.5;
+  double gps_bias_m = 1.0;
 
   [[nodiscard]] double Focal() const { return focal_px > 0 ? focal_px : frame_width; }
   [[nodiscard]] bool Check(std::string* error) const;
@@ -81,6 +95,12 @@ struct SimPose {
   double gain = 1.0;
   double offset = 0.0;
 };
+
+// WGS84 position of canvas point `p` (local tangent plane at the canvas centre: exact enough over a few km).
+struct LatLon {
+  double lat_deg = 0, lon_deg = 0;
+};
+[[nodiscard]] LatLon CanvasToLatLon(const SimPlan& plan, cv::Size canvas, const Vec2& p);
 
 // canvas_from_frame of a pinhole camera at `pose` looking down at the flat canvas (world z points into the ground,
 // canvas x/y are world x/y). Normalised so that m(2, 2) = 1.

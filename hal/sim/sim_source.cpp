@@ -88,6 +88,18 @@ const cv::Mat& SimSource::CanvasLevel(int level) {
   return levels_.emplace(level, std::move(reduced)).first->second;
 }
 
+void SimSource::SimulateGps(size_t i, cv::Size size, SimTruth* truth) const {
+  const Vec2 ground = Apply(truth->canvas_from_frame, Vec2((size.width - 1.0) / 2, (size.height - 1.0) / 2));
+  truth->true_position = CanvasToLatLon(plan_, canvas_.size(), ground);
+  // Per-frame generator (frame i's fix does not depend on the frames before), plus a slowly turning bias.
+  cv::RNG rng(plan_.seed * 7919ULL + i + 1);
+  const double turn = 2.0 * M_PI * static_cast<double>(i) / 200.0;
+  const double east_px = (plan_.gps_bias_m * std::cos(turn) + rng.gaussian(plan_.gps_noise_m)) / plan_.metres_per_px;
+  const double south_px = -(plan_.gps_bias_m * std::sin(turn) + rng.gaussian(plan_.gps_noise_m)) / plan_.metres_per_px;
+  truth->gps_position = CanvasToLatLon(plan_, canvas_.size(), ground + Vec2(east_px, south_px));
+  truth->gps_altitude_m = plan_.flight_altitude_m * truth->pose.altitude;
+}
+
 bool SimSource::Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded, std::string* error) {
   if (i >= poses_.size()) {
     *error = "sim: no frame " + std::to_string(i);
@@ -99,6 +111,7 @@ bool SimSource::Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uc
   truth->pose = pose;
   truth->canvas_from_frame = CanvasFromFrame(plan_, pose);
   truth->affine = ClosestAffine(truth->canvas_from_frame, size.width, size.height);
+  if (plan_.gps != 0) SimulateGps(i, size, truth);
 
   // Bilinear sampling aliases when a frame pixel covers several canvas pixels: sample a pre-reduced canvas
   // (quarter-octave levels) so the remaining reduction is below 2^(1/4).
@@ -173,6 +186,11 @@ Status SimSource::Next(Frame* frame, std::string* error) {
   frame->original_size = image.size();
   frame->image = std::move(image);
   frame->decode_scale = 1.0;
+  if (plan_.gps != 0) {  // as a camera's EXIF GPS would carry it
+    frame->metadata.latitude_deg = truth_.gps_position.lat_deg;
+    frame->metadata.longitude_deg = truth_.gps_position.lon_deg;
+    frame->metadata.relative_altitude_m = truth_.gps_altitude_m;
+  }
   ++next_;
   return Status::kOk;
 }

@@ -21,6 +21,10 @@ struct SimTruth {
   Mat3 canvas_from_frame = Mat3::Identity();  // exact projective map, (2, 2) = 1
   Mat3 affine = Mat3::Identity();             // closest affine over the frame (least squares on a 17x17 grid)
   SimPose pose;
+  // With the plan's gps: the ground under the frame centre, true and as the (noisy, biased) receiver reports it.
+  LatLon true_position;
+  LatLon gps_position;
+  double gps_altitude_m = 0.0;  // height above take-off
 };
 
 // A virtual camera flying a lawn-mower plan over a large image (the canvas). Every frame is rendered from the
@@ -47,6 +51,7 @@ class SimSource final : public FrameSource {
   [[nodiscard]] std::string FrameName(uint64_t index) const;
   // Renders frame i exactly as Next() emits it (random access, for tests and tools).
   [[nodiscard]] bool Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded, std::string* error);
+  void SimulateGps(size_t i, cv::Size size, SimTruth* truth) const;
 
  private:
   const cv::Mat& CanvasLevel(int level);
