@@ -269,16 +269,19 @@ TEST_F(MavlinkTest, LiveUdpLinkPlacesFramesAndLosingItIsCounted) {
   std::string error;
   auto source = MakeTelemetrySource("mavlink-udp:127.0.0.1:" + std::to_string(port), {}, &error);
   ASSERT_EQ(source->Start(&error), Status::kOk) << error;
-  // 2 s of 20 Hz telemetry from the independent encoder, in the background.
-  std::thread sender([&] { (void)std::system(PeerCommand("send_udp.mjs", std::to_string(port) + " 2 20").c_str()); });
-  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  // 3 s of 20 Hz telemetry from the independent encoder, in the background; node may take a while to start on a
+  // loaded machine, so the frame is taken once fixes flow.
+  std::thread sender([&] { (void)std::system(PeerCommand("send_udp.mjs", std::to_string(port) + " 3 20").c_str()); });
+  for (int waited = 0; source->Report().parser.packets < 10 && waited < 300; ++waited)
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
   Frame frame;
   frame.timestamp_ns = MonotonicNs() - 100'000'000;
   const auto pose = source->PoseFor(frame);
   sender.join();
   ASSERT_TRUE(pose.has_value()) << "no telemetry arrived";
   EXPECT_GT(pose->lat_deg, 50.0);
-  EXPECT_LT(pose->lat_deg, 50.0 + 41e-6);
+  EXPECT_LT(pose->lat_deg, 50.0 + 61e-6);
   EXPECT_NEAR(pose->lon_deg, 8.0, 1e-9);
   EXPECT_NEAR(*pose->relative_alt_m, 90.0, 1e-9);
   EXPECT_NEAR(*pose->yaw_deg, 90.0, 1e-4);
@@ -289,7 +292,7 @@ TEST_F(MavlinkTest, LiveUdpLinkPlacesFramesAndLosingItIsCounted) {
   const TelemetryReport r = source->Report();
   EXPECT_EQ(r.frames_placed, 1u);
   EXPECT_EQ(r.frames_without, 1u);
-  EXPECT_GT(r.parser.packets, 50u);
+  EXPECT_GT(r.parser.packets, 100u);
   EXPECT_EQ(r.parser.crc_errors, 0u);
   source->Stop();
 }
