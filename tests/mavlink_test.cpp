@@ -271,15 +271,24 @@ TEST_F(MavlinkTest, LiveUdpLinkPlacesFramesAndLosingItIsCounted) {
   ASSERT_EQ(source->Start(&error), Status::kOk) << error;
   // 3 s of 20 Hz telemetry from the independent encoder, in the background; node may take a while to start on a
   // loaded machine, so the frame is taken once fixes flow.
-  std::thread sender([&] { (void)std::system(PeerCommand("send_udp.mjs", std::to_string(port) + " 3 20").c_str()); });
+  std::string heard;  // what the ground station's side printed: the STATUSTEXTs it decoded
+  std::thread sender([&] {
+    FILE* out = popen(PeerCommand("send_udp.mjs", std::to_string(port) + " 3 20").c_str(), "r");
+    if (out == nullptr) return;
+    char buf[256];
+    while (std::fgets(buf, sizeof(buf), out) != nullptr) heard += buf;
+    pclose(out);
+  });
   for (int waited = 0; source->Report().parser.packets < 10 && waited < 300; ++waited)
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  source->SendStatus("uavm: 12 frames, 11 registered");
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
   Frame frame;
   frame.timestamp_ns = MonotonicNs() - 100'000'000;
   const auto pose = source->PoseFor(frame);
   sender.join();
   ASSERT_TRUE(pose.has_value()) << "no telemetry arrived";
+  EXPECT_NE(heard.find("STATUSTEXT uavm: 12 frames, 11 registered"), std::string::npos) << heard;
   EXPECT_GT(pose->lat_deg, 50.0);
   EXPECT_LT(pose->lat_deg, 50.0 + 61e-6);
   EXPECT_NEAR(pose->lon_deg, 8.0, 1e-9);

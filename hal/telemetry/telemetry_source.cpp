@@ -219,6 +219,7 @@ class LinkSource final : public TelemetrySource {
     return r;
   }
   std::string Describe() const override { return kind_ + " " + target_ + ":" + std::to_string(port_or_baud_); }
+  void SendStatus(const std::string& text) override;
 
  private:
   [[nodiscard]] bool OpenUdp(std::string* error);
@@ -235,7 +236,23 @@ class LinkSource final : public TelemetrySource {
   mutable std::mutex mutex_;
   TelemetryReport report_;
   mavlink::ParserCounters parser_counters_;
+  sockaddr_storage peer_{};  // the last sender (UDP): where STATUSTEXT goes
+  socklen_t peer_len_ = 0;
+  uint8_t status_seq_ = 0;
 };
+
+void LinkSource::SendStatus(const std::string& text) {
+  // MAV_SEVERITY_INFO from component 191 (MAV_COMP_ID_ONBOARD_COMPUTER), system 1.
+  const std::string frame = mavlink::EncodeStatustext(6, text, status_seq_++, 1, 191);
+  std::lock_guard lock(mutex_);
+  if (fd_ < 0) return;
+  if (kind_ == "mavlink-udp") {
+    if (peer_len_ == 0) return;  // nobody has spoken yet: no address to answer
+    (void)sendto(fd_, frame.data(), frame.size(), MSG_DONTWAIT, reinterpret_cast<const sockaddr*>(&peer_), peer_len_);
+  } else {
+    (void)write(fd_, frame.data(), frame.size());
+  }
+}
 
 bool LinkSource::OpenUdp(std::string* error) {
   addrinfo hints{};
@@ -297,8 +314,17 @@ void LinkSource::ReadLoop() {
   while (!stop_) {
     pollfd pfd{fd_, POLLIN, 0};
     if (poll(&pfd, 1, 200) <= 0) continue;  // wakes up to notice Stop()
-    const ssize_t n = read(fd_, buf.data(), buf.size());
+    sockaddr_storage from{};
+    socklen_t from_len = sizeof(from);
+    const ssize_t n = kind_ == "mavlink-udp"
+                          ? recvfrom(fd_, buf.data(), buf.size(), 0, reinterpret_cast<sockaddr*>(&from), &from_len)
+                          : read(fd_, buf.data(), buf.size());
     if (n <= 0) continue;
+    if (kind_ == "mavlink-udp") {
+      std::lock_guard lock(mutex_);
+      peer_ = from;
+      peer_len_ = from_len;
+    }
     const int64_t now = MonotonicNs();
     parser.Feed(buf.data(), static_cast<size_t>(n), [&](const mavlink::Packet& p) {
       if (auto m = mavlink::Decode(p)) feeder.Add(*m, now);

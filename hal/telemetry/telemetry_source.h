@@ -51,6 +51,9 @@ class TelemetrySource {
   [[nodiscard]] virtual std::optional<InterpolatedPose> PoseFor(const Frame& frame) = 0;
   [[nodiscard]] virtual TelemetryReport Report() const = 0;
   [[nodiscard]] virtual std::string Describe() const = 0;
+  // Tells the ground station how the mapper is doing (a MAVLink STATUSTEXT back over the link: QGroundControl and
+  // Mission Planner show it in their message log). Links only; never blocks, best effort.
+  virtual void SendStatus(const std::string& /*text*/) {}
 };
 
 // --telemetry KIND:ARG: mavlink-udp:HOST:PORT (listen), mavlink-serial:DEVICE:BAUD, tlog:FILE, geo:FILE. Null with

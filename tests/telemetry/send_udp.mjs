@@ -1,18 +1,28 @@
 // Sends a MAVLink stream over UDP with node-mavlink, as a flight controller (or mavlink-router) sends it to a GCS
 // port: GLOBAL_POSITION_INT and ATTITUDE at RATE Hz for SECONDS, latitude growing by 1e-6 deg per message from
-// 50.0, then stops (telemetry lost). Usage: node send_udp.mjs PORT SECONDS RATE
+// 50.0, then stops (telemetry lost). Prints the text of every STATUSTEXT the mapper sends back, one per line.
+// Usage: node send_udp.mjs PORT SECONDS RATE
 import dgram from 'node:dgram'
-import { MavLinkProtocolV2, common } from 'node-mavlink'
+import { MavLinkProtocolV2, MavLinkPacketSplitter, MavLinkPacketParser, common, minimal } from 'node-mavlink'
+import { Readable } from 'node:stream'
 
 const [port, seconds, rate] = process.argv.slice(2).map(Number)
 const socket = dgram.createSocket('udp4')
+const incoming = new Readable({ read() {} })
+incoming.pipe(new MavLinkPacketSplitter()).pipe(new MavLinkPacketParser()).on('data', packet => {
+  if (packet.header.msgid === common.StatusText.MSG_ID) {
+    const text = packet.protocol.data(packet.payload, common.StatusText).text
+    console.log(`STATUSTEXT ${text}`)
+  }
+})
+socket.on('message', data => incoming.push(data))
 const protocol = new MavLinkProtocolV2(1, 1)
 let seq = 0
 const total = Math.round(seconds * rate)
 const timer = setInterval(() => {
   if (seq >= total) {
     clearInterval(timer)
-    socket.close()
+    setTimeout(() => socket.close(), 300)  // answers still on their way
     return
   }
   const g = new common.GlobalPositionInt()
