@@ -197,225 +197,309 @@ nlohmann::json TelemetryJson(const hal::TelemetryReport& r) {
           {"log_overlaps_frames", r.log_overlaps_frames}};
 }
 
-int Run(const RunConfig& config) {
+namespace {
+
+// The source opened, the telemetry started (with --telemetry) and the session directory prepared. kExitOk, or the
+// exit code.
+int OpenSourceAndSession(const RunConfig& config, std::unique_ptr<hal::FrameSource>* source,
+                         std::unique_ptr<hal::TelemetrySource>* telemetry, SessionPaths* paths) {
   std::string error;
-  auto source = MakeSource(config, &error);
-  if (!source) {
+  *source = MakeSource(config, &error);
+  if (!*source) {
     spdlog::error("{}", error);
     return kExitUsage;
   }
-  if (source->Open(&error) != hal::Status::kOk) {
+  if ((*source)->Open(&error) != hal::Status::kOk) {
     spdlog::error("cannot open source: {}", error);
     return kExitSourceError;
   }
   bool telemetry_failed = false;
-  auto telemetry = StartTelemetry(config, &telemetry_failed);
+  *telemetry = StartTelemetry(config, &telemetry_failed);
   if (telemetry_failed) return kExitUsage;
-  SessionPaths paths;
-  if (!PrepareSessionDir(config.out_dir, &paths, &error)) {
+  if (!PrepareSessionDir(config.out_dir, paths, &error)) {
     spdlog::error("{}", error);
     return kExitOutputError;
   }
   // Decode no more than the working resolution needs (JPEG DCT scaling); the compositor re-reads at its own scale.
-  source->SetDecodeHint({config.pipeline.work_long_side});
-  spdlog::info("source {}, output {}", source->Describe(), config.out_dir);
+  (*source)->SetDecodeHint({config.pipeline.work_long_side});
+  spdlog::info("source {}, output {}", (*source)->Describe(), config.out_dir);
+  return kExitOk;
+}
 
-  // The budget sizes caches, pools and the detector's bands; the plan is for the working frame's usual 4:3 shape
-  // (the detector adapts its bands to each frame's real size).
-  PipelineOptions pipeline = config.pipeline;
-  MemoryPlan plan;
-  if (!ApplyMemoryBudget(pipeline.work_long_side, pipeline.work_long_side * 3 / 4, &pipeline, &plan, &error)) {
+// The budget sizes caches, pools and the detector's bands; the plan is for the working frame's usual 4:3 shape (the
+// detector adapts its bands to each frame's real size). kExitOk, or the exit code.
+int PlanMemory(PipelineOptions* pipeline, MemoryPlan* plan) {
+  std::string error;
+  if (!ApplyMemoryBudget(pipeline->work_long_side, pipeline->work_long_side * 3 / 4, pipeline, plan, &error)) {
     spdlog::error("{}", error);
     return kExitUsage;
   }
-  if (plan.budget_mib > 0)
+  if (plan->budget_mib > 0)
     spdlog::info(
         "memory budget {:.0f} MiB: flight ~{:.0f} MiB (detector {:.0f} MiB in {} band(s), queue {}, feature cache "
         "{:.0f}, relocalisation {:.0f}), end ~{:.0f} MiB (image cache {:.0f}, blending {:.0f}, tile {})",
-        plan.budget_mib, plan.FlightMiB(), plan.sift_mib, plan.sift_bands, plan.queue_capacity, plan.feature_cache_mib,
-        plan.relocalization_mib, plan.EndMiB(), plan.image_cache_mib, plan.blend_mib, pipeline.mosaic.tile_size);
-  Mosaicker mosaicker(pipeline, paths);
-  mosaicker.SetMemoryPlan(plan);
-  StatusLine status_line;
-  // The live view (off by default). Declared before the loop's state so it stops last; it only ever reads copies.
-  LiveServer live;
-  const bool serving = !config.http.empty();
-  if (serving) {
+        plan->budget_mib, plan->FlightMiB(), plan->sift_mib, plan->sift_bands, plan->queue_capacity,
+        plan->feature_cache_mib, plan->relocalization_mib, plan->EndMiB(), plan->image_cache_mib, plan->blend_mib,
+        pipeline->mosaic.tile_size);
+  return kExitOk;
+}
+
+// What the flight shows of itself: the terminal's status line and the live view's status (and previews).
+class FlightStatus {
+ public:
+  FlightStatus(const Mosaicker& mosaicker, double budget_mib) : mosaicker_(mosaicker) {
+    status_.budget_mib = budget_mib;
+  }
+
+  // The live view (off without --http). kExitOk, or the exit code.
+  int StartLiveView(const RunConfig& config, const PipelineOptions& pipeline, Mosaicker* mosaicker) {
+    serving_ = !config.http.empty();
+    run_start_ns_ = MonotonicNs();
+    if (!serving_) return kExitOk;
+    std::string error;
     LiveServer::Options lo;
     lo.leaflet_dir = pipeline.leaflet_dir;
     if (!ParseHostPort(config.http, &lo.host, &lo.port)) {
       spdlog::error("--http: expected HOST:PORT, got '{}'", config.http);
       return kExitUsage;
     }
-    if (!live.Start(lo, &error)) {
+    if (!live_.Start(lo, &error)) {
       spdlog::error("--http: {}", error);
       return kExitUsage;
     }
-    mosaicker.SetPreviewListener(
-        [&live](std::shared_ptr<const std::string> jpeg) { live.PublishJpeg(std::move(jpeg)); });
+    mosaicker->SetPreviewListener(
+        [this](std::shared_ptr<const std::string> jpeg) { live_.PublishJpeg(std::move(jpeg)); });
+    run_start_ns_ = MonotonicNs();  // the run's uptime starts with the server up
+    return kExitOk;
   }
-  const int64_t run_start_ns = MonotonicNs();
-  LiveStatus live_status;
-  live_status.budget_mib = plan.budget_mib;
-  const auto publish = [&](const char* state, bool wait) {
-    live_status.state = state;
-    live_status.frames_in = static_cast<int>(mosaicker.frames_in());
-    live_status.uptime_s = static_cast<double>(MonotonicNs() - run_start_ns) * 1e-9;
-    live_status.fps = live_status.uptime_s > 0 ? live_status.frames_in / live_status.uptime_s : 0.0;
-    live_status.median_frame_ms = mosaicker.stage_stats().Get("frame_total").median;
-    live_status.rss_mib = CurrentRssMiB();
-    live_status.last_error = status_line.last_error();
-    if (serving) live.PublishStatus(live_status, wait);
-  };
-  publish("starting", true);
-  JournalContents journal;
+
+  void Publish(const char* state, bool wait) {
+    status_.state = state;
+    status_.frames_in = static_cast<int>(mosaicker_.frames_in());
+    status_.uptime_s = static_cast<double>(MonotonicNs() - run_start_ns_) * 1e-9;
+    status_.fps = status_.uptime_s > 0 ? status_.frames_in / status_.uptime_s : 0.0;
+    status_.median_frame_ms = mosaicker_.stage_stats().Get("frame_total").median;
+    status_.rss_mib = CurrentRssMiB();
+    status_.last_error = line_.last_error();
+    if (serving_) live_.PublishStatus(status_, wait);
+  }
+
+  // After each frame: the live view's status, the status line (a TTY) or a log line every 10 frames.
+  void FrameDone(int registered_live, size_t dropped) {
+    status_.registered = registered_live;
+    status_.dropped = static_cast<int>(dropped);
+    Publish("flying", false);
+    if (line_.tty())
+      line_.Update(fmt::format("{} frames | {:.1f} fps | {} registered | {} dropped | {:.0f} ms/frame | RSS {:.0f} MiB",
+                               status_.frames_in, status_.fps, registered_live, status_.dropped,
+                               status_.median_frame_ms, status_.rss_mib));
+  }
+  void LogEvery10Frames(int registered_live) const {
+    if (mosaicker_.frames_in() % 10 == 0 && !line_.tty())
+      spdlog::info("{} frames, median {:.0f} ms/frame, {:.1f} fps, {} registered, RSS {:.0f} MiB",
+                   mosaicker_.frames_in(), mosaicker_.stage_stats().Get("frame_total").median, status_.fps,
+                   registered_live, CurrentRssMiB());
+  }
+
+  LiveStatus& status() { return status_; }
+  StatusLine& line() { return line_; }
+
+ private:
+  const Mosaicker& mosaicker_;
+  StatusLine line_;
+  // Declared before the loop's state in Run, so it stops last; it only ever reads copies.
+  LiveServer live_;
+  bool serving_ = false;
+  int64_t run_start_ns_ = 0;
+  LiveStatus status_;
+};
+
+// The journal started (or continued, with --resume: its frames registered again). `seen`: the source names the
+// journal has. kExitOk, or the exit code.
+int StartJournal(const RunConfig& config, const SessionPaths& paths, Mosaicker* mosaicker, JournalContents* journal,
+                 std::unordered_set<std::string>* seen) {
+  std::string error;
   const std::string journal_path = paths.Join("journal.jsonl");
   if (config.resume) {
-    if (!ReadJournal(journal_path, &journal, &error)) {
+    if (!ReadJournal(journal_path, journal, &error)) {
       spdlog::error("cannot resume: {}: {}", journal_path, error);
       return kExitUsage;
     }
-    if (journal.torn_lines > 0) spdlog::warn("journal: a torn last line (the run was killed while writing it) dropped");
-    spdlog::info("resuming: {} frames and {} skipped inputs in the journal{}", journal.frames.size(),
-                 journal.skipped.size(), journal.finished ? " (the previous run had finished its flight)" : "");
+    if (journal->torn_lines > 0)
+      spdlog::warn("journal: a torn last line (the run was killed while writing it) dropped");
+    spdlog::info("resuming: {} frames and {} skipped inputs in the journal{}", journal->frames.size(),
+                 journal->skipped.size(), journal->finished ? " (the previous run had finished its flight)" : "");
   }
-  if (!mosaicker.StartJournal(config.resume, journal.valid_bytes, &error)) {
+  if (!mosaicker->StartJournal(config.resume, journal->valid_bytes, &error)) {
     spdlog::error("{}", error);
     return kExitOutputError;
   }
-  std::unordered_set<std::string> seen;
   if (config.resume) {
-    if (!ResumeFromJournal(paths, journal, &mosaicker, &seen, &error)) {
+    if (!ResumeFromJournal(paths, *journal, mosaicker, seen, &error)) {
       spdlog::error("{}", error);
       return kExitOutputError;
     }
-    spdlog::info("resumed {} frames from the session", mosaicker.frames_in());
+    spdlog::info("resumed {} frames from the session", mosaicker->frames_in());
   }
-  ServiceNotifier notifier;
-  notifier.Ready(fmt::format("capturing from {} into {}", source->Describe(), config.out_dir));
-  BoundedQueue<Item> queue(static_cast<size_t>(pipeline.queue_capacity), source->IsReplay()
-                                                                             ? BoundedQueue<Item>::Policy::kBlock
-                                                                             : BoundedQueue<Item>::Policy::kDropOldest);
-  bool source_failed = false;
-  bool storage_stopped = false;
-  std::string source_error;
-  std::thread capture([&] {
-    int delivered = static_cast<int>(journal.frames.size());
-    for (;;) {
-      if (config.max_frames > 0 && delivered >= config.max_frames) break;
-      if (g_stop_signal != 0) break;
-      Item item;
-      std::string err;
-      hal::Frame frame;
-      StageTimer decode_timer;
-      item.status = source->Next(&frame, &err);
-      const double decode_ms = decode_timer.ElapsedMs();
-      item.name = frame.source_name;
-      if (item.status == hal::Status::kEndOfStream) break;
-      if (item.status == hal::Status::kError) {
-        source_failed = true;
-        source_error = err;
-        break;
-      }
-      item.message = err;
-      if (seen.count(item.name) != 0) continue;  // accepted or skipped before the interruption
-      if (item.status == hal::Status::kOk) {
-        ++delivered;
-        if (telemetry) {
-          if (const auto pose = telemetry->PoseFor(frame)) hal::ApplyPose(*pose, &frame.metadata);
-        }
-        // Features are computed here, on the capture side, overlapping the previous frame's matching.
-        try {
-          item.prepared = mosaicker.Prepare(std::move(frame));
-          item.prepared.decode_ms = decode_ms;
-        } catch (const std::exception& e) {
-          // An input OpenCV cannot process (e.g. a degenerate size) is skipped like a corrupt file, never fatal.
-          item.status = hal::Status::kSkipped;
-          item.message = std::string("cannot process frame: ") + e.what();
-        }
-      }
-      if (!queue.Push(std::move(item))) break;
-    }
-    queue.Close();
-  });
+  return kExitOk;
+}
 
+struct CaptureOutcome {
+  bool source_failed = false;
+  std::string source_error;
+};
+
+// The capture thread: frames from the source, their features computed here (overlapping the previous frame's
+// matching), into the queue until the source ends, max_frames, a stop signal or a closed queue.
+void CaptureFrames(const RunConfig& config, hal::FrameSource* source, hal::TelemetrySource* telemetry,
+                   Mosaicker* mosaicker, const std::unordered_set<std::string>& seen, int delivered,
+                   BoundedQueue<Item>* queue, CaptureOutcome* outcome) {
+  for (;;) {
+    if (config.max_frames > 0 && delivered >= config.max_frames) break;
+    if (g_stop_signal != 0) break;
+    Item item;
+    std::string err;
+    hal::Frame frame;
+    StageTimer decode_timer;
+    item.status = source->Next(&frame, &err);
+    const double decode_ms = decode_timer.ElapsedMs();
+    item.name = frame.source_name;
+    if (item.status == hal::Status::kEndOfStream) break;
+    if (item.status == hal::Status::kError) {
+      outcome->source_failed = true;
+      outcome->source_error = err;
+      break;
+    }
+    item.message = err;
+    if (seen.count(item.name) != 0) continue;  // accepted or skipped before the interruption
+    if (item.status == hal::Status::kOk) {
+      ++delivered;
+      if (telemetry) {
+        if (const auto pose = telemetry->PoseFor(frame)) hal::ApplyPose(*pose, &frame.metadata);
+      }
+      try {
+        item.prepared = mosaicker->Prepare(std::move(frame));
+        item.prepared.decode_ms = decode_ms;
+      } catch (const std::exception& e) {
+        // An input OpenCV cannot process (e.g. a degenerate size) is skipped like a corrupt file, never fatal.
+        item.status = hal::Status::kSkipped;
+        item.message = std::string("cannot process frame: ") + e.what();
+      }
+    }
+    if (!queue->Push(std::move(item))) break;
+  }
+  queue->Close();
+}
+
+// The flight loop: each captured frame registered (or its skip recorded) in order. Returns false when the session
+// could not store frames any more (capture is then stopped).
+bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, Mosaicker* mosaicker, ServiceNotifier* notifier,
+                    FlightStatus* status) {
   int registered_live = 0;  // joined the first frame's part of the map during the flight (the status line)
-  while (auto item = queue.Pop()) {
+  while (auto item = queue->Pop()) {
     if (item->status == hal::Status::kSkipped) {
-      mosaicker.RecordSkipped(item->name, item->message);
+      mosaicker->RecordSkipped(item->name, item->message);
       continue;
     }
     try {
-      if (mosaicker.AddFrame(std::move(item->prepared)) == FrameOutcome::kRegistered) ++registered_live;
+      if (mosaicker->AddFrame(std::move(item->prepared)) == FrameOutcome::kRegistered) ++registered_live;
     } catch (const std::exception& e) {
       spdlog::error("frame {} could not be registered: {}", item->name, e.what());
     }
-    if (!mosaicker.storage_failure().empty()) {
+    if (!mosaicker->storage_failure().empty()) {
       // Disk full (or the storage went away): taking more frames would only lose them. What is stored stays valid,
       // and a resumed run takes the rest from the source.
       spdlog::error(
           "the session cannot store frames any more (disk full?): capture stopped after {} frames; "
           "free space and run again with --resume",
-          mosaicker.frames_in());
-      storage_stopped = true;
-      queue.Close();
-      break;
+          mosaicker->frames_in());
+      queue->Close();
+      return false;
     }
-    notifier.Progress(static_cast<int>(mosaicker.frames_in()), registered_live, CurrentRssMiB());
-    live_status.registered = registered_live;
-    live_status.dropped = static_cast<int>(queue.dropped());
-    publish("flying", false);
-    if (status_line.tty())
-      status_line.Update(
-          fmt::format("{} frames | {:.1f} fps | {} registered | {} dropped | {:.0f} ms/frame | RSS {:.0f} MiB",
-                      live_status.frames_in, live_status.fps, registered_live, live_status.dropped,
-                      live_status.median_frame_ms, live_status.rss_mib));
-    const auto& stats = mosaicker.stage_stats();
+    notifier->Progress(static_cast<int>(mosaicker->frames_in()), registered_live, CurrentRssMiB());
+    status->FrameDone(registered_live, queue->dropped());
     // Test hook (--process-delay-ms): a slow consumer, so that a live camera's drop-oldest queue is exercised.
     if (config.process_delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(config.process_delay_ms));
-    if (mosaicker.frames_in() % 10 == 0 && !status_line.tty())
-      spdlog::info("{} frames, median {:.0f} ms/frame, {:.1f} fps, {} registered, RSS {:.0f} MiB",
-                   mosaicker.frames_in(), stats.Get("frame_total").median, live_status.fps, registered_live,
-                   CurrentRssMiB());
+    status->LogEvery10Frames(registered_live);
   }
-  capture.join();
+  return true;
+}
+
+// After the flight: the telemetry's report, the drop and capture counters, the end solves and compositing, the exit
+// code.
+int FinishFlight(hal::FrameSource* source, hal::TelemetrySource* telemetry, const BoundedQueue<Item>& queue,
+                 const CaptureOutcome& capture, bool storage_stopped, Mosaicker* mosaicker, ServiceNotifier* notifier,
+                 FlightStatus* status) {
   source->Close();
   if (telemetry) {
     telemetry->Stop();
     const hal::TelemetryReport tr = telemetry->Report();
     spdlog::info("telemetry: {} of {} frames placed ({} without: stale, lost or not covered)", tr.frames_placed,
                  tr.frames_asked, tr.frames_without);
-    mosaicker.SetReportSection("telemetry", TelemetryJson(tr));
+    mosaicker->SetReportSection("telemetry", TelemetryJson(tr));
   }
   // Frames lost to a slow consumer: in this queue, and in a camera source's own capture queue.
   const hal::CaptureCounters counters = source->Counters();
-  mosaicker.RecordDropped(queue.dropped() + counters.dropped);
-  mosaicker.RecordCapture(counters);
+  mosaicker->RecordDropped(queue.dropped() + counters.dropped);
+  mosaicker->RecordCapture(counters);
   if (g_stop_signal != 0)
     spdlog::warn("signal {} received: capture stopped; registering and compositing the {} frames received",
-                 static_cast<int>(g_stop_signal), mosaicker.frames_in());
-  if (source_failed) spdlog::error("source stopped: {} (finishing with what was received)", source_error);
-
-  status_line.Finish();
-  live_status.dropped = static_cast<int>(queue.dropped() + counters.dropped);
-  publish("finishing", true);
-  notifier.Stopping(fmt::format("flight over after {} frames: final solve and mosaic", mosaicker.frames_in()));
+                 static_cast<int>(g_stop_signal), mosaicker->frames_in());
+  if (capture.source_failed)
+    spdlog::error("source stopped: {} (finishing with what was received)", capture.source_error);
+  status->line().Finish();
+  status->status().dropped = static_cast<int>(queue.dropped() + counters.dropped);
+  status->Publish("finishing", true);
+  notifier->Stopping(fmt::format("flight over after {} frames: final solve and mosaic", mosaicker->frames_in()));
   bool finished = false;
+  std::string error;
   {
-    const WatchdogHeartbeat heartbeat(&notifier);  // the end solves and compositing have no frame loop to feed it
-    finished = mosaicker.Finish(&error);
+    const WatchdogHeartbeat heartbeat(notifier);  // the end solves and compositing have no frame loop to feed it
+    finished = mosaicker->Finish(&error);
   }
-  live_status.registered = mosaicker.registered_count();
-  publish(finished ? "done" : "failed", true);
+  status->status().registered = mosaicker->registered_count();
+  status->Publish(finished ? "done" : "failed", true);
   if (!finished) {
     spdlog::error("cannot write the session (output not writable or disk full): {}", error);
     return kExitOutputError;
   }
-  spdlog::info("done: {}/{} registered, residual RMS {:.2f} px, peak RSS {:.0f} MiB", mosaicker.registered_count(),
-               mosaicker.frames_in(), mosaicker.residual_rms_px(), PeakRssMiB());
+  spdlog::info("done: {}/{} registered, residual RMS {:.2f} px, peak RSS {:.0f} MiB", mosaicker->registered_count(),
+               mosaicker->frames_in(), mosaicker->residual_rms_px(), PeakRssMiB());
   if (storage_stopped) return kExitOutputError;
-  if (mosaicker.registered_count() == 0) return kExitNothingRegistered;
-  return source_failed ? kExitSourceError : kExitOk;
+  if (mosaicker->registered_count() == 0) return kExitNothingRegistered;
+  return capture.source_failed ? kExitSourceError : kExitOk;
+}
+
+}  // namespace
+
+int Run(const RunConfig& config) {
+  std::unique_ptr<hal::FrameSource> source;
+  std::unique_ptr<hal::TelemetrySource> telemetry;
+  SessionPaths paths;
+  if (const int rc = OpenSourceAndSession(config, &source, &telemetry, &paths); rc != kExitOk) return rc;
+  PipelineOptions pipeline = config.pipeline;
+  MemoryPlan plan;
+  if (const int rc = PlanMemory(&pipeline, &plan); rc != kExitOk) return rc;
+  Mosaicker mosaicker(pipeline, paths);
+  mosaicker.SetMemoryPlan(plan);
+  FlightStatus status(mosaicker, plan.budget_mib);
+  if (const int rc = status.StartLiveView(config, pipeline, &mosaicker); rc != kExitOk) return rc;
+  status.Publish("starting", true);
+  JournalContents journal;
+  std::unordered_set<std::string> seen;
+  if (const int rc = StartJournal(config, paths, &mosaicker, &journal, &seen); rc != kExitOk) return rc;
+  ServiceNotifier notifier;
+  notifier.Ready(fmt::format("capturing from {} into {}", source->Describe(), config.out_dir));
+  BoundedQueue<Item> queue(static_cast<size_t>(pipeline.queue_capacity), source->IsReplay()
+                                                                             ? BoundedQueue<Item>::Policy::kBlock
+                                                                             : BoundedQueue<Item>::Policy::kDropOldest);
+  CaptureOutcome capture_outcome;
+  std::thread capture(CaptureFrames, std::cref(config), source.get(), telemetry.get(), &mosaicker, std::cref(seen),
+                      static_cast<int>(journal.frames.size()), &queue, &capture_outcome);
+  const bool storage_stopped = !RegisterFrames(config, &queue, &mosaicker, &notifier, &status);
+  capture.join();
+  return FinishFlight(source.get(), telemetry.get(), queue, capture_outcome, storage_stopped, &mosaicker, &notifier,
+                      &status);
 }
 
 }  // namespace uavm::app

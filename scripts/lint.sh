@@ -1,16 +1,121 @@
 #!/usr/bin/env bash
-# Formats (clang-format -i) and lints (clang-tidy, on the compile database of build/) the project's own sources.
+# Formats (clang-format -i) and lints (clang-tidy, on the compile database of build/ or $UAVM_BUILD_DIR) the
+# project's own sources.
 # `scripts/lint.sh --check` only reports formatting differences (exit 1 when any).
+# `scripts/lint.sh --function-size` only runs clang-tidy's readability-function-size (thresholds in .clang-tidy) over
+# core/, hal/, firmware_app/, ground_app/ and tools/, two files at a time: exit 1 when a function exceeds them and is
+# not in scripts/function_size_exceptions.txt, or when an exception there no longer exceeds them (so the list only
+# shrinks).
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$ROOT"
+BUILD_DIR="${UAVM_BUILD_DIR:-build}"
+[[ "$BUILD_DIR" = /* ]] || BUILD_DIR="$ROOT/$BUILD_DIR"
 mapfile -t FILES < <(git ls-files '*.cpp' '*.h' | grep -E '^(core|hal|firmware_app|tests|bench|tools|fuzz)/')
-if [ "${1:-}" = "--check" ]; then
-  clang-format --dry-run --Werror "${FILES[@]}"
-  exit 0
-fi
+
+# tidy_db DIR [pch]: the build's compile database in DIR for clang-tidy. The precompiled header is g++'s (.gch), which
+# clang-tidy refuses to read: without `pch` its -include goes, and each source parses only the headers it includes
+# (as in a UAVM_PCH=OFF tree, and twice as fast); with `pch` the header is included as text (-Xclang skips the
+# driver's .gch lookup), for a source that only compiles with the PCH's headers.
+tidy_db() {
+  mkdir -p "$1"
+  if [ "${2:-}" = pch ]; then
+    sed -E 's#-include ([^ "]*cmake_pch\.hxx)#-Xclang -include -Xclang \1#g' "$BUILD_DIR/compile_commands.json"
+  else
+    sed -E 's#-include [^ "]*cmake_pch\.hxx##g' "$BUILD_DIR/compile_commands.json"
+  fi >"$1/compile_commands.json"
+}
+
+function_size() {
+  local t0 tmp exceptions="$ROOT/scripts/function_size_exceptions.txt"
+  t0=$(date +%s)
+  if [ ! -f "$BUILD_DIR/compile_commands.json" ]; then
+    echo "lint: no $BUILD_DIR/compile_commands.json (configure the build first, or set UAVM_BUILD_DIR)" >&2
+    return 2
+  fi
+  tmp=$(mktemp -d)
+  # shellcheck disable=SC2064  # expand now: tmp is local
+  trap "rm -rf '$tmp'" EXIT
+  tidy_db "$tmp"
+  # Only sources the build compiles (hal/'s optional back ends may be configured out); headers are checked through
+  # them, each function reported once.
+  mapfile -t SRCS < <(git ls-files '*.cpp' | grep -E '^(core|hal|firmware_app|ground_app|tools)/' |
+    while read -r f; do grep -qF "\"file\": \"$ROOT/$f\"" "$tmp/compile_commands.json" && echo "$f"; done)
+  tidy_db "$tmp/pch" pch
+  export LINT_TMP="$tmp" LINT_ROOT="$ROOT"
+  # A source that does not parse without the PCH (a missing #include) is tried again with it, and named.
+  # shellcheck disable=SC2016  # the inner bash expands them
+  printf '%s\n' "${SRCS[@]}" | xargs -P2 -I{} bash -c '
+    tidy() {
+      clang-tidy -p "$1" --quiet --checks="-*,readability-function-size" \
+        --header-filter="^$LINT_ROOT/(core|hal|firmware_app|ground_app|tools)/" "$LINT_ROOT/$2" >"$3" 2>&1
+    }
+    out="$LINT_TMP/out.$(echo "$1" | tr / _)"
+    tidy "$LINT_TMP" "$1" "$out" && exit 0
+    echo "$1" >>"$LINT_TMP/needs_pch"
+    tidy "$LINT_TMP/pch" "$1" "$out" || echo "$1" >>"$LINT_TMP/failed"' _ {}
+  if [ -s "$tmp/needs_pch" ]; then
+    echo "lint: parsed only with the precompiled header's includes (an #include missing?):" \
+      "$(sort "$tmp/needs_pch" | tr '\n' ' ')"
+  fi
+  if [ -s "$tmp/failed" ]; then
+    echo "lint: clang-tidy could not parse:" >&2
+    while read -r f; do
+      echo "  $f" >&2
+      grep -E ': error:' "$tmp/out.$(echo "$f" | tr / _)" | head -5 >&2 || true
+    done <"$tmp/failed"
+    return 1
+  fi
+  # One line per function over a threshold: "file:function<TAB>file:line<TAB>why".
+  cat "$tmp"/out.* | awk -v root="$ROOT/" '
+    match($0, /^[^:]+:[0-9]+:[0-9]+: warning: function .* exceeds recommended size/) {
+      split($0, p, ":"); file = substr(p[1], length(root) + 1); at = file ":" p[2]
+      name = $0; sub(/^[^'\'']*'\''/, "", name); sub(/'\''.*$/, "", name)
+      key[at] = file ":" name; next
+    }
+    /: note: / && (split($0, p, ":") >= 4) {
+      at = substr(p[1], length(root) + 1) ":" p[2]
+      n = $0; sub(/^.*: note: /, "", n)
+      if (!((at, n) in seen)) { seen[at, n] = 1; why[at] = why[at] (why[at] == "" ? "" : "; ") n }
+    }
+    END { for (at in key) printf "%s\t%s\t%s\n", key[at], at, why[at] }' | sort -u >"$tmp/flagged"
+  sed -E 's/#.*//; s/[[:space:]]+$//; s/^[[:space:]]+//; /^$/d' "$exceptions" | sort -u >"$tmp/allowed"
+  local over stale
+  over=$(cut -f1 "$tmp/flagged" | sort -u | comm -23 - "$tmp/allowed")
+  stale=$(cut -f1 "$tmp/flagged" | sort -u | comm -13 - "$tmp/allowed")
+  echo "lint: function size: ${#SRCS[@]} sources, $(wc -l <"$tmp/flagged") function(s) over the thresholds," \
+    "$(wc -l <"$tmp/allowed") exception(s), $(($(date +%s) - t0)) s"
+  local status=0
+  if [ -n "$over" ]; then
+    echo "lint: functions over the size thresholds (.clang-tidy): split them, or list them with a reason in" \
+      "scripts/function_size_exceptions.txt" >&2
+    while read -r k; do awk -F'\t' -v k="$k" '$1 == k { print "  " $2 " " k " (" $3 ")" }' "$tmp/flagged" >&2; done \
+      <<<"$over"
+    status=1
+  fi
+  if [ -n "$stale" ]; then
+    echo "lint: exceptions no longer over the thresholds: remove them from scripts/function_size_exceptions.txt" >&2
+    sed 's/^/  /' <<<"$stale" >&2
+    status=1
+  fi
+  return "$status"
+}
+
+case "${1:-}" in
+  --check)
+    clang-format --dry-run --Werror "${FILES[@]}"
+    exit 0
+    ;;
+  --function-size)
+    function_size
+    exit $?
+    ;;
+esac
 clang-format -i "${FILES[@]}"
-if [ -f build/compile_commands.json ]; then
+if [ -f "$BUILD_DIR/compile_commands.json" ]; then
+  TIDY_DB=$(mktemp -d)
+  trap 'rm -rf "$TIDY_DB"' EXIT
+  tidy_db "$TIDY_DB"
   mapfile -t SRCS < <(printf '%s\n' "${FILES[@]}" | grep -E '^(core|hal|firmware_app)/.*\.cpp$')
-  clang-tidy -p build --quiet "${SRCS[@]}" 2>/dev/null | grep -E "warning|error" || echo "clang-tidy: clean"
+  clang-tidy -p "$TIDY_DB" --quiet "${SRCS[@]}" 2>/dev/null | grep -E "warning|error" || echo "clang-tidy: clean"
 fi

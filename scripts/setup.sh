@@ -11,6 +11,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcpp-httplib-dev libjs-leaflet chromium python3-gdal curl
   jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
+  clang-tidy  # scripts/lint.sh --function-size (a CI step)
   nodejs  # test peers (tests/telemetry/run_peer.sh: node-mavlink from the npm registry)
   "$@"
 )

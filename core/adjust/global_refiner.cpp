@@ -1,11 +1,9 @@
 #include "core/adjust/global_refiner.h"
 
 #include <ceres/ceres.h>
-
 #include <spdlog/spdlog.h>
 
 #include <Eigen/Geometry>
-
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -15,7 +13,9 @@
 
 namespace uavm {
 
-const char* ToString(MotionModel model) { return model == MotionModel::kAffine ? "affine" : "homography"; }
+const char* ToString(MotionModel model) {
+  return model == MotionModel::kAffine ? "affine" : "homography";
+}
 
 bool ParseMotionModel(const std::string& text, MotionModel* model) {
   if (text == "affine") {
@@ -30,9 +30,8 @@ bool ParseMotionModel(const std::string& text, MotionModel* model) {
 }
 
 bool RefineOptions::Check(std::string* why) const {
-  if (!(huber_px > 0) || !(nadir_weight >= 0) || !(rigidity_weight >= 0) || max_iterations < 1 ||
-      !(max_seconds >= 0) || threads < 1 || threads > 64 || !(max_perspective_ratio > 1) ||
-      max_correspondences < 100 || !(outlier_px >= 0)) {
+  if (!(huber_px > 0) || !(nadir_weight >= 0) || !(rigidity_weight >= 0) || max_iterations < 1 || !(max_seconds >= 0) ||
+      threads < 1 || threads > 64 || !(max_perspective_ratio > 1) || max_correspondences < 100 || !(outlier_px >= 0)) {
     if (why != nullptr)
       *why =
           "refine: huber_px > 0, weights >= 0, max_iterations >= 1, max_seconds >= 0, threads in [1,64], "
@@ -61,8 +60,8 @@ FrameParams ToParams(const Mat3& m_in) {
 
 Mat3 FromParams(const FrameParams& p) {
   Mat3 m;
-  m << p.affine[0], p.affine[1], p.affine[2], p.affine[3], p.affine[4], p.affine[5], p.perspective[0],
-      p.perspective[1], 1.0;
+  m << p.affine[0], p.affine[1], p.affine[2], p.affine[3], p.affine[4], p.affine[5], p.perspective[0], p.perspective[1],
+      1.0;
   return m;
 }
 
@@ -162,6 +161,182 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+// The refinement's problem: the edges used, the correspondences each contributes (`keep`), the frames' parameters.
+class RefineProblem {
+ public:
+  RefineProblem(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
+                const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
+                const std::unordered_map<int, Mat3>& T)
+      : variable_(variable), anchor_(anchor), half_diagonal_(half_diagonal), options_(options) {
+    for (const Edge* e : edges) {
+      if (T.count(e->src) == 0 || T.count(e->tgt) == 0) continue;
+      const bool touches =
+          variable.count(e->src) != 0 || variable.count(e->tgt) != 0 || e->src == anchor || e->tgt == anchor;
+      if (touches && !e->src_points.empty()) used_.push_back(e);
+    }
+  }
+
+  const std::vector<const Edge*>& used() const { return used_; }
+  bool empty() const { return params_.empty(); }
+  size_t NumVariables() const {
+    size_t n = 0;
+    for (const auto& [id, p] : params_)
+      if (variable_.count(id) != 0) ++n;
+    return n;
+  }
+
+  // The correspondences each edge contributes: every `stride`-th (points are grid-spread over the frame in no
+  // particular order, so a stride keeps the spread); the parameters of the frames they touch. Returns how many.
+  size_t Select(size_t stride, const std::unordered_map<int, Mat3>& T) {
+    size_t used_points = 0;
+    keep_.assign(used_.size(), {});
+    for (size_t i = 0; i < used_.size(); ++i) {
+      for (size_t k = 0; k < used_[i]->src_points.size(); k += stride) keep_[i].push_back(static_cast<uint32_t>(k));
+      used_points += keep_[i].size();
+      for (int id : {used_[i]->src, used_[i]->tgt})
+        if (params_.find(id) == params_.end()) params_.emplace(id, ToParams(T.at(id)));
+    }
+    // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
+    for (const Edge* e : used_)
+      for (size_t k = 0; k < e->src_points.size(); ++k) {
+        extent_[e->src].extend(e->src_points[k]);
+        extent_[e->tgt].extend(e->tgt_points[k]);
+      }
+    for (const auto& [id, box] : extent_) frame_centre_[id] = box.center();
+    return used_points;
+  }
+
+  // Solves the problem over the current `keep` lists (the parameters stay in `params_` between solves). Empty on
+  // success, else why.
+  std::string Solve(const ceres::Solver::Options& solver_options, int* iterations, bool log) {
+    ceres::Problem problem;
+    Build(&problem);
+    ceres::Solver::Summary summary;
+    ceres::Solve(solver_options, &problem, &summary);
+    if (log) spdlog::debug("refinement: {}", summary.BriefReport());
+    *iterations += static_cast<int>(summary.iterations.size());
+    return summary.IsSolutionUsable() ? std::string() : "refinement failed: " + summary.message;
+  }
+
+  // Correspondences the refined maps put beyond the pairwise inlier threshold (moving water, parallax on relief, a
+  // match that only fitted the pair's affine) are dropped, as a bundle adjustment filters its observations. An edge
+  // that would lose more than half of its points keeps them all. Returns how many were dropped.
+  size_t DropOutliers() {
+    size_t removed = 0;
+    for (size_t i = 0; i < used_.size(); ++i) {
+      const Edge* e = used_[i];
+      const Mat3 tgt_from_src = FromParams(params_.at(e->tgt)).inverse() * FromParams(params_.at(e->src));
+      std::vector<uint32_t> good;
+      for (uint32_t k : keep_[i])
+        if ((Apply(tgt_from_src, e->src_points[k]) - e->tgt_points[k]).norm() <= options_.outlier_px) good.push_back(k);
+      const size_t bad = keep_[i].size() - good.size();
+      if (bad > 0 && 2 * bad <= keep_[i].size()) {
+        removed += bad;
+        keep_[i] = std::move(good);
+      }
+    }
+    return removed;
+  }
+
+  // The refined maps of the variable frames and the anchor; empty on success, else why.
+  std::string Refined(std::unordered_map<int, Mat3>* refined) const {
+    for (const auto& [id, p] : params_) {
+      if (variable_.count(id) == 0 && id != anchor_) continue;
+      const Mat3 m = FromParams(p);
+      if (!m.allFinite() || std::abs(m.determinant()) < 1e-12) return "refinement produced a degenerate map";
+      if (!PlausiblePerspective(id, m)) return "implausible perspective on frame " + std::to_string(id);
+      (*refined)[id] = m;
+    }
+    return {};
+  }
+
+ private:
+  bool Homography() const { return options_.model == MotionModel::kHomography; }
+
+  void Build(ceres::Problem* problem) {
+    for (size_t i = 0; i < used_.size(); ++i) {
+      if (keep_[i].empty()) continue;
+      const Edge* e = used_[i];
+      FrameParams& s = params_.at(e->src);
+      FrameParams& t = params_.at(e->tgt);
+      auto* cost = new ceres::DynamicAutoDiffCostFunction<EdgeTransferCost, 8>(
+          new EdgeTransferCost(e, keep_[i], options_.huber_px));
+      cost->AddParameterBlock(6);
+      cost->AddParameterBlock(2);
+      cost->AddParameterBlock(6);
+      cost->AddParameterBlock(2);
+      cost->SetNumResiduals(static_cast<int>(2 * keep_[i].size()));
+      problem->AddResidualBlock(cost, nullptr, s.affine.data(), s.perspective.data(), t.affine.data(),
+                                t.perspective.data());
+    }
+    for (auto& [id, p] : params_) AddFramePriors(id, &p, problem);
+  }
+
+  // Which blocks stay constant, and the nadir and rigidity priors of a frame that moves.
+  void AddFramePriors(int id, FrameParams* p, ceres::Problem* problem) const {
+    const bool is_variable = variable_.count(id) != 0;
+    const bool is_anchor = id == anchor_;
+    const auto hd_it = half_diagonal_.find(id);
+    const double hd = hd_it != half_diagonal_.end() ? hd_it->second : 1.0;
+    if (!is_variable || is_anchor) problem->SetParameterBlockConstant(p->affine.data());
+    if (!Homography() || !(is_variable || is_anchor)) {
+      problem->SetParameterBlockConstant(p->perspective.data());
+    } else if (options_.nadir_weight > 0) {
+      problem->AddResidualBlock(
+          new ceres::AutoDiffCostFunction<NadirPrior, 2, 2>(new NadirPrior(options_.nadir_weight * hd * hd)), nullptr,
+          p->perspective.data());
+    }
+    if (is_variable && !is_anchor && options_.rigidity_weight > 0) {
+      const auto c = frame_centre_.find(id);
+      const double scale = c != frame_centre_.end() ? LocalScale(FromParams(*p), c->second) : 0.0;
+      if (scale > 0 && c != frame_centre_.end())
+        problem->AddResidualBlock(new ceres::AutoDiffCostFunction<RigidityPrior, 2, 6, 2>(
+                                      new RigidityPrior(options_.rigidity_weight * hd / scale, c->second)),
+                                  nullptr, p->affine.data(), p->perspective.data());
+    }
+  }
+
+  // A drone camera is near nadir: the projective denominator may not vary much over the frame. A frame whose matches
+  // allowed a wild perspective (few, clustered points) would be drawn folded or smeared.
+  bool PlausiblePerspective(int id, const Mat3& m) const {
+    const auto box = extent_.find(id);
+    if (!Homography() || box == extent_.end()) return true;
+    double lo = 1e300;
+    double hi = -1e300;
+    for (const auto corner : {Eigen::AlignedBox2d::BottomLeft, Eigen::AlignedBox2d::BottomRight,
+                              Eigen::AlignedBox2d::TopLeft, Eigen::AlignedBox2d::TopRight}) {
+      const Vec2 c = box->second.corner(corner);
+      const double w = m(2, 0) * c.x() + m(2, 1) * c.y() + 1.0;
+      lo = std::min(lo, w);
+      hi = std::max(hi, w);
+    }
+    return !(!(lo > 0) || hi / lo > options_.max_perspective_ratio);
+  }
+
+  const std::unordered_set<int>& variable_;
+  const int anchor_;
+  const std::unordered_map<int, double>& half_diagonal_;
+  const RefineOptions& options_;
+  std::vector<const Edge*> used_;
+  std::vector<std::vector<uint32_t>> keep_;
+  // Ordered map: the parameter blocks' addresses must stay put while the problem holds them.
+  std::map<int, FrameParams> params_;
+  std::unordered_map<int, Vec2> frame_centre_;
+  std::unordered_map<int, Eigen::AlignedBox2d> extent_;
+};
+
+ceres::Solver::Options SolverOptions(const RefineOptions& options) {
+  ceres::Solver::Options solver_options;
+  solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  solver_options.max_num_iterations = options.max_iterations;
+  solver_options.num_threads = options.threads;
+  solver_options.function_tolerance = 1e-9;
+  solver_options.parameter_tolerance = 1e-10;
+  if (options.max_seconds > 0) solver_options.max_solver_time_in_seconds = options.max_seconds;
+  solver_options.logging_type = ceres::SILENT;
+  return solver_options;
+}
+
 }  // namespace
 
 TransferStats TransferErrors(const std::vector<const Edge*>& edges,
@@ -195,180 +370,37 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   RefineResult result;
   StageTimer timer;
   auto& T = *mosaic_from_frame;
-  std::vector<const Edge*> used;
-  for (const Edge* e : edges) {
-    if (T.count(e->src) == 0 || T.count(e->tgt) == 0) continue;
-    const bool touches = variable.count(e->src) != 0 || variable.count(e->tgt) != 0 || e->src == anchor ||
-                         e->tgt == anchor;
-    if (touches && !e->src_points.empty()) used.push_back(e);
-  }
-  const TransferStats before = TransferErrors(used, T);
+  RefineProblem refine(edges, variable, anchor, half_diagonal, options, T);
+  const TransferStats before = TransferErrors(refine.used(), T);
   result.initial_rms_px = before.rms;
   result.num_residuals = before.count;
-  const bool homography = options.model == MotionModel::kHomography;
-
-  // Ordered map: the parameter blocks' addresses must stay put while the problem holds them.
-  std::map<int, FrameParams> params;
-  auto params_of = [&](int id) -> FrameParams& {
-    auto it = params.find(id);
-    if (it == params.end()) it = params.emplace(id, ToParams(T.at(id))).first;
-    return it->second;
-  };
+  const auto max_correspondences = static_cast<size_t>(options.max_correspondences);
   const size_t stride =
-      before.count > static_cast<size_t>(options.max_correspondences)
-          ? (before.count + static_cast<size_t>(options.max_correspondences) - 1) /
-                static_cast<size_t>(options.max_correspondences)
-          : 1;
-  // The correspondences each edge contributes. Points are grid-spread over the frame in no particular order, so a
-  // stride keeps the spread.
-  std::vector<std::vector<uint32_t>> keep(used.size());
-  for (size_t i = 0; i < used.size(); ++i) {
-    for (size_t k = 0; k < used[i]->src_points.size(); k += stride) keep[i].push_back(static_cast<uint32_t>(k));
-    result.num_used += keep[i].size();
-    params_of(used[i]->src);
-    params_of(used[i]->tgt);
-  }
-  // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
-  std::unordered_map<int, Vec2> frame_centre;
-  std::unordered_map<int, Eigen::AlignedBox2d> extent;
-  {
-    for (const Edge* e : used)
-      for (size_t k = 0; k < e->src_points.size(); ++k) {
-        extent[e->src].extend(e->src_points[k]);
-        extent[e->tgt].extend(e->tgt_points[k]);
-      }
-    for (const auto& [id, box] : extent) frame_centre[id] = box.center();
-  }
-  if (params.empty()) {
+      before.count > max_correspondences ? (before.count + max_correspondences - 1) / max_correspondences : 1;
+  result.num_used = refine.Select(stride, T);
+  if (refine.empty()) {
     result.ok = true;
     return result;
   }
-  // The problem over the current `keep` lists; built again after the outlier pass (the parameters stay in `params`).
-  const auto build = [&](ceres::Problem* problem) {
-    for (size_t i = 0; i < used.size(); ++i) {
-      if (keep[i].empty()) continue;
-      const Edge* e = used[i];
-      FrameParams& s = params.at(e->src);
-      FrameParams& t = params.at(e->tgt);
-      auto* cost = new ceres::DynamicAutoDiffCostFunction<EdgeTransferCost, 8>(
-          new EdgeTransferCost(e, keep[i], options.huber_px));
-      cost->AddParameterBlock(6);
-      cost->AddParameterBlock(2);
-      cost->AddParameterBlock(6);
-      cost->AddParameterBlock(2);
-      cost->SetNumResiduals(static_cast<int>(2 * keep[i].size()));
-      problem->AddResidualBlock(cost, nullptr, s.affine.data(), s.perspective.data(), t.affine.data(),
-                                t.perspective.data());
-    }
-    for (auto& [id, p] : params) {
-      const bool is_variable = variable.count(id) != 0;
-      const bool is_anchor = id == anchor;
-      const auto hd_it = half_diagonal.find(id);
-      const double hd = hd_it != half_diagonal.end() ? hd_it->second : 1.0;
-      if (!is_variable || is_anchor) problem->SetParameterBlockConstant(p.affine.data());
-      if (!homography || !(is_variable || is_anchor)) {
-        problem->SetParameterBlockConstant(p.perspective.data());
-      } else if (options.nadir_weight > 0) {
-        problem->AddResidualBlock(
-            new ceres::AutoDiffCostFunction<NadirPrior, 2, 2>(new NadirPrior(options.nadir_weight * hd * hd)),
-            nullptr, p.perspective.data());
-      }
-      if (is_variable && !is_anchor && options.rigidity_weight > 0) {
-        const auto c = frame_centre.find(id);
-        const double scale = c != frame_centre.end() ? LocalScale(FromParams(p), c->second) : 0.0;
-        if (scale > 0 && c != frame_centre.end())
-          problem->AddResidualBlock(new ceres::AutoDiffCostFunction<RigidityPrior, 2, 6, 2>(
-                                        new RigidityPrior(options.rigidity_weight * hd / scale, c->second)),
-                                    nullptr, p.affine.data(), p.perspective.data());
-      }
-    }
-  };
-  for (const auto& [id, p] : params)
-    if (variable.count(id) != 0) ++result.num_variables;
-
-  ceres::Solver::Options solver_options;
-  solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  solver_options.max_num_iterations = options.max_iterations;
-  solver_options.num_threads = options.threads;
-  solver_options.function_tolerance = 1e-9;
-  solver_options.parameter_tolerance = 1e-10;
-  if (options.max_seconds > 0) solver_options.max_solver_time_in_seconds = options.max_seconds;
-  solver_options.logging_type = ceres::SILENT;
-  {
-    ceres::Problem problem;
-    build(&problem);
-    ceres::Solver::Summary summary;
-    ceres::Solve(solver_options, &problem, &summary);
-    spdlog::debug("refinement: {}", summary.BriefReport());
-    result.iterations = static_cast<int>(summary.iterations.size());
-    if (!summary.IsSolutionUsable()) {
-      result.failure = "refinement failed: " + summary.message;
-      return result;
-    }
-  }
-  // Correspondences the refined maps put beyond the pairwise inlier threshold (moving water, parallax on relief, a
-  // match that only fitted the pair's affine) are dropped and the problem solved again, as a bundle adjustment
-  // filters its observations. An edge that would lose more than half of its points keeps them all.
+  result.num_variables = refine.NumVariables();
+  const ceres::Solver::Options solver_options = SolverOptions(options);
+  result.failure = refine.Solve(solver_options, &result.iterations, /*log=*/true);
+  if (!result.failure.empty()) return result;
   if (options.outlier_px > 0) {
-    size_t removed = 0;
-    for (size_t i = 0; i < used.size(); ++i) {
-      const Edge* e = used[i];
-      const Mat3 tgt_from_src = FromParams(params.at(e->tgt)).inverse() * FromParams(params.at(e->src));
-      std::vector<uint32_t> good;
-      for (uint32_t k : keep[i])
-        if ((Apply(tgt_from_src, e->src_points[k]) - e->tgt_points[k]).norm() <= options.outlier_px) good.push_back(k);
-      const size_t bad = keep[i].size() - good.size();
-      if (bad > 0 && 2 * bad <= keep[i].size()) {
-        removed += bad;
-        keep[i] = std::move(good);
-      }
-    }
-    result.outliers = removed;
-    if (removed > 0) {
-      ceres::Problem problem;
-      build(&problem);
-      ceres::Solver::Summary second;
-      ceres::Solve(solver_options, &problem, &second);
-      result.iterations += static_cast<int>(second.iterations.size());
-      if (!second.IsSolutionUsable()) {
-        result.failure = "refinement failed: " + second.message;
-        return result;
-      }
+    result.outliers = refine.DropOutliers();
+    if (result.outliers > 0) {
+      result.failure = refine.Solve(solver_options, &result.iterations, /*log=*/false);
+      if (!result.failure.empty()) return result;
     }
   }
   std::unordered_map<int, Mat3> refined;
-  for (const auto& [id, p] : params) {
-    if (variable.count(id) == 0 && id != anchor) continue;
-    const Mat3 m = FromParams(p);
-    if (!m.allFinite() || std::abs(m.determinant()) < 1e-12) {
-      result.failure = "refinement produced a degenerate map";
-      return result;
-    }
-    // A drone camera is near nadir: the projective denominator may not vary much over the frame. A frame whose
-    // matches allowed a wild perspective (few, clustered points) would be drawn folded or smeared.
-    const auto box = extent.find(id);
-    if (homography && box != extent.end()) {
-      double lo = 1e300;
-      double hi = -1e300;
-      for (const auto corner : {Eigen::AlignedBox2d::BottomLeft, Eigen::AlignedBox2d::BottomRight,
-                                Eigen::AlignedBox2d::TopLeft, Eigen::AlignedBox2d::TopRight}) {
-        const Vec2 c = box->second.corner(corner);
-        const double w = m(2, 0) * c.x() + m(2, 1) * c.y() + 1.0;
-        lo = std::min(lo, w);
-        hi = std::max(hi, w);
-      }
-      if (!(lo > 0) || hi / lo > options.max_perspective_ratio) {
-        result.failure = "implausible perspective on frame " + std::to_string(id);
-        return result;
-      }
-    }
-    refined[id] = m;
-  }
+  result.failure = refine.Refined(&refined);
+  if (!result.failure.empty()) return result;
   // Ceres only returns a step that lowered the robust cost; the plain statistics are for the report.
   std::unordered_map<int, Mat3> trial = T;
   for (const auto& [id, m] : refined) trial[id] = m;
-  const TransferStats after = TransferErrors(used, trial);
-  const TransferStats inliers = TransferErrors(used, trial, false, options.outlier_px);
+  const TransferStats after = TransferErrors(refine.used(), trial);
+  const TransferStats inliers = TransferErrors(refine.used(), trial, false, options.outlier_px);
   for (const auto& [id, m] : refined) T[id] = m;
   result.final_all_rms_px = after.rms;
   result.final_rms_px = options.outlier_px > 0 ? inliers.rms : after.rms;

@@ -139,52 +139,52 @@ bool WriteKmz(const std::string& tif, const std::string& kmz, std::string* error
   return RenameOver(part, kmz, error);
 }
 
-bool WriteTiles(const std::string& tif, const std::string& dir, bool geographic, double gsd_m,
-                const TileOptions& options, TileSet* set, std::string* error) {
-  const auto t0 = std::chrono::steady_clock::now();
-  auto src = OpenRead(tif, error);
-  if (!src) return false;
-  std::error_code ec;
-  fs::remove_all(dir, ec);
-  *set = TileSet{};
-  set->geographic = geographic;
+namespace {
+
+fs::path TilePath(const std::string& dir, int z, int tx, int ty) {
+  return fs::path(dir) / std::to_string(z) / std::to_string(tx) / (std::to_string(ty) + ".png");
+}
+
+// Local pyramid: at max_zoom one tile pixel is one mosaic pixel; zoom 0 holds the whole mosaic in one tile.
+bool WriteLocalTiles(GDALDataset* src, const std::string& dir, TileSet* set, std::string* error) {
   const int W = src->GetRasterXSize();
   const int H = src->GetRasterYSize();
   cv::Mat tile(kTile, kTile, CV_8UC4);
-  if (!geographic) {
-    // Local pyramid: at max_zoom one tile pixel is one mosaic pixel; zoom 0 holds the whole mosaic in one tile.
-    set->max_zoom = static_cast<int>(Log2Ceil(static_cast<double>(std::max(W, H)) / kTile));
-    set->min_zoom = 0;
-    const double s = std::ldexp(1.0, set->max_zoom);
-    set->west = 0;
-    set->east = W / s;
-    set->north = 0;
-    set->south = -H / s;
-    for (int z = set->min_zoom; z <= set->max_zoom; ++z) {
-      const int f = 1 << (set->max_zoom - z);
-      const int span = kTile * f;
-      for (int ty = 0; ty * span < H; ++ty)
-        for (int tx = 0; tx * span < W; ++tx) {
-          tile.setTo(cv::Scalar::all(0));
-          const int x0 = tx * span, y0 = ty * span;
-          const int w = std::min(span, W - x0), h = std::min(span, H - y0);
-          const cv::Rect at(0, 0, std::max(1, (w + f - 1) / f), std::max(1, (h + f - 1) / f));
-          if (!ReadBgra(src.get(), x0, y0, w, h, &tile, at)) {
-            *error = std::string("tiles: ") + CPLGetLastErrorMsg();
-            return false;
-          }
-          bool written = false;
-          if (!SaveTile(tile, fs::path(dir) / std::to_string(z) / std::to_string(tx) / (std::to_string(ty) + ".png"),
-                        &written, error))
-            return false;
-          (written ? set->tiles : set->tiles_empty)++;
+  set->max_zoom = static_cast<int>(Log2Ceil(static_cast<double>(std::max(W, H)) / kTile));
+  set->min_zoom = 0;
+  const double s = std::ldexp(1.0, set->max_zoom);
+  set->west = 0;
+  set->east = W / s;
+  set->north = 0;
+  set->south = -H / s;
+  for (int z = set->min_zoom; z <= set->max_zoom; ++z) {
+    const int f = 1 << (set->max_zoom - z);
+    const int span = kTile * f;
+    for (int ty = 0; ty * span < H; ++ty)
+      for (int tx = 0; tx * span < W; ++tx) {
+        tile.setTo(cv::Scalar::all(0));
+        const int x0 = tx * span, y0 = ty * span;
+        const int w = std::min(span, W - x0), h = std::min(span, H - y0);
+        const cv::Rect at(0, 0, std::max(1, (w + f - 1) / f), std::max(1, (h + f - 1) / f));
+        if (!ReadBgra(src, x0, y0, w, h, &tile, at)) {
+          *error = std::string("tiles: ") + CPLGetLastErrorMsg();
+          return false;
         }
-    }
-    set->ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    return true;
+        bool written = false;
+        if (!SaveTile(tile, TilePath(dir, z, tx, ty), &written, error)) return false;
+        (written ? set->tiles : set->tiles_empty)++;
+      }
   }
+  return true;
+}
 
-  // Georeferenced: the mosaic's outline (densified edges) in EPSG:3857 and in lat/lon.
+// The mosaic's extent in EPSG:3857 metres.
+struct MercatorBox {
+  double x_min = 0, x_max = 0, y_min = 0, y_max = 0;
+};
+
+// The mosaic's outline (densified edges) in EPSG:3857 and in lat/lon: the box, and the set's bounds in degrees.
+bool MercatorOutline(GDALDataset* src, const std::string& tif, MercatorBox* box, TileSet* set, std::string* error) {
   double gt[6];
   const OGRSpatialReference* srs = src->GetSpatialRef();
   if (src->GetGeoTransform(gt) != CE_None || srs == nullptr) {
@@ -207,7 +207,7 @@ bool WriteTiles(const std::string& tif, const std::string& dir, bool geographic,
   std::vector<double> xs, ys;
   for (int k = 0; k <= 16; ++k) {
     const double t = k / 16.0;
-    const double w = W, h = H;
+    const double w = src->GetRasterXSize(), h = src->GetRasterYSize();
     const double edge[4][2] = {{t * w, 0}, {t * w, h}, {0, t * h}, {w, t * h}};
     for (const auto& e : edge) {
       xs.push_back(gt[0] + e[0] * gt[1] + e[1] * gt[2]);
@@ -220,79 +220,121 @@ bool WriteTiles(const std::string& tif, const std::string& dir, bool geographic,
     *error = "tiles: PROJ failed on the mosaic's outline";
     return false;
   }
-  // Plain values, not structured bindings: clang 14 cannot capture those in the lambda below.
-  const double mx_min = *std::min_element(mx.begin(), mx.end());
-  const double mx_max = *std::max_element(mx.begin(), mx.end());
-  const double my_min = *std::min_element(my.begin(), my.end());
-  const double my_max = *std::max_element(my.begin(), my.end());
+  box->x_min = *std::min_element(mx.begin(), mx.end());
+  box->x_max = *std::max_element(mx.begin(), mx.end());
+  box->y_min = *std::min_element(my.begin(), my.end());
+  box->y_max = *std::max_element(my.begin(), my.end());
   set->west = *std::min_element(lx.begin(), lx.end());
   set->east = *std::max_element(lx.begin(), lx.end());
   set->south = *std::min_element(ly.begin(), ly.end());
   set->north = *std::max_element(ly.begin(), ly.end());
-  const double lat = 0.5 * (set->south + set->north) * M_PI / 180.0;
-  // Finest zoom: a tile pixel on the ground no larger than the GSD; coarsest: the whole mosaic in one tile.
-  const double world = 2 * kWebMercatorHalf;
-  set->max_zoom = std::clamp(static_cast<int>(Log2Ceil(world * std::cos(lat) / (kTile * gsd_m))), 0, 24);
-  const double extent = std::max(mx_max - mx_min, my_max - my_min);
-  set->min_zoom = std::clamp(static_cast<int>(std::floor(std::log2(world / extent))), 0, set->max_zoom);
-  const auto tile_range = [&](int z, int* x0, int* x1, int* y0, int* y1) {
-    const double span = world / std::ldexp(1.0, z);
+  return true;
+}
+
+constexpr double kWebMercatorWorld = 2 * kWebMercatorHalf;
+
+// The XYZ tiles [x0, x1] x [y0, y1] of zoom z that cover the box.
+struct TileRange {
+  int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+  TileRange(const MercatorBox& b, int z) {
+    const double span = kWebMercatorWorld / std::ldexp(1.0, z);
     const int n = 1 << z;
-    *x0 = std::clamp(static_cast<int>(std::floor((mx_min + kWebMercatorHalf) / span)), 0, n - 1);
-    *x1 = std::clamp(static_cast<int>(std::floor((mx_max + kWebMercatorHalf) / span)), 0, n - 1);
-    *y0 = std::clamp(static_cast<int>(std::floor((kWebMercatorHalf - my_max) / span)), 0, n - 1);
-    *y1 = std::clamp(static_cast<int>(std::floor((kWebMercatorHalf - my_min) / span)), 0, n - 1);
-  };
+    x0 = std::clamp(static_cast<int>(std::floor((b.x_min + kWebMercatorHalf) / span)), 0, n - 1);
+    x1 = std::clamp(static_cast<int>(std::floor((b.x_max + kWebMercatorHalf) / span)), 0, n - 1);
+    y0 = std::clamp(static_cast<int>(std::floor((kWebMercatorHalf - b.y_max) / span)), 0, n - 1);
+    y1 = std::clamp(static_cast<int>(std::floor((kWebMercatorHalf - b.y_min) / span)), 0, n - 1);
+  }
+};
+
+// Finest zoom: a tile pixel on the ground no larger than the GSD; coarsest: the whole mosaic in one tile. The finest
+// zooms are dropped while the pyramid holds more than max_tiles.
+void ChooseZooms(const MercatorBox& box, double gsd_m, const TileOptions& options, TileSet* set) {
+  const double lat = 0.5 * (set->south + set->north) * M_PI / 180.0;
+  const double world = kWebMercatorWorld;
+  set->max_zoom = std::clamp(static_cast<int>(Log2Ceil(world * std::cos(lat) / (kTile * gsd_m))), 0, 24);
+  const double extent = std::max(box.x_max - box.x_min, box.y_max - box.y_min);
+  set->min_zoom = std::clamp(static_cast<int>(std::floor(std::log2(world / extent))), 0, set->max_zoom);
   for (;;) {
     long total = 0;
     for (int z = set->min_zoom; z <= set->max_zoom; ++z) {
-      int x0, x1, y0, y1;
-      tile_range(z, &x0, &x1, &y0, &y1);
-      total += static_cast<long>(x1 - x0 + 1) * (y1 - y0 + 1);
+      const TileRange r(box, z);
+      total += static_cast<long>(r.x1 - r.x0 + 1) * (r.y1 - r.y0 + 1);
     }
     if (total <= options.max_tiles || set->max_zoom == set->min_zoom) break;
     --set->max_zoom;
   }
+}
+
+// Warps the mosaic into one EPSG:3857 tile (in memory) and reads it as BGRA.
+bool WarpTile(GDALDatasetH src_h, GDALWarpAppOptions* wopts, const std::string& merc_wkt, int z, int tx, int ty,
+              cv::Mat* tile, std::string* error) {
+  const double span = kWebMercatorWorld / std::ldexp(1.0, z);
   GDALDriver* mem = GetGDALDriverManager()->GetDriverByName("MEM");
+  DatasetPtr dst(mem->Create("", kTile, kTile, 4, GDT_Byte, nullptr));
+  double dgt[6] = {-kWebMercatorHalf + tx * span, span / kTile, 0, kWebMercatorHalf - ty * span, 0, -span / kTile};
+  dst->SetGeoTransform(dgt);
+  dst->SetProjection(merc_wkt.c_str());
+  dst->GetRasterBand(4)->SetColorInterpretation(GCI_AlphaBand);
+  int usage = 0;
+  GDALDatasetH dst_h = GDALDataset::ToHandle(dst.get());
+  if (GDALWarp(nullptr, dst_h, 1, &src_h, wopts, &usage) == nullptr || usage != 0) {
+    *error = std::string("tiles: warp failed: ") + CPLGetLastErrorMsg();
+    return false;
+  }
+  tile->setTo(cv::Scalar::all(0));
+  if (!ReadBgra(dst.get(), 0, 0, kTile, kTile, tile, cv::Rect(0, 0, kTile, kTile))) {
+    *error = std::string("tiles: ") + CPLGetLastErrorMsg();
+    return false;
+  }
+  return true;
+}
+
+bool WriteMercatorTiles(GDALDataset* src, const std::string& dir, const MercatorBox& box, TileSet* set,
+                        std::string* error) {
+  cv::Mat tile(kTile, kTile, CV_8UC4);
   const std::string merc_wkt = EpsgWkt(3857);
   char** wargs = nullptr;
   for (const char* a : {"-r", "bilinear", "-dstalpha", "-wm", "32", "-q"}) wargs = CSLAddString(wargs, a);
   GDALWarpAppOptions* wopts = GDALWarpAppOptionsNew(wargs, nullptr);
   CSLDestroy(wargs);
-  GDALDatasetH src_h = GDALDataset::ToHandle(src.get());
+  GDALDatasetH src_h = GDALDataset::ToHandle(src);
   bool ok = true;
   for (int z = set->min_zoom; z <= set->max_zoom && ok; ++z) {
-    int x0, x1, y0, y1;
-    tile_range(z, &x0, &x1, &y0, &y1);
-    const double span = world / std::ldexp(1.0, z);
-    for (int ty = y0; ty <= y1 && ok; ++ty)
-      for (int tx = x0; tx <= x1 && ok; ++tx) {
-        DatasetPtr dst(mem->Create("", kTile, kTile, 4, GDT_Byte, nullptr));
-        double dgt[6] = {
-            -kWebMercatorHalf + tx * span, span / kTile, 0, kWebMercatorHalf - ty * span, 0, -span / kTile};
-        dst->SetGeoTransform(dgt);
-        dst->SetProjection(merc_wkt.c_str());
-        dst->GetRasterBand(4)->SetColorInterpretation(GCI_AlphaBand);
-        int usage = 0;
-        GDALDatasetH dst_h = GDALDataset::ToHandle(dst.get());
-        if (GDALWarp(nullptr, dst_h, 1, &src_h, wopts, &usage) == nullptr || usage != 0) {
-          *error = std::string("tiles: warp failed: ") + CPLGetLastErrorMsg();
-          ok = false;
-          break;
-        }
-        tile.setTo(cv::Scalar::all(0));
-        if (!ReadBgra(dst.get(), 0, 0, kTile, kTile, &tile, cv::Rect(0, 0, kTile, kTile))) {
-          *error = std::string("tiles: ") + CPLGetLastErrorMsg();
-          ok = false;
-          break;
-        }
+    const TileRange r(box, z);
+    for (int ty = r.y0; ty <= r.y1 && ok; ++ty)
+      for (int tx = r.x0; tx <= r.x1 && ok; ++tx) {
+        ok = WarpTile(src_h, wopts, merc_wkt, z, tx, ty, &tile, error);
+        if (!ok) break;
         bool written = false;
-        ok = SaveTile(tile, fs::path(dir) / std::to_string(z) / std::to_string(tx) / (std::to_string(ty) + ".png"),
-                      &written, error);
+        ok = SaveTile(tile, TilePath(dir, z, tx, ty), &written, error);
         (written ? set->tiles : set->tiles_empty)++;
       }
   }
   GDALWarpAppOptionsFree(wopts);
+  return ok;
+}
+
+}  // namespace
+
+bool WriteTiles(const std::string& tif, const std::string& dir, bool geographic, double gsd_m,
+                const TileOptions& options, TileSet* set, std::string* error) {
+  const auto t0 = std::chrono::steady_clock::now();
+  auto src = OpenRead(tif, error);
+  if (!src) return false;
+  std::error_code ec;
+  fs::remove_all(dir, ec);
+  *set = TileSet{};
+  set->geographic = geographic;
+  bool ok = false;
+  if (!geographic) {
+    ok = WriteLocalTiles(src.get(), dir, set, error);
+    if (!ok) return false;
+  } else {
+    MercatorBox box;
+    if (!MercatorOutline(src.get(), tif, &box, set, error)) return false;
+    ChooseZooms(box, gsd_m, options, set);
+    ok = WriteMercatorTiles(src.get(), dir, box, set, error);
+  }
   set->ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return ok;
 }

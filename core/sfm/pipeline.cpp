@@ -63,42 +63,82 @@ cv::Mat ReadFrame(const std::string& path) {
   return cv::imread(path, cv::IMREAD_COLOR);
 }
 
-}  // namespace
+// Records each stage's wall time under its key of the summary's "timings".
+class StageTimes {
+ public:
+  template <typename Stage>
+  bool Run(const char* key, Stage&& stage) {
+    const auto t0 = Clock::now();
+    const bool ok = stage();
+    json_[key] = Seconds(t0);
+    return ok;
+  }
+  nlohmann::json Finish() {
+    json_["total_s"] = Seconds(start_);
+    return json_;
+  }
 
-bool RunPipeline(const std::string& session_dir, const PipelineOptions& options, const ProgressFn& progress,
-                 PipelineResult* result, std::string* error) {
-  if (!options.Check(error)) return false;
-  auto& js = result->summary;
-  js = nlohmann::json::object();
-  nlohmann::json timings = nlohmann::json::object();
-  const auto t_total = Clock::now();
+ private:
+  Clock::time_point start_ = Clock::now();
+  nlohmann::json json_ = nlohmann::json::object();
+};
 
-  // 1. Session.
-  auto t0 = Clock::now();
+// 1. The frames the reconstruction uses: registered, with a stored file and at least one used graph edge.
+struct SelectedFrames {
   Session session;
-  if (!ReadSession(session_dir, &session, error)) return false;
+  std::vector<const SessionFrame*> frames;  // into session.frames, in frames.csv order; position = image slot
+  std::map<int, size_t> slot_of;            // session index -> image slot
+};
+
+bool SelectFrames(const std::string& session_dir, SelectedFrames* out, std::string* error) {
+  if (!ReadSession(session_dir, &out->session, error)) return false;
   std::set<int> in_graph;
-  for (const auto& e : session.edges) {
+  for (const auto& e : out->session.edges) {
     if (e.used) {
       in_graph.insert(e.src);
       in_graph.insert(e.tgt);
     }
   }
-  std::vector<const SessionFrame*> frames;
-  for (const auto& f : session.frames) {
-    if (f.registered && f.has_transform && in_graph.count(f.index) && !f.stored_file.empty()) frames.push_back(&f);
+  for (const auto& f : out->session.frames) {
+    if (f.registered && f.has_transform && in_graph.count(f.index) && !f.stored_file.empty()) {
+      out->frames.push_back(&f);
+    }
   }
-  if (frames.size() < 2) {
+  if (out->frames.size() < 2) {
     *error = "fewer than two registered frames with used graph edges in " + session_dir;
     return false;
   }
-  std::map<int, size_t> slot_of;  // session index -> image slot
-  for (size_t i = 0; i < frames.size(); ++i) slot_of[frames[i]->index] = i;
-  timings["import_s"] = Seconds(t0);
+  for (size_t i = 0; i < out->frames.size(); ++i) out->slot_of[out->frames[i]->index] = i;
+  return true;
+}
 
-  // 2. Features at full (or feature_scale) resolution.
-  t0 = Clock::now();
-  std::vector<FrameFeatures> feats(frames.size());
+// 2. Features of one stored frame at feature_scale, keypoints in original-resolution pixels with their colours.
+bool FrameFeaturesOf(const std::string& path, const SiftExtractor& sift, double s, FrameFeatures* out) {
+  const cv::Mat img = ReadFrame(path);
+  if (img.empty()) return false;
+  cv::Mat gray, work;
+  cv::cvtColor(img, gray, cv::COLOR_BGR2GRAY);
+  if (s < 1.0) {
+    cv::resize(gray, work, cv::Size(), s, s, cv::INTER_AREA);
+  } else {
+    work = gray;
+  }
+  Features f = sift.Extract(work);
+  out->descriptors = f.descriptors;
+  for (const auto& p : f.points) {
+    const double x = (p.x + 0.5) / s - 0.5, y = (p.y + 0.5) / s - 0.5;
+    out->points.emplace_back(x, y);
+    const int xi = std::clamp(static_cast<int>(std::lround(x)), 0, img.cols - 1);
+    const int yi = std::clamp(static_cast<int>(std::lround(y)), 0, img.rows - 1);
+    out->colors.push_back(img.at<cv::Vec3b>(yi, xi));
+  }
+  return true;
+}
+
+bool ExtractFeatures(const std::string& session_dir, const std::vector<const SessionFrame*>& frames,
+                     const PipelineOptions& options, const ProgressFn& progress, std::vector<FrameFeatures>* feats,
+                     nlohmann::json* js, std::string* error) {
+  feats->assign(frames.size(), FrameFeatures{});
   std::vector<std::string> failures(frames.size());
   std::atomic<size_t> done{0};
   FeatureOptions fo;
@@ -112,28 +152,9 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
   const int cv_threads = cv::getNumThreads();
   cv::setNumThreads(options.threads > 1 ? 1 : cv_threads);
   ParallelFor(frames.size(), options.threads, [&](size_t i) {
-    const cv::Mat img = ReadFrame(session_dir + "/" + frames[i]->stored_file);
-    if (img.empty()) {
+    if (!FrameFeaturesOf(session_dir + "/" + frames[i]->stored_file, sift, options.feature_scale, &(*feats)[i])) {
       failures[i] = "cannot read " + frames[i]->stored_file;
       return;
-    }
-    cv::Mat gray, work;
-    cv::cvtColor(img, gray, cv::COLOR_BGR2GRAY);
-    const double s = options.feature_scale;
-    if (s < 1.0) {
-      cv::resize(gray, work, cv::Size(), s, s, cv::INTER_AREA);
-    } else {
-      work = gray;
-    }
-    Features f = sift.Extract(work);
-    FrameFeatures& out = feats[i];
-    out.descriptors = f.descriptors;
-    for (const auto& p : f.points) {
-      const double x = (p.x + 0.5) / s - 0.5, y = (p.y + 0.5) / s - 0.5;
-      out.points.emplace_back(x, y);
-      const int xi = std::clamp(static_cast<int>(std::lround(x)), 0, img.cols - 1);
-      const int yi = std::clamp(static_cast<int>(std::lround(y)), 0, img.rows - 1);
-      out.colors.push_back(img.at<cv::Vec3b>(yi, xi));
     }
     if (progress) progress("features", ++done, frames.size());
   });
@@ -144,144 +165,168 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
       return false;
     }
   }
-  timings["features_s"] = Seconds(t0);
   size_t total_kp = 0;
-  for (const auto& f : feats) total_kp += f.points.size();
-  js["keypoints_per_frame_mean"] = static_cast<double>(total_kp) / static_cast<double>(frames.size());
+  for (const auto& f : *feats) total_kp += f.points.size();
+  (*js)["keypoints_per_frame_mean"] = static_cast<double>(total_kp) / static_cast<double>(frames.size());
+  return true;
+}
 
-  // 3. Matching of graph.csv's used pairs, verified by RANSAC on F.
-  t0 = Clock::now();
-  std::vector<std::pair<size_t, size_t>> pairs;
-  for (const auto& e : session.edges) {
-    if (e.used && slot_of.count(e.src) && slot_of.count(e.tgt)) pairs.emplace_back(slot_of[e.src], slot_of[e.tgt]);
-  }
-  std::sort(pairs.begin(), pairs.end());
-  pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
-  std::vector<std::vector<FeatureMatch>> pair_matches(pairs.size());
-  std::vector<std::array<int, 2>> pair_counts(pairs.size(), {0, 0});  // candidates, F inliers
-  done = 0;
-  ParallelFor(pairs.size(), options.threads, [&](size_t k) {
-    const auto [a, b] = pairs[k];
-    const FrameFeatures& fa = feats[a];
-    const FrameFeatures& fb = feats[b];
-    if (fa.points.size() < 8 || fb.points.size() < 8) return;
-    // Guided matching: the onboard maps predict where a keypoint of `a` lies in `b`; only keypoints of `b` within
-    // guided_radius of that prediction are candidates. At full resolution this keeps the ratio test meaningful (the
-    // unguided nearest neighbour among 8000 fine-scale features is too often a look-alike).
-    const Mat3 b_from_a = frames[b]->mosaic_from_frame.inverse() * frames[a]->mosaic_from_frame;
-    const double radius = options.guided_radius * std::max(frames[a]->width, frames[a]->height);
-    const double cell = radius;
-    const int gw = static_cast<int>(frames[b]->width / cell) + 1, gh = static_cast<int>(frames[b]->height / cell) + 1;
-    std::vector<std::vector<int>> grid(static_cast<size_t>(gw * gh));
-    for (size_t j = 0; j < fb.points.size(); ++j) {
-      const int gx = std::clamp(static_cast<int>(fb.points[j].x() / cell), 0, gw - 1);
-      const int gy = std::clamp(static_cast<int>(fb.points[j].y() / cell), 0, gh - 1);
-      grid[static_cast<size_t>(gy * gw + gx)].push_back(static_cast<int>(j));
+// 3. Matching of graph.csv's used pairs, verified by RANSAC on F.
+struct PairMatch {
+  int candidates = 0;                 // guided, ratio-tested, mutual
+  int inliers = 0;                    // of F
+  std::vector<FeatureMatch> matches;  // the inliers when at least min_pair_inliers, else none
+};
+
+// Keypoint indices of a frame in square cells of `cell` pixels, for the guided search.
+struct KeypointGrid {
+  KeypointGrid(const std::vector<Eigen::Vector2d>& points, double cell_px, int frame_w, int frame_h)
+      : cell(cell_px),
+        gw(static_cast<int>(frame_w / cell_px) + 1),
+        gh(static_cast<int>(frame_h / cell_px) + 1),
+        cells(static_cast<size_t>(gw * gh)) {
+    for (size_t j = 0; j < points.size(); ++j) {
+      const int gx = std::clamp(static_cast<int>(points[j].x() / cell), 0, gw - 1);
+      const int gy = std::clamp(static_cast<int>(points[j].y() / cell), 0, gh - 1);
+      cells[static_cast<size_t>(gy * gw + gx)].push_back(static_cast<int>(j));
     }
-    // Best and second-best candidate per keypoint of a; best per keypoint of b (for the mutual check).
-    std::vector<int> best_a(fa.points.size(), -1);
-    std::vector<float> d1_a(fa.points.size(), 1e30f), d2_a(fa.points.size(), 1e30f);
-    std::vector<int> best_b(fb.points.size(), -1);
-    std::vector<float> d1_b(fb.points.size(), 1e30f);
-    for (size_t i = 0; i < fa.points.size(); ++i) {
-      const Vec2 q = Apply(b_from_a, fa.points[i]);
-      const int gx = static_cast<int>(std::floor(q.x() / cell)), gy = static_cast<int>(std::floor(q.y() / cell));
-      const cv::Mat da = fa.descriptors.row(static_cast<int>(i));
-      for (int y = gy - 1; y <= gy + 1; ++y) {
-        for (int x = gx - 1; x <= gx + 1; ++x) {
-          if (x < 0 || y < 0 || x >= gw || y >= gh) continue;
-          for (int j : grid[static_cast<size_t>(y * gw + x)]) {
-            if ((fb.points[static_cast<size_t>(j)] - q).norm() > radius) continue;
-            const float d = static_cast<float>(cv::norm(da, fb.descriptors.row(j), cv::NORM_L2SQR));
-            if (d < d1_a[i]) {
-              d2_a[i] = d1_a[i];
-              d1_a[i] = d;
-              best_a[i] = j;
-            } else if (d < d2_a[i]) {
-              d2_a[i] = d;
-            }
-            if (d < d1_b[static_cast<size_t>(j)]) {
-              d1_b[static_cast<size_t>(j)] = d;
-              best_b[static_cast<size_t>(j)] = static_cast<int>(i);
-            }
+  }
+  double cell;
+  int gw, gh;
+  std::vector<std::vector<int>> cells;
+};
+
+// Best and second-best candidate per keypoint of a; best per keypoint of b (for the mutual check).
+struct GuidedNeighbours {
+  std::vector<int> best_a;
+  std::vector<float> d1_a, d2_a;
+  std::vector<int> best_b;
+  std::vector<float> d1_b;
+};
+
+// Guided matching: the onboard maps predict where a keypoint of `a` lies in `b`; only keypoints of `b` within
+// `radius` of that prediction are candidates. At full resolution this keeps the ratio test meaningful (the unguided
+// nearest neighbour among 8000 fine-scale features is too often a look-alike).
+GuidedNeighbours GuidedSearch(const FrameFeatures& fa, const FrameFeatures& fb, const Mat3& b_from_a,
+                              const KeypointGrid& grid, double radius) {
+  GuidedNeighbours n{std::vector<int>(fa.points.size(), -1), std::vector<float>(fa.points.size(), 1e30f),
+                     std::vector<float>(fa.points.size(), 1e30f), std::vector<int>(fb.points.size(), -1),
+                     std::vector<float>(fb.points.size(), 1e30f)};
+  const double cell = grid.cell;
+  for (size_t i = 0; i < fa.points.size(); ++i) {
+    const Vec2 q = Apply(b_from_a, fa.points[i]);
+    const int gx = static_cast<int>(std::floor(q.x() / cell)), gy = static_cast<int>(std::floor(q.y() / cell));
+    const cv::Mat da = fa.descriptors.row(static_cast<int>(i));
+    for (int y = gy - 1; y <= gy + 1; ++y) {
+      for (int x = gx - 1; x <= gx + 1; ++x) {
+        if (x < 0 || y < 0 || x >= grid.gw || y >= grid.gh) continue;
+        for (int j : grid.cells[static_cast<size_t>(y * grid.gw + x)]) {
+          if ((fb.points[static_cast<size_t>(j)] - q).norm() > radius) continue;
+          const float d = static_cast<float>(cv::norm(da, fb.descriptors.row(j), cv::NORM_L2SQR));
+          if (d < n.d1_a[i]) {
+            n.d2_a[i] = n.d1_a[i];
+            n.d1_a[i] = d;
+            n.best_a[i] = j;
+          } else if (d < n.d2_a[i]) {
+            n.d2_a[i] = d;
+          }
+          if (d < n.d1_b[static_cast<size_t>(j)]) {
+            n.d1_b[static_cast<size_t>(j)] = d;
+            n.best_b[static_cast<size_t>(j)] = static_cast<int>(i);
           }
         }
       }
     }
-    std::vector<cv::Point2f> pa, pb;
-    std::vector<FeatureMatch> cand;
-    const float r2 = static_cast<float>(options.ratio * options.ratio);  // squared distances
-    for (size_t i = 0; i < fa.points.size(); ++i) {
-      const int j = best_a[i];
-      if (j < 0 || d1_a[i] > r2 * d2_a[i]) continue;
-      if (best_b[static_cast<size_t>(j)] != static_cast<int>(i)) continue;  // mutual best
-      cand.push_back({static_cast<int>(a), static_cast<int>(i), static_cast<int>(b), j, d1_a[i]});
-      pa.emplace_back(static_cast<float>(fa.points[i].x()), static_cast<float>(fa.points[i].y()));
-      pb.emplace_back(static_cast<float>(fb.points[static_cast<size_t>(j)].x()),
-                      static_cast<float>(fb.points[static_cast<size_t>(j)].y()));
+  }
+  return n;
+}
+
+PairMatch MatchPair(size_t a, size_t b, const FrameFeatures& fa, const FrameFeatures& fb, const SessionFrame& frame_a,
+                    const SessionFrame& frame_b, const PipelineOptions& options) {
+  PairMatch out;
+  if (fa.points.size() < 8 || fb.points.size() < 8) return out;
+  const Mat3 b_from_a = frame_b.mosaic_from_frame.inverse() * frame_a.mosaic_from_frame;
+  const double radius = options.guided_radius * std::max(frame_a.width, frame_a.height);
+  const KeypointGrid grid(fb.points, radius, frame_b.width, frame_b.height);
+  const GuidedNeighbours n = GuidedSearch(fa, fb, b_from_a, grid, radius);
+  std::vector<cv::Point2f> pa, pb;
+  std::vector<FeatureMatch> cand;
+  const float r2 = static_cast<float>(options.ratio * options.ratio);  // squared distances
+  for (size_t i = 0; i < fa.points.size(); ++i) {
+    const int j = n.best_a[i];
+    if (j < 0 || n.d1_a[i] > r2 * n.d2_a[i]) continue;
+    if (n.best_b[static_cast<size_t>(j)] != static_cast<int>(i)) continue;  // mutual best
+    cand.push_back({static_cast<int>(a), static_cast<int>(i), static_cast<int>(b), j, n.d1_a[i]});
+    pa.emplace_back(static_cast<float>(fa.points[i].x()), static_cast<float>(fa.points[i].y()));
+    pb.emplace_back(static_cast<float>(fb.points[static_cast<size_t>(j)].x()),
+                    static_cast<float>(fb.points[static_cast<size_t>(j)].y()));
+  }
+  out.candidates = static_cast<int>(cand.size());
+  if (static_cast<int>(cand.size()) < options.min_pair_inliers) return out;
+  std::vector<uchar> mask;
+  const cv::Mat F = cv::findFundamentalMat(pa, pb, cv::FM_RANSAC, options.fundamental_threshold_px, 0.9999, mask);
+  if (F.empty()) return out;
+  std::vector<FeatureMatch> inl;
+  for (size_t i = 0; i < cand.size(); ++i) {
+    if (mask[i]) inl.push_back(cand[i]);
+  }
+  out.inliers = static_cast<int>(inl.size());
+  if (static_cast<int>(inl.size()) >= options.min_pair_inliers) out.matches = std::move(inl);
+  return out;
+}
+
+// The verified matches of all pairs, in pair order (image slots, ascending).
+std::vector<FeatureMatch> MatchGraphPairs(const SelectedFrames& sel, const std::vector<FrameFeatures>& feats,
+                                          const PipelineOptions& options, const ProgressFn& progress,
+                                          nlohmann::json* js) {
+  const auto& frames = sel.frames;
+  std::vector<std::pair<size_t, size_t>> pairs;
+  for (const auto& e : sel.session.edges) {
+    if (e.used && sel.slot_of.count(e.src) && sel.slot_of.count(e.tgt)) {
+      pairs.emplace_back(sel.slot_of.at(e.src), sel.slot_of.at(e.tgt));
     }
-    pair_counts[k][0] = static_cast<int>(cand.size());
-    if (static_cast<int>(cand.size()) >= options.min_pair_inliers) {
-      std::vector<uchar> mask;
-      const cv::Mat F = cv::findFundamentalMat(pa, pb, cv::FM_RANSAC, options.fundamental_threshold_px, 0.9999, mask);
-      if (!F.empty()) {
-        std::vector<FeatureMatch> inl;
-        for (size_t i = 0; i < cand.size(); ++i) {
-          if (mask[i]) inl.push_back(cand[i]);
-        }
-        pair_counts[k][1] = static_cast<int>(inl.size());
-        if (static_cast<int>(inl.size()) >= options.min_pair_inliers) pair_matches[k] = std::move(inl);
-      }
-    }
+  }
+  std::sort(pairs.begin(), pairs.end());
+  pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
+  std::vector<PairMatch> results(pairs.size());
+  std::atomic<size_t> done{0};
+  ParallelFor(pairs.size(), options.threads, [&](size_t k) {
+    const auto [a, b] = pairs[k];
+    results[k] = MatchPair(a, b, feats[a], feats[b], *frames[a], *frames[b], options);
+    if (feats[a].points.size() < 8 || feats[b].points.size() < 8) return;  // as before: no progress for those
     if (progress) progress("matching", ++done, pairs.size());
   });
   std::vector<FeatureMatch> all_matches;
   int pairs_ok = 0;
-  for (auto& m : pair_matches) {
+  nlohmann::json jp = nlohmann::json::array();
+  for (size_t k = 0; k < pairs.size(); ++k) {
+    auto& m = results[k].matches;
     if (!m.empty()) ++pairs_ok;
     all_matches.insert(all_matches.end(), m.begin(), m.end());
+    jp.push_back(
+        {frames[pairs[k].first]->index, frames[pairs[k].second]->index, results[k].candidates, results[k].inliers});
   }
-  timings["matching_s"] = Seconds(t0);
-  js["pairs_listed"] = pairs.size();
-  js["pairs_verified"] = pairs_ok;
-  {
-    nlohmann::json jp = nlohmann::json::array();
-    for (size_t k = 0; k < pairs.size(); ++k) {
-      jp.push_back(
-          {frames[pairs[k].first]->index, frames[pairs[k].second]->index, pair_counts[k][0], pair_counts[k][1]});
-    }
-    js["pair_matches"] = jp;  // [src, tgt, guided candidates, F inliers]
-  }
-  js["matches"] = all_matches.size();
+  (*js)["pairs_listed"] = pairs.size();
+  (*js)["pairs_verified"] = pairs_ok;
+  (*js)["pair_matches"] = jp;  // [src, tgt, guided candidates, F inliers]
+  (*js)["matches"] = all_matches.size();
+  return all_matches;
+}
 
-  // 4. Tracks.
-  t0 = Clock::now();
-  TrackStats tstats;
-  std::vector<Track> tracks = BuildTracks(all_matches, 2, &tstats);
-  js["tracks"] = tracks.size();
-  js["track_conflicts_split"] = tstats.conflicts_refused;
-  timings["tracks_s"] = Seconds(t0);
+// 5. Camera and initial poses.
+// GPS -> UTM (origin at the first GPS frame, so the solver works with small numbers).
+struct GpsPositions {
+  std::vector<std::optional<Eigen::Vector3d>> local;  // per image slot: E, N (relative to origin), altitude
+  Eigen::Vector2d origin = Eigen::Vector2d::Zero();
+  bool projected = false;  // a UTM zone and at least one position: the products carry the CRS below
+  std::string crs_wkt;
+  int epsg = 0;
+};
 
-  // 5. Camera and initial poses.
-  t0 = Clock::now();
-  Reconstruction& rec = result->rec;
-  rec = Reconstruction{};
-  const SessionFrame& f0 = *frames[0];
-  const auto guess = GuessIntrinsics(f0.width, f0.height, f0.focal_length_mm.value_or(0.0), options.camera_model,
-                                     options.default_hfov_deg);
-  rec.camera = guess.camera;
-  js["intrinsics_source"] = guess.source;
-  js["focal_initial_px"] = rec.camera.fx;
-  for (size_t i = 0; i < frames.size(); ++i) {
-    Image im;
-    im.frame_index = frames[i]->index;
-    im.name = frames[i]->stored_file.substr(frames[i]->stored_file.find_last_of('/') + 1);
-    im.keypoints = feats[i].points;
-    rec.images.push_back(std::move(im));
-  }
-  // GPS -> UTM (origin at the first GPS frame, so the solver works with small numbers).
+GpsPositions ProjectGps(const std::vector<const SessionFrame*>& frames) {
+  GpsPositions out;
+  out.local.resize(frames.size());
   UtmProjection utm;
-  std::vector<std::optional<Eigen::Vector3d>> gps(frames.size());
   bool have_utm = false;
   for (const auto* f : frames) {
     if (f->latitude_deg && f->longitude_deg) {
@@ -290,304 +335,390 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
       break;
     }
   }
-  Eigen::Vector2d origin = Eigen::Vector2d::Zero();
+  if (!have_utm) return out;
   bool origin_set = false;
-  if (have_utm) {
-    for (size_t i = 0; i < frames.size(); ++i) {
-      const auto* f = frames[i];
-      if (!f->latitude_deg || !f->longitude_deg) continue;
-      const auto en = utm.Forward(*f->latitude_deg, *f->longitude_deg);
-      if (!en) continue;
-      if (!origin_set) {
-        origin = Eigen::Vector2d(std::round(en->x()), std::round(en->y()));
-        origin_set = true;
-      }
-      const double z = f->relative_altitude_m ? *f->relative_altitude_m : f->altitude_m.value_or(NAN);
-      gps[i] = Eigen::Vector3d(en->x() - origin.x(), en->y() - origin.y(), z);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const auto* f = frames[i];
+    if (!f->latitude_deg || !f->longitude_deg) continue;
+    const auto en = utm.Forward(*f->latitude_deg, *f->longitude_deg);
+    if (!en) continue;
+    if (!origin_set) {
+      out.origin = Eigen::Vector2d(std::round(en->x()), std::round(en->y()));
+      origin_set = true;
     }
+    const double z = f->relative_altitude_m ? *f->relative_altitude_m : f->altitude_m.value_or(NAN);
+    out.local[i] = Eigen::Vector3d(en->x() - out.origin.x(), en->y() - out.origin.y(), z);
   }
-  const double fpx = rec.camera.fx;
-  std::string pose_source;
-  if (!options.colmap_import_dir.empty()) {
-    Reconstruction imported;
-    if (!ReadColmapText(options.colmap_import_dir, &imported, error)) return false;
-    std::map<std::string, const Image*> by_name;
-    for (const auto& im : imported.images) by_name[im.name] = &im;
-    for (auto& im : rec.images) {
-      const auto it = by_name.find(im.name);
-      if (it == by_name.end()) {
-        *error = "COLMAP model has no image " + im.name;
-        return false;
-      }
-      im.pose = it->second->pose;
-    }
-    const int w = rec.camera.width, h = rec.camera.height;
-    rec.camera = imported.camera;
-    rec.camera.width = w;
-    rec.camera.height = h;
-    pose_source = "colmap:" + options.colmap_import_dir;
-  } else {
-    // Nadir assumption from the onboard maps: the frame's centre and local linear part in the mosaic give position,
-    // in-plane yaw and (via scale) height.
-    std::vector<Eigen::Vector2d> centre_mosaic(frames.size());
-    std::vector<Eigen::Matrix2d> jac(frames.size());
-    const Vec2 pp(rec.camera.cx, rec.camera.cy);
-    for (size_t i = 0; i < frames.size(); ++i) {
-      const Mat3& H = frames[i]->mosaic_from_frame;
-      centre_mosaic[i] = Apply(H, pp);
-      Eigen::Matrix2d J;
-      constexpr double d = 1.0;
-      J.col(0) = Apply(H, pp + Vec2(d, 0)) - centre_mosaic[i];
-      J.col(1) = Apply(H, pp + Vec2(0, d)) - centre_mosaic[i];
-      jac[i] = J;
-    }
-    double s = 1.0;
-    Eigen::Matrix2d Q;
-    Q << 1, 0, 0, -1;  // mosaic rows go south
-    Eigen::Vector2d t = Eigen::Vector2d::Zero();
-    std::vector<Eigen::Vector2d> src, dst;
-    for (size_t i = 0; i < frames.size(); ++i) {
-      if (gps[i]) {
-        src.push_back(centre_mosaic[i]);
-        dst.push_back(gps[i]->head<2>());
-      }
-    }
-    // The mosaic may be mirrored against the world (its rows go south): a reflection is allowed here.
-    if (Similarity2 fit; src.size() >= 3 && FitSimilarity<2>(src, dst, &fit, {.allow_reflection = true})) {
-      s = fit.scale;
-      Q = fit.rotation;
-      t = fit.translation;
-      pose_source = "onboard_maps+gps";
-    } else {
-      // Without GPS: metres from the relative altitude when known, else mosaic pixels.
-      std::vector<double> ratios;
-      for (size_t i = 0; i < frames.size(); ++i) {
-        if (frames[i]->relative_altitude_m && *frames[i]->relative_altitude_m > 1.0) {
-          ratios.push_back(*frames[i]->relative_altitude_m / (fpx * std::sqrt(std::abs(jac[i].determinant()))));
-        }
-      }
-      if (!ratios.empty()) {
-        std::nth_element(ratios.begin(), ratios.begin() + static_cast<long>(ratios.size() / 2), ratios.end());
-        s = ratios[ratios.size() / 2];
-        pose_source = "onboard_maps+relative_altitude";
-      } else {
-        pose_source = "onboard_maps(mosaic_pixel_units)";
-      }
-    }
-    js["mosaic_to_world_reflection"] = Q.determinant() < 0;
-    for (size_t i = 0; i < frames.size(); ++i) {
-      const Eigen::Matrix2d L = s * Q * jac[i];  // frame px -> world metres near the principal point
-      const double h = fpx * std::sqrt(std::abs(L.determinant()));
-      const Eigen::Matrix2d Q2 = Polar(L.transpose());
-      Pose& p = rec.images[i].pose;
-      p.R.setZero();
-      p.R.topLeftCorner<2, 2>() = Q2;
-      p.R(2, 2) = -1.0;
-      if (p.R.determinant() < 0) {
-        *error = "onboard map of frame " + std::to_string(frames[i]->index) + " is mirrored";
-        return false;
-      }
-      const Eigen::Vector2d xy = s * Q * centre_mosaic[i] + t;
-      // Height: the relative altitude when GPS gave metres (take-off = 0, the ground near 0), else from the scale.
-      const bool use_alt = gps[i] && std::isfinite(gps[i]->z()) && frames[i]->relative_altitude_m;
-      p.c = Eigen::Vector3d(xy.x(), xy.y(), use_alt ? gps[i]->z() : h);
-    }
+  if (origin_set) {
+    out.projected = true;
+    out.crs_wkt = utm.wkt();
+    out.epsg = utm.epsg();
   }
-  js["initial_pose_source"] = pose_source;
-  timings["initial_poses_s"] = Seconds(t0);
+  return out;
+}
 
-  // 6. Triangulation and BA rounds.
-  t0 = Clock::now();
-  auto triangulate_all = [&](double max_err) {
-    rec.points.clear();
-    for (const auto& tr : tracks) {
-      std::vector<Pose> poses;
-      std::vector<Eigen::Vector2d> xn;
-      for (const auto& o : tr) {
-        poses.push_back(rec.images[static_cast<size_t>(o.image)].pose);
-        xn.push_back(
-            rec.camera.Undistort(rec.images[static_cast<size_t>(o.image)].keypoints[static_cast<size_t>(o.feature)]));
-      }
-      const auto X = TriangulateDlt(poses, xn);
-      if (!X) continue;
-      if (MaxTriangulationAngleDeg(poses, *X) < options.min_triangulation_angle_deg) continue;
-      Point3D p;
-      p.X = *X;
-      double sum = 0.0;
-      for (size_t k = 0; k < tr.size(); ++k) {
-        const auto proj = Project(rec.camera, poses[k], *X);
-        const auto& kp = rec.images[static_cast<size_t>(tr[k].image)].keypoints[static_cast<size_t>(tr[k].feature)];
-        const double e = proj ? (*proj - kp).norm() : 1e9;
-        // Keep the observations that agree; the rest leave the track (it stays if two remain).
-        if (e <= max_err) {
-          p.track.push_back(tr[k]);
-          sum += e;
-        }
-      }
-      if (p.track.size() < 2) continue;
-      p.error_px = sum / static_cast<double>(p.track.size());
-      p.bgr = feats[static_cast<size_t>(p.track[0].image)].colors[static_cast<size_t>(p.track[0].feature)];
-      rec.points.push_back(std::move(p));
+// The reconstruction's images (keypoints, no poses yet) and the camera guessed from the first frame's EXIF.
+IntrinsicsGuess InitImages(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
+                           const PipelineOptions& options, Reconstruction* rec, nlohmann::json* js) {
+  *rec = Reconstruction{};
+  const SessionFrame& f0 = *frames[0];
+  IntrinsicsGuess guess = GuessIntrinsics(f0.width, f0.height, f0.focal_length_mm.value_or(0.0), options.camera_model,
+                                          options.default_hfov_deg);
+  rec->camera = guess.camera;
+  (*js)["intrinsics_source"] = guess.source;
+  (*js)["focal_initial_px"] = rec->camera.fx;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    Image im;
+    im.frame_index = frames[i]->index;
+    im.name = frames[i]->stored_file.substr(frames[i]->stored_file.find_last_of('/') + 1);
+    im.keypoints = feats[i].points;
+    rec->images.push_back(std::move(im));
+  }
+  return guess;
+}
+
+// Poses and intrinsics of a COLMAP text model, matched by image name (the image size stays the session's).
+bool PosesFromColmap(const std::string& dir, Reconstruction* rec, std::string* error) {
+  Reconstruction imported;
+  if (!ReadColmapText(dir, &imported, error)) return false;
+  std::map<std::string, const Image*> by_name;
+  for (const auto& im : imported.images) by_name[im.name] = &im;
+  for (auto& im : rec->images) {
+    const auto it = by_name.find(im.name);
+    if (it == by_name.end()) {
+      *error = "COLMAP model has no image " + im.name;
+      return false;
     }
-  };
-  // Drops observations above max_err from the adjusted points (without re-triangulating).
-  auto filter = [&](double max_err) {
-    std::vector<Point3D> kept;
-    for (auto& p : rec.points) {
-      Track t;
-      double sum = 0.0;
-      for (const auto& o : p.track) {
-        const auto& im = rec.images[static_cast<size_t>(o.image)];
-        const auto proj = Project(rec.camera, im.pose, p.X);
-        const double e = proj ? (*proj - im.keypoints[static_cast<size_t>(o.feature)]).norm() : 1e9;
-        if (e <= max_err) {
-          t.push_back(o);
-          sum += e;
-        }
-      }
-      if (t.size() < 2) continue;
-      std::vector<Pose> poses;
-      for (const auto& o : t) poses.push_back(rec.images[static_cast<size_t>(o.image)].pose);
-      if (MaxTriangulationAngleDeg(poses, p.X) < options.min_triangulation_angle_deg) continue;
-      p.track = std::move(t);
-      p.error_px = sum / static_cast<double>(p.track.size());
-      kept.push_back(std::move(p));
+    im.pose = it->second->pose;
+  }
+  const int w = rec->camera.width, h = rec->camera.height;
+  rec->camera = imported.camera;
+  rec->camera.width = w;
+  rec->camera.height = h;
+  return true;
+}
+
+// Mosaic -> world similarity (x_world = s Q x_mosaic + t).
+struct MosaicToWorld {
+  double s = 1.0;
+  Eigen::Matrix2d Q = (Eigen::Matrix2d() << 1, 0, 0, -1).finished();  // mosaic rows go south
+  Eigen::Vector2d t = Eigen::Vector2d::Zero();
+  std::string pose_source;
+};
+
+// From the frame centres onto GPS; without GPS, metres from the relative altitude when known, else mosaic pixels.
+MosaicToWorld FitMosaicToWorld(const std::vector<const SessionFrame*>& frames, const GpsPositions& gps,
+                               const std::vector<Eigen::Vector2d>& centre_mosaic,
+                               const std::vector<Eigen::Matrix2d>& jac, double fpx) {
+  MosaicToWorld m;
+  std::vector<Eigen::Vector2d> src, dst;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (gps.local[i]) {
+      src.push_back(centre_mosaic[i]);
+      dst.push_back(gps.local[i]->head<2>());
     }
-    rec.points = std::move(kept);
-  };
-  triangulate_all(options.initial_reprojection_px);
-  const size_t obs_tracks = [&] {
-    size_t n = 0;
-    for (const auto& t : tracks) n += t.size();
-    return n;
-  }();
-  js["initial_points"] = rec.points.size();
-  const double rms_initial = rec.ReprojectionRms();
-  js["ba_rms_initial_px"] = rms_initial;
-  if (rec.points.size() < 20) {
-    *error = "too few points triangulate with the initial poses (" + std::to_string(rec.points.size()) + ")";
+  }
+  // The mosaic may be mirrored against the world (its rows go south): a reflection is allowed here.
+  if (Similarity2 fit; src.size() >= 3 && FitSimilarity<2>(src, dst, &fit, {.allow_reflection = true})) {
+    m.s = fit.scale;
+    m.Q = fit.rotation;
+    m.t = fit.translation;
+    m.pose_source = "onboard_maps+gps";
+    return m;
+  }
+  std::vector<double> ratios;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (frames[i]->relative_altitude_m && *frames[i]->relative_altitude_m > 1.0) {
+      ratios.push_back(*frames[i]->relative_altitude_m / (fpx * std::sqrt(std::abs(jac[i].determinant()))));
+    }
+  }
+  if (!ratios.empty()) {
+    std::nth_element(ratios.begin(), ratios.begin() + static_cast<long>(ratios.size() / 2), ratios.end());
+    m.s = ratios[ratios.size() / 2];
+    m.pose_source = "onboard_maps+relative_altitude";
+  } else {
+    m.pose_source = "onboard_maps(mosaic_pixel_units)";
+  }
+  return m;
+}
+
+// Nadir assumption from the onboard maps: the frame's centre and local linear part in the mosaic give position,
+// in-plane yaw and (via scale) height.
+bool PosesFromOnboardMaps(const std::vector<const SessionFrame*>& frames, const GpsPositions& gps, Reconstruction* rec,
+                          std::string* pose_source, nlohmann::json* js, std::string* error) {
+  const double fpx = rec->camera.fx;
+  std::vector<Eigen::Vector2d> centre_mosaic(frames.size());
+  std::vector<Eigen::Matrix2d> jac(frames.size());
+  const Vec2 pp(rec->camera.cx, rec->camera.cy);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const Mat3& H = frames[i]->mosaic_from_frame;
+    centre_mosaic[i] = Apply(H, pp);
+    Eigen::Matrix2d J;
+    constexpr double d = 1.0;
+    J.col(0) = Apply(H, pp + Vec2(d, 0)) - centre_mosaic[i];
+    J.col(1) = Apply(H, pp + Vec2(0, d)) - centre_mosaic[i];
+    jac[i] = J;
+  }
+  const MosaicToWorld m = FitMosaicToWorld(frames, gps, centre_mosaic, jac, fpx);
+  *pose_source = m.pose_source;
+  (*js)["mosaic_to_world_reflection"] = m.Q.determinant() < 0;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const Eigen::Matrix2d L = m.s * m.Q * jac[i];  // frame px -> world metres near the principal point
+    const double h = fpx * std::sqrt(std::abs(L.determinant()));
+    const Eigen::Matrix2d Q2 = Polar(L.transpose());
+    Pose& p = rec->images[i].pose;
+    p.R.setZero();
+    p.R.topLeftCorner<2, 2>() = Q2;
+    p.R(2, 2) = -1.0;
+    if (p.R.determinant() < 0) {
+      *error = "onboard map of frame " + std::to_string(frames[i]->index) + " is mirrored";
+      return false;
+    }
+    const Eigen::Vector2d xy = m.s * m.Q * centre_mosaic[i] + m.t;
+    // Height: the relative altitude when GPS gave metres (take-off = 0, the ground near 0), else from the scale.
+    const auto& g = gps.local[i];
+    const bool use_alt = g && std::isfinite(g->z()) && frames[i]->relative_altitude_m;
+    p.c = Eigen::Vector3d(xy.x(), xy.y(), use_alt ? g->z() : h);
+  }
+  return true;
+}
+
+struct InitialModel {
+  IntrinsicsGuess guess;
+  GpsPositions gps;
+  std::string pose_source;
+};
+
+bool InitialPoses(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
+                  const PipelineOptions& options, Reconstruction* rec, InitialModel* out, nlohmann::json* js,
+                  std::string* error) {
+  out->guess = InitImages(frames, feats, options, rec, js);
+  out->gps = ProjectGps(frames);
+  if (!options.colmap_import_dir.empty()) {
+    if (!PosesFromColmap(options.colmap_import_dir, rec, error)) return false;
+    out->pose_source = "colmap:" + options.colmap_import_dir;
+  } else if (!PosesFromOnboardMaps(frames, out->gps, rec, &out->pose_source, js, error)) {
     return false;
   }
-  nlohmann::json rounds = nlohmann::json::array();
+  (*js)["initial_pose_source"] = out->pose_source;
+  return true;
+}
+
+// 6. Triangulation and BA rounds.
+// Every track triangulated with the current poses; observations above max_err leave the track (it stays if two
+// remain).
+void TriangulateAll(const std::vector<Track>& tracks, const std::vector<FrameFeatures>& feats, double min_angle_deg,
+                    double max_err, Reconstruction* rec) {
+  rec->points.clear();
+  for (const auto& tr : tracks) {
+    std::vector<Pose> poses;
+    std::vector<Eigen::Vector2d> xn;
+    for (const auto& o : tr) {
+      poses.push_back(rec->images[static_cast<size_t>(o.image)].pose);
+      xn.push_back(
+          rec->camera.Undistort(rec->images[static_cast<size_t>(o.image)].keypoints[static_cast<size_t>(o.feature)]));
+    }
+    const auto X = TriangulateDlt(poses, xn);
+    if (!X) continue;
+    if (MaxTriangulationAngleDeg(poses, *X) < min_angle_deg) continue;
+    Point3D p;
+    p.X = *X;
+    double sum = 0.0;
+    for (size_t k = 0; k < tr.size(); ++k) {
+      const auto proj = Project(rec->camera, poses[k], *X);
+      const auto& kp = rec->images[static_cast<size_t>(tr[k].image)].keypoints[static_cast<size_t>(tr[k].feature)];
+      const double e = proj ? (*proj - kp).norm() : 1e9;
+      if (e <= max_err) {
+        p.track.push_back(tr[k]);
+        sum += e;
+      }
+    }
+    if (p.track.size() < 2) continue;
+    p.error_px = sum / static_cast<double>(p.track.size());
+    p.bgr = feats[static_cast<size_t>(p.track[0].image)].colors[static_cast<size_t>(p.track[0].feature)];
+    rec->points.push_back(std::move(p));
+  }
+}
+
+// Drops observations above max_err from the adjusted points (without re-triangulating).
+void FilterObservations(double min_angle_deg, double max_err, Reconstruction* rec) {
+  std::vector<Point3D> kept;
+  for (auto& p : rec->points) {
+    Track t;
+    double sum = 0.0;
+    for (const auto& o : p.track) {
+      const auto& im = rec->images[static_cast<size_t>(o.image)];
+      const auto proj = Project(rec->camera, im.pose, p.X);
+      const double e = proj ? (*proj - im.keypoints[static_cast<size_t>(o.feature)]).norm() : 1e9;
+      if (e <= max_err) {
+        t.push_back(o);
+        sum += e;
+      }
+    }
+    if (t.size() < 2) continue;
+    std::vector<Pose> poses;
+    for (const auto& o : t) poses.push_back(rec->images[static_cast<size_t>(o.image)].pose);
+    if (MaxTriangulationAngleDeg(poses, p.X) < min_angle_deg) continue;
+    p.track = std::move(t);
+    p.error_px = sum / static_cast<double>(p.track.size());
+    kept.push_back(std::move(p));
+  }
+  rec->points = std::move(kept);
+}
+
+// What every BA round shares: the focal-length prior and the GPS centre priors.
+struct BundlePriors {
+  double focal_sigma = 0.1;
+  std::vector<std::optional<Eigen::Vector3d>> centres;
+};
+
+BundlePriors MakeBundlePriors(const std::vector<const SessionFrame*>& frames, const InitialModel& init,
+                              const PipelineOptions& options, nlohmann::json* js) {
+  BundlePriors priors;
   // A nadir flight over nearly flat ground cannot tell focal length from depth: the EXIF focal length stays as a prior
   // (1 % when the sensor is known, 10 % for a guess).
-  const double focal_sigma = guess.source == "exif+sensor" ? 0.01 : 0.1;
-  std::vector<std::optional<Eigen::Vector3d>> centre_priors(frames.size());
+  priors.focal_sigma = init.guess.source == "exif+sensor" ? 0.01 : 0.1;
+  priors.centres.resize(frames.size());
   int n_priors = 0;
   for (size_t i = 0; i < frames.size(); ++i) {
-    if (gps[i] && std::isfinite(gps[i]->z()) && frames[i]->relative_altitude_m && options.colmap_import_dir.empty()) {
-      centre_priors[i] = *gps[i];
+    const auto& g = init.gps.local[i];
+    if (g && std::isfinite(g->z()) && frames[i]->relative_altitude_m && options.colmap_import_dir.empty()) {
+      priors.centres[i] = *g;
       ++n_priors;
     }
   }
-  js["ba_centre_priors"] = n_priors;
-  js["ba_focal_prior_sigma"] = focal_sigma;
-  BundleSummary first{}, last{};
+  (*js)["ba_centre_priors"] = n_priors;
+  (*js)["ba_focal_prior_sigma"] = priors.focal_sigma;
+  return priors;
+}
+
+// The BA rounds: each adjusts, re-triangulates every track with the adjusted poses (recovers points the rough poses
+// lost) and rejects above the round's threshold; a final BA on the cleaned set gives the reported before/after pair.
+bool BundleRounds(const std::vector<Track>& tracks, const std::vector<FrameFeatures>& feats, const BundlePriors& priors,
+                  const PipelineOptions& options, const ProgressFn& progress, Reconstruction* rec,
+                  nlohmann::json* rounds, std::string* error) {
+  BundleOptions base;
+  base.threads = options.threads;
+  base.focal_prior_sigma = priors.focal_sigma;
+  base.fixed_image = 0;
+  base.centre_priors = priors.centres;
   for (size_t r = 0; r < options.round_reprojection_px.size(); ++r) {
-    BundleOptions bo;
-    bo.threads = options.threads;
+    BundleOptions bo = base;
     bo.loss = r == 0 ? BundleOptions::Loss::kCauchy : BundleOptions::Loss::kHuber;
     bo.loss_scale_px = r == 0 ? 4.0 : 1.0;
     bo.refine_k3 = options.refine_k3 && r > 0;
-    bo.focal_prior_sigma = focal_sigma;
-    bo.fixed_image = 0;
-    bo.centre_priors = centre_priors;
     bo.max_iterations = 50;
     BundleSummary bs;
-    if (!BundleAdjust(&rec, bo, &bs, error)) return false;
-    if (r == 0) first = bs;
-    last = bs;
+    if (!BundleAdjust(rec, bo, &bs, error)) return false;
     if (progress) progress("bundle", r + 1, options.round_reprojection_px.size());
     const double thr = options.round_reprojection_px[r];
-    // Re-triangulate every track with the adjusted poses (recovers points the rough poses lost), then reject.
-    triangulate_all(thr);
-    rounds.push_back({{"rms_before_px", bs.rms_before_px},
-                      {"rms_after_px", bs.rms_after_px},
-                      {"iterations", bs.iterations},
-                      {"seconds", bs.seconds},
-                      {"reject_above_px", thr},
-                      {"points_after_reject", rec.points.size()},
-                      {"rms_after_reject_px", rec.ReprojectionRms()}});
+    TriangulateAll(tracks, feats, options.min_triangulation_angle_deg, thr, rec);
+    rounds->push_back({{"rms_before_px", bs.rms_before_px},
+                       {"rms_after_px", bs.rms_after_px},
+                       {"iterations", bs.iterations},
+                       {"seconds", bs.seconds},
+                       {"reject_above_px", thr},
+                       {"points_after_reject", rec->points.size()},
+                       {"rms_after_reject_px", rec->ReprojectionRms()}});
   }
-  // Final BA on the cleaned set; its before/after is the reported pair.
-  {
-    BundleOptions bo;
-    bo.threads = options.threads;
-    bo.loss = BundleOptions::Loss::kHuber;
-    bo.loss_scale_px = 1.0;
-    bo.refine_k3 = options.refine_k3;
-    bo.fixed_image = 0;
-    bo.focal_prior_sigma = focal_sigma;
-    bo.centre_priors = centre_priors;
-    BundleSummary bs;
-    if (!BundleAdjust(&rec, bo, &bs, error)) return false;
-    filter(options.round_reprojection_px.back());
-    rounds.push_back({{"rms_before_px", bs.rms_before_px},
-                      {"rms_after_px", bs.rms_after_px},
-                      {"iterations", bs.iterations},
-                      {"seconds", bs.seconds},
-                      {"final", true},
-                      {"points", rec.points.size()}});
-    last = bs;
-  }
-  size_t obs_kept = rec.NumObservations();
-  js["ba_rounds"] = rounds;
-  js["ba_rms_before_px"] = rms_initial;  // with the initial poses, all first-triangulated points
-  js["ba_rms_after_px"] = rec.ReprojectionRms();
-  js["ba_rms_units"] = "original-resolution pixels";
-  js["observations_in_tracks"] = obs_tracks;
-  js["observations_kept"] = obs_kept;
-  js["sparse_points"] = rec.points.size();
-  js["camera"] = {{"fx", rec.camera.fx}, {"fy", rec.camera.fy}, {"cx", rec.camera.cx},
-                  {"cy", rec.camera.cy}, {"k1", rec.camera.k1}, {"k2", rec.camera.k2},
-                  {"p1", rec.camera.p1}, {"p2", rec.camera.p2}, {"k3", rec.camera.k3}};
-  timings["bundle_s"] = Seconds(t0);
+  BundleOptions bo = base;
+  bo.loss = BundleOptions::Loss::kHuber;
+  bo.loss_scale_px = 1.0;
+  bo.refine_k3 = options.refine_k3;
+  BundleSummary bs;
+  if (!BundleAdjust(rec, bo, &bs, error)) return false;
+  FilterObservations(options.min_triangulation_angle_deg, options.round_reprojection_px.back(), rec);
+  rounds->push_back({{"rms_before_px", bs.rms_before_px},
+                     {"rms_after_px", bs.rms_after_px},
+                     {"iterations", bs.iterations},
+                     {"seconds", bs.seconds},
+                     {"final", true},
+                     {"points", rec->points.size()}});
+  return true;
+}
 
-  // 7. Georeferencing: similarity of the adjusted centres onto GPS (E, N, relative altitude).
-  t0 = Clock::now();
-  {
-    std::vector<Eigen::Vector3d> src, dst;
-    for (size_t i = 0; i < frames.size(); ++i) {
-      if (gps[i] && std::isfinite(gps[i]->z())) {
-        src.push_back(rec.images[i].pose.c);
-        dst.push_back(*gps[i]);
-      }
-    }
-    if (Similarity3 fit; src.size() >= 3 && FitSimilarity<3>(src, dst, &fit)) {
-      const double s = fit.scale;
-      const Eigen::Matrix3d& Q = fit.rotation;
-      const Eigen::Vector3d& t = fit.translation;
-      for (auto& im : rec.images) {
-        im.pose.c = s * Q * im.pose.c + t;
-        im.pose.R = im.pose.R * Q.transpose();
-      }
-      for (auto& p : rec.points) p.X = s * Q * p.X + t;
-      double sum = 0.0;
-      for (size_t k = 0; k < src.size(); ++k) sum += (s * Q * src[k] + t - dst[k]).squaredNorm();
-      js["georef"] = {{"method", "similarity to GPS camera positions"},
-                      {"cameras", src.size()},
-                      {"scale", s},
-                      {"rms_m", std::sqrt(sum / static_cast<double>(src.size()))},
-                      {"z_reference", "relative altitude (take-off = 0) when in EXIF, else GPS altitude"}};
-    } else {
-      js["georef"] = {{"method", "none"}};
+bool TriangulateAndAdjust(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
+                          const std::vector<Track>& tracks, const InitialModel& init, const PipelineOptions& options,
+                          const ProgressFn& progress, Reconstruction* rec, nlohmann::json* js, std::string* error) {
+  TriangulateAll(tracks, feats, options.min_triangulation_angle_deg, options.initial_reprojection_px, rec);
+  size_t obs_tracks = 0;
+  for (const auto& t : tracks) obs_tracks += t.size();
+  (*js)["initial_points"] = rec->points.size();
+  const double rms_initial = rec->ReprojectionRms();
+  (*js)["ba_rms_initial_px"] = rms_initial;
+  if (rec->points.size() < 20) {
+    *error = "too few points triangulate with the initial poses (" + std::to_string(rec->points.size()) + ")";
+    return false;
+  }
+  const BundlePriors priors = MakeBundlePriors(frames, init, options, js);
+  nlohmann::json rounds = nlohmann::json::array();
+  if (!BundleRounds(tracks, feats, priors, options, progress, rec, &rounds, error)) return false;
+  const Camera& c = rec->camera;
+  (*js)["ba_rounds"] = rounds;
+  (*js)["ba_rms_before_px"] = rms_initial;  // with the initial poses, all first-triangulated points
+  (*js)["ba_rms_after_px"] = rec->ReprojectionRms();
+  (*js)["ba_rms_units"] = "original-resolution pixels";
+  (*js)["observations_in_tracks"] = obs_tracks;
+  (*js)["observations_kept"] = rec->NumObservations();
+  (*js)["sparse_points"] = rec->points.size();
+  (*js)["camera"] = {{"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx}, {"cy", c.cy}, {"k1", c.k1},
+                     {"k2", c.k2}, {"p1", c.p1}, {"p2", c.p2}, {"k3", c.k3}};
+  return true;
+}
+
+// 7. Georeferencing: similarity of the adjusted centres onto GPS (E, N, relative altitude).
+void Georeference(const GpsPositions& gps, Reconstruction* rec, nlohmann::json* js) {
+  std::vector<Eigen::Vector3d> src, dst;
+  for (size_t i = 0; i < rec->images.size(); ++i) {
+    if (gps.local[i] && std::isfinite(gps.local[i]->z())) {
+      src.push_back(rec->images[i].pose.c);
+      dst.push_back(*gps.local[i]);
     }
   }
-  result->offset = origin;
-  if (have_utm && origin_set) {
-    result->crs_wkt = utm.wkt();
-    result->epsg = utm.epsg();
-    js["crs"] = "EPSG:" + std::to_string(utm.epsg());
+  Similarity3 fit;
+  if (src.size() < 3 || !FitSimilarity<3>(src, dst, &fit)) {
+    (*js)["georef"] = {{"method", "none"}};
+    return;
+  }
+  const double s = fit.scale;
+  const Eigen::Matrix3d& Q = fit.rotation;
+  const Eigen::Vector3d& t = fit.translation;
+  for (auto& im : rec->images) {
+    im.pose.c = s * Q * im.pose.c + t;
+    im.pose.R = im.pose.R * Q.transpose();
+  }
+  for (auto& p : rec->points) p.X = s * Q * p.X + t;
+  double sum = 0.0;
+  for (size_t k = 0; k < src.size(); ++k) sum += (s * Q * src[k] + t - dst[k]).squaredNorm();
+  (*js)["georef"] = {{"method", "similarity to GPS camera positions"},
+                     {"cameras", src.size()},
+                     {"scale", s},
+                     {"rms_m", std::sqrt(sum / static_cast<double>(src.size()))},
+                     {"z_reference", "relative altitude (take-off = 0) when in EXIF, else GPS altitude"}};
+}
+
+void SetCrs(const InitialModel& init, PipelineResult* result) {
+  auto& js = result->summary;
+  result->offset = init.gps.origin;
+  if (init.gps.projected) {
+    result->crs_wkt = init.gps.crs_wkt;
+    result->epsg = init.gps.epsg;
+    js["crs"] = "EPSG:" + std::to_string(init.gps.epsg);
   } else {
     js["crs"] = nullptr;
-    js["crs_note"] = "no GPS: local coordinates without a CRS (" + pose_source + ")";
+    js["crs_note"] = "no GPS: local coordinates without a CRS (" + init.pose_source + ")";
   }
-  timings["georef_s"] = Seconds(t0);
+}
 
-  // 8. Dense.
-  t0 = Clock::now();
-  std::vector<CloudPoint> cloud;
-  DenseReport dense_report;
+// 8. Dense: stereo pairs of the adjusted images, their raw points and which pair made each.
+struct DenseCloud {
+  std::vector<CloudPoint> points;
+  DenseReport report;
+};
+
+bool DenseStage(const std::string& session_dir, const std::vector<const SessionFrame*>& frames,
+                const Reconstruction& rec, const PipelineOptions& options, const ProgressFn& progress, DenseCloud* out,
+                nlohmann::json* js, std::string* error) {
   if (options.dense) {
     DenseOptions dopt;
     dopt.image_scale = options.dense_image_scale;
@@ -601,19 +732,15 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
     dopt.threads = options.threads;
     std::vector<std::string> paths;
     for (const auto* f : frames) paths.push_back(session_dir + "/" + f->stored_file);
-    if (!DenseFromReconstruction(rec, paths, dopt, progress, &cloud, &dense_report, error)) return false;
+    if (!DenseFromReconstruction(rec, paths, dopt, progress, &out->points, &out->report, error)) return false;
   }
-  timings["dense_s"] = Seconds(t0);
-  js["dense"] = dense_report.ToJson();
+  (*js)["dense"] = out->report.ToJson();
+  return true;
+}
 
-  // 9. Fusion + DSM.
-  t0 = Clock::now();
-  std::vector<CloudPoint> sparse_cloud;
-  for (const auto& p : rec.points) {
-    sparse_cloud.push_back(
-        {cv::Vec3f(static_cast<float>(p.X.x()), static_cast<float>(p.X.y()), static_cast<float>(p.X.z())), p.bgr});
-  }
-  // Cell size: the dense sampling distance on the ground (or 4x the sparse GSD without dense points).
+// 9. Fusion + DSM.
+// Cell size: the dense sampling distance on the ground (or 20x the sparse GSD without dense points).
+double DsmCell(const Reconstruction& rec, bool have_dense, const PipelineOptions& options, nlohmann::json* js) {
   std::vector<double> depths;
   for (const auto& p : rec.points) {
     for (const auto& o : p.track) depths.push_back(rec.images[static_cast<size_t>(o.image)].pose.ToCamera(p.X).z());
@@ -623,42 +750,104 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
   const double gsd = median_depth / rec.camera.fx;
   double cell = options.dsm_cell_m;
   if (cell <= 0.0) {
-    cell = cloud.empty() ? 20.0 * gsd : 1.5 * gsd * options.dense_sample_step / options.dense_image_scale;
+    cell = !have_dense ? 20.0 * gsd : 1.5 * gsd * options.dense_sample_step / options.dense_image_scale;
   }
-  js["gsd_m"] = gsd;
-  js["dsm_cell"] = cell;
+  (*js)["gsd_m"] = gsd;
+  (*js)["dsm_cell"] = cell;
+  return cell;
+}
+
+// The grid covering the points' x, y extent, north up.
+DsmGrid GridOver(const std::vector<CloudPoint>& points, double cell) {
+  float x0 = 1e30f, x1 = -1e30f, y0 = 1e30f, y1 = -1e30f;
+  for (const auto& p : points) {
+    x0 = std::min(x0, p.xyz[0]);
+    x1 = std::max(x1, p.xyz[0]);
+    y0 = std::min(y0, p.xyz[1]);
+    y1 = std::max(y1, p.xyz[1]);
+  }
+  DsmGrid g;
+  g.cell = cell;
+  g.x0 = std::floor(x0 / cell) * cell;
+  g.y0 = std::ceil(y1 / cell) * cell;
+  g.width = static_cast<int>(std::ceil((x1 - g.x0) / cell)) + 1;
+  g.height = static_cast<int>(std::ceil((g.y0 - y0) / cell)) + 1;
+  return g;
+}
+
+// The fused dense cloud (the sparse points without one) and the DSM rasterised from it.
+void FuseAndRasterize(const DenseCloud& dense, const PipelineOptions& options, PipelineResult* result) {
+  auto& js = result->summary;
+  const Reconstruction& rec = result->rec;
+  std::vector<CloudPoint> sparse_cloud;
+  for (const auto& p : rec.points) {
+    sparse_cloud.push_back(
+        {cv::Vec3f(static_cast<float>(p.X.x()), static_cast<float>(p.X.y()), static_cast<float>(p.X.z())), p.bgr});
+  }
+  const double cell = DsmCell(rec, !dense.points.empty(), options, &js);
   FusionReport fusion;
   std::vector<CloudPoint> fused;
-  if (!cloud.empty()) {
-    fused = FuseClouds(cloud, dense_report.point_pair, cell, options.fusion_tolerance_cells * cell,
+  if (!dense.points.empty()) {
+    fused = FuseClouds(dense.points, dense.report.point_pair, cell, options.fusion_tolerance_cells * cell,
                        options.fusion_min_pairs, &fusion);
   }
   const std::vector<CloudPoint>& dsm_source = fused.empty() ? sparse_cloud : fused;
   js["fusion"] = fusion.ToJson();
   js["dense_points"] = fused.size();
-  {
-    float x0 = 1e30f, x1 = -1e30f, y0 = 1e30f, y1 = -1e30f;
-    for (const auto& p : dsm_source) {
-      x0 = std::min(x0, p.xyz[0]);
-      x1 = std::max(x1, p.xyz[0]);
-      y0 = std::min(y0, p.xyz[1]);
-      y1 = std::max(y1, p.xyz[1]);
-    }
-    DsmGrid g;
-    g.cell = cell;
-    g.x0 = std::floor(x0 / cell) * cell;
-    g.y0 = std::ceil(y1 / cell) * cell;
-    g.width = static_cast<int>(std::ceil((x1 - g.x0) / cell)) + 1;
-    g.height = static_cast<int>(std::ceil((g.y0 - y0) / cell)) + 1;
-    result->grid = g;
-    result->dsm = RasterizeMedian(dsm_source, g, -9999.0f);
-    js["dsm_size"] = {g.width, g.height};
-    js["dsm_source"] = fused.empty() ? "sparse" : "dense";
-  }
+  const DsmGrid g = GridOver(dsm_source, cell);
+  result->grid = g;
+  result->dsm = RasterizeMedian(dsm_source, g, -9999.0f);
+  js["dsm_size"] = {g.width, g.height};
+  js["dsm_source"] = fused.empty() ? "sparse" : "dense";
   result->dense = fused.empty() ? sparse_cloud : std::move(fused);
-  timings["fusion_dsm_s"] = Seconds(t0);
-  timings["total_s"] = Seconds(t_total);
-  js["timings"] = timings;
+}
+
+}  // namespace
+
+// The stages in order; each reads the earlier ones' outputs and adds its figures to the summary.
+bool RunPipeline(const std::string& session_dir, const PipelineOptions& options, const ProgressFn& progress,
+                 PipelineResult* result, std::string* error) {
+  if (!options.Check(error)) return false;
+  auto& js = result->summary;
+  js = nlohmann::json::object();
+  StageTimes times;
+  SelectedFrames sel;
+  std::vector<FrameFeatures> feats;
+  std::vector<FeatureMatch> matches;
+  std::vector<Track> tracks;
+  InitialModel init;
+  Reconstruction& rec = result->rec;
+  DenseCloud dense;
+  const auto& frames = sel.frames;
+  const bool ok = times.Run("import_s", [&] {
+    return SelectFrames(session_dir, &sel, error);
+  }) && times.Run("features_s", [&] {
+    return ExtractFeatures(session_dir, frames, options, progress, &feats, &js, error);
+  }) && times.Run("matching_s", [&] {
+    matches = MatchGraphPairs(sel, feats, options, progress, &js);
+    return true;
+  }) && times.Run("tracks_s", [&] {
+    TrackStats tstats;
+    tracks = BuildTracks(matches, 2, &tstats);
+    js["tracks"] = tracks.size();
+    js["track_conflicts_split"] = tstats.conflicts_refused;
+    return true;
+  }) && times.Run("initial_poses_s", [&] {
+    return InitialPoses(frames, feats, options, &rec, &init, &js, error);
+  }) && times.Run("bundle_s", [&] {
+    return TriangulateAndAdjust(frames, feats, tracks, init, options, progress, &rec, &js, error);
+  }) && times.Run("georef_s", [&] {
+    Georeference(init.gps, &rec, &js);
+    SetCrs(init, result);
+    return true;
+  }) && times.Run("dense_s", [&] {
+    return DenseStage(session_dir, frames, rec, options, progress, &dense, &js, error);
+  }) && times.Run("fusion_dsm_s", [&] {
+    FuseAndRasterize(dense, options, result);
+    return true;
+  });
+  if (!ok) return false;
+  js["timings"] = times.Finish();
   js["frames_used"] = frames.size();
   return true;
 }
