@@ -394,8 +394,9 @@ void CaptureFrames(const RunConfig& config, hal::FrameSource* source, hal::Telem
 // The flight loop: each captured frame registered (or its skip recorded) in order. Returns false when the session
 // could not store frames any more (capture is then stopped).
 bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, Mosaicker* mosaicker, ServiceNotifier* notifier,
-                    FlightStatus* status) {
+                    FlightStatus* status, hal::TelemetrySource* telemetry) {
   int registered_live = 0;  // joined the first frame's part of the map during the flight (the status line)
+  int64_t last_gcs_status_ns = 0;
   while (auto item = queue->Pop()) {
     if (item->status == hal::Status::kSkipped) {
       mosaicker->RecordSkipped(item->name, item->message);
@@ -421,6 +422,12 @@ bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, Mosaicke
     // Test hook (--process-delay-ms): a slow consumer, so that a live camera's drop-oldest queue is exercised.
     if (config.process_delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(config.process_delay_ms));
     status->LogEvery10Frames(registered_live);
+    // The operator's ground station shows the mapper's state (a STATUSTEXT every 5 s over the telemetry link).
+    if (telemetry != nullptr && MonotonicNs() - last_gcs_status_ns > 5'000'000'000) {
+      last_gcs_status_ns = MonotonicNs();
+      telemetry->SendStatus(fmt::format("uavm: {} frames, {} registered, RSS {:.0f} MiB", mosaicker->frames_in(),
+                                        registered_live, CurrentRssMiB()));
+    }
   }
   return true;
 }
@@ -496,7 +503,7 @@ int Run(const RunConfig& config) {
   CaptureOutcome capture_outcome;
   std::thread capture(CaptureFrames, std::cref(config), source.get(), telemetry.get(), &mosaicker, std::cref(seen),
                       static_cast<int>(journal.frames.size()), &queue, &capture_outcome);
-  const bool storage_stopped = !RegisterFrames(config, &queue, &mosaicker, &notifier, &status);
+  const bool storage_stopped = !RegisterFrames(config, &queue, &mosaicker, &notifier, &status, telemetry.get());
   capture.join();
   return FinishFlight(source.get(), telemetry.get(), queue, capture_outcome, storage_stopped, &mosaicker, &notifier,
                       &status);
