@@ -35,8 +35,8 @@ run_watched "$OUT/run" 0 0 "$BUILD/firmware_app/uavmosaic-onboard" --source "sim
   --out "$OUT/session" --no-tiff --log-level debug ${EXTRA_ARGS:-}
 ((W_RC == 0)) || { echo "[flight_length] run failed (exit $W_RC)" >&2; tail -20 "$OUT/run.stderr" >&2; exit 1; }
 
-# "frame 1234 processed in 56.7 ms" -> "1234 56.7"
-cat "$OUT/run.stdout" "$OUT/run.stderr" | sed -nE 's/.*frame ([0-9]+) processed in ([0-9.]+) ms.*/\1 \2/p' |
+# "frame 1234 (its name) processed in 56.7 ms" -> "1234 56.7"
+cat "$OUT/run.stdout" "$OUT/run.stderr" | sed -nE 's/.*frame ([0-9]+) (\([^)]*\) )?processed in ([0-9.]+) ms.*/\1 \3/p' |
   sort -n >"$OUT/frame_ms.txt"
 median_of() {  # median_of FIRST LAST: median ms of frames FIRST..LAST-1
   awk -v a="$1" -v b="$2" '$1 >= a && $1 < b { print $2 }' "$OUT/frame_ms.txt" | sort -g |
