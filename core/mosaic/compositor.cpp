@@ -14,6 +14,7 @@
 #include "core/mosaic/selection.h"
 #include "core/mosaic/tile_blender.h"
 #include "core/util/clock.h"
+#include "core/util/memory.h"
 #include "core/util/parallel.h"
 
 namespace uavm {
@@ -33,6 +34,51 @@ bool CompositorOptions::Check(std::string* why) const {
     return fail("mosaic.max_covered_fraction must be in (0,1]");
   if (quicklook_long_side < 16) return fail("mosaic.quicklook_long_side must be >= 16");
   return true;
+}
+
+namespace {
+
+constexpr double kMiB = 1024.0 * 1024.0;
+// Per tile pixel (tile + margin) and worker, measured (bench/memory.sh, 1 vs 2 workers: ~30 MiB for 704x704).
+constexpr double kBytesPerBlendPixel = 64;
+// GDAL/libtiff beyond the block cache while tiles are written (1 MiB RGB/RGBA copies of a tile, compression state,
+// the driver): measured as --no-tiff vs TIFF minus the cache on 12 MP flights.
+constexpr double kWriterOverheadMiB = 8;
+// A JPEG decoded at 1/2^k (DCT scaling) and resized to the image: the decode may be up to 1.6x the image's side
+// (the loader enlarges by up to 1.25x after a reduction that halves again), i.e. 2.56x its area, beside the image.
+constexpr double kWorstLoadPerImageByte = 2.56 + 1.0;
+
+}  // namespace
+
+double CompositorOptions::BlendMiBPerWorker() const {
+  const double side = tile_size + 2.0 * Margin();
+  return side * side * kBytesPerBlendPixel / kMiB;
+}
+
+double CompositorOptions::WriterMiB() const {
+  return gdal_cache_mib + kWriterOverheadMiB;
+}
+
+CompositorMemory FitCompositorMemory(size_t pixel_bytes, size_t quicklook_bytes, size_t largest_load,
+                                     size_t largest_crop, int threads, size_t blend_bytes_per_worker) {
+  CompositorMemory m;
+  m.threads = std::max(1, threads);
+  for (;;) {
+    const size_t fixed = quicklook_bytes + largest_load;
+    const size_t cache = pixel_bytes > fixed ? pixel_bytes - fixed : 0;
+    const size_t floor = static_cast<size_t>(m.threads) * largest_crop;
+    if (cache >= floor) {
+      m.cache_bytes = cache;
+      return m;
+    }
+    if (m.threads == 1) {
+      m.cache_bytes = floor;
+      m.fits = false;
+      return m;
+    }
+    --m.threads;
+    pixel_bytes += blend_bytes_per_worker;
+  }
 }
 
 namespace {
@@ -121,7 +167,7 @@ void BorderDistance(const FrameGeometry& g, const cv::Mat& map_x, const cv::Mat&
 
 // Blends one ROI from the frames listed in `candidates` (indices into geometry / images).
 bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size_t>& candidates,
-              const std::function<const cv::Mat*(size_t, cv::Point*)>& image_of, const cv::Rect& roi, int num_bands,
+              const std::function<cv::Mat(size_t, cv::Point*)>& image_of, const cv::Rect& roi, int num_bands,
               cv::Mat* out_image, cv::Mat* out_mask) {
   const int cx0 = roi.x / kSeamStep;
   const int cy0 = roi.y / kSeamStep;
@@ -163,8 +209,9 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
     cv::compare(owner, cv::Scalar(static_cast<double>(k)), mask, cv::CMP_EQ);
     if (cv::countNonZero(mask) == 0) continue;
     cv::Point crop_tl;  // the image may be a crop of the frame (see OwnedCanvasBoxes)
-    const cv::Mat* img = image_of(candidates[k], &crop_tl);
-    if (img == nullptr || img->empty()) continue;
+    // Held (shared with the cache) only while it is warped: a worker pins one frame, not all of its tile's.
+    const cv::Mat img = image_of(candidates[k], &crop_tl);
+    if (img.empty()) continue;
     // Only the owned area plus the pyramid's reach is warped and fed: each pixel is blended about once, not once
     // per overlapping frame.
     const int reach = BlendReach(num_bands);
@@ -178,7 +225,7 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
       map_y -= static_cast<float>(crop_tl.y);
     }
     // Reflect beyond the frame edge: the pyramid then sees image texture, not black, next to the seam.
-    cv::remap(*img, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    cv::remap(img, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REFLECT);
     blender->Feed(warped, mask(owned), sub.tl());
     fed = true;
   }
@@ -308,13 +355,15 @@ bool RenderRoi(const std::vector<CompositeInput>& frames, const std::vector<cv::
     if ((geometry.back().bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
   }
   return BlendRoi(
-      geometry, candidates, [&](size_t i, cv::Point*) { return &images[i]; }, roi, num_bands, image, mask);
+      geometry, candidates, [&](size_t i, cv::Point*) { return images[i]; }, roi, num_bands, image, mask);
 }
 
 CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas, const ImageLoadFn& load,
                           const CompositorOptions& options, GdalTiffWriter* tiff) {
   CompositeResult result;
   StageTimer timer;
+  // What the flight left, before the compositor allocates anything.
+  const double resident_mib = options.memory_budget_mib > 0 ? CurrentRssMiB() : 0.0;
   result.canvas = canvas;
   // Frame selection on footprints.
   std::vector<std::vector<cv::Point2f>> footprints;
@@ -344,8 +393,8 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
                             owned[i].height + 2 * reach);
       // Corners suffice: a projective map takes the rectangle to a convex quadrilateral.
       double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
-      for (const Vec2& c : {Vec2(need.x, need.y), Vec2(need.x + need.width, need.y),
-                            Vec2(need.x, need.y + need.height), Vec2(need.x + need.width, need.y + need.height)}) {
+      for (const Vec2& c : {Vec2(need.x, need.y), Vec2(need.x + need.width, need.y), Vec2(need.x, need.y + need.height),
+                            Vec2(need.x + need.width, need.y + need.height)}) {
         const Vec2 p = Apply(geometry[i].image_from_canvas, c);
         x0 = std::min(x0, p.x());
         y0 = std::min(y0, p.y());
@@ -365,17 +414,42 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
       std::min(1.0, options.quicklook_long_side / static_cast<double>(std::max(canvas.width, canvas.height)));
   result.quicklook = cv::Mat(std::max(1, static_cast<int>(std::lround(canvas.height * q))),
                              std::max(1, static_cast<int>(std::lround(canvas.width * q))), CV_8UC4, cv::Scalar::all(0));
-  // image_cache_bytes is all the memory for frame pixels: one full decode at a time (decodes are serialised) and the
-  // quick-look come out of it, the cache of cropped frames gets the rest (at least two of the largest crops).
+  // image_cache_bytes is all the memory for frame pixels: the quick-look, one load at a time (loads are serialised)
+  // and the cache of cropped frames. Under a budget it is also held to what the budget leaves once the flight's
+  // remains (measured, not assumed: they vary with the flight), the TIFF writer and the workers are counted; frames
+  // too large for that then cost a worker rather than the budget.
   size_t largest_crop = 0;
-  size_t largest_frame = 0;
+  size_t largest_load = 0;
   for (size_t i = 0; i < used.size(); ++i) {
-    largest_frame = std::max(largest_frame, static_cast<size_t>(geometry[i].size.area()) * 3);
-    largest_crop = std::max(largest_crop, static_cast<size_t>(crop[i].area()) * 3);
+    const size_t image = static_cast<size_t>(geometry[i].size.area()) * 3;
+    largest_load =
+        std::max(largest_load, used[i].load_bytes > 0
+                                   ? used[i].load_bytes
+                                   : static_cast<size_t>(kWorstLoadPerImageByte * static_cast<double>(image)));
+    largest_crop =
+        std::max(largest_crop, static_cast<size_t>((crop[i].empty() ? geometry[i].size : crop[i].size()).area()) * 3);
   }
-  const size_t transient = largest_frame + result.quicklook.total() * result.quicklook.elemSize();
-  const size_t cache_bytes = std::max(options.image_cache_bytes > transient ? options.image_cache_bytes - transient : 0,
-                                      2 * largest_crop);
+  const size_t blend_bytes = static_cast<size_t>(options.BlendMiBPerWorker() * kMiB);
+  size_t pixel_bytes = options.image_cache_bytes;
+  if (options.memory_budget_mib > 0) {
+    const double left = options.memory_budget_mib - resident_mib - (tiff != nullptr ? options.WriterMiB() : 0.0) -
+                        options.threads * options.BlendMiBPerWorker();
+    pixel_bytes = std::min(pixel_bytes, static_cast<size_t>(std::max(0.0, left) * kMiB));
+  }
+  const size_t quicklook_bytes = result.quicklook.total() * result.quicklook.elemSize();
+  const CompositorMemory memory =
+      FitCompositorMemory(pixel_bytes, quicklook_bytes, largest_load, largest_crop, options.threads, blend_bytes);
+  const int threads = memory.threads;
+  const auto mib = [](size_t bytes) { return static_cast<double>(bytes) / kMiB; };
+  spdlog::info("composite: {} worker(s), frame cache {:.0f} MiB, load {:.0f} MiB, quick-look {:.0f} MiB{}", threads,
+               mib(memory.cache_bytes), mib(largest_load), mib(quicklook_bytes),
+               options.memory_budget_mib > 0 ? fmt::format(" ({:.0f} MiB resident at the start)", resident_mib) : "");
+  if (!memory.fits)
+    spdlog::warn(
+        "composite: frames of {:.0f} MiB per load do not fit the memory budget of {} MiB with one worker; "
+        "lower mosaic_scale to hold it",
+        mib(largest_load), options.memory_budget_mib);
+  const size_t cache_bytes = memory.cache_bytes;
   ImageCache cache(load, cache_bytes);
   std::mutex decode_mutex;
   std::vector<bool> reported_unreadable(used.size(), false);
@@ -394,7 +468,7 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
   std::atomic<bool> failed{false};  // a tile write failed: the remaining tiles are skipped
   std::string write_error;
   // Tiles are claimed in increasing (row-major) order, as the comment above needs.
-  ParallelFor(tiles.size(), options.threads, [&](size_t t) {
+  ParallelFor(tiles.size(), threads, [&](size_t t) {
     if (failed) return;
     const cv::Rect tile = tiles[t];
     const cv::Rect roi =
@@ -403,39 +477,33 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
     for (size_t i = 0; i < geometry.size(); ++i)
       if ((geometry[i].bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
     if (candidates.empty()) return;
-    // Images used by this tile are pinned (shared) so that another worker's eviction cannot free them.
-    std::vector<cv::Mat> pinned(candidates.size());
-    auto image_of = [&](size_t i, cv::Point* tl) -> const cv::Mat* {
+    // The image shares the cache's buffer while the worker uses it, so that another worker's eviction cannot free it.
+    auto image_of = [&](size_t i, cv::Point* tl) -> cv::Mat {
       *tl = crop[i].empty() ? cv::Point() : crop[i].tl();
-      const size_t k = static_cast<size_t>(std::find(candidates.begin(), candidates.end(), i) - candidates.begin());
-      if (pinned[k].empty()) {
-        {
-          std::lock_guard<std::mutex> lock(cache_mutex);
-          pinned[k] = cache.Peek(used[i].id);
-        }
-        if (pinned[k].empty()) {
-          cv::Mat img;
-          {
-            // Outside the cache lock (the other worker keeps blending) but one at a time: a full decode is the
-            // largest transient buffer of the compositor.
-            std::lock_guard<std::mutex> decode_lock(decode_mutex);
-            img = cache.loader()(used[i].id);
-            if (!img.empty() && !crop[i].empty() && img.size() == geometry[i].size && crop[i].size() != img.size())
-              img = img(crop[i]).clone();  // the full decode is freed here
-          }
-          std::lock_guard<std::mutex> lock(cache_mutex);
-          if (img.empty()) {
-            if (!reported_unreadable[i]) {
-              reported_unreadable[i] = true;
-              ++result.frames_unreadable;
-              spdlog::warn("composite: frame {} could not be loaded; its area stays empty", used[i].id);
-            }
-          } else {
-            pinned[k] = cache.Insert(used[i].id, std::move(img));
-          }
-        }
+      {
+        std::lock_guard<std::mutex> lock(cache_mutex);
+        cv::Mat cached = cache.Peek(used[i].id);
+        if (!cached.empty()) return cached;
       }
-      return pinned[k].empty() ? nullptr : &pinned[k];
+      cv::Mat img;
+      {
+        // Outside the cache lock (the other worker keeps blending) but one at a time: a load is the largest
+        // transient buffer of the compositor.
+        std::lock_guard<std::mutex> decode_lock(decode_mutex);
+        img = cache.loader()(used[i].id);
+        if (!img.empty() && !crop[i].empty() && img.size() == geometry[i].size && crop[i].size() != img.size())
+          img = img(crop[i]).clone();  // the full decode is freed here
+      }
+      std::lock_guard<std::mutex> lock(cache_mutex);
+      if (img.empty()) {
+        if (!reported_unreadable[i]) {
+          reported_unreadable[i] = true;
+          ++result.frames_unreadable;
+          spdlog::warn("composite: frame {} could not be loaded; its area stays empty", used[i].id);
+        }
+        return {};
+      }
+      return cache.Insert(used[i].id, std::move(img));
     };
     cv::Mat image;
     cv::Mat mask;

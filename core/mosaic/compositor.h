@@ -23,22 +23,48 @@ struct CompositorOptions {
   int num_bands = 5;                  // multi-band levels; 0 = hard seams only
   double max_covered_fraction = 0.9;  // overlap-based frame selection (see SelectByOverlap)
   int quicklook_long_side = 2000;
-  size_t image_cache_bytes = size_t{256} << 20;  // decoded frames kept between tiles
+  // All frame pixels: the quick-look, one load at a time and the decoded frames kept between tiles.
+  size_t image_cache_bytes = size_t{256} << 20;
   bool build_overviews = true;
-  int threads = 2;  // tile workers
+  int threads = 2;          // tile workers
   int gdal_cache_mib = 64;  // GDAL's block cache while the TIFF is written (tiles are written once)
+  // The whole program's memory budget, MiB (0 = none; set by ApplyMemoryBudget, not a config key): frame pixels and
+  // workers are fitted into what is left of it when compositing starts (see FitCompositorMemory).
+  int memory_budget_mib = 0;
 
   [[nodiscard]] bool Check(std::string* why) const;
   // Margin around each tile so that the pyramid of the blend does not see the tile border (a hard-seam tile still
   // keeps 2 px).
   [[nodiscard]] int Margin() const { return num_bands > 0 ? BlendReach(num_bands) : 2; }
+  // Working memory of one tile worker, MiB: 16-bit Laplacian pyramids and their Gaussian sources, float weights,
+  // warped frame, maps, masks over the tile and its margin. The one definition: the budget plans with it.
+  [[nodiscard]] double BlendMiBPerWorker() const;
+  // The TIFF writer while tiles are written: GDAL's block cache and what GDAL/libtiff hold besides it.
+  [[nodiscard]] double WriterMiB() const;
 };
+
+// How the compositor's memory is split once the frames and the canvas are known.
+struct CompositorMemory {
+  int threads = 1;
+  size_t cache_bytes = 0;  // decoded (cropped) frames kept between tiles
+  bool fits = true;        // false: even one worker with one cached frame exceeds the allowance
+};
+
+// Splits `pixel_bytes`, all the memory for frame pixels (the quick-look, one load at a time, the cache), when the
+// largest load holds `largest_load` bytes and the largest cached crop is `largest_crop` bytes. Each of `threads`
+// workers holds at least one cached crop; while that does not fit, a worker is dropped and its
+// `blend_bytes_per_worker` go to frame pixels.
+[[nodiscard]] CompositorMemory FitCompositorMemory(size_t pixel_bytes, size_t quicklook_bytes, size_t largest_load,
+                                                   size_t largest_crop, int threads, size_t blend_bytes_per_worker);
 
 // A frame to composite: canvas_from_image acts on the pixel grid of the image that `load` returns.
 struct CompositeInput {
   int id = -1;
   Mat3 canvas_from_image = Mat3::Identity();
   cv::Size image_size;
+  // Most bytes a load of this frame holds at once (e.g. a larger decode and its resized copy); 0 = not known, then
+  // taken as the worst a DCT-scaled JPEG decode resized to image_size gives (see Composite).
+  size_t load_bytes = 0;
 };
 
 using ImageLoadFn = std::function<cv::Mat(int id)>;  // BGR8 image of a frame; empty = unreadable

@@ -15,18 +15,24 @@ constexpr double kBaselineMiB = 72.0;
 constexpr double kGraphMiB = 20.0;
 // Relocalisation index per descriptor: 8-bit copy, float copy for FLANN, 4 kd-trees.
 constexpr double kBytesPerIndexedDescriptor = 128 + 512 + 160;
+// What the flight leaves resident beyond the baseline and the graph when it ends (arena pages malloc_trim cannot
+// return, state OpenCV, GDAL and Ceres built on first use): measured 102-112 MiB at the end of the solves on the
+// bundled 12 MP flights and their 8-12 MP resizes, whatever the frame size. The compositor measures it again.
+constexpr double kFlightResidueMiB = 20.0;
 // Ceres per correspondence: residual block, cost functor, Jacobian blocks and their compressed-row copy.
 constexpr double kBytesPerSolverCorrespondence = 1100;
-// Compositor per tile pixel (tile + margin) and worker: 16-bit Laplacian pyramid and its Gaussian source, float
-// weights, warped frame, maps, masks.
-constexpr double kBytesPerBlendPixel = 64;
-
-double BlendMiB(const CompositorOptions& m) {
-  const double side = m.tile_size + 2.0 * m.Margin();
-  return m.threads * side * side * kBytesPerBlendPixel / kMiB;
+// The compositor's largest fixed buffer besides its workers: the BGRA quick-look (2000 px long side, square canvas).
+double QuicklookMiB(const CompositorOptions& m) {
+  return 4.0 * m.quicklook_long_side * m.quicklook_long_side / kMiB;
 }
 
-double FeatureSetMiB(int max_features) { return max_features * (128 * 4 + 8) / kMiB; }
+double BlendMiB(const CompositorOptions& m) {
+  return m.threads * m.BlendMiBPerWorker();
+}
+
+double FeatureSetMiB(int max_features) {
+  return max_features * (128 * 4 + 8) / kMiB;
+}
 
 }  // namespace
 
@@ -35,15 +41,14 @@ double MemoryPlan::FlightMiB() const {
 }
 
 double MemoryPlan::EndMiB() const {
-  return baseline_mib + graph_mib + std::max(refine_mib, image_cache_mib + blend_mib + gdal_cache_mib);
+  return baseline_mib + graph_mib + residue_mib + std::max(refine_mib, image_cache_mib + blend_mib + gdal_cache_mib);
 }
 
 double QueuedFrameMiB(int work_width, int work_height, int max_features) {
   return static_cast<double>(work_width) * work_height * 4 / kMiB + FeatureSetMiB(max_features);
 }
 
-bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options, MemoryPlan* plan,
-                       std::string* why) {
+bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options, MemoryPlan* plan, std::string* why) {
   PipelineOptions& o = *options;
   MemoryPlan p;
   p.budget_mib = o.memory_budget_mib;
@@ -66,7 +71,8 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
     p.refine_mib = o.refine.max_correspondences * kBytesPerSolverCorrespondence / kMiB;
     p.image_cache_mib = static_cast<double>(o.mosaic.image_cache_bytes) / kMiB;
     p.blend_mib = BlendMiB(o.mosaic);
-    p.gdal_cache_mib = o.mosaic.gdal_cache_mib;
+    p.gdal_cache_mib = o.mosaic.WriterMiB();
+    p.residue_mib = kFlightResidueMiB;
     *plan = p;
     return true;
   }
@@ -84,13 +90,13 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   // Flight. A small budget queues fewer frames: capture then waits (replay) or drops the oldest (camera).
   p.queue_capacity = budget >= 512 ? o.queue_capacity : std::min(o.queue_capacity, 2);
   p.queue_mib = queue_mib(p.queue_capacity);
-  p.relocalization_descriptors = std::min(
-      o.relocalization.max_descriptors,
-      std::max(4096, static_cast<int>(0.06 * budget * kMiB / kBytesPerIndexedDescriptor)));
+  p.relocalization_descriptors =
+      std::min(o.relocalization.max_descriptors,
+               std::max(4096, static_cast<int>(0.06 * budget * kMiB / kBytesPerIndexedDescriptor)));
   p.relocalization_mib = index_mib(p.relocalization_descriptors);
   // Candidates (K recent + M overlapping + relocalisation) need a dozen feature sets; the rest reloads from disk.
-  p.feature_cache_mib = std::min<double>(o.feature_cache_mib, std::max(12.0 * FeatureSetMiB(o.features.max_features),
-                                                                       0.1 * budget));
+  p.feature_cache_mib =
+      std::min<double>(o.feature_cache_mib, std::max(12.0 * FeatureSetMiB(o.features.max_features), 0.1 * budget));
   const double sift_cap = avail - p.queue_mib - p.relocalization_mib - p.feature_cache_mib;
   const double smallest_band = SiftScaleSpaceMiB(work_width, 2 * o.features.band_margin + 32);
   if (sift_cap < smallest_band)
@@ -103,31 +109,39 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   if (o.features.max_scale_space_mib > 0)
     features.max_scale_space_mib = std::min(features.max_scale_space_mib, o.features.max_scale_space_mib);
   p.sift_bands = SiftBands(work_width, work_height, features);
-  const int band_rows = (work_height + p.sift_bands - 1) / p.sift_bands + (p.sift_bands > 1 ? 2 * features.band_margin : 0);
+  const int band_rows =
+      (work_height + p.sift_bands - 1) / p.sift_bands + (p.sift_bands > 1 ? 2 * features.band_margin : 0);
   p.sift_mib = SiftScaleSpaceMiB(work_width, std::min(work_height, band_rows));
 
-  // End of flight.
+  // End of flight: what the flight leaves, then the TIFF writer, the tile workers and frame pixels (the quick-look,
+  // one load, the cache). The plan cannot know the frames' size (the compositor loads them at the canvas's scale):
+  // the compositor fits its pixels into what is left when it starts, dropping a worker for frames too large.
+  p.residue_mib = kFlightResidueMiB;
   CompositorOptions mosaic = o.mosaic;
-  p.gdal_cache_mib = std::clamp(0.05 * budget, 4.0, static_cast<double>(o.mosaic.gdal_cache_mib));
-  const double end_avail = avail - p.gdal_cache_mib;
-  while (BlendMiB(mosaic) > 0.45 * end_avail && mosaic.tile_size > mosaic.tiff_block) mosaic.tile_size /= 2;
-  while (BlendMiB(mosaic) > 0.45 * end_avail && mosaic.threads > 1) --mosaic.threads;
+  mosaic.gdal_cache_mib =
+      static_cast<int>(std::floor(std::clamp(0.05 * budget, 4.0, static_cast<double>(o.mosaic.gdal_cache_mib))));
+  mosaic.memory_budget_mib = o.memory_budget_mib;
+  p.gdal_cache_mib = mosaic.WriterMiB();
+  const double end_avail = avail - p.residue_mib - p.gdal_cache_mib;
+  // Workers get at most half of it: frame pixels need the quick-look, a load and a cached frame per worker.
+  while (BlendMiB(mosaic) > 0.5 * end_avail && mosaic.tile_size > mosaic.tiff_block) mosaic.tile_size /= 2;
+  while (BlendMiB(mosaic) > 0.5 * end_avail && mosaic.threads > 1) --mosaic.threads;
   p.blend_mib = BlendMiB(mosaic);
   p.image_cache_mib = std::min(static_cast<double>(o.mosaic.image_cache_bytes) / kMiB, end_avail - p.blend_mib);
-  if (p.image_cache_mib < 8)
+  if (p.image_cache_mib < QuicklookMiB(mosaic) + 8)
     return fail("memory_budget_mib " + std::to_string(o.memory_budget_mib) + " leaves no room for the compositor");
   p.refine_correspondences =
       std::min(o.refine.max_correspondences,
-               std::max(1000, static_cast<int>(0.8 * avail * kMiB / kBytesPerSolverCorrespondence)));
+               std::max(1000, static_cast<int>(0.8 * (avail - p.residue_mib) * kMiB / kBytesPerSolverCorrespondence)));
   p.refine_mib = p.refine_correspondences * kBytesPerSolverCorrespondence / kMiB;
 
   o.queue_capacity = p.queue_capacity;
   o.relocalization.max_descriptors = p.relocalization_descriptors;
   o.feature_cache_mib = static_cast<int>(std::floor(p.feature_cache_mib));
   o.features = features;
+  // image_cache_bytes stays the configured cap: the compositor measures what the flight left and fits its frame
+  // pixels into the rest of the budget, so the plan's figure (which assumes kFlightResidueMiB) is only a forecast.
   o.mosaic = mosaic;
-  o.mosaic.gdal_cache_mib = static_cast<int>(std::floor(p.gdal_cache_mib));
-  o.mosaic.image_cache_bytes = static_cast<size_t>(p.image_cache_mib * kMiB);
   o.refine.max_correspondences = p.refine_correspondences;
   *plan = p;
   return true;

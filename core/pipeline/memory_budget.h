@@ -8,7 +8,9 @@ namespace uavm {
 // How a memory budget is spent. The flight and the end of the flight do not overlap in time, so each has the whole
 // budget minus what lives through both (the process itself, the match graph):
 //   flight: baseline + SIFT scale space + frames in the queue + feature cache + relocalisation index + graph
-//   end:    baseline + graph + max(refinement solver, compositor: decoded-frame cache + tile blenders + GDAL cache)
+//   end:    baseline + graph + what the flight leaves + max(refinement solver, compositor: frame pixels (quick-look,
+//           one load, decoded-frame cache) + tile blenders + TIFF writer)
+// The compositor refits its frame pixels and workers to the real frame and canvas sizes (FitCompositorMemory).
 // Every figure is MiB. Estimates come from the sizes of the buffers involved; the benchmark measures the outcome.
 struct MemoryPlan {
   double budget_mib = 0;
@@ -25,9 +27,10 @@ struct MemoryPlan {
   // End of flight.
   double refine_mib = 0;
   int refine_correspondences = 0;
-  double image_cache_mib = 0;
+  double residue_mib = 0;      // resident after the flight beyond baseline and graph (heap the flight leaves)
+  double image_cache_mib = 0;  // all frame pixels of the compositor
   double blend_mib = 0;
-  double gdal_cache_mib = 0;
+  double gdal_cache_mib = 0;  // the TIFF writer: GDAL's cache and its overhead
 
   [[nodiscard]] double FlightMiB() const;
   [[nodiscard]] double EndMiB() const;

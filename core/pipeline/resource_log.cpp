@@ -55,6 +55,7 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
             {"relocalization_descriptors", mp.relocalization_descriptors},
             {"refine_mib", mp.refine_mib},
             {"refine_correspondences", mp.refine_correspondences},
+            {"residue_mib", mp.residue_mib},
             {"image_cache_mib", mp.image_cache_mib},
             {"blend_mib", mp.blend_mib},
             {"gdal_cache_mib", mp.gdal_cache_mib}}}};
