@@ -48,6 +48,29 @@ double QueuedFrameMiB(int work_width, int work_height, int max_features) {
   return static_cast<double>(work_width) * work_height * 4 / kMiB + FeatureSetMiB(max_features);
 }
 
+namespace {
+
+// The plan of a run without a budget: each cache as configured.
+MemoryPlan DescribeUnbudgeted(const PipelineOptions& o, int work_width, int work_height, MemoryPlan p,
+                              double queue_mib) {
+  p.queue_capacity = o.queue_capacity;
+  p.queue_mib = queue_mib;
+  p.sift_bands = SiftBands(work_width, work_height, o.features);
+  p.sift_mib = SiftScaleSpaceMiB(work_width, work_height) / p.sift_bands;
+  p.feature_cache_mib = o.feature_cache_mib;
+  p.relocalization_descriptors = o.relocalization.max_descriptors;
+  p.relocalization_mib = o.relocalization.max_descriptors * kBytesPerIndexedDescriptor / kMiB;
+  p.refine_correspondences = o.refine.max_correspondences;
+  p.refine_mib = o.refine.max_correspondences * kBytesPerSolverCorrespondence / kMiB;
+  p.image_cache_mib = static_cast<double>(o.mosaic.image_cache_bytes) / kMiB;
+  p.blend_mib = BlendMiB(o.mosaic);
+  p.gdal_cache_mib = o.mosaic.WriterMiB();
+  p.residue_mib = kFlightResidueMiB;
+  return p;
+}
+
+}  // namespace
+
 bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options, MemoryPlan* plan, std::string* why) {
   PipelineOptions& o = *options;
   MemoryPlan p;
@@ -60,20 +83,7 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   const auto index_mib = [](int descriptors) { return descriptors * kBytesPerIndexedDescriptor / kMiB; };
 
   if (o.memory_budget_mib <= 0) {  // no budget: describe the configuration as it is
-    p.queue_capacity = o.queue_capacity;
-    p.queue_mib = queue_mib(o.queue_capacity);
-    p.sift_bands = SiftBands(work_width, work_height, o.features);
-    p.sift_mib = SiftScaleSpaceMiB(work_width, work_height) / p.sift_bands;
-    p.feature_cache_mib = o.feature_cache_mib;
-    p.relocalization_descriptors = o.relocalization.max_descriptors;
-    p.relocalization_mib = index_mib(o.relocalization.max_descriptors);
-    p.refine_correspondences = o.refine.max_correspondences;
-    p.refine_mib = o.refine.max_correspondences * kBytesPerSolverCorrespondence / kMiB;
-    p.image_cache_mib = static_cast<double>(o.mosaic.image_cache_bytes) / kMiB;
-    p.blend_mib = BlendMiB(o.mosaic);
-    p.gdal_cache_mib = o.mosaic.WriterMiB();
-    p.residue_mib = kFlightResidueMiB;
-    *plan = p;
+    *plan = DescribeUnbudgeted(o, work_width, work_height, p, queue_mib(o.queue_capacity));
     return true;
   }
 
