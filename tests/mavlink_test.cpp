@@ -190,8 +190,7 @@ TEST_F(MavlinkTest, GarbageAndBadChecksumsCostOnlyTheDamagedPackets) {
   size_t record = 0, at = 0;
   for (int k = 0; k < 10; ++k) {
     record = at;
-    at += 8 + (static_cast<uint8_t>(damaged[at + 8]) == kStxV1 ? 8 : 12) + static_cast<uint8_t>(damaged[at + 9]) +
-          ((static_cast<uint8_t>(damaged[at + 8]) == kStxV2 && (damaged[at + 10] & 1)) ? 13 : 0);
+    at += 8 + FrameSize(reinterpret_cast<const uint8_t*>(damaged.data()) + at + 8);
   }
   damaged[record + 8 + 12] = static_cast<char>(damaged[record + 8 + 12] ^ 0x5A);
   // ... and put garbage full of start bytes between two later records.

@@ -50,6 +50,10 @@ double QueuedFrameMiB(int work_width, int work_height, int max_features) {
 
 namespace {
 
+double IndexMiB(int descriptors) {
+  return descriptors * kBytesPerIndexedDescriptor / kMiB;
+}
+
 // The plan of a run without a budget: each cache as configured.
 MemoryPlan DescribeUnbudgeted(const PipelineOptions& o, int work_width, int work_height, MemoryPlan p,
                               double queue_mib) {
@@ -59,7 +63,7 @@ MemoryPlan DescribeUnbudgeted(const PipelineOptions& o, int work_width, int work
   p.sift_mib = SiftScaleSpaceMiB(work_width, work_height) / p.sift_bands;
   p.feature_cache_mib = o.feature_cache_mib;
   p.relocalization_descriptors = o.relocalization.max_descriptors;
-  p.relocalization_mib = o.relocalization.max_descriptors * kBytesPerIndexedDescriptor / kMiB;
+  p.relocalization_mib = IndexMiB(o.relocalization.max_descriptors);
   p.refine_correspondences = o.refine.max_correspondences;
   p.refine_mib = o.refine.max_correspondences * kBytesPerSolverCorrespondence / kMiB;
   p.image_cache_mib = static_cast<double>(o.mosaic.image_cache_bytes) / kMiB;
@@ -80,7 +84,6 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   const double frame_mib = QueuedFrameMiB(work_width, work_height, o.features.max_features);
   // A frame being captured and one being registered are in flight besides the queue.
   const auto queue_mib = [&](int capacity) { return (capacity + 2) * frame_mib; };
-  const auto index_mib = [](int descriptors) { return descriptors * kBytesPerIndexedDescriptor / kMiB; };
 
   if (o.memory_budget_mib <= 0) {  // no budget: describe the configuration as it is
     *plan = DescribeUnbudgeted(o, work_width, work_height, p, queue_mib(o.queue_capacity));
@@ -103,7 +106,7 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   p.relocalization_descriptors =
       std::min(o.relocalization.max_descriptors,
                std::max(4096, static_cast<int>(0.06 * budget * kMiB / kBytesPerIndexedDescriptor)));
-  p.relocalization_mib = index_mib(p.relocalization_descriptors);
+  p.relocalization_mib = IndexMiB(p.relocalization_descriptors);
   // Candidates (K recent + M overlapping + relocalisation) need a dozen feature sets; the rest reloads from disk.
   p.feature_cache_mib =
       std::min<double>(o.feature_cache_mib, std::max(12.0 * FeatureSetMiB(o.features.max_features), 0.1 * budget));

@@ -151,10 +151,9 @@ void Parser::Feed(const uint8_t* data, size_t size, const Sink& on_packet) {
   for (size_t i = 0; i < size; ++i) Push(data[i], on_packet);
 }
 
-size_t Parser::FrameSize() const {
-  if (buffer_[0] == kStxV1) return size_ >= 2 ? kHeaderV1 + buffer_[1] + 2 : 0;
-  if (size_ < 3) return 0;
-  return kHeaderV2 + buffer_[1] + 2 + ((buffer_[2] & kIncompatSigned) != 0 ? kSignature : 0);
+size_t FrameSize(const uint8_t* p) {
+  if (p[0] == kStxV1) return kHeaderV1 + p[1] + 2;
+  return kHeaderV2 + p[1] + 2 + ((p[2] & kIncompatSigned) != 0 ? kSignature : 0);
 }
 
 void Parser::Push(uint8_t byte, const Sink& on_packet) {
@@ -163,8 +162,9 @@ void Parser::Push(uint8_t byte, const Sink& on_packet) {
     return;
   }
   buffer_[size_++] = byte;
-  const size_t frame = FrameSize();
-  if (frame != 0 && size_ == frame) Complete(on_packet);
+  // v1 needs STX and length to know its size, v2 also its flags.
+  const size_t known_after = buffer_[0] == kStxV1 ? 2 : 3;
+  if (size_ >= known_after && size_ == FrameSize(buffer_.data())) Complete(on_packet);
 }
 
 void Parser::Complete(const Sink& on_packet) {

@@ -18,6 +18,10 @@ inline constexpr uint8_t kStxV2 = 0xFD;
 inline constexpr size_t kMaxPacket = 10 + 255 + 2 + 13;  // v2 header, payload, CRC, signature
 inline constexpr uint8_t kIncompatSigned = 0x01;
 
+// Bytes of the whole frame that starts at `header` (STX, length and, for v2, the incompatibility flags: 3 bytes are
+// read): header, payload, CRC and, when signed, the signature.
+[[nodiscard]] size_t FrameSize(const uint8_t* header);
+
 // CRC-16/MCRF4XX as MAVLink uses it ("X.25"): start 0xFFFF, then Accumulate() each byte.
 [[nodiscard]] uint16_t Crc(const uint8_t* data, size_t size, uint16_t crc = 0xFFFF);
 
@@ -135,9 +139,8 @@ class Parser {
 
  private:
   void Push(uint8_t byte, const Sink& on_packet);
-  [[nodiscard]] size_t FrameSize() const;  // 0 while the header is incomplete
-  void Complete(const Sink& on_packet);    // buffer_ holds a whole candidate frame
-  void Resync(const Sink& on_packet);      // drop the leading start byte and rescan the rest
+  void Complete(const Sink& on_packet);  // buffer_ holds a whole candidate frame
+  void Resync(const Sink& on_packet);    // drop the leading start byte and rescan the rest
 
   std::array<uint8_t, kMaxPacket> buffer_{};
   size_t size_ = 0;

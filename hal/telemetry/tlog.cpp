@@ -47,11 +47,6 @@ uint64_t BigEndian64(const uint8_t* p) {
   return v;
 }
 
-size_t FrameSize(const uint8_t* p) {
-  if (p[0] == kStxV1) return 6 + p[1] + 2;
-  return 10 + p[1] + 2 + ((p[2] & kIncompatSigned) != 0 ? 13 : 0);
-}
-
 void Accumulate(ParserCounters* total, const ParserCounters& c) {
   total->packets += c.packets;
   total->unknown += c.unknown;
@@ -84,7 +79,7 @@ bool ReadTlog(const std::string& path, const std::function<void(uint64_t, const 
       ++stats->resync_bytes;
       continue;
     }
-    const size_t frame = FrameSize(w.at() + kStamp);
+    const size_t frame = mavlink::FrameSize(w.at() + kStamp);
     if (!w.Have(kStamp + frame)) {
       stats->truncated = true;
       break;
