@@ -47,6 +47,7 @@ std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::strin
     hal::ReplayOptions o;
     o.path = arg;
     o.stride = config.stride;
+    o.keep_uniform_with_telemetry = !config.telemetry.empty();  // calm water: a frame to place, not a bad file
     return std::make_unique<hal::ReplaySource>(o);
   }
   if (scheme == "sim") {

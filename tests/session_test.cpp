@@ -20,21 +20,40 @@ fs::path TempDir(const std::string& name) {
 
 TEST(SessionTest, TransformsCsvRoundTrip) {
   std::vector<TransformRow> rows(3);
-  rows[0] = {0, "a.jpg", true, Mat3::Identity()};
+  rows[0] = {0, "a.jpg", true, Mat3::Identity(), ""};
   rows[1].index = 1;
   rows[1].filename = "b.jpg";
   rows[1].registered = true;
   rows[1].mosaic_from_frame << 0.5, 0.01, 12.25, -0.02, 0.49, 300.5, 1e-6, -2e-6, 1;
-  rows[2] = {2, "c.jpg", false, Mat3::Identity()};
+  rows[1].placed_by = "telemetry";
+  rows[2] = {2, "c.jpg", false, Mat3::Identity(), ""};
   const std::string text = FormatTransformsCsv(rows);
-  EXPECT_EQ(text.substr(0, text.find('\n')), "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21");
+  EXPECT_EQ(text.substr(0, text.find('\n')), "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21,placed_by");
   std::vector<TransformRow> back;
   std::string err;
   ASSERT_TRUE(ParseTransformsCsv(text, &back, &err)) << err;
   ASSERT_EQ(back.size(), 3u);
   EXPECT_TRUE(back[1].mosaic_from_frame.isApprox(rows[1].mosaic_from_frame, 1e-9));
+  EXPECT_EQ(back[0].placed_by, "image");  // a registered row without a value is placed by images
+  EXPECT_EQ(back[1].placed_by, "telemetry");
   EXPECT_FALSE(back[2].registered);
+  EXPECT_EQ(back[2].placed_by, "");
   EXPECT_FALSE(ParseTransformsCsv("index,wrong\n", &back, &err));
+  EXPECT_FALSE(ParseTransformsCsv(std::string(kTransformsHeader) + "\n0,a.jpg,1,1,0,0,0,1,0,0,0,gps\n", &back, &err));
+  EXPECT_NE(err.find("placed_by"), std::string::npos) << err;
+}
+
+// Sessions written before the placed_by column are still read: their registered frames were placed by images.
+TEST(SessionTest, TransformsCsvWithoutPlacedByIsRead) {
+  std::vector<TransformRow> back;
+  std::string err;
+  ASSERT_TRUE(ParseTransformsCsv(std::string(kTransformsHeaderV1) + "\n0,a.jpg,1,1,0,5,0,1,7,0,0\n1,b.jpg,0,,,,,,,,\n",
+                                 &back, &err))
+      << err;
+  ASSERT_EQ(back.size(), 2u);
+  EXPECT_EQ(back[0].placed_by, "image");
+  EXPECT_DOUBLE_EQ(back[0].mosaic_from_frame(1, 2), 7.0);
+  EXPECT_FALSE(back[1].registered);
 }
 
 TEST(SessionTest, FeatureStoreEvictsAndReloadsFromDisk) {

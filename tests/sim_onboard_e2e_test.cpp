@@ -9,6 +9,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 
 #include "core/eval/evaluator.h"
 #include "core/eval/image_score.h"
@@ -114,6 +115,30 @@ TEST(SimOnboardE2ETest, OneDegreeTiltWithTheHomographyModelGoesBelowTheAffineFlo
   fs::remove_all(run.dir);
 }
 
+// name -> (easting, northing) of an OpenDroneMap geo.txt in WGS 84 (extra columns ignored), through `to_utm`.
+std::map<std::string, Vec2> ReadGeoTxt(const fs::path& path, OGRCoordinateTransformation* to_utm) {
+  std::map<std::string, Vec2> out;
+  std::ifstream in(path);
+  std::string line, name;
+  std::getline(in, line);  // CRS
+  while (std::getline(in, line)) {
+    std::istringstream fields(line);
+    double lon = 0, lat = 0;
+    if (!(fields >> name >> lon >> lat)) continue;
+    to_utm->Transform(1, &lon, &lat);
+    out[name] = Vec2(lon, lat);
+  }
+  return out;
+}
+
+// The map position of a frame's centre through report.json's GDAL geotransform: x = g0 + (px + 0.5) g1,
+// y = g3 + (py + 0.5) g5 (the pixel's centre; north-up).
+Vec2 WorldOfCentre(const nlohmann::json& g, const Mat3& mosaic_from_frame, cv::Size size) {
+  const Vec2 px = Apply(mosaic_from_frame, Vec2(0.5 * (size.width - 1), 0.5 * (size.height - 1)));
+  return Vec2(g[0].get<double>() + (px.x() + 0.5) * g[1].get<double>(),
+              g[3].get<double>() + (px.y() + 0.5) * g[5].get<double>());
+}
+
 // The flight carries GPS (noise 1 m per axis, a 0.5 m wandering bias) as an OpenDroneMap geo.txt, replayed with
 // --telemetry geo: (the PNG frames have no EXIF). The map lands in the right UTM zone, and the frame centres, placed by
 // the images and fitted to all fixes at once, are closer to their true ground positions than the fixes themselves.
@@ -137,30 +162,15 @@ TEST(SimOnboardE2ETest, GpsTelemetryGeoreferencesTheMapWithinTheGpsNoise) {
   utm.importFromEPSG(32615);
   std::unique_ptr<OGRCoordinateTransformation> to_utm(OGRCreateCoordinateTransformation(&wgs84, &utm));
   ASSERT_TRUE(to_utm);
-  const auto read_geo = [&](const fs::path& path) {
-    std::map<std::string, Vec2> out;
-    std::ifstream in(path);
-    std::string line, name;
-    std::getline(in, line);  // CRS
-    for (double lon, lat, alt; in >> name >> lon >> lat >> alt;) {
-      to_utm->Transform(1, &lon, &lat);
-      out[name] = Vec2(lon, lat);
-    }
-    return out;
-  };
-  const auto truth = read_geo(run.dir / "flight/geo_truth.txt");
-  const auto fixes = read_geo(run.dir / "flight/geo.txt");
+  const auto truth = ReadGeoTxt(run.dir / "flight/geo_truth.txt", to_utm.get());
+  const auto fixes = ReadGeoTxt(run.dir / "flight/geo.txt", to_utm.get());
   std::string text, err;
   std::vector<TransformRow> rows;
   ASSERT_TRUE(ReadTextFile((run.dir / "session/transforms.csv").string(), &text, &err)) << err;
   ASSERT_TRUE(ParseTransformsCsv(text, &rows, &err)) << err;
-  const auto& g = report["georef"]["geotransform"];
   double map_sq = 0, gps_sq = 0;
   for (const auto& r : rows) {
-    const Vec2 px = Apply(r.mosaic_from_frame, Vec2(199.5, 149.5));
-    // GDAL geotransform: x = g0 + (px + 0.5) g1, y = g3 + (py + 0.5) g5 (the pixel's centre).
-    const Vec2 world(g[0].get<double>() + (px.x() + 0.5) * g[1].get<double>(),
-                     g[3].get<double>() + (px.y() + 0.5) * g[5].get<double>());
+    const Vec2 world = WorldOfCentre(report["georef"]["geotransform"], r.mosaic_from_frame, cv::Size(400, 300));
     map_sq += (world - truth.at(r.filename)).squaredNorm();
     gps_sq += (fixes.at(r.filename) - truth.at(r.filename)).squaredNorm();
   }
@@ -170,6 +180,123 @@ TEST(SimOnboardE2ETest, GpsTelemetryGeoreferencesTheMapWithinTheGpsNoise) {
   EXPECT_LT(map_rms, gps_rms);
   EXPECT_LT(map_rms, 1.5);
   fs::remove_all(run.dir);
+}
+
+// A flight whose strips cross a band of calm water over 30 % of the ground (issue 17): frames wholly over it match
+// nothing and look uniform, and the land on either side is linked by no image. With the GPS as telemetry every frame
+// is in the map: the largest piece placed by images (sub-pixel against the truth), the rest by telemetry (frame
+// centres within the GPS noise), in the right UTM zone. Without telemetry the flight is handled as before: the
+// uniform frames are skipped as bad input and the largest piece is the map.
+struct WaterFlight {
+  fs::path dir;
+  std::vector<TransformRow> rows;
+  std::vector<eval::GtRow> gt;
+  nlohmann::json report;
+};
+
+const cv::Size kWaterFrame(200, 150);
+
+void FlyOverWater(const std::string& args, WaterFlight* w) {
+  w->dir = fs::temp_directory_path() / ("uavm_sim_e2e_water_" + std::to_string(::getpid()));
+  fs::remove_all(w->dir / "session");
+  std::string err;
+  if (!fs::exists(w->dir / "flight/gt.csv")) {
+    const std::string plan =
+        "frame_width: 200\nframe_height: 150\ngsd: 1.0\nstrips: 3\nstrip_length: 720\nforward_overlap: 0.7\n"
+        "side_overlap: 0.3\nseed: 3\ngps: 1\nmetres_per_px: 0.1\ngps_noise_m: 1.0\ngps_bias_m: 0.5\n"
+        "water_from: 0.35\nwater_to: 0.65\n";
+    hal::SimSource source({"", plan, kCanvas, 0});
+    ASSERT_EQ(source.Open(&err), hal::Status::kOk) << err;
+    ASSERT_TRUE(tools::WriteSimFlight(&source, (w->dir / "flight").string(), 0, &err)) << err;
+  }
+  const std::string cmd = std::string(UAVM_ONBOARD_BIN) + " --source replay:" + (w->dir / "flight/images").string() +
+                          " --out " + (w->dir / "session").string() + " --log-level warn " + args +
+                          test::EmulationArgsString();
+  const int status = std::system(cmd.c_str());
+  ASSERT_TRUE(WIFEXITED(status));
+  ASSERT_EQ(WEXITSTATUS(status), 0);
+  std::string text;
+  ASSERT_TRUE(ReadTextFile((w->dir / "session/transforms.csv").string(), &text, &err)) << err;
+  ASSERT_TRUE(ParseTransformsCsv(text, &w->rows, &err)) << err;
+  ASSERT_TRUE(ReadTextFile((w->dir / "flight/gt.csv").string(), &text, &err)) << err;
+  ASSERT_TRUE(eval::ParseGroundTruthCsv(text, &w->gt, &err)) << err;
+  std::ifstream report_file(w->dir / "session/report.json");
+  w->report = nlohmann::json::parse(report_file);
+}
+
+// Error against the truth of the frames placed by `placed_by` alone.
+eval::EvalResult EvaluatePlacedBy(const WaterFlight& w, const std::string& placed_by) {
+  std::vector<TransformRow> rows = w.rows;
+  for (auto& r : rows) r.registered = r.registered && r.placed_by == placed_by;
+  eval::EvalResult result;
+  std::string err;
+  EXPECT_TRUE(eval::EvaluateSession(rows, w.gt, kWaterFrame, &result, &err)) << err;
+  return result;
+}
+
+TEST(SimOnboardE2ETest, WaterFlightWithTelemetryHasEveryFrameInTheMap) {
+  WaterFlight w;
+  const fs::path geo = fs::temp_directory_path() / ("uavm_sim_e2e_water_" + std::to_string(::getpid())) / "flight";
+  ASSERT_NO_FATAL_FAILURE(FlyOverWater("--telemetry geo:" + (geo / "geo.txt").string(), &w));
+  ASSERT_EQ(w.rows.size(), w.gt.size());
+  int by_image = 0, by_telemetry = 0;
+  for (const auto& r : w.rows) {
+    EXPECT_TRUE(r.registered) << r.filename << " is not in the map";
+    by_image += r.placed_by == "image" ? 1 : 0;
+    by_telemetry += r.placed_by == "telemetry" ? 1 : 0;
+  }
+  EXPECT_EQ(w.report["placed_by_image"].get<int>(), by_image);
+  EXPECT_EQ(w.report["placed_by_telemetry"].get<int>(), by_telemetry);
+  EXPECT_GE(by_image, 10);
+  EXPECT_GE(by_telemetry, 6);  // the frames over water at least (two per strip)
+  EXPECT_EQ(w.report["georef"]["epsg"].get<int>(), 32615);
+  EXPECT_EQ(w.report["bridge"]["rotation_from"], "heading");
+  const eval::EvalResult images = EvaluatePlacedBy(w, "image");
+  std::printf("water flight: %d by images (%.3f px RMS, max %.3f), %d by telemetry\n", by_image, images.rms_px,
+              images.max_px, by_telemetry);
+  EXPECT_LT(images.rms_px, 0.5);  // frames placed by images are not moved by bridging
+  // Frame centres placed by telemetry against their true ground position, beside the fixes' own error.
+  OGRSpatialReference wgs84, utm;
+  wgs84.importFromEPSG(4326);
+  wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
+  utm.importFromEPSG(32615);
+  std::unique_ptr<OGRCoordinateTransformation> to_utm(OGRCreateCoordinateTransformation(&wgs84, &utm));
+  ASSERT_TRUE(to_utm);
+  const auto truth = ReadGeoTxt(geo / "geo_truth.txt", to_utm.get());
+  const auto fixes = ReadGeoTxt(geo / "geo.txt", to_utm.get());
+  double map_sq = 0, gps_sq = 0;
+  for (const auto& r : w.rows) {
+    if (r.placed_by != "telemetry") continue;
+    map_sq += (WorldOfCentre(w.report["georef"]["geotransform"], r.mosaic_from_frame, kWaterFrame) -
+               truth.at(r.filename))
+                  .squaredNorm();
+    gps_sq += (fixes.at(r.filename) - truth.at(r.filename)).squaredNorm();
+  }
+  const double map_rms = std::sqrt(map_sq / by_telemetry), gps_rms = std::sqrt(gps_sq / by_telemetry);
+  std::printf("frames placed by telemetry: centres %.2f m RMS from the truth, their fixes %.2f m RMS\n", map_rms,
+              gps_rms);
+  EXPECT_LT(map_rms, 1.25 * gps_rms);
+  fs::remove_all(w.dir);
+}
+
+TEST(SimOnboardE2ETest, WaterFlightWithoutTelemetryKeepsTheLargestPiece) {
+  WaterFlight w;
+  ASSERT_NO_FATAL_FAILURE(FlyOverWater("", &w));
+  int registered = 0;
+  for (const auto& r : w.rows) {
+    registered += r.registered ? 1 : 0;
+    if (r.registered) {
+      EXPECT_EQ(r.placed_by, "image");
+    }
+  }
+  EXPECT_GE(registered, 10);
+  EXPECT_LT(static_cast<size_t>(registered), w.gt.size());
+  EXPECT_EQ(w.report["placed_by_telemetry"].get<int>(), 0);
+  int uniform = 0;
+  for (const auto& s : w.report["skipped"]) uniform += s["reason"].get<std::string>().find("uniform") == 0 ? 1 : 0;
+  EXPECT_GE(uniform, 3) << "frames wholly over calm water are skipped as uniform without telemetry";
+  EXPECT_LT(EvaluatePlacedBy(w, "image").rms_px, 0.5);
+  fs::remove_all(w.dir);
 }
 
 }  // namespace

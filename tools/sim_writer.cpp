@@ -47,8 +47,9 @@ bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_
     if (!WriteFileAtomic(file.string(), contents, error)) return false;
     const hal::SimTruth& t = source->last_truth();
     rows.push_back({static_cast<int>(frame.index), frame.source_name, t.canvas_from_frame, t.affine});
+    // omega phi kappa: a nadir camera; kappa is the heading of the direction of flight (compass degrees).
     geo << frame.source_name << ' ' << t.gps_position.lon_deg << ' ' << t.gps_position.lat_deg << ' '
-        << t.gps_altitude_m << '\n';
+        << t.gps_altitude_m << " 0 0 " << t.gps_heading_deg << '\n';
     geo_truth << frame.source_name << ' ' << t.true_position.lon_deg << ' ' << t.true_position.lat_deg << ' '
               << t.gps_altitude_m << '\n';
   }

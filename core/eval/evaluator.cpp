@@ -242,7 +242,7 @@ bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector
 std::vector<TransformRow> AffineFloorSession(const std::vector<GtRow>& gt) {
   std::vector<TransformRow> rows;
   rows.reserve(gt.size());
-  for (const auto& g : gt) rows.push_back({g.index, g.filename, true, g.affine});
+  for (const auto& g : gt) rows.push_back({g.index, g.filename, true, g.affine, "image"});
   return rows;
 }
 

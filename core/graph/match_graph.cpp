@@ -52,6 +52,11 @@ bool MatchGraph::EdgeCounts(const Edge& e, double relative, int absolute_floor) 
 }
 
 std::vector<int> MatchGraph::LargestComponent(double relative, int absolute_floor) const {
+  auto all = ComponentsBySize(relative, absolute_floor);
+  return all.empty() ? std::vector<int>{} : std::move(all.front());
+}
+
+std::vector<std::vector<int>> MatchGraph::ComponentsBySize(double relative, int absolute_floor) const {
   std::unordered_map<int, int> dense;
   for (int id : nodes_) dense.emplace(id, static_cast<int>(dense.size()));
   UnionFind uf;
@@ -65,13 +70,15 @@ std::vector<int> MatchGraph::LargestComponent(double relative, int absolute_floo
   }
   std::map<int, std::vector<int>> groups;
   for (int id : nodes_) groups[uf.Find(dense[id])].push_back(id);
-  std::vector<int> best;
+  std::vector<std::vector<int>> out;
   for (auto& [root, members] : groups) {
     std::sort(members.begin(), members.end());
-    if (members.size() > best.size() || (members.size() == best.size() && !best.empty() && members[0] < best[0]))
-      best = members;
+    out.push_back(std::move(members));
   }
-  return best;
+  std::sort(out.begin(), out.end(), [](const std::vector<int>& a, const std::vector<int>& b) {
+    return a.size() != b.size() ? a.size() > b.size() : a.front() < b.front();
+  });
+  return out;
 }
 
 void RoundToFloat(Edge* edge) {

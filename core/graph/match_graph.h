@@ -56,6 +56,8 @@ class MatchGraph {
   // (the seed method's 5 % rule). Returns the node ids of the largest connected component over counting edges,
   // sorted ascending; ties go to the component with the smallest frame id.
   [[nodiscard]] std::vector<int> LargestComponent(double relative, int absolute_floor) const;
+  // Every connected component over the edges that count, largest first (ties: lowest first id), members ascending.
+  [[nodiscard]] std::vector<std::vector<int>> ComponentsBySize(double relative, int absolute_floor) const;
   [[nodiscard]] bool EdgeCounts(const Edge& e, double relative, int absolute_floor) const;
 
  private:

@@ -126,6 +126,14 @@ class Mosaicker {
   [[nodiscard]] nlohmann::json MakeProducts(const std::vector<int>& component,
                                             const std::vector<Mat3>& canvas_from_original, bool have_tiff);
   [[nodiscard]] nlohmann::json GeorefJson() const;
+  // Bridging (mosaicker_bridge.cpp): frames no image links, placed by telemetry on the georeferenced canvas and
+  // appended to `placed`; the canvas grows to hold them.
+  void BridgeFrames(std::vector<int>* placed, std::vector<Mat3>* canvas_from_original, cv::Size* canvas);
+  [[nodiscard]] std::vector<BridgeFrame> BridgeInputs(const std::vector<int>& placed,
+                                                      const std::vector<Mat3>& canvas_from_original, int* candidates);
+  [[nodiscard]] bool GrowCanvas(const std::vector<int>& placed, std::vector<Mat3>* canvas_from_original,
+                                cv::Size* canvas);
+  [[nodiscard]] nlohmann::json BridgeJson(const BridgeResult& r, int candidates) const;
 
   PipelineOptions options_;
   SessionPaths paths_;
@@ -142,6 +150,8 @@ class Mosaicker {
   std::vector<SkippedInput> skipped_;
   LivePreview preview_;
   GeorefFit georef_;
+  std::unordered_set<int> placed_by_telemetry_;  // frames bridging placed (transforms.csv placed_by)
+  nlohmann::json bridge_report_ = nlohmann::json::object();
   std::function<void(std::shared_ptr<const std::string>)> preview_listener_;
   double georef_rotation_removed_deg_ = 0;
   int georef_gps_frames_ = 0;

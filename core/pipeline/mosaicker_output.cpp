@@ -53,17 +53,21 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   cv::Size canvas(0, 0);
   const double scale =
       component.empty() ? options_.mosaic_scale : PlaceCanvas(component, &canvas_from_original, &canvas);
-  if (!WriteTransformsCsv(in_component, canvas_from_original, error) || !WriteEdgeTables(in_component, error) ||
-      !WriteFramesCsv(in_component, error) || !WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error))
+  // The map: the component placed by images, then what telemetry places where no image links.
+  std::vector<int> placed = component;
+  BridgeFrames(&placed, &canvas_from_original, &canvas);
+  const std::unordered_set<int> in_map(placed.begin(), placed.end());
+  if (!WriteTransformsCsv(in_map, canvas_from_original, error) || !WriteEdgeTables(in_component, error) ||
+      !WriteFramesCsv(in_map, error) || !WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error))
     return false;
   CompositeResult composite;
-  if (!component.empty() && !CompositeMosaic(component, canvas_from_original, canvas, scale, &composite, error))
+  if (!placed.empty() && !CompositeMosaic(placed, canvas_from_original, canvas, scale, &composite, error))
     return false;
-  nlohmann::json products = MakeProducts(component, canvas_from_original, options_.write_tiff && !component.empty());
+  nlohmann::json products = MakeProducts(placed, canvas_from_original, options_.write_tiff && !placed.empty());
   std::string err;
   if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err))
     spdlog::warn("live preview: {}", err);
-  return WriteReport(component, composite, canvas, scale, std::move(products), error);
+  return WriteReport(placed, composite, canvas, scale, std::move(products), error);
 }
 
 // Canvas: mosaic_scale canvas pixels per original pixel of the median frame (in the reference frame's orientation),
@@ -133,6 +137,7 @@ bool Mosaicker::WriteTransformsCsv(const std::unordered_set<int>& in_component,
     r.filename = f.name;
     r.registered = in_component.count(f.id) != 0;
     r.mosaic_from_frame = canvas_from_original[static_cast<size_t>(f.id)];
+    if (r.registered) r.placed_by = placed_by_telemetry_.count(f.id) != 0 ? "telemetry" : "image";
     rows.push_back(r);
   }
   return WriteFileAtomic(paths_.Join("transforms.csv"), FormatTransformsCsv(rows), error);

@@ -85,7 +85,11 @@ bool Mosaicker::WriteReport(const std::vector<int>& component, const CompositeRe
   report["version"] = UAVM_VERSION;
   report["frames_in"] = frames_.size() + skipped_.size();
   report["frames_decoded"] = frames_.size();
+  // Frames in the map: placed by images or, where no image linked them, by telemetry.
   report["registered"] = component.size();
+  report["placed_by_image"] = component.size() - placed_by_telemetry_.size();
+  report["placed_by_telemetry"] = placed_by_telemetry_.size();
+  report["bridge"] = bridge_report_;
   report["dropped_by_queue"] = dropped_frames_;
   report["camera"] = {{"captured", capture_.captured},
                       {"dropped_in_source", capture_.dropped},

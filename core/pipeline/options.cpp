@@ -103,6 +103,10 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"georef", "affine_min_points", &o.georef.affine_min_points},
       {"georef", "affine_min_spread_m", &o.georef.affine_min_spread_m},
       {"georef", "allow_affine", &o.georef.allow_affine},
+      {"bridge", "enabled", &o.bridge.enabled},
+      {"bridge", "min_reference_frames", &o.bridge.min_reference_frames},
+      {"bridge", "max_heading_rms_deg", &o.bridge.max_heading_rms_deg},
+      {"bridge", "piece_fit_min_spread_m", &o.bridge.piece_fit_min_spread_m},
       {"products", "write", &o.write_products},
       {"products", "max_tiles", &o.tiles.max_tiles},
       {"telemetry", "latency_ms", &o.telemetry.latency_ms},
@@ -124,6 +128,7 @@ bool PipelineOptions::Check(std::string* why) const {
   if (trim_heap_every < 0) return Fail(why, "trim_heap_every must be >= 0 (0 = never)");
   if (journal_sync_every < 1) return Fail(why, "journal_sync_every must be >= 1");
   if (!georef.Check(why)) return false;
+  if (!bridge.Check(why)) return false;
   if (tiles.max_tiles < 1) return Fail(why, "products.max_tiles must be >= 1");
   if (!(telemetry.max_gap_s > 0 && telemetry.max_gap_s <= 60))
     return Fail(why, "telemetry.max_gap_s must be in (0,60]");

@@ -6,6 +6,7 @@
 #include "core/features/sift.h"
 #include "core/georef/georef.h"
 #include "core/georef/products.h"
+#include "core/georef/telemetry_bridge.h"
 #include "core/matching/global_index.h"
 #include "core/matching/pair_matcher.h"
 #include "core/mosaic/compositor.h"
@@ -37,6 +38,8 @@ struct PipelineOptions : RegistrationOptions {
   CompositorOptions mosaic;
   // Georeferencing from EXIF GPS and the map products (COG, KMZ, web tiles, index.html): core/georef.
   GeorefOptions georef;
+  // Frames and pieces no image links, placed by their position, height and heading (core/georef/telemetry_bridge).
+  BridgeOptions bridge;
   bool write_products = true;  // mosaic.kmz, tiles/, index.html (mosaic.tif is a COG whenever it is written)
   TileOptions tiles;
   std::string leaflet_dir = "/usr/share/javascript/leaflet";

@@ -471,8 +471,12 @@ Solution RegistrationEngine::Finish() {
   features_->ReleaseAll();
   Solution s;
   // Largest component over edges that pass both thresholds against the final best pair.
-  s.component = graph_.LargestComponent(options_.relative_inlier_fraction, options_.matching.min_inliers);
-  if (frames_.empty()) s.component.clear();
+  auto components = graph_.ComponentsBySize(options_.relative_inlier_fraction, options_.matching.min_inliers);
+  if (!components.empty() && !frames_.empty()) {
+    s.component = std::move(components.front());
+    s.other_components.assign(std::make_move_iterator(components.begin() + 1),
+                              std::make_move_iterator(components.end()));
+  }
   std::unordered_set<int> in_component(s.component.begin(), s.component.end());
   std::vector<const Edge*> edges;
   for (const auto& e : graph_.edges())

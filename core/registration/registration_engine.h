@@ -92,6 +92,9 @@ struct Solution {
   bool ok = false;
   std::string failure;
   std::vector<int> component;  // ascending; the first is the reference (identity)
+  // The flight's other image-linked pieces (largest first, members ascending), each in its own coordinates
+  // (mosaic_from_work of its members; not solved again): what bridging by telemetry may place.
+  std::vector<std::vector<int>> other_components;
   double rms_px = 0.0;
   double median_px = 0.0;
   RefineResult refine;
@@ -137,6 +140,9 @@ class RegistrationEngine {
   // Frame `id`'s map into its component's mosaic (after Finish(): the reference frame's, for the component).
   [[nodiscard]] const Mat3& mosaic_from_work(int id) const { return mosaic_from_work_.at(id); }
   [[nodiscard]] bool placed(int id) const { return mosaic_from_work_.count(id) != 0; }
+  // Frame `id`'s component during the flight (its root: frames of one component share it) and that component's size.
+  [[nodiscard]] int ComponentOf(int id) { return components_.Find(id); }
+  [[nodiscard]] int ComponentSize(int id) { return components_.SizeOf(id); }
   [[nodiscard]] const std::deque<Edge>& edges() const { return graph_.edges(); }
   // For writers after Finish(): they load an edge's points through the spill and give them back.
   [[nodiscard]] std::deque<Edge>& mutable_edges() { return graph_.mutable_edges(); }

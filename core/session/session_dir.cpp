@@ -90,14 +90,15 @@ std::string FormatTransformsCsv(const std::vector<TransformRow>& rows) {
   for (const auto& r : rows) {
     out += std::to_string(r.index) + "," + r.filename;
     if (!r.registered) {
-      out += ",0,,,,,,,,\n";
+      out += ",0,,,,,,,,,\n";
       continue;
     }
     // Normalised so the projective part's constant term is 1, as the header's formula assumes.
     const Mat3 m = r.mosaic_from_frame / r.mosaic_from_frame(2, 2);
-    std::snprintf(buf, sizeof(buf), ",1,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g\n", m(0, 0), m(0, 1), m(0, 2),
+    std::snprintf(buf, sizeof(buf), ",1,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,", m(0, 0), m(0, 1), m(0, 2),
                   m(1, 0), m(1, 1), m(1, 2), m(2, 0), m(2, 1));
     out += buf;
+    out += (r.placed_by.empty() ? std::string("image") : r.placed_by) + "\n";
   }
   return out;
 }
@@ -105,10 +106,11 @@ std::string FormatTransformsCsv(const std::vector<TransformRow>& rows) {
 bool ParseTransformsCsv(const std::string& text, std::vector<TransformRow>* rows, std::string* error) {
   std::istringstream in(text);
   std::string line;
-  if (!std::getline(in, line) || line != kTransformsHeader) {
+  if (!std::getline(in, line) || (line != kTransformsHeader && line != kTransformsHeaderV1)) {
     *error = "transforms.csv: unexpected header";
     return false;
   }
+  const size_t columns = line == kTransformsHeader ? 12 : 11;
   rows->clear();
   int line_no = 1;
   while (std::getline(in, line)) {
@@ -119,8 +121,8 @@ bool ParseTransformsCsv(const std::string& text, std::vector<TransformRow>* rows
     std::string cell;
     while (std::getline(ss, cell, ',')) cells.push_back(cell);
     if (!line.empty() && line.back() == ',') cells.emplace_back();
-    if (cells.size() != 11) {
-      *error = "transforms.csv line " + std::to_string(line_no) + ": expected 11 columns";
+    if (cells.size() != columns) {
+      *error = "transforms.csv line " + std::to_string(line_no) + ": expected " + std::to_string(columns) + " columns";
       return false;
     }
     TransformRow r;
@@ -132,6 +134,11 @@ bool ParseTransformsCsv(const std::string& text, std::vector<TransformRow>* rows
         double v[8];
         for (int k = 0; k < 8; ++k) v[k] = std::stod(cells[static_cast<size_t>(3 + k)]);
         r.mosaic_from_frame << v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], 1.0;
+        r.placed_by = columns == 12 ? cells[11] : "image";
+        if (r.placed_by != "image" && r.placed_by != "telemetry") {
+          *error = "transforms.csv line " + std::to_string(line_no) + ": placed_by must be image or telemetry";
+          return false;
+        }
       }
     } catch (const std::exception&) {
       *error = "transforms.csv line " + std::to_string(line_no) + ": not a number";

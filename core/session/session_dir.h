@@ -44,13 +44,19 @@ class AtomicFileWriter {
   bool failed_ = false;
 };
 
-inline constexpr const char* kTransformsHeader = "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21";
+inline constexpr const char* kTransformsHeader =
+    "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21,placed_by";
+// Sessions written before the placed_by column (every registered frame was placed by images); still read.
+inline constexpr const char* kTransformsHeaderV1 = "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21";
 
 struct TransformRow {
   int index = -1;
   std::string filename;
   bool registered = false;
   Mat3 mosaic_from_frame = Mat3::Identity();  // original-resolution frame pixels -> mosaic.tif pixels
+  // How a registered frame got its place: "image" (registration) or "telemetry" (its position, height and heading,
+  // where no image linked it); empty when not registered.
+  std::string placed_by;
 };
 
 [[nodiscard]] std::string FormatTransformsCsv(const std::vector<TransformRow>& rows);

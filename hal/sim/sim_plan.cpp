@@ -59,7 +59,10 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"metres_per_px", &p.metres_per_px},
           {"flight_altitude_m", &p.flight_altitude_m},
           {"gps_noise_m", &p.gps_noise_m},
-          {"gps_bias_m", &p.gps_bias_m}};
+          {"gps_bias_m", &p.gps_bias_m},
+          {"heading_noise_deg", &p.heading_noise_deg},
+          {"water_from", &p.water_from},
+          {"water_to", &p.water_to}};
 }
 
 using Draws = PortableRandom;  // the flight must not change with the machine that makes it
@@ -73,6 +76,9 @@ bool SimPlan::Check(std::string* error) const {
   if (!(std::abs(origin_lat) < 84 && std::abs(origin_lon) <= 180)) return Fail(error, "origin_lat/lon out of range");
   if (!(metres_per_px > 0) || !(gps_noise_m >= 0) || !(gps_bias_m >= 0) || !(flight_altitude_m > 0))
     return Fail(error, "metres_per_px, flight_altitude_m must be > 0; gps_noise_m, gps_bias_m >= 0");
+  if (!(heading_noise_deg >= 0)) return Fail(error, "heading_noise_deg must be >= 0");
+  if (!(water_from >= 0 && water_to <= 1 && water_from <= water_to))
+    return Fail(error, "water_from and water_to must satisfy 0 <= water_from <= water_to <= 1");
   if (!(gsd > 0)) return Fail(error, "gsd must be > 0");
   if (strips < 0 || strip_length < 0 || strip_spacing < 0)
     return Fail(error, "strips/strip_length/spacing must be >= 0");

@@ -38,6 +38,10 @@ namespace uavm::hal {
 //   flight_altitude_m: height above take-off at nominal altitude [80]
 //   gps_noise_m: sigma of each fix's Gaussian error, per axis [1.5]; gps_bias_m: amplitude of a slowly turning
 //     bias (one turn per 200 frames), as a receiver's error wanders [1.0]
+//   heading_noise_deg: sigma of the Gaussian error of the heading that comes with each fix (compass degrees,
+//     clockwise from north, of the direction of flight = frame +x) [2.0]
+//   water_from, water_to: a band of calm water across the strips, canvas x from water_from to water_to as fractions
+//     of the canvas width: featureless (a smooth gradient), so frames wholly over it match nothing [0, 0 = none]
 // The plan is fitted inside the canvas: the pattern is centred, and shrunk (spacings scaled down, logged as a
 // warning) when footprints would leave it.
 struct SimPlan {
@@ -71,6 +75,9 @@ struct SimPlan {
   double flight_altitude_m = 80.0;
   double gps_noise_m = 1.5;
   double gps_bias_m = 1.0;
+  double heading_noise_deg = 2.0;
+  double water_from = 0.0;
+  double water_to = 0.0;
 
   [[nodiscard]] double Focal() const { return focal_px > 0 ? focal_px : frame_width; }
   [[nodiscard]] bool Check(std::string* error) const;

@@ -66,6 +66,7 @@ Status SimSource::Open(std::string* error) {
     *error = "sim: cannot read canvas image " + plan_.canvas;
     return Status::kError;
   }
+  PaintWater();
   std::string note;
   if (!BuildFlight(plan_, canvas_.size(), &poses_, &note, error)) return Status::kError;
   if (!note.empty()) spdlog::warn("{}", note);
@@ -73,6 +74,20 @@ Status SimSource::Open(std::string* error) {
                canvas_.cols, canvas_.rows);
   next_ = 0;
   return Status::kOk;
+}
+
+// Calm water: one colour with a gentle gradient (under one grey level across a frame), so a frame wholly over it has
+// no features and looks "uniform" to the input checks, as real calm water does.
+void SimSource::PaintWater() {
+  if (!(plan_.water_to > plan_.water_from)) return;
+  const int x0 = static_cast<int>(std::lround(plan_.water_from * canvas_.cols));
+  const int x1 = static_cast<int>(std::lround(plan_.water_to * canvas_.cols));
+  if (x1 <= x0) return;
+  cv::Mat band = canvas_.colRange(x0, x1);
+  for (int y = 0; y < band.rows; ++y) {
+    const double shade = 4.0 * y / std::max(1, band.rows - 1);  // 4 grey levels over the whole canvas height
+    band.row(y).setTo(cv::Scalar(118 + shade, 96 + shade, 52 + shade));
+  }
 }
 
 const cv::Mat& SimSource::CanvasLevel(int level) {
@@ -98,6 +113,9 @@ void SimSource::SimulateGps(size_t i, cv::Size size, SimTruth* truth) const {
   const double south_px = -(plan_.gps_bias_m * std::sin(turn) + rng.gaussian(plan_.gps_noise_m)) / plan_.metres_per_px;
   truth->gps_position = CanvasToLatLon(plan_, canvas_.size(), ground + Vec2(east_px, south_px));
   truth->gps_altitude_m = plan_.flight_altitude_m * truth->pose.altitude;
+  // Compass heading of the direction of flight (frame +x): canvas +x is east, +y south, so yaw 0 is 90 deg.
+  const double heading = 90.0 + truth->pose.yaw_deg + rng.gaussian(plan_.heading_noise_deg);
+  truth->gps_heading_deg = std::fmod(std::fmod(heading, 360.0) + 360.0, 360.0);
 }
 
 bool SimSource::Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded, std::string* error) {
@@ -190,6 +208,7 @@ Status SimSource::Next(Frame* frame, std::string* error) {
     frame->metadata.latitude_deg = truth_.gps_position.lat_deg;
     frame->metadata.longitude_deg = truth_.gps_position.lon_deg;
     frame->metadata.relative_altitude_m = truth_.gps_altitude_m;
+    frame->metadata.flight_yaw_deg = truth_.gps_heading_deg;
   }
   ++next_;
   return Status::kOk;

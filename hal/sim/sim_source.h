@@ -25,6 +25,7 @@ struct SimTruth {
   LatLon true_position;
   LatLon gps_position;
   double gps_altitude_m = 0.0;  // height above take-off
+  double gps_heading_deg = 0.0;  // of the direction of flight, compass degrees (clockwise from north), noisy
 };
 
 // A virtual camera flying a lawn-mower plan over a large image (the canvas). Every frame is rendered from the
@@ -54,6 +55,7 @@ class SimSource final : public FrameSource {
   void SimulateGps(size_t i, cv::Size size, SimTruth* truth) const;
 
  private:
+  void PaintWater();
   const cv::Mat& CanvasLevel(int level);
 
   SimOptions options_;
