@@ -55,6 +55,9 @@ libgoogle-glog0v6, libcholmod3, libcxsparse3, libatlas3-base")
 if(UAVM_WITH_LIBCAMERA)  # the libcamera capture back-end (hal/libcamera) is built in
   string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libcamera0.0.3")
 endif()
+if(UAVM_WITH_GPSD)  # --telemetry gpsd:HOST:PORT (hal/telemetry/gpsd_source.cpp) links libgps
+  string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libgps28")
+endif()
 # The live view (firmware_app/live_server.cpp) and the Leaflet files each session's index.html uses.
 string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libcpp-httplib0.11, libjs-leaflet")
 # The conffiles dpkg keeps when the operator edited them.

@@ -195,7 +195,8 @@ nlohmann::json TelemetryJson(const hal::TelemetryReport& r) {
           {"signed_packets_unverified", r.parser.signed_packets},
           {"bytes_skipped", r.parser.bytes_skipped + r.resync_bytes},
           {"log_truncated", r.log_truncated},
-          {"log_overlaps_frames", r.log_overlaps_frames}};
+          {"log_overlaps_frames", r.log_overlaps_frames},
+          {"link_losses", r.link_losses}};
 }
 
 namespace {

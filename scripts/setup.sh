@@ -12,6 +12,10 @@ PACKAGES=(
   libcpp-httplib-dev libjs-leaflet chromium python3-gdal curl
   jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
   clang-tidy  # scripts/lint.sh --function-size (a CI step)
+  libgps-dev  # --telemetry gpsd:HOST:PORT (hal/telemetry/gpsd_source.cpp)
+  # tests/gpsd_test.cpp: gpsfake starts its own gpsd on a free port; the system's (gpsd.socket, port 2947, started
+  # by the package where systemd runs) is not used and not in the way.
+  gpsd gpsd-clients
   nodejs  # test peers (tests/telemetry/run_peer.sh: node-mavlink from the npm registry)
   "$@"
 )

@@ -17,6 +17,9 @@
 #include <vector>
 
 #include "core/util/clock.h"
+#ifdef UAVM_HAVE_GPSD
+#include "hal/telemetry/gpsd_source.h"
+#endif
 
 namespace uavm::hal {
 
@@ -347,6 +350,22 @@ bool SplitLast(const std::string& s, std::string* head, int* number) {
   }
 }
 
+std::unique_ptr<TelemetrySource> MakeGpsd(const std::string& arg, const TelemetryOptions& options, std::string* error) {
+  std::string host;
+  int port = 0;
+  if (!SplitLast(arg, &host, &port) || host.empty() || port > 65535) {
+    *error = "--telemetry gpsd: expected HOST:PORT (gpsd listens on 2947: gpsd:127.0.0.1:2947)";
+    return nullptr;
+  }
+#ifdef UAVM_HAVE_GPSD
+  return MakeGpsdSource(host, port, options);
+#else
+  (void)options;
+  *error = "--telemetry gpsd: this build has no gpsd source (configure with -DUAVM_WITH_GPSD=ON, needs libgps-dev)";
+  return nullptr;
+#endif
+}
+
 }  // namespace
 
 std::unique_ptr<TelemetrySource> MakeTelemetrySource(const std::string& spec, const TelemetryOptions& options,
@@ -355,7 +374,9 @@ std::unique_ptr<TelemetrySource> MakeTelemetrySource(const std::string& spec, co
   const std::string kind = spec.substr(0, colon);
   const std::string arg = colon == std::string::npos ? "" : spec.substr(colon + 1);
   if (arg.empty()) {
-    *error = "--telemetry: expected KIND:ARG (mavlink-udp:HOST:PORT, mavlink-serial:DEVICE:BAUD, tlog:FILE, geo:FILE)";
+    *error =
+        "--telemetry: expected KIND:ARG (mavlink-udp:HOST:PORT, mavlink-serial:DEVICE:BAUD, gpsd:HOST:PORT, tlog:FILE, "
+        "geo:FILE)";
     return nullptr;
   }
   if (kind == "geo") return std::make_unique<GeoSource>(arg);
@@ -369,7 +390,8 @@ std::unique_ptr<TelemetrySource> MakeTelemetrySource(const std::string& spec, co
     }
     return std::make_unique<LinkSource>(kind, target, number, options);
   }
-  *error = "--telemetry: unknown kind '" + kind + "' (mavlink-udp, mavlink-serial, tlog, geo)";
+  if (kind == "gpsd") return MakeGpsd(arg, options, error);
+  *error = "--telemetry: unknown kind '" + kind + "' (mavlink-udp, mavlink-serial, gpsd, tlog, geo)";
   return nullptr;
 }
 

@@ -28,7 +28,7 @@ struct TelemetryOptions {
 
 // What telemetry did for the flight: report.json "telemetry".
 struct TelemetryReport {
-  std::string kind;   // mavlink-udp, mavlink-serial, tlog, geo
+  std::string kind;   // mavlink-udp, mavlink-serial, gpsd, tlog, geo
   std::string match;  // how frames found their pose: time, sequence, name
   uint64_t frames_asked = 0;
   uint64_t frames_placed = 0;   // got a position
@@ -38,6 +38,7 @@ struct TelemetryReport {
   uint64_t resync_bytes = 0;
   bool log_truncated = false;
   bool log_overlaps_frames = true;  // false: a log of another flight (times that do not meet the frames')
+  uint64_t link_losses = 0;         // live links that reconnect (gpsd): connections lost during the flight
 };
 
 // Telemetry beside the frame source (an interface like FrameSource): where the vehicle was when each frame was taken.
@@ -56,8 +57,9 @@ class TelemetrySource {
   virtual void SendStatus(const std::string& /*text*/) {}
 };
 
-// --telemetry KIND:ARG: mavlink-udp:HOST:PORT (listen), mavlink-serial:DEVICE:BAUD, tlog:FILE, geo:FILE. Null with
-// a reason in `error` for a malformed spec (start-up).
+// --telemetry KIND:ARG: mavlink-udp:HOST:PORT (listen), mavlink-serial:DEVICE:BAUD, gpsd:HOST:PORT (connect),
+// tlog:FILE, geo:FILE. Null with a reason in `error` for a malformed spec, or for gpsd in a build without libgps
+// (start-up).
 [[nodiscard]] std::unique_ptr<TelemetrySource> MakeTelemetrySource(const std::string& spec,
                                                                    const TelemetryOptions& options, std::string* error);
 
