@@ -111,6 +111,7 @@ struct Flight {
   MapFeatures features;
   std::vector<FrameOutcome> outcomes;
   std::unique_ptr<RegistrationEngine> engine;
+  std::map<int, PositionHint> hints;  // where telemetry places a frame
 
   Solution Run(EdgeSpill* spill = nullptr, int fail_id = -1) {
     engine = std::make_unique<RegistrationEngine>(options, &features, spill);
@@ -124,7 +125,8 @@ struct Flight {
       }
       auto f = std::make_shared<Features>(Observe(world, poses[i], &rng));
       features.features[id] = f;
-      outcomes.push_back(engine->Register(id, *f));
+      const auto hint = hints.find(id);
+      outcomes.push_back(engine->Register(id, *f, nullptr, hint != hints.end() ? &hint->second : nullptr));
     }
     return engine->Finish();
   }
@@ -193,6 +195,36 @@ TEST(RegistrationEngineTest, LostFrameIsRelocalisedThroughTheGlobalIndex) {
   EXPECT_EQ(s.component, (std::vector<int>{0, 1, 2, 3, 4, 5, 7}));
   EXPECT_EQ(f.engine->frame(6).failure, "no verified match with any candidate");
   EXPECT_LT(f.CornerRms(s), 2.0);
+}
+
+// Without the relocalisation index, a frame back over early ground after a jump is found only where telemetry
+// places it: its centre ~20 px off (GPS noise), its heading unknown (the anchor's is used).
+TEST(RegistrationEngineTest, TelemetryPositionFindsTheFramesAroundALostFrame) {
+  const auto flight = [](Flight* f) {
+    f->options.relocalization_candidates = 0;
+    for (int i = 0; i < 6; ++i) f->poses.push_back(Pose(300 + 110.0 * i, 400, 0));
+    f->poses.push_back(Pose(2600, 1200, 30));  // new ground: nothing to match
+    f->poses.push_back(Pose(400, 420, 170));   // back over frames 0-1, flown the other way
+  };
+  Flight without;
+  flight(&without);
+  ASSERT_TRUE(without.Run().ok);
+  EXPECT_EQ(without.outcomes[7], FrameOutcome::kNewComponent);
+
+  Flight with;
+  flight(&with);
+  // Frame 0 anchors the mosaic at identity: the mosaic is frame 0's pixel grid.
+  const Vec2 centre(0.5 * (kWidth - 1), 0.5 * (kHeight - 1));
+  with.hints[7] = {0, Apply(with.poses[0].inverse() * with.poses[7], centre) + Vec2(15, -12)};
+  with.hints[6] = {3, Vec2(5000, 5000)};  // a hint over no frame costs nothing and places nothing
+  const Solution s = with.Run();
+  ASSERT_TRUE(s.ok) << s.failure;
+  EXPECT_EQ(with.outcomes[6], FrameOutcome::kNewComponent);
+  EXPECT_EQ(with.outcomes[7], FrameOutcome::kRegistered);
+  EXPECT_EQ(with.engine->counters().joined_where_telemetry_placed, 1);
+  EXPECT_EQ(with.engine->counters().relocalized, 0);
+  EXPECT_EQ(s.component, (std::vector<int>{0, 1, 2, 3, 4, 5, 7}));
+  EXPECT_LT(with.CornerRms(s), 2.0);
 }
 
 TEST(RegistrationEngineTest, PiecesOfTheFlightMergeWhenAFrameLinksThem) {

@@ -55,6 +55,7 @@ struct RegistrationEngine::Candidates {
   int id = -1;
   const Features* feats = nullptr;
   const DescriptorIndex* index = nullptr;
+  const PositionHint* hint = nullptr;
   std::unordered_set<int> tried;
   std::vector<Edge> found;
   bool have_estimate = false;  // Map(id) holds a first estimate once a candidate matched
@@ -288,8 +289,9 @@ void RegistrationEngine::TryCandidate(int cand, Candidates* c) {
   }
 }
 
-// The candidate set: 1) the last K frames in the graph; 2) the relocalisation index when they gave nothing; 3) frames
-// of the base component whose footprint overlaps the first estimate (closes loops between strips).
+// The candidate set: 1) the last K frames in the graph; when they gave nothing, 2) the frames where telemetry places
+// the frame (a PositionHint), then 3) the relocalisation index; 4) frames of the base component whose footprint
+// overlaps the first estimate (closes loops between strips).
 void RegistrationEngine::FindCandidates(int id, Candidates* c) {
   int taken = 0;
   for (int k = id - 1; k >= 0 && taken < options_.recent_candidates; --k) {
@@ -297,6 +299,7 @@ void RegistrationEngine::FindCandidates(int id, Candidates* c) {
     TryCandidate(k, c);
     ++taken;
   }
+  if (c->found.empty() && c->hint != nullptr) TryWhereTelemetryPlaces(id, c);
   if (c->found.empty() && options_.relocalization_candidates > 0) {
     for (int k : global_index_.Query(*c->feats, options_.relocalization_candidates)) TryCandidate(k, c);
     if (!c->found.empty()) {
@@ -318,6 +321,24 @@ void RegistrationEngine::FindCandidates(int id, Candidates* c) {
   SetMap(id, Map(best->src) * best->tgt_from_src.inverse());
   // (The new frame is not united with `root` yet: its component is named explicitly.)
   for (int k : OverlapCandidates(id, root, c->tried)) TryCandidate(k, c);
+}
+
+// Telemetry's guess: the new frame centred where the hint says, turned and scaled like the anchor frame (a heading
+// error only turns the footprint about its centre: the overlap test still finds its neighbours); the frames its
+// footprint overlaps in the anchor's component are tried. The guess is not kept: a match gives the estimate.
+void RegistrationEngine::TryWhereTelemetryPlaces(int id, Candidates* c) {
+  const PositionHint& hint = *c->hint;
+  if (hint.anchor < 0 || hint.anchor >= id || !placed(hint.anchor) || !Record(hint.anchor).in_graph) return;
+  const FrameRecord& me = Record(id);
+  const Mat3 turned = Map(hint.anchor);
+  const Vec2 at = Apply(turned, Vec2(0.5 * (me.work_size.width - 1), 0.5 * (me.work_size.height - 1)));
+  SetMap(id, Translation(hint.centre.x() - at.x(), hint.centre.y() - at.y()) * turned);
+  const std::vector<int> near = OverlapCandidates(id, hint.anchor, c->tried);
+  mosaic_from_work_.erase(id);
+  for (int k : near) TryCandidate(k, c);
+  if (c->found.empty()) return;
+  ++counters_.joined_where_telemetry_placed;
+  spdlog::info("frame {} matched frame {} where telemetry placed it", id, c->found[0].src);
 }
 
 void RegistrationEngine::StartComponent(int id, const Candidates& c) {
@@ -373,7 +394,8 @@ void RegistrationEngine::Join(int id, Candidates* c) {
   if (counters_.components > 1 && options_.bridge_candidates > 0) Bridge(id, *c->index, *c->feats);
 }
 
-FrameOutcome RegistrationEngine::Register(int id, const Features& features, RegisterTiming* timing) {
+FrameOutcome RegistrationEngine::Register(int id, const Features& features, RegisterTiming* timing,
+                                          const PositionHint* hint) {
   if (id != frames() - 1) throw std::logic_error("RegistrationEngine::Register: only the newest frame registers");
   StageTimer t;
   Record(id).has_features = true;
@@ -382,6 +404,7 @@ FrameOutcome RegistrationEngine::Register(int id, const Features& features, Regi
   c.id = id;
   c.feats = &features;
   c.index = &index;
+  c.hint = hint;
   FindCandidates(id, &c);
   if (timing != nullptr) timing->matching_ms = t.ElapsedMs();
   t.Restart();

@@ -85,6 +85,7 @@ struct RegistrationCounters {
   size_t edge_bytes_released = 0;
   size_t edges_reloaded = 0;  // points taken back during the flight (a solve needed a cold edge)
   int relocalization_thinnings = 0;
+  int joined_where_telemetry_placed = 0;  // frames whose first match came from a PositionHint's candidates
 };
 
 // The end-of-flight solution: the largest component solved and refined.
@@ -104,6 +105,14 @@ struct Solution {
   TransferStats holdout_inliers;  // of those, the ones within refine.outlier_px
   double adjust_ms = 0.0;         // from the start of Finish() to the linear solution
   double refine_ms = 0.0;
+};
+
+// Where telemetry says a new frame is: its centre in the mosaic coordinates of the component holding frame `anchor`
+// (e.g. its GPS position through the live georeference). When the recent frames fail (a gap, a turn), the frames
+// around that point are tried before the relocalisation index.
+struct PositionHint {
+  int anchor = -1;
+  Vec2 centre = Vec2::Zero();
 };
 
 // Per-frame timings of Register(), for the stage statistics.
@@ -129,7 +138,9 @@ class RegistrationEngine {
   // A new frame of `work_size` pixels; returns its id. It takes part once Register() is called for it.
   int AddFrame(cv::Size work_size);
   // Registers frame `id` (the newest) with its features (descriptors as the provider will give them later).
-  [[nodiscard]] FrameOutcome Register(int id, const Features& features, RegisterTiming* timing = nullptr);
+  // `hint`: where telemetry places it (may be null).
+  [[nodiscard]] FrameOutcome Register(int id, const Features& features, RegisterTiming* timing = nullptr,
+                                      const PositionHint* hint = nullptr);
   // Frame `id` will not be registered (e.g. it could not be stored); `why` ends in the report.
   void SetFailure(int id, std::string why);
   // Final solve of the largest component; the features are not needed afterwards.
@@ -172,6 +183,7 @@ class RegistrationEngine {
   [[nodiscard]] bool Acceptable(const PairResult& r) const;
   void TryCandidate(int cand, Candidates* c);
   void FindCandidates(int id, Candidates* c);
+  void TryWhereTelemetryPlaces(int id, Candidates* c);
   void Join(int id, Candidates* c);
   void StartComponent(int id, const Candidates& c);
   [[nodiscard]] std::vector<int> OverlapCandidates(int id, int root, const std::unordered_set<int>& exclude);
