@@ -270,7 +270,9 @@ class FlightStatus {
       return kExitUsage;
     }
     mosaicker->SetPreviewListener(
-        [this](std::shared_ptr<const std::string> jpeg) { live_.PublishJpeg(std::move(jpeg)); });
+        [this](std::shared_ptr<const std::string> jpeg, std::shared_ptr<const nlohmann::json> georef) {
+          live_.PublishJpeg(std::move(jpeg), std::move(georef));
+        });
     run_start_ns_ = MonotonicNs();  // the run's uptime starts with the server up
     return kExitOk;
   }

@@ -74,9 +74,11 @@ class BoundedPool : public httplib::TaskQueue {
   bool stop_ = false;
 };
 
-// The live page: Leaflet (served from Debian's libjs-leaflet) with the live picture as an image overlay in a plain
-// pixel frame, re-fetched when the status says a new one is out. The picture, not a growing tile set: it is what the
-// frame loop already encodes every few frames, so the view costs the flight nothing more.
+// The live page: Leaflet (served from Debian's libjs-leaflet) with the live picture, re-fetched when the status says a
+// new one is out. The picture, not a growing tile set: it is what the frame loop already encodes every few frames, so
+// the view costs the flight nothing more. Georeferenced, the picture (not north-up) is laid on a web-mercator map by
+// a CSS affine transform through three of its corners, which arrive with the picture itself (X-Georef-Corners) so that
+// a picture never gets another's place; otherwise it is shown in its own pixel frame (CRS.Simple).
 const char* kLivePage = R"HTML(<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>uavmosaic live</title>
 <link rel="stylesheet" href="/leaflet/leaflet.css"><script src="/leaflet/leaflet.js"></script>
@@ -85,25 +87,76 @@ const char* kLivePage = R"HTML(<!DOCTYPE html>
 font:12px monospace;border-radius:4px}</style></head>
 <body><div id="map"></div><div id="s">waiting for the first picture&hellip;</div>
 <script>
-var map = L.map('map', {crs: L.CRS.Simple, minZoom: -4, zoomSnap: 0});
-var overlay = null, seq = -1, followed = true;
+var map = null, geo = null, layer = null, seq = -1, followed = true, url = null;
+// An image on the map by its corners [top-left, top-right, bottom-right, bottom-left] (lat, lon).
+var Placed = L.Layer.extend({
+  onAdd: function (m) {
+    this._el = L.DomUtil.create('img', 'leaflet-image-layer');
+    this._el.style.position = 'absolute';
+    this._el.style.transformOrigin = '0 0';
+    m.getPanes().overlayPane.appendChild(this._el);
+    m.on('zoomend viewreset', this._place, this);
+  },
+  onRemove: function (m) { L.DomUtil.remove(this._el); m.off('zoomend viewreset', this._place, this); },
+  show: function (img, corners) { this._img = img; this._c = corners; this._el.src = img.src; this._place(); },
+  _place: function () {
+    if (!this._img) return;
+    var m = this._map, w = this._img.naturalWidth, h = this._img.naturalHeight;
+    var p0 = m.latLngToLayerPoint(this._c[0]), p1 = m.latLngToLayerPoint(this._c[1]);
+    var p3 = m.latLngToLayerPoint(this._c[3]);
+    this._el.style.width = w + 'px';
+    this._el.style.height = h + 'px';
+    this._el.style.transform = 'matrix(' + [(p1.x - p0.x) / w, (p1.y - p0.y) / w, (p3.x - p0.x) / h,
+      (p3.y - p0.y) / h, p0.x, p0.y].join(',') + ')';
+  }
+});
+function makeMap(georeferenced) {
+  if (map) map.remove();
+  geo = georeferenced;
+  layer = null;
+  followed = true;
+  map = geo ? L.map('map', {zoomSnap: 0, zoomAnimation: false, maxZoom: 24})
+            : L.map('map', {crs: L.CRS.Simple, minZoom: -4, zoomSnap: 0});
+  if (geo) L.control.scale({imperial: false}).addTo(map);
+}
 // The view follows the growing mosaic until the operator pans or zooms.
-map.getContainer().addEventListener('pointerdown', function () { followed = false; });
-map.getContainer().addEventListener('wheel', function () { followed = false; });
+document.getElementById('map').addEventListener('pointerdown', function () { followed = false; });
+document.getElementById('map').addEventListener('wheel', function () { followed = false; });
+function picture(img, corners) {
+  if (map === null || geo !== !!corners) makeMap(!!corners);
+  var b = corners ? L.latLngBounds(corners) : L.latLngBounds([[-img.naturalHeight, 0], [0, img.naturalWidth]]);
+  if (corners) {
+    if (!layer) layer = new Placed().addTo(map);
+    if (followed) map.fitBounds(b, {animate: false});
+    layer.show(img, corners);
+  } else {
+    if (!layer) layer = L.imageOverlay(img.src, b).addTo(map);
+    else { layer.setBounds(b); layer.setUrl(img.src); }
+    if (followed) map.fitBounds(b, {animate: false});
+  }
+}
 function show(st) {
+  var g = st.georef || {};
   document.getElementById('s').textContent = st.state + ' | frames ' + st.frames_in + ' | registered ' +
     st.registered + ' | dropped ' + st.dropped + ' | ' + st.fps.toFixed(1) + ' fps | RSS ' +
-    st.rss_mib.toFixed(0) + '/' + st.budget_mib.toFixed(0) + ' MiB' + (st.last_error ? ' | ' + st.last_error : '');
+    st.rss_mib.toFixed(0) + '/' + st.budget_mib.toFixed(0) + ' MiB' +
+    (g.georeferenced ? ' | ' + g.crs + ', RMS ' + g.rms_m.toFixed(1) + ' m over ' + g.frames_used + ' frames'
+                     : ' | not georeferenced' + (g.reason ? ': ' + g.reason : '')) +
+    (st.last_error ? ' | ' + st.last_error : '');
   if (st.jpeg_seq === seq || st.jpeg_seq === 0) return;
   seq = st.jpeg_seq;
-  var img = new Image();
-  img.onload = function () {
-    var b = [[-img.naturalHeight, 0], [0, img.naturalWidth]];
-    if (!overlay) { overlay = L.imageOverlay(img.src, b).addTo(map); }
-    else { overlay.setBounds(L.latLngBounds(b)); overlay.setUrl(img.src); }
-    if (followed) map.fitBounds(b, {animate: false});
-  };
-  img.src = '/live.jpg?seq=' + seq;
+  fetch('/live.jpg?seq=' + seq).then(function (r) {
+    var corners = JSON.parse(r.headers.get('X-Georef-Corners') || 'null');
+    return r.blob().then(function (blob) {
+      var img = new Image();
+      img.onload = function () {
+        picture(img, corners);
+        if (url) URL.revokeObjectURL(url);
+        url = img.src;
+      };
+      img.src = URL.createObjectURL(blob);
+    });
+  }).catch(function () {});
 }
 function poll() {
   fetch('/status.json').then(function (r) { return r.json(); }).then(show).catch(function () {})
@@ -158,12 +211,17 @@ bool LiveServer::Start(const Options& o, std::string* error) {
   s.Get("/live.jpg", [this, busy](const httplib::Request&, httplib::Response& res) {
     if (busy(res)) return;
     std::shared_ptr<const std::string> jpeg;
+    std::shared_ptr<const nlohmann::json> georef;
     {
       std::lock_guard<std::mutex> lock(jpeg_mutex_);
       jpeg = jpeg_;
+      georef = georef_;
     }
     ++served_;
     res.set_header("Cache-Control", "no-store");
+    // This picture's own corners: the page places it by them, never by a status read before a newer picture came.
+    res.set_header("X-Georef-Corners",
+                   georef && georef->value("georeferenced", false) ? (*georef)["corners"].dump() : std::string("null"));
     if (!jpeg) {
       res.status = 503;
       res.set_header("Retry-After", "1");
@@ -179,6 +237,7 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     if (busy(res)) return;
     LiveStatus st;
     long seq = 0;
+    std::shared_ptr<const nlohmann::json> georef;
     {
       std::lock_guard<std::mutex> lock(status_mutex_);
       st = status_;
@@ -186,21 +245,24 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     {
       std::lock_guard<std::mutex> lock(jpeg_mutex_);
       seq = jpeg_seq_;
+      georef = georef_;
     }
     ++served_;
-    const nlohmann::json j = {{"state", st.state},
-                              {"frames_in", st.frames_in},
-                              {"registered", st.registered},
-                              {"dropped", st.dropped},
-                              {"fps", st.fps},
-                              {"median_frame_ms", st.median_frame_ms},
-                              {"rss_mib", st.rss_mib},
-                              {"budget_mib", st.budget_mib},
-                              {"last_error", st.last_error},
-                              {"uptime_s", st.uptime_s},
-                              {"jpeg_seq", seq},
-                              {"http_served", served_.load()},
-                              {"http_refused", refused_.load()}};
+    const nlohmann::json j = {
+        {"state", st.state},
+        {"frames_in", st.frames_in},
+        {"registered", st.registered},
+        {"dropped", st.dropped},
+        {"fps", st.fps},
+        {"median_frame_ms", st.median_frame_ms},
+        {"rss_mib", st.rss_mib},
+        {"budget_mib", st.budget_mib},
+        {"last_error", st.last_error},
+        {"uptime_s", st.uptime_s},
+        {"jpeg_seq", seq},
+        {"http_served", served_.load()},
+        {"http_refused", refused_.load()},
+        {"georef", georef ? *georef : nlohmann::json{{"georeferenced", false}, {"reason", "no picture yet"}}}};
     res.set_header("Cache-Control", "no-store");
     res.set_content(j.dump(), "application/json");
   });
@@ -232,9 +294,10 @@ void LiveServer::Stop() {
   server_.reset();
 }
 
-void LiveServer::PublishJpeg(std::shared_ptr<const std::string> jpeg) {
-  std::lock_guard<std::mutex> lock(jpeg_mutex_);  // held by readers only for a pointer copy
+void LiveServer::PublishJpeg(std::shared_ptr<const std::string> jpeg, std::shared_ptr<const nlohmann::json> georef) {
+  std::lock_guard<std::mutex> lock(jpeg_mutex_);  // held by readers only for pointer copies
   jpeg_ = std::move(jpeg);
+  georef_ = std::move(georef);
   ++jpeg_seq_;
 }
 

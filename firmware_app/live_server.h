@@ -2,6 +2,7 @@
 #include <atomic>
 #include <memory>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
 
@@ -26,9 +27,10 @@ struct LiveStatus {
 };
 
 // The operator's live view over HTTP (cpp-httplib): GET /live.jpg (the latest live preview), /status.json and / (a
-// Leaflet page showing the growing picture). Bounded: a fixed pool of worker threads and a short queue; a request that
-// finds both full is answered 503 at once by the accepting thread. The frame loop only swaps a pointer (JPEG) or
-// copies a small struct (status, skipped if a reader holds the lock): it never waits for a client.
+// Leaflet page showing the growing picture, laid on the map once the picture is georeferenced). Bounded: a fixed pool
+// of worker threads and a short queue; a request that finds both full is answered 503 at once by the accepting thread.
+// The frame loop only swaps a pointer (JPEG) or copies a small struct (status, skipped if a reader holds the lock): it
+// never waits for a client.
 class LiveServer {
  public:
   struct Options {
@@ -47,7 +49,9 @@ class LiveServer {
   void Stop();
   [[nodiscard]] int port() const { return port_; }
 
-  void PublishJpeg(std::shared_ptr<const std::string> jpeg);
+  // A new picture and its georeference (status.json "georef", the corners /live.jpg carries; null: none), swapped
+  // together so that a reader gets a matching pair.
+  void PublishJpeg(std::shared_ptr<const std::string> jpeg, std::shared_ptr<const nlohmann::json> georef = nullptr);
   // Non-blocking unless `wait`: dropped if a reader holds the lock (the next frame publishes again).
   void PublishStatus(const LiveStatus& status, bool wait = false);
 
@@ -60,6 +64,7 @@ class LiveServer {
   int port_ = 0;
   std::mutex jpeg_mutex_;
   std::shared_ptr<const std::string> jpeg_;
+  std::shared_ptr<const nlohmann::json> georef_;
   long jpeg_seq_ = 0;
   std::mutex status_mutex_;
   LiveStatus status_;

@@ -1,5 +1,6 @@
 // The live view of uavmosaic-onboard (--http): /status.json, /live.jpg and the live Leaflet page while a replay runs
-// (slowed with --process-delay-ms), concurrent clients on loopback, and a clean end of the run.
+// (slowed with --process-delay-ms), concurrent clients on loopback, the georeference during the flight (status.json
+// "georef", live.jgw + live.jpg.aux.xml read by gdalinfo), and a clean end of the run.
 #include <arpa/inet.h>
 #include <gtest/gtest.h>
 #include <httplib.h>
@@ -9,12 +10,16 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <array>
 #include <atomic>
 #include <chrono>
+#include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 #include <thread>
 
 #include "tests/browser_shot.h"
@@ -49,6 +54,96 @@ pid_t Spawn(const std::string& cmd) {
     ::_exit(127);
   }
   return pid;
+}
+
+// EXIF GPS (lat, lon) of the bundled flight's frames, in name order (its manifest).
+std::vector<std::array<double, 2>> FlightGps(const std::string& manifest) {
+  std::ifstream in(manifest);
+  std::string line;
+  std::getline(in, line);  // FileName,...,GPSLatitude,GPSLongitude,...
+  std::vector<std::array<double, 2>> out;
+  while (std::getline(in, line)) {
+    std::vector<std::string> cols;
+    std::stringstream ss(line);
+    for (std::string c; std::getline(ss, c, ',');) cols.push_back(c);
+    if (cols.size() > 9) out.push_back({std::stod(cols[8]), std::stod(cols[9])});
+  }
+  return out;
+}
+
+// Whether (lat, lon) lies inside the convex quadrilateral `corners` (a few hundred metres: planar will do).
+bool InsideQuad(const nlohmann::json& corners, double lat, double lon) {
+  const double k = std::cos(lat * M_PI / 180);
+  int sign = 0;
+  for (size_t i = 0; i < 4; ++i) {
+    const auto& a = corners[i];
+    const auto& b = corners[(i + 1) % 4];
+    const double ax = (a[1].get<double>() - lon) * k, ay = a[0].get<double>() - lat;
+    const double bx = (b[1].get<double>() - lon) * k, by = b[0].get<double>() - lat;
+    const int s = ax * by - ay * bx > 0 ? 1 : -1;
+    if (sign != 0 && s != sign) return false;
+    sign = s;
+  }
+  return true;
+}
+
+std::string CommandOutput(const std::string& cmd) {
+  std::string out;
+  FILE* p = ::popen(cmd.c_str(), "r");
+  if (p == nullptr) return out;
+  char buf[4096];
+  for (size_t n; (n = std::fread(buf, 1, sizeof(buf), p)) > 0;) out.append(buf, n);
+  ::pclose(p);
+  return out;
+}
+
+// During the flight (state "flying") the status gets a georeference from the frames' EXIF GPS: the flight's UTM zone,
+// a picture whose corners hold every drawn frame's position, and sidecars that make GDAL read live.jpg in that CRS.
+void CheckLiveGeoref(httplib::Client* client, const fs::path& out) {
+  nlohmann::json status;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto res = client->Get("/status.json");
+    if (res && res->status == 200) {
+      status = nlohmann::json::parse(res->body);
+      if (status["georef"].value("georeferenced", false) || status["state"] != "flying") break;
+      EXPECT_TRUE(status["georef"].contains("reason"));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  ASSERT_FALSE(status.is_null());
+  const nlohmann::json& g = status["georef"];
+  std::printf("live georef at frame %d: %s\n", status["frames_in"].get<int>(), g.dump().c_str());
+  ASSERT_EQ(status["state"], "flying") << "the flight ended before the live view was georeferenced";
+  ASSERT_TRUE(g.value("georeferenced", false)) << g.dump();
+  EXPECT_EQ(g["crs"], "EPSG:32615");  // 91.99 W, 46.84 N: UTM zone 15 N
+  EXPECT_EQ(g["epsg"], 32615);
+  EXPECT_LT(g["rms_m"].get<double>(), 5.0);
+  EXPECT_GE(g["frames_used"].get<int>(), 3);
+  ASSERT_EQ(g["corners"].size(), 4u);
+  ASSERT_EQ(g["bounds"].size(), 4u);
+  ASSERT_EQ(g["geotransform"].size(), 6u);
+  // The picture of jpeg_seq holds the first jpeg_seq frames (--preview-every 1): each one's GPS position is on it.
+  const auto gps = FlightGps(kData + "/brighton_beach_small/manifest.csv");
+  const auto drawn = std::min<size_t>(gps.size(), status["jpeg_seq"].get<size_t>());
+  ASSERT_GE(drawn, 3u);
+  for (size_t i = 0; i < drawn; ++i) {
+    const auto& b = g["bounds"];  // south, west, north, east
+    EXPECT_TRUE(gps[i][0] > b[0].get<double>() && gps[i][0] < b[2].get<double>()) << "frame " << i;
+    EXPECT_TRUE(gps[i][1] > b[1].get<double>() && gps[i][1] < b[3].get<double>()) << "frame " << i;
+    EXPECT_TRUE(InsideQuad(g["corners"], gps[i][0], gps[i][1])) << "frame " << i;
+  }
+  // The picture carries its own corners (the page places it by them).
+  auto jpg = client->Get("/live.jpg");
+  ASSERT_TRUE(jpg);
+  const auto corners = nlohmann::json::parse(jpg->get_header_value("X-Georef-Corners"));
+  EXPECT_EQ(corners.size(), 4u);
+  // GIS: live.jgw and live.jpg.aux.xml beside live.jpg.
+  EXPECT_TRUE(fs::exists(out / "live.jgw"));
+  const std::string info = CommandOutput("gdalinfo " + (out / "live.jpg").string() + " 2>&1");
+  EXPECT_NE(info.find("WGS 84 / UTM zone 15N"), std::string::npos) << info;
+  EXPECT_NE(info.find("ID[\"EPSG\",32615]"), std::string::npos) << info;
+  EXPECT_NE(info.find("Upper Left  (  5"), std::string::npos) << info;  // easting 5xxxxx, not pixels
 }
 
 TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
@@ -118,7 +213,10 @@ TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   EXPECT_EQ(bad.load(), 0);
   EXPECT_GT(ok.load(), 30);
 
-  // The live page in a real browser, from the server: it shows the live picture.
+  // The georeference arrives during the flight (EXIF GPS; the fourth frame spreads the positions over 30 m).
+  CheckLiveGeoref(&client, out);
+
+  // The live page in a real browser, from the server: it shows the live picture, laid on the map north-up.
   ASSERT_FALSE(test::ChromiumBinary().empty()) << "chromium missing: run scripts/setup.sh";
   const cv::Mat shot =
       test::Screenshot("http://127.0.0.1:" + std::to_string(port) + "/", out.string() + "_browser", 4000);

@@ -73,11 +73,17 @@ cv::Rect LivePreview::ContentInView() const {
 bool LivePreview::Write(const std::string& path, std::string* error) const {
   const std::string tmp = path + ".tmp";
   std::vector<uchar> bytes;
-  if (!cv::imencode(".jpg", canvas_(ContentInView()), bytes, {cv::IMWRITE_JPEG_QUALITY, 85})) {
+  const cv::Rect crop = ContentInView();
+  if (!cv::imencode(".jpg", canvas_(crop), bytes, {cv::IMWRITE_JPEG_QUALITY, 85})) {
     *error = "JPEG encode failed";
     return false;
   }
   last_jpeg_ = std::make_shared<const std::string>(bytes.begin(), bytes.end());
+  Mat3 jpeg_from_view = Mat3::Identity();
+  jpeg_from_view(0, 2) = -crop.x;
+  jpeg_from_view(1, 2) = -crop.y;
+  last_jpeg_from_mosaic_ = jpeg_from_view * view_from_mosaic_;
+  last_jpeg_size_ = crop.size();
   FILE* f = std::fopen(tmp.c_str(), "wb");
   if (f == nullptr) {
     *error = "cannot write " + tmp;

@@ -20,6 +20,9 @@ class LivePreview {
   [[nodiscard]] const cv::Mat& image() const { return canvas_; }
   // The JPEG bytes of the last Write(), shared (immutable) with readers such as the live HTTP server.
   [[nodiscard]] std::shared_ptr<const std::string> last_jpeg() const { return last_jpeg_; }
+  // The last Write()'s JPEG: its pixels from mosaic coordinates and its size (what its georeference composes with).
+  [[nodiscard]] const Mat3& last_jpeg_from_mosaic() const { return last_jpeg_from_mosaic_; }
+  [[nodiscard]] cv::Size last_jpeg_size() const { return last_jpeg_size_; }
 
  private:
   [[nodiscard]] cv::Rect ContentInView() const;  // the covered part of the canvas, in canvas pixels
@@ -30,6 +33,8 @@ class LivePreview {
   bool empty_ = true;
   cv::Rect2d content_;  // mosaic coordinates covered so far
   mutable std::shared_ptr<const std::string> last_jpeg_;
+  mutable Mat3 last_jpeg_from_mosaic_ = Mat3::Identity();
+  mutable cv::Size last_jpeg_size_;
 };
 
 }  // namespace uavm

@@ -132,10 +132,12 @@ void Mosaicker::UpdatePreview(int id, const cv::Mat& work_bgr) {
       ResizeMap(static_cast<double>(thumb.cols) / work_bgr.cols, static_cast<double>(thumb.rows) / work_bgr.rows)
           .inverse();
   preview_.Add(thumb, engine_.mosaic_from_work(id) * work_from_thumb);
+  AddLiveGeorefPoint(id);
   if (static_cast<int>(frames_.size()) % options_.preview_every == 0) {
     std::string err;
     if (!preview_.Write(paths_.Join("live.jpg"), &err)) spdlog::warn("live preview: {}", err);
-    if (preview_listener_) preview_listener_(preview_.last_jpeg());
+    auto georef = UpdateLiveGeoref();
+    if (preview_listener_) preview_listener_(preview_.last_jpeg(), std::move(georef));
   }
 }
 

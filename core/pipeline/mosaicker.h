@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "core/frame/frame.h"
+#include "core/georef/live_georef.h"
 #include "core/mosaic/live_preview.h"
 #include "core/pipeline/memory_budget.h"
 #include "core/pipeline/options.h"
@@ -80,8 +81,11 @@ class Mosaicker {
   [[nodiscard]] double residual_rms_px() const { return solution_.rms_px; }
   [[nodiscard]] const StageStats& stage_stats() const { return stats_; }
 
-  // Called from the frame loop with each new live.jpg's bytes (e.g. the live HTTP server); must not block.
-  void SetPreviewListener(std::function<void(std::shared_ptr<const std::string>)> listener) {
+  // Called from the frame loop with each new live.jpg's bytes and its georeference (LiveGeorefView::ToJson), e.g. by
+  // the live HTTP server; must not block.
+  using PreviewListener =
+      std::function<void(std::shared_ptr<const std::string> jpeg, std::shared_ptr<const nlohmann::json> georef)>;
+  void SetPreviewListener(PreviewListener listener) {
     preview_listener_ = std::move(listener);
   }
 
@@ -104,6 +108,11 @@ class Mosaicker {
   // Stores the frame's bytes and features and journals it; false (frame failed, maybe the storage) otherwise.
   [[nodiscard]] bool StoreFrame(int id, const Prepared& prepared, FrameState* st);
   void UpdatePreview(int id, const cv::Mat& work_bgr);
+  // The live picture's georeference (mosaicker_live.cpp): a drawn frame's point; after a live.jpg write the refit when
+  // due, the sidecars beside live.jpg and the status' "georef".
+  void AddLiveGeorefPoint(int id);
+  [[nodiscard]] std::shared_ptr<const nlohmann::json> UpdateLiveGeoref();
+  void WriteLiveSidecars(const LiveGeorefView& view);
   // Session files, mosaic, products and report of the solved `component` (mosaicker_output.cpp, _report.cpp).
   [[nodiscard]] bool WriteOutputs(const std::vector<int>& component, std::string* error);
   [[nodiscard]] double PlaceCanvas(const std::vector<int>& component, std::vector<Mat3>* canvas_from_original,
@@ -152,7 +161,9 @@ class Mosaicker {
   GeorefFit georef_;
   std::unordered_set<int> placed_by_telemetry_;  // frames bridging placed (transforms.csv placed_by)
   nlohmann::json bridge_report_ = nlohmann::json::object();
-  std::function<void(std::shared_ptr<const std::string>)> preview_listener_;
+  PreviewListener preview_listener_;
+  LiveGeoref live_georef_{LiveGeorefOptions{.fit = options_.georef}};
+  int live_sidecar_epsg_ = -1;  // the CRS live.jpg.aux.xml names; 0: no sidecars; -1: unknown (a previous run's?)
   double georef_rotation_removed_deg_ = 0;
   int georef_gps_frames_ = 0;
   StageStats stats_;
