@@ -47,7 +47,7 @@ Mat3 MosaicFromCanvas() {
 
 std::vector<TransformRow> SessionFrom(const std::vector<GtRow>& gt) {
   std::vector<TransformRow> rows;
-  for (const auto& g : gt) rows.push_back({g.index, g.filename, true, MosaicFromCanvas() * g.canvas_from_frame});
+  for (const auto& g : gt) rows.push_back({g.index, g.filename, true, MosaicFromCanvas() * g.canvas_from_frame, "image"});
   return rows;
 }
 

@@ -243,7 +243,8 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   // Match on the 8-bit values, exactly what later queries from the store will see.
   feats.descriptors = DequantizeDescriptors(QuantizeDescriptors(feats.descriptors));
   RegisterTiming timing;
-  const FrameOutcome outcome = engine_.Register(id, feats, &timing);
+  const std::optional<PositionHint> hint = PositionHintFor(st.metadata);
+  const FrameOutcome outcome = engine_.Register(id, feats, &timing, hint ? &*hint : nullptr);
   stats_.Add("matching", timing.matching_ms);
   stats_.Add("adjust", timing.adjust_ms);
   t.Restart();

@@ -3,6 +3,7 @@
 #include <functional>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -108,6 +109,8 @@ class Mosaicker {
   // Stores the frame's bytes and features and journals it; false (frame failed, maybe the storage) otherwise.
   [[nodiscard]] bool StoreFrame(int id, const Prepared& prepared, FrameState* st);
   void UpdatePreview(int id, const cv::Mat& work_bgr);
+  // Where the frame's position puts it on the live georeference (mosaicker_hint.cpp); none before a fit.
+  [[nodiscard]] std::optional<PositionHint> PositionHintFor(const FrameMetadata& metadata) const;
   // The live picture's georeference (mosaicker_live.cpp): a drawn frame's point; after a live.jpg write the refit when
   // due, the sidecars beside live.jpg and the status' "georef".
   void AddLiveGeorefPoint(int id);

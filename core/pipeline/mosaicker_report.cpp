@@ -50,6 +50,7 @@ void Mosaicker::ReportRegistration(nlohmann::json* out) const {
   const RegistrationCounters rc = engine_.counters();
   report["relocalized"] = rc.relocalized;
   report["joined_on_retry"] = rc.joined_on_retry;
+  report["joined_where_telemetry_placed"] = rc.joined_where_telemetry_placed;
   report["component_merges"] = rc.component_merges;
   report["edges"] = engine_.edges().size();
   report["edges_added_at_end"] = rc.edges_added_at_end;
