@@ -110,6 +110,13 @@ bool ResumeFromJournal(const SessionPaths& paths, const JournalContents& journal
     }
     frame.source_name = jf.name;
     frame.timestamp_ns = jf.timestamp_ns;
+    // The position the interrupted run had (telemetry's, which the stored file does not carry), else its EXIF's.
+    if (jf.latitude_deg && jf.longitude_deg) {
+      frame.metadata.latitude_deg = jf.latitude_deg;
+      frame.metadata.longitude_deg = jf.longitude_deg;
+      frame.metadata.relative_altitude_m = jf.relative_altitude_m;
+      frame.metadata.flight_yaw_deg = jf.yaw_deg;
+    }
     if (mosaicker->frames_in() != static_cast<size_t>(jf.id)) {
       *error = "resume: journal frame ids are not consecutive";
       return false;

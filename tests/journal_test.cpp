@@ -35,6 +35,7 @@ TEST(JournalTest, RoundTripAndAppendAfterResume) {
   EXPECT_EQ(c.frames[1].name, "DJI_0002.JPG");
   EXPECT_EQ(c.frames[1].stored_file, "000001_DJI_0002.JPG");
   EXPECT_EQ(c.frames[1].timestamp_ns, 20);
+  EXPECT_FALSE(c.frames[1].latitude_deg.has_value());
   ASSERT_EQ(c.skipped.size(), 1u);
   EXPECT_EQ(c.skipped[0].reason, "cannot decode");
   EXPECT_FALSE(c.finished);
@@ -106,6 +107,41 @@ TEST(JournalTest, RefusesWhatIsNotAJournal) {
   // A missing journal is an empty one (a run killed before its first line).
   EXPECT_TRUE(ReadJournal("/nonexistent_uavm/journal.jsonl", &c, &err));
   EXPECT_TRUE(c.frames.empty());
+}
+
+// A frame's position (telemetry's, which its stored file does not carry) comes back on resume; a value that is not
+// a number is left out, the rest of the line kept.
+TEST(JournalTest, FramePositionsRoundTrip) {
+  const fs::path path = TempFile("pose.jsonl");
+  std::string err;
+  {
+    SessionJournal j;
+    ASSERT_TRUE(j.Open(path.string(), false, 0, 1, &err)) << err;
+    JournalFrame f{0, "a.png", "000000_a.png", 10, 400, 300};
+    f.latitude_deg = 46.8426123456789;
+    f.longitude_deg = -91.9946987654321;
+    f.relative_altitude_m = 80.25;
+    f.yaw_deg = 271.5;
+    ASSERT_TRUE(j.AddFrame(f, &err)) << err;
+    ASSERT_TRUE(j.AddFrame({1, "b.png", "000001_b.png", 20, 400, 300}, &err)) << err;
+  }
+  JournalContents c;
+  ASSERT_TRUE(ReadJournal(path.string(), &c, &err)) << err;
+  ASSERT_EQ(c.frames.size(), 2u);
+  EXPECT_DOUBLE_EQ(*c.frames[0].latitude_deg, 46.8426123456789);
+  EXPECT_DOUBLE_EQ(*c.frames[0].longitude_deg, -91.9946987654321);
+  EXPECT_DOUBLE_EQ(*c.frames[0].relative_altitude_m, 80.25);
+  EXPECT_DOUBLE_EQ(*c.frames[0].yaw_deg, 271.5);
+  EXPECT_FALSE(c.frames[1].latitude_deg.has_value());
+  std::string text;
+  ASSERT_TRUE(ReadTextFile(path.string(), &text, &err));
+  const size_t at = text.find("\"lat\":");
+  ASSERT_NE(at, std::string::npos);
+  text.replace(at, 6, "\"lat\":\"north\",\"x\":");
+  ASSERT_TRUE(ParseJournal(text, &c, &err)) << err;
+  ASSERT_EQ(c.frames.size(), 2u);
+  EXPECT_FALSE(c.frames[0].latitude_deg.has_value());
+  EXPECT_DOUBLE_EQ(*c.frames[0].longitude_deg, -91.9946987654321);
 }
 
 }  // namespace

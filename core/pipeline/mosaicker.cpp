@@ -208,9 +208,13 @@ bool Mosaicker::StoreFrame(int id, const Prepared& prepared, FrameState* st) {
     storage_failure_ = error;
   } else {
     // Accepted: its bytes and features are in the session, so a resumed run will find it.
-    if (journal_.is_open() && !journal_.AddFrame({id, st->name, fs::path(st->stored_file).filename().string(),
-                                                  st->timestamp_ns, st->original_size.width, st->original_size.height},
-                                                 &error)) {
+    JournalFrame jf{id, st->name, fs::path(st->stored_file).filename().string(), st->timestamp_ns,
+                    st->original_size.width, st->original_size.height};
+    jf.latitude_deg = st->metadata.latitude_deg;
+    jf.longitude_deg = st->metadata.longitude_deg;
+    jf.relative_altitude_m = st->metadata.relative_altitude_m;
+    jf.yaw_deg = st->metadata.flight_yaw_deg;
+    if (journal_.is_open() && !journal_.AddFrame(jf, &error)) {
       // The frame itself is stored, but a journal that cannot grow means the disk is full: stop here.
       spdlog::error("{}; a resumed run would take this frame from the source again", error);
       storage_failure_ = error;

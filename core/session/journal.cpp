@@ -2,6 +2,8 @@
 
 #include <unistd.h>
 
+#include <array>
+#include <cmath>
 #include <filesystem>
 #include <limits>
 #include <nlohmann/json.hpp>
@@ -11,9 +13,29 @@
 namespace uavm {
 
 namespace {
+
+// The optional position fields of a frame line, by key (pointers into `f`: const or not as `f` is).
+template <typename Frame>
+auto PoseFields(Frame& f) {
+  using Field = decltype(&f.latitude_deg);
+  return std::array<std::pair<const char*, Field>, 4>{
+      {{"lat", &f.latitude_deg}, {"lon", &f.longitude_deg}, {"rel_alt", &f.relative_altitude_m}, {"yaw", &f.yaw_deg}}};
+}
+
+// A value that is not a finite number is left out (the frame is then placed as if it had none).
+void ReadPose(const nlohmann::json& j, JournalFrame* f) {
+  for (const auto& [key, value] : PoseFields(*f)) {
+    const auto it = j.find(key);
+    if (it == j.end() || !it->is_number()) continue;
+    const double v = it->get<double>();
+    if (std::isfinite(v)) *value = v;
+  }
+}
 constexpr int kVersion = 1;
 // File names are bytes, JSON is UTF-8: invalid sequences are replaced rather than thrown on.
-std::string Dump(const nlohmann::json& j) { return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace); }
+std::string Dump(const nlohmann::json& j) {
+  return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+}
 
 // An integer field within [lo, hi]; anything else (missing, a float, a string, out of range) is not this program's
 // journal. nlohmann's get<int>() of 2e76 would be undefined behaviour, hence the checks first.
@@ -77,6 +99,7 @@ bool ParseJournal(const std::string& text, JournalContents* out, std::string* er
         f.height = static_cast<int>(height);
         f.name = j.at("name").get<std::string>();
         f.stored_file = j.at("stored").get<std::string>();
+        ReadPose(j, &f);
         // Frames are journaled in id order, one each: anything else is not this program's journal.
         if (f.id != static_cast<int>(out->frames.size()) || f.width <= 0 || f.height <= 0 ||
             f.stored_file.find('/') != std::string::npos || f.stored_file.empty()) {
@@ -109,7 +132,9 @@ bool ReadJournal(const std::string& path, JournalContents* out, std::string* err
   return ParseJournal(text, out, error);
 }
 
-SessionJournal::~SessionJournal() { Close(); }
+SessionJournal::~SessionJournal() {
+  Close();
+}
 
 bool SessionJournal::Open(const std::string& path, bool append, uint64_t valid_bytes, int sync_every,
                           std::string* error) {
@@ -171,9 +196,15 @@ bool SessionJournal::WriteLine(const std::string& line, bool sync, std::string* 
 }
 
 bool SessionJournal::AddFrame(const JournalFrame& f, std::string* error) {
-  const nlohmann::json j{{"type", "frame"},       {"id", f.id},       {"name", f.name},
-                         {"stored", f.stored_file}, {"timestamp_ns", f.timestamp_ns}, {"width", f.width},
-                         {"height", f.height}};
+  nlohmann::json j{{"type", "frame"},
+                   {"id", f.id},
+                   {"name", f.name},
+                   {"stored", f.stored_file},
+                   {"timestamp_ns", f.timestamp_ns},
+                   {"width", f.width},
+                   {"height", f.height}};
+  for (const auto& [key, value] : PoseFields(f))
+    if (*value) j[key] = **value;
   return WriteLine(Dump(j), false, error);
 }
 

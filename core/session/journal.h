@@ -1,6 +1,7 @@
 #pragma once
 #include <cstdint>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -27,6 +28,12 @@ struct JournalFrame {
   int64_t timestamp_ns = 0;
   int width = 0;  // original size
   int height = 0;
+  // Where the frame was taken, when known (telemetry or EXIF): a resumed run gets telemetry's positions back from
+  // here, since the stored file carries at most EXIF's.
+  std::optional<double> latitude_deg = std::nullopt;
+  std::optional<double> longitude_deg = std::nullopt;
+  std::optional<double> relative_altitude_m = std::nullopt;
+  std::optional<double> yaw_deg = std::nullopt;
 };
 
 struct JournalSkip {
