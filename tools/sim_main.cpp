@@ -8,10 +8,13 @@
 int main(int argc, char** argv) {
   CLI::App app{"Simulated drone flight over an image, with ground truth"};
   uavm::hal::SimOptions options;
+  options.live_link = false;  // the plan's mavlink_udp is for --source sim:; here the telemetry goes to flight.tlog
   std::string out;
   app.add_option("--plan", options.plan_path, "flight plan YAML (keys: hal/sim/sim_plan.h)")->required();
   app.add_option("--canvas", options.canvas_path, "image to fly over (overrides the plan's canvas key)");
-  app.add_option("--out", out, "output folder: images/, gt.csv, plan.yaml")->required();
+  app.add_option("--out", out,
+                 "output folder: images/, gt.csv, plan.yaml (with gps: geo.txt, geo_truth.txt, flight.tlog)")
+      ->required();
   app.add_option("--frames", options.max_frames, "stop after N frames (0 = whole flight)")
       ->check(CLI::NonNegativeNumber);
   try {

@@ -6,6 +6,7 @@
 
 #include "core/eval/ground_truth.h"
 #include "core/session/session_dir.h"
+#include "hal/sim/sim_telemetry.h"
 
 namespace uavm::tools {
 
@@ -60,8 +61,11 @@ bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_
   hal::SimPlan plan = source->plan();
   plan.canvas = fs::absolute(plan.canvas, ec).string();
   const std::string yaml = "# effective plan of this simulated flight (uavmosaic-sim)\n" + hal::ToYaml(plan);
+  const auto first = static_cast<size_t>(rows.front().index);
+  const auto end = static_cast<size_t>(rows.back().index) + 1;
   if (plan.gps != 0 && !(WriteFileAtomic((root / "geo.txt").string(), geo.str(), error) &&
-                         WriteFileAtomic((root / "geo_truth.txt").string(), geo_truth.str(), error)))
+                         WriteFileAtomic((root / "geo_truth.txt").string(), geo_truth.str(), error) &&
+                         WriteFileAtomic((root / "flight.tlog").string(), hal::SimTlog(*source, first, end), error)))
     return false;
   return WriteFileAtomic((root / "gt.csv").string(), eval::FormatGroundTruthCsv(rows), error) &&
          WriteFileAtomic((root / "plan.yaml").string(), yaml, error);

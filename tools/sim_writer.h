@@ -12,6 +12,8 @@ namespace uavm::tools {
 //   OUT/plan.yaml                     the effective plan, canvas path made absolute
 //   OUT/geo.txt, OUT/geo_truth.txt    with the plan's gps: each frame's reported and true position (OpenDroneMap
 //                                     geo.txt, EPSG:4326), for --telemetry geo: and for measuring against the truth
+//   OUT/flight.tlog                   with the plan's gps: the flight controller's MAVLink telemetry of the flight
+//                                     (hal/sim/sim_telemetry.h), for --telemetry tlog: (frames matched by trigger)
 // `source` must be open; it is consumed from its current position. max_frames 0 = all.
 // In tools/, not hal/sim: it writes the evaluator's format (core/eval), which the onboard program must not link.
 [[nodiscard]] bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_frames,

@@ -62,7 +62,12 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"gps_bias_m", &p.gps_bias_m},
           {"heading_noise_deg", &p.heading_noise_deg},
           {"water_from", &p.water_from},
-          {"water_to", &p.water_to}};
+          {"water_to", &p.water_to},
+          {"frame_interval_s", &p.frame_interval_s},
+          {"telemetry_hz", &p.telemetry_hz},
+          {"attitude_noise_deg", &p.attitude_noise_deg},
+          {"camera_latency_ms", &p.camera_latency_ms},
+          {"mavlink_udp", &p.mavlink_udp}};
 }
 
 using Draws = PortableRandom;  // the flight must not change with the machine that makes it
@@ -80,6 +85,7 @@ bool SimPlan::Check(std::string* error) const {
   if (!(water_from >= 0 && water_to <= 1 && water_from <= water_to))
     return Fail(error, "water_from and water_to must satisfy 0 <= water_from <= water_to <= 1");
   if (!(gsd > 0)) return Fail(error, "gsd must be > 0");
+  if (!CheckTelemetry(error)) return false;
   if (strips < 0 || strip_length < 0 || strip_spacing < 0)
     return Fail(error, "strips/strip_length/spacing must be >= 0");
   if (forward_overlap < 0 || forward_overlap > 0.95) return Fail(error, "forward_overlap must be in [0, 0.95]");
@@ -94,6 +100,16 @@ bool SimPlan::Check(std::string* error) const {
   if (jpeg_quality < 0 || jpeg_quality > 100) return Fail(error, "jpeg_quality must be in [0, 100]");
   if (passes < 1) return Fail(error, "passes must be >= 1");
   if (margin < 0) return Fail(error, "margin must be >= 0");
+  return true;
+}
+
+bool SimPlan::CheckTelemetry(std::string* error) const {
+  if (!(frame_interval_s > 0 && frame_interval_s <= 60)) return Fail(error, "frame_interval_s must be in (0, 60]");
+  if (telemetry_hz < 1 || telemetry_hz > 50) return Fail(error, "telemetry_hz must be in [1, 50]");
+  if (!(attitude_noise_deg >= 0)) return Fail(error, "attitude_noise_deg must be >= 0");
+  if (!(camera_latency_ms >= 0 && camera_latency_ms < 1000 * frame_interval_s))
+    return Fail(error, "camera_latency_ms must be in [0, frame_interval_s)");
+  if (!mavlink_udp.empty() && gps != 1) return Fail(error, "mavlink_udp needs gps: 1");
   return true;
 }
 

@@ -42,6 +42,16 @@ namespace uavm::hal {
 //     clockwise from north, of the direction of flight = frame +x) [2.0]
 //   water_from, water_to: a band of calm water across the strips, canvas x from water_from to water_to as fractions
 //     of the canvas width: featureless (a smooth gradient), so frames wholly over it match nothing [0, 0 = none]
+//   With gps: 1 the flight controller's telemetry is simulated too (hal/sim/sim_telemetry.h): a .tlog beside the
+//   frames (uavmosaic-sim) and, live, a MAVLink stream over UDP.
+//   frame_interval_s: flight time between frames; frame i is taken at i * frame_interval_s [1.0]
+//   telemetry_hz: rate of the position and attitude messages (HEARTBEAT and SYSTEM_TIME at 1 Hz) [10]
+//   attitude_noise_deg: sigma of the Gaussian error of the reported roll and pitch [0.5]
+//   camera_latency_ms: a live frame is delivered this long after it was taken, the telemetry going on meanwhile (the
+//     mapper's telemetry.latency_ms compensates it) [0]
+//   mavlink_udp: "HOST:PORT": `--source sim:PLAN` sends the telemetry there over UDP in step with the frames, paced
+//     in real time (frames frame_interval_s apart; a consumer that falls behind holds the flight's clock), and the
+//     frames carry no GPS of their own (a companion computer's camera); "" = off [""]
 // The plan is fitted inside the canvas: the pattern is centred, and shrunk (spacings scaled down, logged as a
 // warning) when footprints would leave it.
 struct SimPlan {
@@ -78,9 +88,15 @@ struct SimPlan {
   double heading_noise_deg = 2.0;
   double water_from = 0.0;
   double water_to = 0.0;
+  double frame_interval_s = 1.0;
+  int telemetry_hz = 10;
+  double attitude_noise_deg = 0.5;
+  double camera_latency_ms = 0.0;
+  std::string mavlink_udp;
 
   [[nodiscard]] double Focal() const { return focal_px > 0 ? focal_px : frame_width; }
   [[nodiscard]] bool Check(std::string* error) const;
+  [[nodiscard]] bool CheckTelemetry(std::string* error) const;
 };
 
 // Parses YAML text; `base_dir` resolves a relative `canvas`. False with a message naming the key on any problem.

@@ -12,10 +12,23 @@
 
 #include "core/geometry/transform.h"
 #include "core/util/clock.h"
+#include "hal/sim/sim_telemetry.h"
 
 namespace uavm::hal {
 
+namespace {
+
+double Wrap360(double deg) {
+  return std::fmod(std::fmod(deg, 360.0) + 360.0, 360.0);
+}
+double Lerp(double a, double b, double w) {
+  return a + (b - a) * w;
+}
+
+}  // namespace
+
 SimSource::SimSource(SimOptions options) : options_(std::move(options)) {}
+SimSource::~SimSource() = default;
 
 std::string SimSource::Describe() const {
   return "sim:" + (options_.plan_path.empty() ? std::string("<inline plan>") : options_.plan_path);
@@ -73,6 +86,13 @@ Status SimSource::Open(std::string* error) {
   spdlog::info("sim: {} frames of {}x{} over a {}x{} canvas", NumFrames(), plan_.frame_width, plan_.frame_height,
                canvas_.cols, canvas_.rows);
   next_ = 0;
+  link_.reset();
+  if (options_.live_link && !plan_.mavlink_udp.empty()) {
+    link_ = std::make_unique<SimUdpLink>(this);
+    if (!link_->Open(plan_.mavlink_udp, error)) return Status::kError;
+    spdlog::info("sim: MAVLink telemetry to udp {}, frames {} s apart in real time", plan_.mavlink_udp,
+                 plan_.frame_interval_s);
+  }
   return Status::kOk;
 }
 
@@ -103,19 +123,70 @@ const cv::Mat& SimSource::CanvasLevel(int level) {
   return levels_.emplace(level, std::move(reduced)).first->second;
 }
 
+Vec2 SimSource::GroundOf(size_t i) const {
+  return Apply(CanvasFromFrame(plan_, poses_[i]), Vec2((plan_.frame_width - 1.0) / 2, (plan_.frame_height - 1.0) / 2));
+}
+
+Vec2 SimSource::GpsErrorM(double f, cv::RNG* rng) const {
+  const double turn = 2.0 * M_PI * f / 200.0;  // the bias turns once per 200 frames
+  const double east = plan_.gps_bias_m * std::cos(turn) + rng->gaussian(plan_.gps_noise_m);
+  const double north = plan_.gps_bias_m * std::sin(turn) + rng->gaussian(plan_.gps_noise_m);
+  return Vec2(east, north);
+}
+
 void SimSource::SimulateGps(size_t i, cv::Size size, SimTruth* truth) const {
   const Vec2 ground = Apply(truth->canvas_from_frame, Vec2((size.width - 1.0) / 2, (size.height - 1.0) / 2));
   truth->true_position = CanvasToLatLon(plan_, canvas_.size(), ground);
   // Per-frame generator (frame i's fix does not depend on the frames before), plus a slowly turning bias.
   cv::RNG rng(plan_.seed * 7919ULL + i + 1);
-  const double turn = 2.0 * M_PI * static_cast<double>(i) / 200.0;
-  const double east_px = (plan_.gps_bias_m * std::cos(turn) + rng.gaussian(plan_.gps_noise_m)) / plan_.metres_per_px;
-  const double south_px = -(plan_.gps_bias_m * std::sin(turn) + rng.gaussian(plan_.gps_noise_m)) / plan_.metres_per_px;
-  truth->gps_position = CanvasToLatLon(plan_, canvas_.size(), ground + Vec2(east_px, south_px));
+  const Vec2 error = GpsErrorM(static_cast<double>(i), &rng);
+  truth->gps_position = CanvasToLatLon(
+      plan_, canvas_.size(), ground + Vec2(error.x() / plan_.metres_per_px, -error.y() / plan_.metres_per_px));
   truth->gps_altitude_m = plan_.flight_altitude_m * truth->pose.altitude;
   // Compass heading of the direction of flight (frame +x): canvas +x is east, +y south, so yaw 0 is 90 deg.
-  const double heading = 90.0 + truth->pose.yaw_deg + rng.gaussian(plan_.heading_noise_deg);
-  truth->gps_heading_deg = std::fmod(std::fmod(heading, 360.0) + 360.0, 360.0);
+  truth->gps_heading_deg = Wrap360(90.0 + truth->pose.yaw_deg + rng.gaussian(plan_.heading_noise_deg));
+}
+
+SimFix SimSource::FixAt(double t_s, uint64_t draw) const {
+  const size_t last = poses_.size() - 1;
+  const double f = t_s / plan_.frame_interval_s;
+  const double clamped = std::clamp(f, 0.0, static_cast<double>(last));
+  const size_t i = std::min(static_cast<size_t>(std::floor(clamped)), last);
+  const size_t j = std::min(i + 1, last);
+  const double w = clamped - static_cast<double>(i);
+  const SimPose& a = poses_[i];
+  const SimPose& b = poses_[j];
+  SimFix fix;
+  cv::RNG attitude(plan_.seed * 104729ULL + draw + 1);
+  fix.roll_deg = Lerp(a.roll_deg, b.roll_deg, w) + attitude.gaussian(plan_.attitude_noise_deg);
+  fix.pitch_deg = Lerp(a.pitch_deg, b.pitch_deg, w) + attitude.gaussian(plan_.attitude_noise_deg);
+  fix.altitude_m = plan_.flight_altitude_m * Lerp(a.altitude, b.altitude, w);
+  const Vec2 ga = GroundOf(i), gb = GroundOf(j);
+  const Vec2 ground = ga + (gb - ga) * w;
+  fix.true_position = CanvasToLatLon(plan_, canvas_.size(), ground);
+  if (f >= 0 && f <= static_cast<double>(last) && j > i) {  // flying, not hovering before or after the flight
+    const Vec2 v = (gb - ga) * (plan_.metres_per_px / plan_.frame_interval_s);
+    fix.east_mps = v.x();
+    fix.north_mps = -v.y();
+  }
+  const double nearest = std::round(f);
+  if (std::abs(f - nearest) < 1e-9 && nearest >= 0 && nearest <= static_cast<double>(last)) {
+    SimTruth t;  // a frame's instant: its own fix
+    const auto k = static_cast<size_t>(nearest);
+    t.pose = poses_[k];
+    t.canvas_from_frame = CanvasFromFrame(plan_, t.pose);
+    SimulateGps(k, cv::Size(plan_.frame_width, plan_.frame_height), &t);
+    fix.gps_position = t.gps_position;
+    fix.heading_deg = t.gps_heading_deg;
+    return fix;
+  }
+  cv::RNG rng(plan_.seed * 15485863ULL + draw + 1);
+  const Vec2 error = GpsErrorM(f, &rng);
+  fix.gps_position = CanvasToLatLon(plan_, canvas_.size(),
+                                    ground + Vec2(error.x() / plan_.metres_per_px, -error.y() / plan_.metres_per_px));
+  const double yaw = a.yaw_deg + std::remainder(b.yaw_deg - a.yaw_deg, 360.0) * w;  // the short way round
+  fix.heading_deg = Wrap360(90.0 + yaw + rng.gaussian(plan_.heading_noise_deg));
+  return fix;
 }
 
 bool SimSource::Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded, std::string* error) {
@@ -199,12 +270,13 @@ Status SimSource::Next(Frame* frame, std::string* error) {
   }
   *frame = Frame{};
   frame->index = next_;
-  frame->timestamp_ns = MonotonicNs();
+  // Live telemetry: the frame comes when the stream has reached its delivery, stamped on the stream's clock.
+  frame->timestamp_ns = link_ ? link_->DeliverFrame(next_) : MonotonicNs();
   frame->source_name = FrameName(next_);
   frame->original_size = image.size();
   frame->image = std::move(image);
   frame->decode_scale = 1.0;
-  if (plan_.gps != 0) {  // as a camera's EXIF GPS would carry it
+  if (plan_.gps != 0 && !link_) {  // as a camera's EXIF GPS would carry it; live, the position comes over the link
     frame->metadata.latitude_deg = truth_.gps_position.lat_deg;
     frame->metadata.longitude_deg = truth_.gps_position.lon_deg;
     frame->metadata.relative_altitude_m = truth_.gps_altitude_m;
@@ -215,6 +287,7 @@ Status SimSource::Next(Frame* frame, std::string* error) {
 }
 
 void SimSource::Close() {
+  link_.reset();
   canvas_.release();
   levels_.clear();
 }

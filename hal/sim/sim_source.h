@@ -1,5 +1,6 @@
 #pragma once
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -13,6 +14,7 @@ struct SimOptions {
   std::string plan_yaml;    // inline plan text (tests)
   std::string canvas_path;  // overrides the plan's `canvas` key
   int max_frames = 0;       // 0 = the whole flight
+  bool live_link = true;    // the plan's mavlink_udp stream (uavmosaic-sim writes a .tlog instead: off)
 };
 
 // Ground truth of one emitted frame (original-resolution frame pixels, pixel centres).
@@ -24,9 +26,21 @@ struct SimTruth {
   // With the plan's gps: the ground under the frame centre, true and as the (noisy, biased) receiver reports it.
   LatLon true_position;
   LatLon gps_position;
-  double gps_altitude_m = 0.0;  // height above take-off
+  double gps_altitude_m = 0.0;   // height above take-off
   double gps_heading_deg = 0.0;  // of the direction of flight, compass degrees (clockwise from north), noisy
 };
+
+// What the flight controller reports at one instant of a simulated flight with GPS (plan gps: 1).
+struct SimFix {
+  LatLon true_position;                    // the ground under the camera's centre ray, on the true path
+  LatLon gps_position;                     // as the (noisy, biased) receiver reports it
+  double altitude_m = 0.0;                 // height above take-off
+  double heading_deg = 0.0;                // compass heading of the direction of flight (frame +x), noisy
+  double roll_deg = 0.0, pitch_deg = 0.0;  // attitude, noisy
+  double east_mps = 0.0, north_mps = 0.0;  // velocity along the true path
+};
+
+class SimUdpLink;
 
 // A virtual camera flying a lawn-mower plan over a large image (the canvas). Every frame is rendered from the
 // canvas through its true canvas_from_frame (cv::warpPerspective, reflected border), then blurred, exposed, noised
@@ -34,6 +48,7 @@ struct SimTruth {
 class SimSource final : public FrameSource {
  public:
   explicit SimSource(SimOptions options);
+  ~SimSource() override;
   // Loads plan and canvas, lays out the flight; a bad plan or unreadable canvas is kError with the reason.
   [[nodiscard]] Status Open(std::string* error) override;
   [[nodiscard]] Status Next(Frame* frame, std::string* error) override;
@@ -53,9 +68,17 @@ class SimSource final : public FrameSource {
   // Renders frame i exactly as Next() emits it (random access, for tests and tools).
   [[nodiscard]] bool Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded, std::string* error);
   void SimulateGps(size_t i, cv::Size size, SimTruth* truth) const;
+  // The telemetry at flight time t_s (frame i is taken at FrameTime(i)): the true path runs straight from frame
+  // centre to frame centre (before the first frame and after the last the drone hovers there); the receiver's error
+  // is the slowly turning bias plus noise drawn with `draw`. At a frame's instant the position, height and heading
+  // are exactly that frame's (SimTruth, geo.txt). Plan gps: 1.
+  [[nodiscard]] SimFix FixAt(double t_s, uint64_t draw) const;
+  [[nodiscard]] double FrameTime(size_t i) const { return static_cast<double>(i) * plan_.frame_interval_s; }
 
  private:
   void PaintWater();
+  [[nodiscard]] Vec2 GroundOf(size_t i) const;                 // canvas point under frame i's centre
+  [[nodiscard]] Vec2 GpsErrorM(double f, cv::RNG* rng) const;  // east, north metres at fractional frame index f
   const cv::Mat& CanvasLevel(int level);
 
   SimOptions options_;
@@ -67,6 +90,7 @@ class SimSource final : public FrameSource {
   size_t next_ = 0;
   SimTruth truth_;
   std::vector<uchar> encoded_;
+  std::unique_ptr<SimUdpLink> link_;  // the plan's mavlink_udp
 };
 
 }  // namespace uavm::hal

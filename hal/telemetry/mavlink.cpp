@@ -236,11 +236,122 @@ std::string Encode(uint32_t msgid, const uint8_t* payload, size_t size, uint8_t 
   return out;
 }
 
-std::string EncodeStatustext(uint8_t severity, const std::string& text, uint8_t seq, uint8_t sysid, uint8_t compid) {
-  std::array<uint8_t, 54> payload{};
-  payload[0] = severity;
-  std::memcpy(payload.data() + 1, text.data(), std::min<size_t>(text.size(), 50));
-  return Encode(kStatustext, payload.data(), payload.size(), seq, sysid, compid);
+namespace {
+
+// A payload being written: the mirror of Read() above, at the same offsets.
+struct Writer {
+  std::array<uint8_t, 255> bytes{};
+  template <typename T>
+  void Put(size_t offset, T v) {
+    std::memcpy(bytes.data() + offset, &v, sizeof(T));
+  }
+  void Text(size_t offset, const std::string& text, size_t max) {
+    std::memcpy(bytes.data() + offset, text.data(), std::min(text.size(), max));
+  }
+};
+
+int32_t ToDeg7(double deg) {
+  return static_cast<int32_t>(std::llround(deg * 1e7));
+}
+int32_t ToMm(double m) {
+  return static_cast<int32_t>(std::llround(m * 1e3));
+}
+// A compass angle in [0, 36000) hundredths of a degree.
+uint16_t Centidegrees(double deg) {
+  const long long c = std::llround((std::fmod(std::fmod(deg, 360.0) + 360.0, 360.0)) * 100.0);
+  return static_cast<uint16_t>(c % 36000);
+}
+template <typename T>
+T Scaled(double v, double scale) {
+  return static_cast<T>(std::llround(v * scale));
+}
+
+void Put(const Heartbeat& m, Writer* w) {
+  w->Put<uint32_t>(0, m.custom_mode);
+  w->Put<uint8_t>(4, m.type);
+  w->Put<uint8_t>(5, m.autopilot);
+  w->Put<uint8_t>(6, m.base_mode);
+  w->Put<uint8_t>(7, m.system_status);
+  w->Put<uint8_t>(8, 3);  // mavlink_version
+}
+void Put(const SystemTime& m, Writer* w) {
+  w->Put<uint64_t>(0, m.time_unix_usec);
+  w->Put<uint32_t>(8, m.time_boot_ms);
+}
+void Put(const GpsRawInt& m, Writer* w) {
+  w->Put<uint64_t>(0, m.time_usec);
+  w->Put<int32_t>(8, ToDeg7(m.lat_deg));
+  w->Put<int32_t>(12, ToDeg7(m.lon_deg));
+  w->Put<int32_t>(16, ToMm(m.alt_msl_m));
+  w->Put<uint16_t>(20, m.eph ? Scaled<uint16_t>(*m.eph, 100) : UINT16_MAX);
+  w->Put<uint16_t>(22, UINT16_MAX);  // epv, vel, cog: unknown
+  w->Put<uint16_t>(24, UINT16_MAX);
+  w->Put<uint16_t>(26, UINT16_MAX);
+  w->Put<uint8_t>(28, m.fix_type);
+  w->Put<uint8_t>(29, m.satellites);
+  w->Put<uint32_t>(34, m.h_acc_m ? Scaled<uint32_t>(*m.h_acc_m, 1e3) : 0);
+  w->Put<uint32_t>(38, m.v_acc_m ? Scaled<uint32_t>(*m.v_acc_m, 1e3) : 0);
+}
+void Put(const GlobalPositionInt& m, Writer* w) {
+  w->Put<uint32_t>(0, m.time_boot_ms);
+  w->Put<int32_t>(4, ToDeg7(m.lat_deg));
+  w->Put<int32_t>(8, ToDeg7(m.lon_deg));
+  w->Put<int32_t>(12, ToMm(m.alt_msl_m));
+  w->Put<int32_t>(16, ToMm(m.relative_alt_m));
+  w->Put<int16_t>(20, Scaled<int16_t>(m.vx_mps, 100));
+  w->Put<int16_t>(22, Scaled<int16_t>(m.vy_mps, 100));
+  w->Put<int16_t>(24, Scaled<int16_t>(m.vz_mps, 100));
+  w->Put<uint16_t>(26, m.heading_deg ? Centidegrees(*m.heading_deg) : UINT16_MAX);
+}
+void Put(const Attitude& m, Writer* w) {
+  w->Put<uint32_t>(0, m.time_boot_ms);
+  w->Put<float>(4, static_cast<float>(m.roll_rad));
+  w->Put<float>(8, static_cast<float>(m.pitch_rad));
+  w->Put<float>(12, static_cast<float>(m.yaw_rad));
+}
+void Put(const CameraFeedback& m, Writer* w) {
+  w->Put<uint64_t>(0, m.time_usec);
+  w->Put<int32_t>(8, ToDeg7(m.lat_deg));
+  w->Put<int32_t>(12, ToDeg7(m.lon_deg));
+  w->Put<float>(16, static_cast<float>(m.alt_msl_m));
+  w->Put<float>(20, static_cast<float>(m.alt_rel_m));
+  w->Put<float>(24, static_cast<float>(m.roll_deg));
+  w->Put<float>(28, static_cast<float>(m.pitch_deg));
+  w->Put<float>(32, static_cast<float>(m.yaw_deg));
+  w->Put<uint16_t>(40, m.image_index);
+  w->Put<uint16_t>(45, m.image_index);  // completed_captures (extension): one capture per trigger
+}
+void Put(const CameraImageCaptured& m, Writer* w) {
+  w->Put<uint64_t>(0, m.time_utc_usec);
+  w->Put<uint32_t>(8, m.time_boot_ms);
+  w->Put<int32_t>(12, ToDeg7(m.lat_deg));
+  w->Put<int32_t>(16, ToDeg7(m.lon_deg));
+  w->Put<int32_t>(20, ToMm(m.alt_msl_m));
+  w->Put<int32_t>(24, ToMm(m.relative_alt_m));
+  for (size_t k = 0; k < 4; ++k) w->Put<float>(28 + 4 * k, m.q[k]);
+  w->Put<int32_t>(44, m.image_index);
+  w->Put<int8_t>(49, m.capture_result);
+  w->Text(50, m.file_url, 205);
+}
+void Put(const Statustext& m, Writer* w) {
+  w->Put<uint8_t>(0, m.severity);
+  w->Text(1, m.text, 50);
+}
+
+uint32_t IdOf(const Message& m) {
+  static constexpr std::array<uint32_t, std::variant_size_v<Message>> kIds = {
+      kHeartbeat, kSystemTime,     kGpsRawInt,           kGlobalPositionInt,
+      kAttitude,  kCameraFeedback, kCameraImageCaptured, kStatustext};
+  return kIds[m.index()];
+}
+
+}  // namespace
+
+std::string Encode(const Message& message, uint8_t seq, uint8_t sysid, uint8_t compid) {
+  Writer w;
+  std::visit([&w](const auto& m) { Put(m, &w); }, message);
+  const uint32_t msgid = IdOf(message);
+  return Encode(msgid, w.bytes.data(), InfoOf(msgid)->length, seq, sysid, compid);
 }
 
 }  // namespace uavm::hal::mavlink

@@ -148,11 +148,13 @@ class Parser {
   ParserCounters counters_;
 };
 
-// A MAVLink v2 frame for `msgid` with `payload` (trailing zeros cut, as senders do), for STATUSTEXT back to the GCS
-// and for tests. Returns the bytes to send.
+// A MAVLink v2 frame for `msgid` with `payload` (trailing zeros cut, as senders do). Returns the bytes to send.
 [[nodiscard]] std::string Encode(uint32_t msgid, const uint8_t* payload, size_t size, uint8_t seq, uint8_t sysid,
                                  uint8_t compid);
-[[nodiscard]] std::string EncodeStatustext(uint8_t severity, const std::string& text, uint8_t seq, uint8_t sysid,
-                                           uint8_t compid);
+// A MAVLink v2 frame of one of the messages above: the decoder's field layout, full length and CRC_EXTRA (InfoOf), so
+// that Decode() of the framed packet gives the message back (to the wire's resolution: 1e-7 deg, mm, cm/s, cdeg).
+// For STATUSTEXT back to the GCS, the simulator's telemetry (hal/sim) and tests. Fields the structs do not carry are
+// sent as MAVLink's "unknown" (GPS_RAW_INT epv, vel, cog: UINT16_MAX) or zero; HEARTBEAT says MAVLink version 3.
+[[nodiscard]] std::string Encode(const Message& message, uint8_t seq, uint8_t sysid, uint8_t compid);
 
 }  // namespace uavm::hal::mavlink

@@ -246,7 +246,7 @@ class LinkSource final : public TelemetrySource {
 
 void LinkSource::SendStatus(const std::string& text) {
   // MAV_SEVERITY_INFO from component 191 (MAV_COMP_ID_ONBOARD_COMPUTER), system 1.
-  const std::string frame = mavlink::EncodeStatustext(6, text, status_seq_++, 1, 191);
+  const std::string frame = mavlink::Encode(mavlink::Statustext{6, text}, status_seq_++, 1, 191);
   std::lock_guard lock(mutex_);
   if (fd_ < 0) return;
   if (kind_ == "mavlink-udp") {
