@@ -1,6 +1,7 @@
 // uavm-reframe: a flight of another frame size made from a bundled one, for bench/memory.sh. Each JPEG is scaled
 // to cover WIDTHxHEIGHT and centre-cropped to it (another aspect ratio without stretching), and its APP1 segments
-// (EXIF with GPS, XMP) are carried over so that the frames still georeference.
+// (EXIF with GPS, XMP) are carried over so that the frames still georeference. --water NAMES turns those frames into
+// calm water (their mean colour with a faint gradient): a real flight with frames no image can link, for bridging.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
@@ -38,6 +39,25 @@ std::vector<unsigned char> App1Segments(const std::vector<unsigned char>& jpeg) 
   return out;
 }
 
+// Calm water over the whole frame: one colour (the frame's mean) with a gradient under two grey levels.
+cv::Mat Water(const cv::Mat& frame) {
+  const cv::Scalar mean = cv::mean(frame);
+  cv::Mat out(frame.size(), frame.type());
+  for (int y = 0; y < out.rows; ++y) out.row(y).setTo(mean + cv::Scalar::all(1.5 * y / std::max(1, out.rows - 1)));
+  return out;
+}
+
+std::vector<std::string> SplitNames(const std::string& list) {
+  std::vector<std::string> names;
+  size_t start = 0;
+  while (start <= list.size()) {
+    const size_t comma = std::min(list.find(',', start), list.size());
+    if (comma > start) names.push_back(list.substr(start, comma - start));
+    start = comma + 1;
+  }
+  return names;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -54,7 +74,10 @@ int main(int argc, char** argv) {
   app.add_option("--height", height, "output height")->required()->check(CLI::Range(16, 20000));
   app.add_option("--frames", max_frames, "first N frames in name order (0 = all)");
   app.add_option("--quality", quality, "JPEG quality")->check(CLI::Range(1, 100));
+  std::string water;
+  app.add_option("--water", water, "comma-separated file names whose frames become calm water (EXIF kept)");
   CLI11_PARSE(app, argc, argv);
+  const std::vector<std::string> water_names = SplitNames(water);
 
   std::vector<fs::path> files;
   for (const auto& e : fs::directory_iterator(in_dir)) {
@@ -83,7 +106,9 @@ int main(int argc, char** argv) {
                           std::max(height, static_cast<int>(std::lround(img.rows * s))));
     cv::Mat resized;
     cv::resize(img, resized, scaled, 0, 0, s < 1 ? cv::INTER_AREA : cv::INTER_CUBIC);
-    const cv::Mat out = resized(cv::Rect((scaled.width - width) / 2, (scaled.height - height) / 2, width, height));
+    cv::Mat out = resized(cv::Rect((scaled.width - width) / 2, (scaled.height - height) / 2, width, height));
+    if (std::find(water_names.begin(), water_names.end(), path.filename().string()) != water_names.end())
+      out = Water(out);
     std::vector<unsigned char> jpeg;
     if (!cv::imencode(".jpg", out, jpeg, {cv::IMWRITE_JPEG_QUALITY, quality})) {
       std::fprintf(stderr, "cannot encode %s\n", path.c_str());

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <sstream>
@@ -128,6 +129,66 @@ TEST(OnboardE2ETest, GeoTxtTelemetryPlacesTheMapAndIsReported) {
                        "_bad --telemetry geo:" + geo.string() + " 2>/dev/null"),
             2);
   fs::remove_all(exif_out);
+  fs::remove_all(out);
+}
+
+// Frame centre and corners of each registered frame in the map's CRS (report.json's geotransform), by file name.
+std::map<std::string, std::vector<Vec2>> FramesOnTheGround(const fs::path& session, cv::Size size) {
+  const auto report = ReadJson(session / "report.json");
+  const auto& g = report["georef"]["geotransform"];
+  std::string text, err;
+  std::vector<TransformRow> rows;
+  EXPECT_TRUE(ReadTextFile((session / "transforms.csv").string(), &text, &err)) << err;
+  EXPECT_TRUE(ParseTransformsCsv(text, &rows, &err)) << err;
+  std::map<std::string, std::vector<Vec2>> out;
+  for (const auto& r : rows) {
+    if (!r.registered) continue;
+    std::vector<Vec2> points{Vec2(0.5 * (size.width - 1), 0.5 * (size.height - 1))};
+    for (const auto& c : ImageCorners(size.width, size.height)) points.push_back(c);
+    for (auto& p : points) {
+      const Vec2 px = Apply(r.mosaic_from_frame, p) + Vec2(0.5, 0.5);
+      p = Vec2(g[0].get<double>() + px.x() * g[1].get<double>() + px.y() * g[2].get<double>(),
+               g[3].get<double>() + px.x() * g[4].get<double>() + px.y() * g[5].get<double>());
+    }
+    out[r.filename] = points;
+  }
+  return out;
+}
+
+// Bridging on a real flight (issue 17): two mid-strip frames of caliterra_small turned into calm water (EXIF GPS
+// kept) match nothing; they are kept (not skipped as uniform: they carry GPS) and placed by their GPS, turned and
+// scaled like the image-placed frames around them. Against where images put them in the untouched flight: centres
+// within the flight's GPS fit residual (~5 m RMS here), corners within 12 m on a ~90 m wide footprint.
+TEST(OnboardE2ETest, FramesOverWaterAreBridgedByTheirGps) {
+  if (test::Emulated()) GTEST_SKIP() << "two full caliterra_small runs: native only";
+  const fs::path out = TempDir("water_bridge");
+  const fs::path water = out / "images";
+  const std::string names = "IMG_9357.jpg,IMG_9367.jpg";
+  ASSERT_EQ(std::system((std::string(UAVM_REFRAME_BIN) + " --in " + kData + "/caliterra_small/images --out " +
+                         water.string() + " --width 1000 --height 750 --water " + names + " >/dev/null")
+                            .c_str()),
+            0);
+  ASSERT_EQ(RunOnboard("--source replay:" + kData + "/caliterra_small/images --out " + (out / "images_only").string()),
+            0);
+  ASSERT_EQ(RunOnboard("--source replay:" + water.string() + " --out " + (out / "bridged").string()), 0);
+  const auto report = ReadJson(out / "bridged/report.json");
+  EXPECT_EQ(report["placed_by_telemetry"].get<int>(), 2);
+  EXPECT_EQ(report["placed_by_image"].get<int>(), 18);
+  EXPECT_TRUE(report["skipped"].empty());
+  EXPECT_EQ(report["bridge"]["rotation_from"]["neighbours"].get<int>(), 2);
+  const cv::Size size(1000, 750);
+  const auto truth = FramesOnTheGround(out / "images_only", size);
+  const auto bridged = FramesOnTheGround(out / "bridged", size);
+  for (const std::string name : {"IMG_9357.jpg", "IMG_9367.jpg"}) {
+    ASSERT_TRUE(truth.count(name) && bridged.count(name)) << name;
+    double corners = 0;
+    for (size_t k = 1; k < 5; ++k) corners = std::max(corners, (bridged.at(name)[k] - truth.at(name)[k]).norm());
+    const double centre = (bridged.at(name)[0] - truth.at(name)[0]).norm();
+    std::printf("%s placed by GPS: centre %.2f m, corners up to %.2f m from where images put it\n", name.c_str(),
+                centre, corners);
+    EXPECT_LT(centre, 6.0);
+    EXPECT_LT(corners, 12.0);
+  }
   fs::remove_all(out);
 }
 

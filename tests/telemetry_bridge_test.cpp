@@ -75,7 +75,8 @@ TEST(TelemetryBridgeTest, SingleFramesArePlacedWithinTheGpsNoiseAndTurnedByTheCa
   Flight f = MakeFlight({5, 6, 7, 30}, 1.0, true);
   const BridgeResult r = PlaceByTelemetry(f.frames, {});
   ASSERT_TRUE(r.calibrated) << r.failure;
-  EXPECT_EQ(r.rotation_from, "heading");
+  EXPECT_EQ(r.offset_from, "heading");
+  EXPECT_EQ(r.rotation_from.at("heading"), 4);
   EXPECT_EQ(r.heading_sense, 1);
   EXPECT_LT(r.heading_rms_deg, 4.0);
   ASSERT_EQ(r.placed.size(), 4u);
@@ -102,13 +103,23 @@ TEST(TelemetryBridgeTest, HeadingInTheOtherSenseIsDetectedFromTheData) {
 }
 
 TEST(TelemetryBridgeTest, WithoutHeadingTheDirectionOfTravelTurnsTheFrames) {
-  Flight f = MakeFlight({8, 9, 31}, 0.5, false);
+  // Frames 8 and 9 lie between image-placed frames of one strip: turned like them. Frames 18 and 19 end the first
+  // strip: their image-placed neighbours (17, and 20 on the return strip) disagree, so the direction of travel turns
+  // them; at 19 that direction cuts the corner of the turn (towards frame 20), so only its centre is sure.
+  Flight f = MakeFlight({8, 9, 18, 19}, 0.5, false);
   const BridgeResult r = PlaceByTelemetry(f.frames, {});
   ASSERT_TRUE(r.calibrated) << r.failure;
-  EXPECT_EQ(r.rotation_from, "course");
-  ASSERT_EQ(r.placed.size(), 3u);
-  for (const auto& p : r.placed)
-    EXPECT_LT(CornerError(p.world_from_frame, f.truth[static_cast<size_t>(p.id)]), 3.0) << "frame " << p.id;
+  EXPECT_EQ(r.offset_from, "course");
+  EXPECT_EQ(r.rotation_from.at("neighbours"), 2);
+  EXPECT_EQ(r.rotation_from.at("course"), 2);
+  ASSERT_EQ(r.placed.size(), 4u);
+  for (const auto& p : r.placed) {
+    const Mat3& truth = f.truth[static_cast<size_t>(p.id)];
+    EXPECT_LT(CentreError(p.world_from_frame, truth), 2.0) << "frame " << p.id;
+    if (p.id != 19) {
+      EXPECT_LT(CornerError(p.world_from_frame, truth), 3.0) << "frame " << p.id;
+    }
+  }
 }
 
 TEST(TelemetryBridgeTest, AnImageLinkedPieceKeepsItsShapeAndIsPlacedAsAWhole) {

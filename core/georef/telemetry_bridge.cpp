@@ -114,6 +114,17 @@ std::vector<std::optional<double>> Courses(const std::vector<BridgeFrame>& frame
   return course;
 }
 
+// Image-placed frames before and after a frame whose rotations differ by less than this bracket no turn.
+constexpr double kNeighboursAgreeRad = 20.0 * kDeg;
+// How far (frames, in the order of flight) the image-placed neighbours of a frame are looked for.
+constexpr size_t kMaxGap = 50;
+
+struct Prediction {
+  double angle = 0, scale = 0;
+  const char* rotation_from = "";
+  std::optional<std::pair<size_t, size_t>> between;  // the image-placed frames of one strip around it
+};
+
 // How rotation and scale are predicted for a frame, calibrated on the image-placed frames.
 class Predictor {
  public:
@@ -124,13 +135,18 @@ class Predictor {
   [[nodiscard]] bool ok() const { return ok_; }
   [[nodiscard]] int sign() const { return sign_; }
   // Rotation (radians) and scale (world units per pixel) of frame i.
-  [[nodiscard]] std::optional<std::pair<double, double>> Predict(size_t i) const;
+  [[nodiscard]] std::optional<Prediction> Predict(size_t i) const;
 
  private:
   void Calibrate(const BridgeOptions& options, BridgeResult* result);
   void CalibrateHeading(const std::vector<size_t>& refs, const BridgeOptions& options);
   void CalibrateCourse(const std::vector<size_t>& refs, const BridgeOptions& options);
   void CalibrateScale(const std::vector<size_t>& refs);
+  [[nodiscard]] std::optional<Prediction> PredictRotation(size_t i) const;
+  [[nodiscard]] double GlobalScale(const BridgeFrame& f) const;
+  [[nodiscard]] double ScaleBetween(size_t i, size_t before, size_t after) const;
+  [[nodiscard]] std::optional<size_t> NearestPlaced(size_t i, int step) const;
+  void FitAltitudeScale(const std::vector<size_t>& refs);
   [[nodiscard]] double HeadingDirection(double heading_deg, int sense) const {
     return (90.0 - sense * heading_deg) * kDeg;
   }
@@ -143,6 +159,7 @@ class Predictor {
   std::optional<CircularFit> heading_, course_;
   int heading_sense_ = 1;
   double per_metre_ = 0, median_scale_ = 0;
+  double per_altitude_metre_ = 0, ground_ = 0;  // metres per pixel = per_altitude_metre_ * (altitude - ground_)
 };
 
 void Predictor::Calibrate(const BridgeOptions& options, BridgeResult* result) {
@@ -167,12 +184,14 @@ void Predictor::Calibrate(const BridgeOptions& options, BridgeResult* result) {
   CalibrateScale(refs);
   ok_ = true;
   result->calibrated = true;
-  result->rotation_from = heading_ ? "heading" : course_ ? "course" : "neighbour";
   const CircularFit* used = heading_ ? &*heading_ : course_ ? &*course_ : nullptr;
+  result->offset_from = heading_ ? "heading" : course_ ? "course" : "none";
   result->heading_offset_deg = used ? used->centre / kDeg : 0;
   result->heading_rms_deg = used ? used->rms / kDeg : 0;
   result->heading_sense = heading_sense_;
   result->metres_per_px_per_metre = per_metre_;
+  result->metres_per_px_per_metre_altitude = per_altitude_metre_;
+  result->ground_altitude_m = ground_;
   result->metres_per_px = median_scale_;
 }
 
@@ -208,23 +227,97 @@ void Predictor::CalibrateScale(const std::vector<size_t>& refs) {
   }
   median_scale_ = Median(scales);
   // Heights of most frames are needed: a few would make the model rest on them alone.
-  if (2 * per_metre.size() >= refs.size()) per_metre_ = Median(per_metre);
+  if (2 * per_metre.size() >= refs.size()) {
+    per_metre_ = Median(per_metre);
+  } else {
+    FitAltitudeScale(refs);
+  }
 }
 
-std::optional<std::pair<double, double>> Predictor::Predict(size_t i) const {
+// Metres per pixel against altitude above sea level, a line through the reference frames (the ground's altitude is
+// where it meets zero). Kept only when the altitudes vary and the line explains the scales better than their median.
+void Predictor::FitAltitudeScale(const std::vector<size_t>& refs) {
+  std::vector<std::pair<double, double>> pts;  // (altitude, scale)
+  for (size_t i : refs)
+    if (frames_[i].altitude_m) pts.emplace_back(*frames_[i].altitude_m, linear_[i].scale);
+  if (pts.size() < 3 || 2 * pts.size() < refs.size()) return;
+  double ma = 0, ms = 0;
+  for (const auto& [a, sc] : pts) ma += a, ms += sc;
+  ma /= static_cast<double>(pts.size());
+  ms /= static_cast<double>(pts.size());
+  double saa = 0, sas = 0;
+  for (const auto& [a, sc] : pts) saa += (a - ma) * (a - ma), sas += (a - ma) * (sc - ms);
+  if (saa < 25.0 * static_cast<double>(pts.size())) return;  // altitudes within a few metres: nothing to fit
+  const double slope = sas / saa;
+  if (!(slope > 0)) return;
+  double line_sq = 0, median_sq = 0;
+  for (const auto& [a, sc] : pts) {
+    line_sq += std::pow(sc - (ms + slope * (a - ma)), 2);
+    median_sq += std::pow(sc - median_scale_, 2);
+  }
+  if (line_sq >= 0.5 * median_sq) return;
+  per_altitude_metre_ = slope;
+  ground_ = ma - ms / slope;
+}
+
+std::optional<Prediction> Predictor::Predict(size_t i) const {
+  std::optional<Prediction> p = PredictRotation(i);
+  if (!p) return std::nullopt;
+  p->scale = p->between ? ScaleBetween(i, p->between->first, p->between->second) : GlobalScale(frames_[i]);
+  return p;
+}
+
+// The flight's scale model: metres per pixel from the height above take-off, else from the altitude, else the median.
+double Predictor::GlobalScale(const BridgeFrame& f) const {
+  if (per_metre_ > 0 && f.height_m && *f.height_m > 1.0) return per_metre_ * *f.height_m;
+  if (per_altitude_metre_ > 0 && f.altitude_m)
+    return std::max(0.25 * median_scale_, per_altitude_metre_ * (*f.altitude_m - ground_));
+  return median_scale_;
+}
+
+// Between two image-placed frames of one strip: their scales interpolated (the ground and the altitude change
+// smoothly along a strip), each carried to this frame's height when the heights are known.
+double Predictor::ScaleBetween(size_t i, size_t before, size_t after) const {
+  const auto carried = [&](size_t k) {
+    const auto& h = frames_[i].height_m;
+    const auto& hk = frames_[k].height_m;
+    return h && hk && *hk > 1.0 && *h > 1.0 ? linear_[k].scale * *h / *hk : linear_[k].scale;
+  };
+  const double t = static_cast<double>(i - before) / static_cast<double>(after - before);
+  return (1 - t) * carried(before) + t * carried(after);
+}
+
+// The heading, calibrated; without one, the image-placed frames just before and after it when they agree (no turn in
+// between: a drone need not point along its track, so this beats the direction of travel), else the direction of
+// travel, calibrated, else the nearer of those frames.
+std::optional<Prediction> Predictor::PredictRotation(size_t i) const {
   const BridgeFrame& f = frames_[i];
-  std::optional<double> angle;
-  if (heading_ && f.heading_deg) angle = HeadingDirection(*f.heading_deg, heading_sense_) + heading_->centre;
-  if (!angle && course_ && courses_[i]) angle = *courses_[i] + course_->centre;
-  if (!angle) {  // the nearest image-placed frame in the order of flight
-    for (size_t d = 1; d < frames_.size() && !angle; ++d) {
-      if (i >= d && linear_[i - d].scale > 0) angle = linear_[i - d].angle;
-      if (!angle && i + d < frames_.size() && linear_[i + d].scale > 0) angle = linear_[i + d].angle;
+  if (heading_ && f.heading_deg)
+    return Prediction{Wrap(HeadingDirection(*f.heading_deg, heading_sense_) + heading_->centre), 0, "heading",
+                      std::nullopt};
+  const std::optional<size_t> before = NearestPlaced(i, -1), after = NearestPlaced(i, 1);
+  if (before && after) {
+    const double a = linear_[*before].angle, turn = Wrap(linear_[*after].angle - a);
+    if (std::abs(turn) < kNeighboursAgreeRad) {
+      const double t = static_cast<double>(i - *before) / static_cast<double>(*after - *before);
+      return Prediction{Wrap(a + t * turn), 0, "neighbours", std::make_pair(*before, *after)};
     }
   }
-  if (!angle) return std::nullopt;
-  const double scale = per_metre_ > 0 && f.height_m && *f.height_m > 1.0 ? per_metre_ * *f.height_m : median_scale_;
-  return std::make_pair(Wrap(*angle), scale);
+  if (course_ && courses_[i]) return Prediction{Wrap(*courses_[i] + course_->centre), 0, "course", std::nullopt};
+  if (!before && !after) return std::nullopt;
+  const size_t nearest = !after || (before && i - *before <= *after - i) ? *before : *after;
+  return Prediction{linear_[nearest].angle, 0, "nearest frame", std::nullopt};
+}
+
+// The nearest image-placed frame before (step -1) or after (+1) frame i in the order of flight, within kMaxGap.
+std::optional<size_t> Predictor::NearestPlaced(size_t i, int step) const {
+  for (size_t d = 1; d <= kMaxGap; ++d) {
+    if (step < 0 && i < d) break;
+    const size_t k = step < 0 ? i - d : i + d;
+    if (k >= frames_.size()) break;
+    if (linear_[k].scale > 0) return k;
+  }
+  return std::nullopt;
 }
 
 // world_from_piece for a piece of several image-linked frames (members: indices into `frames`, `flip`: the piece's
@@ -242,8 +335,8 @@ std::optional<Mat3> PlacePiece(const std::vector<BridgeFrame>& frames, const std
     dst.push_back(*f.position);
     const LinearAt own = Linearise(m, Centre(f.size));
     if (const auto p = predictor.Predict(i)) {
-      rotations.push_back(Wrap(p->first - own.angle));
-      ratios.push_back(p->second / own.scale);
+      rotations.push_back(Wrap(p->angle - own.angle));
+      ratios.push_back(p->scale / own.scale);
     }
   }
   if (dst.empty()) return std::nullopt;
@@ -303,7 +396,10 @@ BridgeResult PlaceByTelemetry(const std::vector<BridgeFrame>& frames, const Brid
     if (members.size() == 1) {
       const BridgeFrame& f = frames[members.front()];
       const auto p = f.position ? predictor.Predict(members.front()) : std::nullopt;
-      if (p) world_from_piece = Place(*f.position, p->first, p->second, predictor.sign(), f.size);
+      if (p) {
+        world_from_piece = Place(*f.position, p->angle, p->scale, predictor.sign(), f.size);
+        ++result.rotation_from[p->rotation_from];
+      }
     } else {
       const LinearAt own = Linearise(frames[members.front()].piece_from_frame, Centre(frames[members.front()].size));
       if (own.sign != predictor.sign()) flip(1, 1) = -1;

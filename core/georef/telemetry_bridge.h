@@ -1,4 +1,5 @@
 #pragma once
+#include <map>
 #include <opencv2/core.hpp>
 #include <optional>
 #include <string>
@@ -39,6 +40,7 @@ struct BridgeFrame {
   Mat3 piece_from_frame = Mat3::Identity();
   std::optional<Vec2> position;       // world position of the ground under the frame centre
   std::optional<double> height_m;     // above take-off
+  std::optional<double> altitude_m;   // above sea level, when the height above take-off is not known
   std::optional<double> heading_deg;  // compass, clockwise from north (the flight controller's yaw)
 };
 
@@ -55,12 +57,18 @@ struct BridgeResult {
   std::vector<BridgePlacement> placed;
   int pieces_placed = 0;
   int frames_without_position = 0;  // left out: nothing places them
-  std::string rotation_from;        // "heading", "course" (direction of travel between fixes) or "neighbour"
-  double heading_offset_deg = 0;    // image rotation minus the heading's direction, from the reference frames
+  // Single frames by where their rotation came from: "heading", "neighbours" (the image-placed frames around it),
+  // "course" (direction of travel between fixes), "nearest frame".
+  std::map<std::string, int> rotation_from;
+  std::string offset_from;        // what the offset below was calibrated on: "heading", "course" or "none"
+  double heading_offset_deg = 0;  // image rotation minus the heading's direction, from the reference frames
   double heading_rms_deg = 0;
   int heading_sense = 1;               // +1 clockwise compass heading, -1 the other sense
   double metres_per_px_per_metre = 0;  // scale model: metres per pixel = this * height (0: unused)
-  double metres_per_px = 0;            // the reference frames' median (when heights are missing)
+  // Without heights above take-off, from altitudes above sea level: metres per pixel = this * (altitude - ground).
+  double metres_per_px_per_metre_altitude = 0;
+  double ground_altitude_m = 0;
+  double metres_per_px = 0;  // the reference frames' median (when heights are missing)
   int reference_frames = 0;
 };
 

@@ -51,6 +51,7 @@ std::vector<BridgeFrame> Mosaicker::BridgeInputs(const std::vector<int>& placed,
     }
     const auto& m = f.metadata;
     b.height_m = m.relative_altitude_m;
+    b.altitude_m = m.altitude_m;
     b.heading_deg = m.flight_yaw_deg;
     if (m.latitude_deg && m.longitude_deg && !(*m.latitude_deg == 0 && *m.longitude_deg == 0)) {
       b.position = Vec2::Zero();  // projected below, all at once
@@ -103,9 +104,11 @@ void Mosaicker::BridgeFrames(std::vector<int>* placed, std::vector<Mat3>* canvas
   }
   *placed = std::move(all);
   placed_by_telemetry_.insert(added.begin(), added.end());
-  spdlog::info("bridge: {} frames in {} pieces placed by telemetry (rotation from {}, {:.1f} deg RMS), {} without",
-               added.size(), r.pieces_placed, r.rotation_from, r.heading_rms_deg,
-               candidates - static_cast<int>(added.size()));
+  spdlog::info(
+      "bridge: {} frames in {} pieces placed by telemetry ({} of them single, turned by their heading), {} "
+      "without",
+      added.size(), r.pieces_placed, r.rotation_from.count("heading") ? r.rotation_from.at("heading") : 0,
+      candidates - static_cast<int>(added.size()));
 }
 
 // Grows the canvas (and shifts every placed frame and the georeference) to hold `placed`; false, with nothing
@@ -147,11 +150,16 @@ nlohmann::json Mosaicker::BridgeJson(const BridgeResult& r, int candidates) cons
     j["reason"] = r.failure;
     return j;
   }
-  j["rotation_from"] = r.rotation_from;
+  j["rotation_from"] = r.rotation_from;  // single frames, by source
+  j["offset_from"] = r.offset_from;
   j["heading_offset_deg"] = r.heading_offset_deg;
   j["heading_rms_deg"] = r.heading_rms_deg;
   j["heading_sense"] = r.heading_sense > 0 ? "clockwise" : "counter-clockwise";
   j["metres_per_px_per_metre_height"] = r.metres_per_px_per_metre;
+  if (r.metres_per_px_per_metre_altitude > 0) {
+    j["metres_per_px_per_metre_altitude"] = r.metres_per_px_per_metre_altitude;
+    j["ground_altitude_m"] = r.ground_altitude_m;
+  }
   j["metres_per_px_median"] = r.metres_per_px;
   return j;
 }
