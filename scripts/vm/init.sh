@@ -19,8 +19,9 @@ finish() {
 }
 for m in $($bb cat /modules/order); do
   opts=""
-  # vivid: one instance with only a video capture node; vimc after it, so vivid is the first /dev/video node.
-  [ "$m" = vivid.ko ] && opts="n_devs=1 node_types=0x1"
+  # vivid: one instance with a video capture node and a video output node (the georeferenced flight loops pictures
+  # through it); vimc after it, so vivid's capture is the first /dev/video node.
+  [ "$m" = vivid.ko ] && opts="n_devs=1 node_types=0x101"
   $bb insmod "/modules/$m" $opts || echo "init: insmod $m failed"
 done
 $bb mount -t 9p -o trans=virtio,version=9p2000.L,msize=1048576,ro,cache=loose hostroot /host || finish 90

@@ -2,22 +2,33 @@
 // (tests/vm/vm_camera_test.sh boots it; tests/vm/guest.sh runs this binary there). Not registered with CTest on its
 // own: on a host without these devices it has nothing to test, and says so by failing (--gtest_also_run_disabled is
 // not used; the VM script is what runs it).
+#include <arpa/inet.h>
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <linux/videodev2.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <signal.h>
 #include <sys/ioctl.h>
+#include <sys/mman.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/sysmacros.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <sstream>
 #include <thread>
 
 #include "core/util/clock.h"
@@ -410,6 +421,563 @@ TEST(Onboard, DropsAndCountsWithSlowProcessing) {
        std::to_string(captured) + ", dropped " + std::to_string(dropped) + ", processed " + std::to_string(frames_in) +
        ", registered " + std::to_string(report["registered"].get<int>()) + ", exit " + std::to_string(code) + ", " +
        std::to_string(seconds) + " s");
+}
+
+// ---- A georeferenced camera flight: vivid's capture shows a moving ground, a MAVLink stream says where it is. ----
+// vivid's own test patterns cannot be registered when they move (colour bars and ramps vary along one axis only,
+// checkers and colour squares repeat, noise changes every frame), so the flight loops pictures through vivid: its
+// HDMI output is looped to its HDMI capture ("Loop Video"), and the test writes into the output a 640x480 window that
+// slides east over a textured ground at kGroundPxPerS. The capture path (V4L2 source, driver timestamps, queues) is the
+// real one; only the picture comes from the test.
+
+constexpr int kFlightWidth = 640;
+constexpr int kFlightHeight = 480;
+constexpr double kGroundPxPerS = 80;         // the picture's speed over the ground texture
+constexpr double kGsdM = 0.1;                // metres per pixel: the vehicle flies east at 8 m/s
+constexpr double kFlightSeconds = 40;        // then it hovers at the end of the texture
+constexpr double kLat0 = 50.0, kLon0 = 8.0;  // UTM zone 32 N
+constexpr int kMavlinkPort = 14551;
+constexpr int kHttpPort = 8089;
+
+int Ioctl(int fd, unsigned long request, void* arg) {
+  int r = 0;
+  do {
+    r = ::ioctl(fd, request, arg);
+  } while (r != 0 && errno == EINTR);
+  return r;
+}
+
+// The first vivid node with a video output.
+std::string FindVividOutput() {
+  for (int i = 0; i < 64; ++i) {
+    std::string path = "/dev/video" + std::to_string(i);
+    const int fd = ::open(path.c_str(), O_RDWR | O_NONBLOCK);
+    if (fd < 0) continue;
+    v4l2_capability cap{};
+    const bool ok = Ioctl(fd, VIDIOC_QUERYCAP, &cap) == 0 &&
+                    std::string(reinterpret_cast<const char*>(cap.driver)) == "vivid" &&
+                    (cap.device_caps & V4L2_CAP_VIDEO_OUTPUT) != 0;
+    ::close(fd);
+    if (ok) return path;
+  }
+  return "";
+}
+
+// Sets the control called `name` (e.g. "Loop Video") to `value`.
+bool SetControl(int fd, const std::string& name, int value) {
+  v4l2_queryctrl q{};
+  q.id = V4L2_CTRL_FLAG_NEXT_CTRL;
+  while (Ioctl(fd, VIDIOC_QUERYCTRL, &q) == 0) {
+    if (name == reinterpret_cast<const char*>(q.name)) {
+      v4l2_control c{q.id, value};
+      return Ioctl(fd, VIDIOC_S_CTRL, &c) == 0;
+    }
+    q.id |= V4L2_CTRL_FLAG_NEXT_CTRL;
+  }
+  return false;
+}
+
+// Selects the input (capture) or output whose name starts with `prefix`.
+bool SelectPort(int fd, bool output, const std::string& prefix) {
+  for (unsigned i = 0; i < 16; ++i) {
+    std::string name;
+    if (output) {
+      v4l2_output o{};
+      o.index = i;
+      if (Ioctl(fd, VIDIOC_ENUMOUTPUT, &o) != 0) return false;
+      name = reinterpret_cast<const char*>(o.name);
+    } else {
+      v4l2_input in{};
+      in.index = i;
+      if (Ioctl(fd, VIDIOC_ENUMINPUT, &in) != 0) return false;
+      name = reinterpret_cast<const char*>(in.name);
+    }
+    if (name.rfind(prefix, 0) != 0) continue;
+    int index = static_cast<int>(i);
+    return Ioctl(fd, output ? VIDIOC_S_OUTPUT : VIDIOC_S_INPUT, &index) == 0;
+  }
+  return false;
+}
+
+// HDMI timings of exactly w x h (the driver's own list), set on the node.
+bool SetTimings(int fd, int w, int h) {
+  for (unsigned i = 0; i < 256; ++i) {
+    v4l2_enum_dv_timings e{};
+    e.index = i;
+    if (Ioctl(fd, VIDIOC_ENUM_DV_TIMINGS, &e) != 0) return false;
+    if (static_cast<int>(e.timings.bt.width) == w && static_cast<int>(e.timings.bt.height) == h &&
+        e.timings.bt.interlaced == 0)
+      return Ioctl(fd, VIDIOC_S_DV_TIMINGS, &e.timings) == 0;
+  }
+  return false;
+}
+
+bool SetYuyvFormat(int fd, v4l2_buf_type type, int w, int h) {
+  v4l2_format f{};
+  f.type = type;
+  f.fmt.pix.width = static_cast<uint32_t>(w);
+  f.fmt.pix.height = static_cast<uint32_t>(h);
+  f.fmt.pix.pixelformat = V4L2_PIX_FMT_YUYV;
+  f.fmt.pix.field = V4L2_FIELD_NONE;
+  return Ioctl(fd, VIDIOC_S_FMT, &f) == 0 && static_cast<int>(f.fmt.pix.width) == w &&
+         static_cast<int>(f.fmt.pix.height) == h && f.fmt.pix.pixelformat == V4L2_PIX_FMT_YUYV;
+}
+
+// vivid's HDMI output looped to its HDMI capture, both w x h YUYV; Restore() puts back the webcam input and the
+// pattern the other tests expect.
+class VividLoop {
+ public:
+  ~VividLoop() { Restore(); }
+  bool Setup(const std::string& capture, const std::string& output, std::string* error) {
+    cap_fd_ = ::open(capture.c_str(), O_RDWR);
+    out_fd_ = ::open(output.c_str(), O_RDWR);
+    auto fail = [&](const std::string& what) {
+      *error = what + ": " + std::strerror(errno);
+      return false;
+    };
+    if (cap_fd_ < 0 || out_fd_ < 0) return fail("open " + capture + " / " + output);
+    if (!SelectPort(cap_fd_, false, "HDMI")) return fail("capture: no HDMI input");
+    if (!SelectPort(out_fd_, true, "HDMI")) return fail("output: no HDMI output");
+    if (!SetTimings(cap_fd_, kFlightWidth, kFlightHeight)) return fail("capture: 640x480 HDMI timings");
+    if (!SetTimings(out_fd_, kFlightWidth, kFlightHeight)) return fail("output: 640x480 HDMI timings");
+    if (!SetYuyvFormat(cap_fd_, V4L2_BUF_TYPE_VIDEO_CAPTURE, kFlightWidth, kFlightHeight))
+      return fail("capture: YUYV 640x480");
+    if (!SetYuyvFormat(out_fd_, V4L2_BUF_TYPE_VIDEO_OUTPUT, kFlightWidth, kFlightHeight))
+      return fail("output: YUYV 640x480");
+    if (!SetControl(cap_fd_, "OSD Text Mode", 2)) return fail("capture: OSD Text Mode");  // no text over the picture
+    if (!SetControl(cap_fd_, "Loop Video", 1)) return fail("capture: Loop Video");
+    return true;
+  }
+  [[nodiscard]] int output_fd() const { return out_fd_; }
+  void Restore() {
+    if (cap_fd_ >= 0) {
+      SetControl(cap_fd_, "Loop Video", 0);
+      SetControl(cap_fd_, "OSD Text Mode", 0);
+      int webcam = 0;
+      Ioctl(cap_fd_, VIDIOC_S_INPUT, &webcam);
+      ::close(cap_fd_);
+    }
+    if (out_fd_ >= 0) ::close(out_fd_);
+    cap_fd_ = out_fd_ = -1;
+  }
+
+ private:
+  int cap_fd_ = -1;
+  int out_fd_ = -1;
+};
+
+// A textured ground, the same every run: smooth blobs at several scales (what SIFT finds at the 1/4 working size),
+// brightness mostly, some colour.
+cv::Mat MakeGround(int width, int height) {
+  cv::RNG rng(17);
+  auto blobs = [&](int cell, int type) {
+    cv::Mat coarse(height / cell + 3, width / cell + 3, type);
+    rng.fill(coarse, cv::RNG::NORMAL, 0, 1);
+    cv::Mat up;
+    cv::resize(coarse, up, cv::Size((coarse.cols - 1) * cell, (coarse.rows - 1) * cell), 0, 0, cv::INTER_CUBIC);
+    return cv::Mat(up(cv::Rect(cell, cell, width, height)));
+  };
+  cv::Mat gray = cv::Mat::zeros(height, width, CV_32F);
+  for (const int cell : {8, 16, 32, 64}) gray += blobs(cell, CV_32F);
+  cv::Mat acc;
+  cv::merge(std::vector<cv::Mat>(3, gray), acc);
+  acc += 0.7 * blobs(48, CV_32FC3);
+  cv::Mat ground;
+  acc.convertTo(ground, CV_8UC3, 28, 128);
+  return ground;
+}
+
+// BGR to packed YUYV (BT.601, limited range, as a camera sends it), a row of w pixels = 2w bytes.
+std::vector<uint8_t> ToYuyv(const cv::Mat& bgr) {
+  cv::Mat yuv;
+  cv::cvtColor(bgr, yuv, cv::COLOR_BGR2YUV);
+  std::vector<uint8_t> out(static_cast<size_t>(bgr.cols) * bgr.rows * 2);
+  auto luma = [](int y) { return static_cast<uint8_t>(16 + y * 219 / 255); };
+  auto chroma = [](int a, int b) { return static_cast<uint8_t>(128 + ((a + b) / 2 - 128) * 224 / 255); };
+  for (int r = 0; r < bgr.rows; ++r) {
+    const auto* p = yuv.ptr<cv::Vec3b>(r);
+    uint8_t* o = out.data() + static_cast<size_t>(r) * bgr.cols * 2;
+    for (int x = 0; x + 1 < bgr.cols; x += 2, o += 4) {
+      o[0] = luma(p[x][0]);
+      o[1] = chroma(p[x][1], p[x + 1][1]);
+      o[2] = luma(p[x + 1][0]);
+      o[3] = chroma(p[x][2], p[x + 1][2]);
+    }
+  }
+  return out;
+}
+
+int64_t WallMs() {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+// Streams the camera's view into vivid's output (mmap buffers, as fast as the driver takes them): the window at
+// kGroundPxPerS east of the texture's start since t0 (wall clock, the MAVLink peer's), before t0 the start, after the
+// flight the end.
+class GroundFeed {
+ public:
+  GroundFeed(int fd, int ground_width) : fd_(fd), width_(ground_width) {
+    ground_ = ToYuyv(MakeGround(ground_width, kFlightHeight));
+    v4l2_requestbuffers rb{};
+    rb.count = 4;
+    rb.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    rb.memory = V4L2_MEMORY_MMAP;
+    if (Ioctl(fd_, VIDIOC_REQBUFS, &rb) != 0) {
+      Fail("VIDIOC_REQBUFS");
+      return;
+    }
+    for (uint32_t i = 0; i < rb.count; ++i) {
+      v4l2_buffer b{};
+      b.index = i;
+      b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+      b.memory = V4L2_MEMORY_MMAP;
+      if (Ioctl(fd_, VIDIOC_QUERYBUF, &b) != 0) {
+        Fail("VIDIOC_QUERYBUF");
+        return;
+      }
+      void* p = ::mmap(nullptr, b.length, PROT_READ | PROT_WRITE, MAP_SHARED, fd_, b.m.offset);
+      if (p == MAP_FAILED) {
+        Fail("mmap");
+        return;
+      }
+      maps_.emplace_back(static_cast<uint8_t*>(p), b.length);
+    }
+    thread_ = std::thread([this] { Run(); });
+  }
+  ~GroundFeed() {
+    running_ = false;
+    if (thread_.joinable()) thread_.join();
+    int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    Ioctl(fd_, VIDIOC_STREAMOFF, &type);
+    for (const auto& [p, n] : maps_) ::munmap(p, n);
+    v4l2_requestbuffers rb{};
+    rb.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    rb.memory = V4L2_MEMORY_MMAP;
+    Ioctl(fd_, VIDIOC_REQBUFS, &rb);
+  }
+  GroundFeed(const GroundFeed&) = delete;
+  GroundFeed& operator=(const GroundFeed&) = delete;
+  void Start(int64_t t0_ms) { t0_ms_ = t0_ms; }
+  [[nodiscard]] uint64_t written() const { return written_; }
+  [[nodiscard]] const std::string& error() const { return error_; }
+
+ private:
+  void Fail(const std::string& what) { error_ = what + ": " + std::strerror(errno); }
+  // The view now into buffer `index`, queued.
+  bool Queue(uint32_t index) {
+    const int64_t t0 = t0_ms_;
+    const double s = t0 == 0 ? 0.0 : std::clamp(static_cast<double>(WallMs() - t0) / 1000.0, 0.0, kFlightSeconds);
+    const int x = std::min(static_cast<int>(s * kGroundPxPerS) & ~1, width_ - kFlightWidth);  // YUYV: even
+    const size_t row = static_cast<size_t>(kFlightWidth) * 2;
+    for (int r = 0; r < kFlightHeight; ++r)
+      std::memcpy(maps_[index].first + r * row, ground_.data() + (static_cast<size_t>(r) * width_ + x) * 2, row);
+    v4l2_buffer b{};
+    b.index = index;
+    b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    b.memory = V4L2_MEMORY_MMAP;
+    b.bytesused = static_cast<uint32_t>(row * kFlightHeight);
+    b.field = V4L2_FIELD_NONE;
+    if (Ioctl(fd_, VIDIOC_QBUF, &b) != 0) {
+      Fail("VIDIOC_QBUF");
+      return false;
+    }
+    ++written_;
+    return true;
+  }
+  void Run() {
+    for (uint32_t i = 0; i < maps_.size(); ++i)
+      if (!Queue(i)) return;
+    int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    if (Ioctl(fd_, VIDIOC_STREAMON, &type) != 0) return Fail("VIDIOC_STREAMON");
+    while (running_) {
+      pollfd p{fd_, POLLOUT, 0};
+      if (::poll(&p, 1, 200) != 1) continue;
+      v4l2_buffer b{};
+      b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+      b.memory = V4L2_MEMORY_MMAP;
+      if (Ioctl(fd_, VIDIOC_DQBUF, &b) != 0) return Fail("VIDIOC_DQBUF");
+      if (!Queue(b.index)) return;
+    }
+  }
+  int fd_;
+  int width_;
+  std::vector<uint8_t> ground_;
+  std::vector<std::pair<uint8_t*, size_t>> maps_;
+  std::atomic<int64_t> t0_ms_{0};
+  std::atomic<bool> running_{true};
+  std::atomic<uint64_t> written_{0};
+  std::string error_;
+  std::thread thread_;
+};
+
+// The MAVLink peer (tests/telemetry/fly_udp.mjs through run_peer.sh): runs until its stdin is closed.
+class MavlinkPeer {
+ public:
+  bool Start(const std::string& args, std::string* error) {
+    const char* run = std::getenv("UAVM_PEER_RUN");
+    const fs::path script = fs::path(run).parent_path() / "fly_udp.mjs";
+    int in[2], out[2];
+    if (::pipe(in) != 0 || ::pipe(out) != 0) return false;
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::dup2(in[0], 0);
+      ::dup2(out[1], 1);
+      ::close(in[1]);
+      ::close(out[0]);
+      const std::string cmd = "exec bash '" + std::string(run) + "' '" + script.string() + "' " + args + " 2>" +
+                              (ResultsDir() / "mavlink_peer.err").string();
+      ::execl("/bin/sh", "sh", "-c", cmd.c_str(), static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    ::close(in[0]);
+    ::close(out[1]);
+    stdin_ = in[1];
+    stdout_ = out[0];
+    // Its first line: "T0 <unix ms>" once it sends (node starts slowly on the emulated CPU).
+    const std::string line = ReadLine(60'000);
+    if (line.rfind("T0 ", 0) != 0) {
+      *error = "the MAVLink peer did not start (" + line + "), see mavlink_peer.err";
+      return false;
+    }
+    t0_ms_ = std::stoll(line.substr(3));
+    return true;
+  }
+  [[nodiscard]] int64_t t0_ms() const { return t0_ms_; }
+  // Closes its stdin (it stops) and collects what it printed (the mapper's STATUSTEXT answers).
+  std::string Stop() {
+    std::string rest;
+    if (stdin_ >= 0) ::close(stdin_);
+    stdin_ = -1;
+    for (std::string l; !(l = ReadLine(5000)).empty();) rest += l + "\n";
+    if (pid_ > 0) ::waitpid(pid_, nullptr, 0);
+    pid_ = -1;
+    if (stdout_ >= 0) ::close(stdout_);
+    stdout_ = -1;
+    return rest;
+  }
+  ~MavlinkPeer() { Stop(); }
+
+ private:
+  std::string ReadLine(int timeout_ms) {
+    std::string line;
+    char c = 0;
+    pollfd p{stdout_, POLLIN, 0};
+    while (::poll(&p, 1, timeout_ms) == 1 && ::read(stdout_, &c, 1) == 1 && c != '\n') line += c;
+    return line;
+  }
+  pid_t pid_ = -1;
+  int stdin_ = -1;
+  int stdout_ = -1;
+  int64_t t0_ms_ = 0;
+};
+
+// GET http://127.0.0.1:port/path; the body of a 200 answer, else "".
+std::string HttpGet(int port, const std::string& path) {
+  const int s = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  a.sin_port = htons(static_cast<uint16_t>(port));
+  std::string reply;
+  if (::connect(s, reinterpret_cast<sockaddr*>(&a), sizeof(a)) == 0) {
+    const std::string req = "GET " + path + " HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
+    if (::send(s, req.data(), req.size(), MSG_NOSIGNAL) == static_cast<ssize_t>(req.size())) {
+      char buf[4096];
+      for (ssize_t n; (n = ::recv(s, buf, sizeof(buf), 0)) > 0;) reply.append(buf, static_cast<size_t>(n));
+    }
+  }
+  ::close(s);
+  const size_t body = reply.find("\r\n\r\n");
+  if (reply.rfind("HTTP/1.", 0) != 0 || reply.find(" 200 ") > 12 || body == std::string::npos) return "";
+  return reply.substr(body + 4);
+}
+
+// Whether the child `pid` still runs (without reaping it).
+bool Running(pid_t pid) {
+  siginfo_t info{};
+  return ::waitid(P_PID, static_cast<id_t>(pid), &info, WEXITED | WNOHANG | WNOWAIT) == 0 && info.si_pid == 0;
+}
+
+// /status.json while the program flies, until the live view is georeferenced (or the flight ends, or time is up).
+nlohmann::json WaitForLiveGeoref(pid_t pid, double seconds) {
+  nlohmann::json status;
+  const int64_t deadline = MonotonicNs() + static_cast<int64_t>(seconds * 1e9);
+  while (MonotonicNs() < deadline && Running(pid)) {
+    const std::string body = HttpGet(kHttpPort, "/status.json");
+    if (!body.empty()) {
+      status = nlohmann::json::parse(body, nullptr, false);
+      if (status.is_discarded() || (status["state"] != "starting" && status["state"] != "flying")) break;
+      if (status["georef"].value("georeferenced", false)) break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
+  return status;
+}
+
+pid_t SpawnShell(const std::string& cmd) {
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    ::execl("/bin/sh", "sh", "-c", ("exec " + cmd).c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  return pid;
+}
+
+// The onboard program on vivid's capture with the MAVLink stream and the live view.
+pid_t StartOnboardFlight(const std::string& node, const fs::path& out) {
+  const fs::path config = fs::temp_directory_path() / "onboard_flight.yaml";
+  std::ofstream(config) << "features:\n  target_min_features: 10\n";
+  return SpawnShell(std::string(UAVM_ONBOARD_BIN) + " --source 'v4l2:" + node +
+                    "?width=" + std::to_string(kFlightWidth) + "&height=" + std::to_string(kFlightHeight) +
+                    "&format=YUYV' --out " + out.string() + " --config " + config.string() +
+                    " --telemetry mavlink-udp:127.0.0.1:" + std::to_string(kMavlinkPort) +
+                    " --http 127.0.0.1:" + std::to_string(kHttpPort) +
+                    " --max-frames 60 --work-size 160 --max-features 200 --bands 0 --preview-every 1 --no-tiff "
+                    "--no-products --log-level info > " +
+                    (ResultsDir() / "onboard_flight.log").string() + " 2>&1");
+}
+
+// frames.csv: the frames' positions (latitude_deg, longitude_deg columns) on the flown line.
+void ExpectPositionsOnTheLine(const fs::path& frames_csv, int* with_position) {
+  std::ifstream in(frames_csv);
+  std::string line;
+  ASSERT_TRUE(std::getline(in, line)) << "no frames.csv";
+  std::vector<std::string> head;
+  std::stringstream hs(line);
+  for (std::string c; std::getline(hs, c, ',');) head.push_back(c);
+  const auto col = [&](const std::string& name) { return std::find(head.begin(), head.end(), name) - head.begin(); };
+  const size_t lat = static_cast<size_t>(col("latitude_deg")), lon = static_cast<size_t>(col("longitude_deg"));
+  ASSERT_LT(lon, head.size());
+  const double end_lon =
+      kLon0 + kFlightSeconds * kGroundPxPerS * kGsdM / (6378137 * M_PI / 180 * std::cos(kLat0 * M_PI / 180));
+  while (std::getline(in, line)) {
+    std::vector<std::string> cols;
+    std::stringstream ss(line);
+    for (std::string c; std::getline(ss, c, ',');) cols.push_back(c);
+    if (cols.size() <= lon || cols[lat].empty()) continue;
+    ++*with_position;
+    EXPECT_NEAR(std::stod(cols[lat]), kLat0, 1e-6) << line;  // flying east along the parallel
+    EXPECT_GE(std::stod(cols[lon]), kLon0 - 1e-7) << line;
+    EXPECT_LE(std::stod(cols[lon]), end_lon + 1e-7) << line;
+  }
+}
+
+struct Flight {
+  nlohmann::json status;  // the last /status.json of the flight
+  int wstatus = 0;
+  double live_s = 0;  // from the program's start to that status
+  double seconds = 0;
+  double peer_start_s = 0;
+  std::string peer_answers;
+  uint64_t pictures = 0;
+};
+
+// Flies: the program starts on vivid's capture, the MAVLink peer meanwhile (node starts slowly on the emulated CPU);
+// the picture moves from the peer's T0. The operator ends the flight (SIGTERM) once the live view is georeferenced.
+void Fly(const std::string& node, const std::string& output, const fs::path& out, Flight* flight) {
+  VividLoop loop;
+  std::string err;
+  ASSERT_TRUE(loop.Setup(node, output, &err)) << err;
+  GroundFeed feed(loop.output_fd(), kFlightWidth + static_cast<int>(kFlightSeconds * kGroundPxPerS) + 2);
+  ASSERT_EQ(feed.error(), "");
+  fs::remove_all(out);
+  const int64_t t0 = MonotonicNs();
+  const pid_t pid = StartOnboardFlight(node, out);
+  ASSERT_GT(pid, 0);
+  MavlinkPeer peer;
+  std::ostringstream args;
+  args << kMavlinkPort << " " << kLat0 << " " << kLon0 << " " << kGroundPxPerS * kGsdM << " 0 " << kFlightSeconds
+       << " 60 10";
+  const bool peer_ok = peer.Start(args.str(), &err);
+  flight->peer_start_s = static_cast<double>(MonotonicNs() - t0) * 1e-9;
+  if (peer_ok) {
+    feed.Start(peer.t0_ms());
+    flight->status = WaitForLiveGeoref(pid, 90);
+  }
+  flight->live_s = static_cast<double>(MonotonicNs() - t0) * 1e-9;
+  ::kill(pid, SIGTERM);
+  ASSERT_EQ(::waitpid(pid, &flight->wstatus, 0), pid);
+  flight->peer_answers = peer.Stop();
+  flight->seconds = static_cast<double>(MonotonicNs() - t0) * 1e-9;
+  flight->pictures = feed.written();
+  ASSERT_TRUE(peer_ok) << err;
+  EXPECT_EQ(feed.error(), "") << "streaming into vivid's output";
+  std::ofstream(ResultsDir() / "onboard_flight_status.json") << flight->status.dump(1);
+  std::error_code ec;
+  for (const char* f : {"report.json", "frames.csv", "live.jpg", "live.jgw", "mosaic.png"})
+    fs::copy_file(out / f, ResultsDir() / (std::string("onboard_flight_") + f), fs::copy_options::overwrite_existing,
+                  ec);
+}
+
+// During the flight: georeferenced in the flight's UTM zone, the picture not turned (it moves east as the positions
+// do; the grid convergence at 8 E in zone 32 is -0.77 deg), the GIS sidecars beside live.jpg.
+void ExpectLiveGeoref(const nlohmann::json& status, const fs::path& out) {
+  ASSERT_TRUE(status.is_object()) << "no /status.json during the flight";
+  const nlohmann::json& g = status["georef"];
+  EXPECT_EQ(status["state"], "flying") << "the flight ended before the live view was georeferenced";
+  ASSERT_TRUE(g.value("georeferenced", false)) << status.dump();
+  EXPECT_EQ(g.value("crs", ""), "EPSG:32632") << g.dump();
+  EXPECT_EQ(g.value("epsg", 0), 32632);
+  EXPECT_GE(g.value("frames_used", 0), 3);
+  EXPECT_LT(g.value("rms_m", 1e9), 3.0);
+  EXPECT_LT(std::abs(g.value("rotation_deg", 1e9)), 3.0) << "the picture does not move the way the positions do";
+  EXPECT_TRUE(fs::exists(out / "live.jgw"));
+  EXPECT_TRUE(fs::exists(out / "live.jpg.aux.xml"));
+}
+
+// report.json: georeferenced by the telemetry's positions (the picture not turned, see above), frames placed.
+void ExpectReportGeorefAndTelemetry(const nlohmann::json& report) {
+  const nlohmann::json& g = report["georef"];
+  const nlohmann::json& t = report["telemetry"];
+  EXPECT_TRUE(g.value("georeferenced", false)) << g.dump();
+  EXPECT_EQ(g.value("crs", ""), "EPSG:32632");
+  EXPECT_LT(g.value("rms_m", 1e9), 3.0);
+  EXPECT_LT(std::abs(g.value("rotation_removed_deg", 1e9)), 3.0);
+  EXPECT_EQ(t.value("kind", ""), "mavlink-udp");
+  EXPECT_GT(t.value("frames_placed", 0), 0) << t.dump();
+  EXPECT_EQ(t.value("crc_errors", 1), 0);
+}
+
+// The end: a complete session, georeferenced, its frames' positions in frames.csv.
+void ExpectGeoreferencedSession(const fs::path& out, int wstatus, nlohmann::json* report) {
+  ASSERT_TRUE(WIFEXITED(wstatus));
+  EXPECT_EQ(WEXITSTATUS(wstatus), 0) << "see onboard_flight.log";
+  std::ifstream in(out / "report.json");
+  ASSERT_TRUE(in.good()) << "no report.json";
+  *report = nlohmann::json::parse(in);
+  ExpectReportGeorefAndTelemetry(*report);
+  int with_position = 0;
+  ExpectPositionsOnTheLine(out / "frames.csv", &with_position);
+  EXPECT_EQ(with_position, (*report)["telemetry"].value("frames_placed", -1));
+}
+
+// A camera flight with a MAVLink stream from an independent encoder (node-mavlink): the live status is georeferenced
+// during the flight, and the session at the end.
+TEST(Onboard, GeoreferencedFlightWithMavlink) {
+  if (std::getenv("UAVM_PEER_RUN") == nullptr || std::getenv("UAVM_PEER_MODULES") == nullptr)
+    GTEST_SKIP() << "no MAVLink peer (node-mavlink): see vm_camera_test.sh's output";
+  const std::string node = FindNode("vivid");
+  const std::string output = FindVividOutput();
+  ASSERT_FALSE(node.empty());
+  ASSERT_FALSE(output.empty()) << "no vivid video output node (node_types in scripts/vm/init.sh)";
+  const fs::path out = fs::temp_directory_path() / "onboard_flight";
+  Flight flight;
+  Fly(node, output, out, &flight);
+  if (HasFatalFailure()) return;
+  ExpectLiveGeoref(flight.status, out);
+  nlohmann::json report;
+  ExpectGeoreferencedSession(out, flight.wstatus, &report);
+  const nlohmann::json& g = flight.status["georef"];
+  Note("ONBOARD-GEOREF vivid 640x480 looped ground + MAVLink UDP (node-mavlink, up after " +
+       std::to_string(flight.peer_start_s) + " s): live view georeferenced " + g.value("crs", "-") + " rms " +
+       std::to_string(g.value("rms_m", -1.0)) + " m over " + std::to_string(g.value("frames_used", 0)) +
+       " frames after " + std::to_string(flight.live_s) + " s (frame " +
+       std::to_string(flight.status.value("frames_in", 0)) + "); session: registered " +
+       std::to_string(report.value("registered", 0)) + "/" + std::to_string(report.value("frames_in", 0)) +
+       ", placed by telemetry " + std::to_string(report["telemetry"].value("frames_placed", 0)) + ", georef rms " +
+       std::to_string(report["georef"].value("rms_m", -1.0)) + " m; " + std::to_string(flight.pictures) +
+       " pictures looped; " + std::to_string(flight.seconds) + " s");
 }
 
 }  // namespace

@@ -11,6 +11,10 @@ export HOME=/tmp TMPDIR=/tmp UAVM_VM_RESULTS="$RESULTS"
 export LIBCAMERA_LOG_LEVELS='*:WARN'
 # The ASan build's options travel in a file (the kernel command line cannot carry them).
 [ -f "$RESULTS/sanitizer.env" ] && . "$RESULTS/sanitizer.env"
+# The MAVLink peer of the georeferenced flight (vm_camera_test.sh installs it on the host: the guest has no network).
+[ -f "$RESULTS/peer.env" ] && . "$RESULTS/peer.env"
+# Loopback for the flight's MAVLink stream and live view (nothing configures the guest's network).
+ip link set lo up 2>/dev/null || ifconfig lo up 2>/dev/null || echo "guest: cannot bring up lo"
 cd /tmp
 echo "guest: kernel $(uname -r), $(nproc) CPUs"
 ls -l /dev/video* /dev/media* 2>&1

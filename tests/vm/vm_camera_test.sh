@@ -2,7 +2,8 @@
 # CTest: the camera back-ends on real kernel video devices. Boots a VM with Debian's own 6.1 kernel, vivid and an
 # out-of-tree vimc (scripts/vm/prepare.sh builds and caches them outside the clone), and runs in it, chrooted into
 # the host's /, camera_device_test (V4L2 on vivid in three pixel formats, drops, unplug/reconnect, libcamera on vimc,
-# the onboard program with slow processing) and `uavmosaic-onboard --list-cameras`.
+# the onboard program with slow processing, a georeferenced flight with a MAVLink stream) and
+# `uavmosaic-onboard --list-cameras`.
 #   vm_camera_test.sh CAMERA_DEVICE_TEST UAVMOSAIC_ONBOARD OUT_DIR
 # Exit 77 (skipped) with the reason when the VM cannot start; otherwise the tests' verdict.
 set -euo pipefail
@@ -30,6 +31,21 @@ if ldd "$BIN" 2>/dev/null | grep libasan >/dev/null; then  # not grep -q: with p
     echo "export UBSAN_OPTIONS='${UBSAN_OPTIONS:-halt_on_error=1:print_stacktrace=1}'"
     echo "export LSAN_OPTIONS='${LSAN_OPTIONS:-}'"
   } >"$OUT/sanitizer.env"
+fi
+# The georeferenced flight's MAVLink peer (node-mavlink, tests/telemetry/run_peer.sh): installed here (the guest has
+# no network), used read-only from the host's cache in the guest. Without node/npm that test is skipped and says why.
+tmp_top() { case "$1" in /tmp/*) p=${1#/tmp/}; echo "/tmp/${p%%/*}" ;; *) echo / ;; esac; }
+if command -v node >/dev/null &&
+  MODULES=$(bash "$ROOT/tests/telemetry/run_peer.sh" --install 2>"$OUT/peer_install.log"); then
+  # The guest sees the host's /tmp only where init.sh binds it: the folders of the script and the results.
+  case "$(tmp_top "$MODULES")" in
+    / | "$(tmp_top "$ROOT")" | "$(tmp_top "$OUT")")
+      printf "export UAVM_PEER_RUN='%s' UAVM_PEER_MODULES='%s'\n" "$ROOT/tests/telemetry/run_peer.sh" "$MODULES" \
+        >"$OUT/peer.env" ;;
+    *) echo "vm_camera_test: the npm cache $MODULES is in a /tmp folder the guest does not see: no MAVLink peer" ;;
+  esac
+else
+  echo "vm_camera_test: node-mavlink not installable (node, npm, registry; $OUT/peer_install.log): no MAVLink peer"
 fi
 start=$(date +%s)
 set +e
