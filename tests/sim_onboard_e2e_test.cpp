@@ -115,6 +115,15 @@ TEST(SimOnboardE2ETest, OneDegreeTiltWithTheHomographyModelGoesBelowTheAffineFlo
   fs::remove_all(run.dir);
 }
 
+// WGS 84 longitude/latitude (in that order) to the UTM zone `epsg`.
+std::unique_ptr<OGRCoordinateTransformation> WgsToUtm(int epsg) {
+  OGRSpatialReference wgs84, utm;
+  wgs84.importFromEPSG(4326);
+  wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
+  utm.importFromEPSG(epsg);
+  return std::unique_ptr<OGRCoordinateTransformation>(OGRCreateCoordinateTransformation(&wgs84, &utm));
+}
+
 // name -> (easting, northing) of an OpenDroneMap geo.txt in WGS 84 (extra columns ignored), through `to_utm`.
 std::map<std::string, Vec2> ReadGeoTxt(const fs::path& path, OGRCoordinateTransformation* to_utm) {
   std::map<std::string, Vec2> out;
@@ -156,11 +165,7 @@ TEST(SimOnboardE2ETest, GpsTelemetryGeoreferencesTheMapWithinTheGpsNoise) {
   EXPECT_EQ(report["georef"]["epsg"].get<int>(), 32615);  // 91.99 W: UTM zone 15 N
   EXPECT_EQ(report["telemetry"]["frames_placed"].get<int>(), kFrames);
   // Truth and fixes in the map's CRS.
-  OGRSpatialReference wgs84, utm;
-  wgs84.importFromEPSG(4326);
-  wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-  utm.importFromEPSG(32615);
-  std::unique_ptr<OGRCoordinateTransformation> to_utm(OGRCreateCoordinateTransformation(&wgs84, &utm));
+  const auto to_utm = WgsToUtm(32615);
   ASSERT_TRUE(to_utm);
   const auto truth = ReadGeoTxt(run.dir / "flight/geo_truth.txt", to_utm.get());
   const auto fixes = ReadGeoTxt(run.dir / "flight/geo.txt", to_utm.get());
@@ -257,20 +262,16 @@ TEST(SimOnboardE2ETest, WaterFlightWithTelemetryHasEveryFrameInTheMap) {
               images.max_px, by_telemetry);
   EXPECT_LT(images.rms_px, 0.5);  // frames placed by images are not moved by bridging
   // Frame centres placed by telemetry against their true ground position, beside the fixes' own error.
-  OGRSpatialReference wgs84, utm;
-  wgs84.importFromEPSG(4326);
-  wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-  utm.importFromEPSG(32615);
-  std::unique_ptr<OGRCoordinateTransformation> to_utm(OGRCreateCoordinateTransformation(&wgs84, &utm));
+  const auto to_utm = WgsToUtm(32615);
   ASSERT_TRUE(to_utm);
   const auto truth = ReadGeoTxt(geo / "geo_truth.txt", to_utm.get());
   const auto fixes = ReadGeoTxt(geo / "geo.txt", to_utm.get());
   double map_sq = 0, gps_sq = 0;
   for (const auto& r : w.rows) {
     if (r.placed_by != "telemetry") continue;
-    map_sq += (WorldOfCentre(w.report["georef"]["geotransform"], r.mosaic_from_frame, kWaterFrame) -
-               truth.at(r.filename))
-                  .squaredNorm();
+    map_sq +=
+        (WorldOfCentre(w.report["georef"]["geotransform"], r.mosaic_from_frame, kWaterFrame) - truth.at(r.filename))
+            .squaredNorm();
     gps_sq += (fixes.at(r.filename) - truth.at(r.filename)).squaredNorm();
   }
   const double map_rms = std::sqrt(map_sq / by_telemetry), gps_rms = std::sqrt(gps_sq / by_telemetry);
