@@ -1,10 +1,20 @@
-// Telemetry without a link: the track's interpolation and refusals, geo.txt, EXIF time, --telemetry specs.
+// Telemetry without a network: the track's interpolation and refusals, geo.txt, EXIF time, --telemetry specs, and
+// the serial link on a pseudo-terminal (the flight controller's side is the pty's master).
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <poll.h>
+#include <unistd.h>
 
+#include <atomic>
+#include <chrono>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
+#include "core/util/clock.h"
 #include "hal/telemetry/geo_txt.h"
+#include "hal/telemetry/mavlink.h"
 #include "hal/telemetry/telemetry_source.h"
 #include "hal/telemetry/track.h"
 
@@ -129,6 +139,61 @@ TEST(TelemetrySourceTest, SpecsAndExifTime) {
   EXPECT_EQ(*ExifTimeUtcNs("2023:11:14 22:13:20"), 1700000000LL * kSecond);
   EXPECT_FALSE(ExifTimeUtcNs("").has_value());
   EXPECT_FALSE(ExifTimeUtcNs("yesterday at noon!!").has_value());
+}
+
+// mavlink-serial on a pseudo-terminal: termios set-up, fixes read as they come, STATUSTEXT written back, and a link
+// that hangs up (the master closed: a USB adapter pulled) counted as lost without spinning or crashing.
+TEST(TelemetrySourceTest, SerialLinkOnAPseudoTerminal) {
+  const int master = posix_openpt(O_RDWR | O_NOCTTY);
+  ASSERT_GE(master, 0);
+  ASSERT_EQ(grantpt(master), 0);
+  ASSERT_EQ(unlockpt(master), 0);
+  const std::string slave = ptsname(master);
+  std::string error;
+  auto source = MakeTelemetrySource("mavlink-serial:" + slave + ":115200", {}, &error);
+  ASSERT_NE(source, nullptr) << error;
+  ASSERT_EQ(source->Start(&error), Status::kOk) << error;
+  // The flight controller: 20 Hz of GLOBAL_POSITION_INT for 1 s, moving north.
+  for (int k = 0; k < 20; ++k) {
+    mavlink::GlobalPositionInt g;
+    g.time_boot_ms = static_cast<uint32_t>(50 * k);
+    g.lat_deg = 50.0 + 1e-6 * k;
+    g.lon_deg = 8.0;
+    g.relative_alt_m = 42.0;
+    g.heading_deg = 10.0;
+    const std::string bytes = mavlink::Encode(g, static_cast<uint8_t>(k), 1, 1);
+    ASSERT_EQ(write(master, bytes.data(), bytes.size()), static_cast<ssize_t>(bytes.size()));
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  Frame frame;
+  frame.timestamp_ns = MonotonicNs() - 120'000'000;
+  const auto pose = source->PoseFor(frame);
+  ASSERT_TRUE(pose.has_value()) << "no fix read from " << slave;
+  EXPECT_GT(pose->lat_deg, 50.0 + 10e-6);
+  EXPECT_LT(pose->lat_deg, 50.0 + 19.5e-6);
+  EXPECT_NEAR(*pose->relative_alt_m, 42.0, 1e-9);
+  // The mapper's state goes back over the same wire.
+  source->SendStatus("uavm: on the wire");
+  mavlink::Parser parser;
+  std::string heard;
+  for (int tries = 0; tries < 20 && heard.empty(); ++tries) {
+    pollfd pfd{master, POLLIN, 0};
+    if (poll(&pfd, 1, 100) <= 0) continue;
+    uint8_t buf[512];
+    const ssize_t n = read(master, buf, sizeof(buf));
+    if (n <= 0) continue;
+    parser.Feed(buf, static_cast<size_t>(n), [&](const mavlink::Packet& p) {
+      if (auto m = mavlink::Decode(p))
+        if (auto* t = std::get_if<mavlink::Statustext>(&*m)) heard = t->text;
+    });
+  }
+  EXPECT_EQ(heard, "uavm: on the wire");
+  close(master);  // the wire is cut
+  std::this_thread::sleep_for(std::chrono::milliseconds(800));
+  EXPECT_EQ(source->Report().link_losses, 1u);
+  const auto stop_start = std::chrono::steady_clock::now();
+  source->Stop();
+  EXPECT_LT(std::chrono::steady_clock::now() - stop_start, std::chrono::seconds(2));
 }
 
 }  // namespace

@@ -10,10 +10,12 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <ctime>
 #include <mutex>
+#include <thread>
 #include <vector>
 
 #include "core/util/clock.h"
@@ -228,6 +230,9 @@ class LinkSource final : public TelemetrySource {
   [[nodiscard]] bool OpenUdp(std::string* error);
   [[nodiscard]] bool OpenSerial(std::string* error);
   void ReadLoop();
+  // A serial link that hung up (a USB adapter unplugged, a cable pulled): counted, closed, and reopened every 0.5 s
+  // until Stop(), instead of spinning on a dead descriptor.
+  void ReopenSerial(const char* why);
 
   std::string kind_, target_;
   int port_or_baud_;
@@ -322,6 +327,9 @@ void LinkSource::ReadLoop() {
     const ssize_t n = kind_ == "mavlink-udp"
                           ? recvfrom(fd_, buf.data(), buf.size(), 0, reinterpret_cast<sockaddr*>(&from), &from_len)
                           : read(fd_, buf.data(), buf.size());
+    const bool hung_up =
+        (pfd.revents & (POLLHUP | POLLERR | POLLNVAL)) != 0 || n == 0 || (n < 0 && errno != EAGAIN && errno != EINTR);
+    if (n <= 0 && kind_ != "mavlink-udp" && hung_up) ReopenSerial(n < 0 ? std::strerror(errno) : "hang-up");
     if (n <= 0) continue;
     if (kind_ == "mavlink-udp") {
       std::lock_guard lock(mutex_);
@@ -334,6 +342,27 @@ void LinkSource::ReadLoop() {
     });
     std::lock_guard lock(mutex_);
     parser_counters_ = parser.counters();
+  }
+}
+
+void LinkSource::ReopenSerial(const char* why) {
+  {
+    std::lock_guard lock(mutex_);
+    ++report_.link_losses;
+    close(fd_);
+    fd_ = -1;
+  }
+  spdlog::warn("telemetry: {} lost ({}); reopening it every 0.5 s, frames go on image-only meanwhile", target_, why);
+  while (!stop_) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    std::string error;
+    std::lock_guard lock(mutex_);
+    if (OpenSerial(&error)) {
+      spdlog::info("telemetry: {} reopened", target_);
+      return;
+    }
+    if (fd_ >= 0) close(fd_);
+    fd_ = -1;
   }
 }
 
