@@ -160,6 +160,9 @@ std::map<std::string, std::vector<Vec2>> FramesOnTheGround(const fs::path& sessi
 // scaled like the image-placed frames around them. Against where images put them in the untouched flight: centres
 // within the flight's GPS fit residual (~5 m RMS here), corners within 12 m on a ~90 m wide footprint.
 TEST(OnboardE2ETest, FramesOverWaterAreBridgedByTheirGps) {
+#ifndef UAVM_REFRAME_BIN
+  GTEST_SKIP() << "uavm-reframe not built (UAVM_BUILD_BENCH off)";
+#else
   if (test::Emulated()) GTEST_SKIP() << "two full caliterra_small runs: native only";
   const fs::path out = TempDir("water_bridge");
   const fs::path water = out / "images";
@@ -190,6 +193,7 @@ TEST(OnboardE2ETest, FramesOverWaterAreBridgedByTheirGps) {
     EXPECT_LT(corners, 12.0);
   }
   fs::remove_all(out);
+#endif
 }
 
 TEST(OnboardE2ETest, CaliterraSmallRegistersEveryFrame) {
