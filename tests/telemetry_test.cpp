@@ -6,8 +6,10 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cerrno>
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <thread>
@@ -145,7 +147,8 @@ TEST(TelemetrySourceTest, SpecsAndExifTime) {
 // that hangs up (the master closed: a USB adapter pulled) counted as lost without spinning or crashing.
 TEST(TelemetrySourceTest, SerialLinkOnAPseudoTerminal) {
   const int master = posix_openpt(O_RDWR | O_NOCTTY);
-  ASSERT_GE(master, 0);
+  // qemu-user (the aarch64 suite) resolves /dev/ptmx in the target's sysroot, which has none: no pty to test on.
+  if (master < 0) GTEST_SKIP() << "no pseudo-terminal here: " << std::strerror(errno);
   ASSERT_EQ(grantpt(master), 0);
   ASSERT_EQ(unlockpt(master), 0);
   const std::string slave = ptsname(master);
