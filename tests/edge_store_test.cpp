@@ -28,10 +28,19 @@ Edge RandomEdge(int src, int tgt, size_t n, size_t n_holdout, std::mt19937* rng)
   return e;
 }
 
+fs::path TempDir() { return fs::temp_directory_path() / ("uavm_edges_" + std::to_string(::getpid())); }
+
+// Removed when the test process exits (ctest runs every test in a process of its own), so runs leave no files.
+struct RemoveTempDirAtExit {
+  ~RemoveTempDirAtExit() {
+    std::error_code ec;
+    fs::remove_all(TempDir(), ec);
+  }
+} remove_temp_dir_at_exit;
+
 fs::path TempFile(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("uavm_edges_" + std::to_string(::getpid()));
-  fs::create_directories(dir);
-  return dir / name;
+  fs::create_directories(TempDir());
+  return TempDir() / name;
 }
 
 TEST(EdgeStoreTest, ReleasedPointsComeBackExactly) {

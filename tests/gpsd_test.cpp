@@ -22,6 +22,7 @@
 #include "core/util/clock.h"
 #include "hal/telemetry/gpsd_source.h"
 #include "hal/telemetry/telemetry_source.h"
+#include "tests/test_net.h"
 
 namespace uavm::hal {
 namespace {
@@ -99,21 +100,6 @@ OnLine Project(const InterpolatedPose& p) {
   return {along, std::hypot(dy - along * sy, dx - along * sx)};
 }
 
-int FreePort() {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t len = sizeof(a);
-  if (bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0 ||
-      getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) != 0) {
-    close(fd);
-    return -1;
-  }
-  close(fd);
-  return ntohs(a.sin_port);
-}
-
 // gpsfake in a process group of its own, so that killing the group takes its gpsd too.
 class GpsFake {
  public:
@@ -175,7 +161,7 @@ TEST(GpsdSpecTest, ParsesHostAndPort) {
 }
 
 TEST(GpsdSpecTest, NoDaemonIsNotAStartUpErrorAndStopsPromptly) {
-  const int port = FreePort();
+  const int port = test::FreePort();
   ASSERT_GT(port, 0);
   auto source = MakeGpsdSource("127.0.0.1", port, {});
   std::string error;
@@ -255,7 +241,7 @@ void CheckNoFixCounted(const std::vector<Sample>& samples) {
 }
 
 TEST_F(GpsdTest, PlacesFramesFromALiveDaemonAndSurvivesItsLoss) {
-  const int port = FreePort();
+  const int port = test::FreePort();
   ASSERT_GT(port, 0);
   const auto t_start = std::chrono::steady_clock::now();
   GpsFake fake(dir_ / "flight.nmea", port, dir_ / "gpsfake.log");

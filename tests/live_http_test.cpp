@@ -24,28 +24,13 @@
 
 #include "tests/browser_shot.h"
 #include "tests/test_env.h"
+#include "tests/test_net.h"
 
 namespace uavm {
 namespace {
 
 namespace fs = std::filesystem;
 const std::string kData = UAVM_TEST_DATA;
-
-int FreePort() {
-  const int s = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  a.sin_port = 0;
-  socklen_t len = sizeof(a);
-  if (::bind(s, reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0 ||
-      ::getsockname(s, reinterpret_cast<sockaddr*>(&a), &len) != 0) {
-    ::close(s);
-    return -1;
-  }
-  ::close(s);
-  return ntohs(a.sin_port);
-}
 
 pid_t Spawn(const std::string& cmd) {
   const pid_t pid = ::fork();
@@ -149,7 +134,7 @@ void CheckLiveGeoref(httplib::Client* client, const fs::path& out) {
 TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   const fs::path out = fs::temp_directory_path() / ("uavm_live_http_" + std::to_string(::getpid()));
   fs::remove_all(out);
-  const int port = FreePort();
+  const int port = test::FreePort();
   ASSERT_GT(port, 0);
   // Under emulation the first 8 frames (each takes longer there).
   const test::FlightForTest flight(kData + "/brighton_beach_small/images", 8, out.string() + "_in");

@@ -16,6 +16,7 @@
 #include "core/util/clock.h"
 #include "hal/telemetry/telemetry_source.h"
 #include "hal/telemetry/tlog.h"
+#include "tests/test_net.h"
 
 namespace uavm::hal::mavlink {
 namespace {
@@ -295,7 +296,8 @@ TEST_F(MavlinkTest, ReplayedStillsWithoutTriggersMatchByExifTime) {
 }
 
 TEST_F(MavlinkTest, LiveUdpLinkPlacesFramesAndLosingItIsCounted) {
-  const int port = 20000 + static_cast<int>(getpid() % 20000);
+  const int port = test::FreePort(SOCK_DGRAM);
+  ASSERT_GT(port, 0);
   std::string error;
   auto source = MakeTelemetrySource("mavlink-udp:127.0.0.1:" + std::to_string(port), {}, &error);
   ASSERT_EQ(source->Start(&error), Status::kOk) << error;

@@ -17,6 +17,7 @@
 #include "core/session/session_dir.h"
 #include "hal/sim/sim_telemetry.h"
 #include "tests/test_env.h"
+#include "tests/test_net.h"
 #include "tools/sim_writer.h"
 
 namespace uavm {
@@ -113,10 +114,12 @@ std::pair<double, double> CentreErrors(const Session& s, const fs::path& flight)
   return {std::sqrt(map_sq / n), std::sqrt(gps_sq / n)};
 }
 
-void ExpectGeoreferencedWithinTheGpsNoise(const Session& s, const fs::path& flight, const char* what) {
+// `dropped`: frames a live camera's bounded queue let go while the frame loop was busy (a loaded machine), which
+// never reach registration.
+void ExpectGeoreferencedWithinTheGpsNoise(const Session& s, const fs::path& flight, const char* what, int dropped = 0) {
   int registered = 0;
   for (const auto& r : s.rows) registered += r.registered ? 1 : 0;
-  EXPECT_EQ(registered, kFrames);
+  EXPECT_EQ(registered, kFrames - dropped);
   ASSERT_TRUE(s.report["georef"]["georeferenced"].get<bool>());
   EXPECT_EQ(s.report["georef"]["epsg"].get<int>(), 32615);  // 91.99 W: UTM zone 15 N
   const auto [map_rms, gps_rms] = CentreErrors(s, flight);
@@ -241,7 +244,8 @@ TEST(SimTelemetryE2ETest, LiveSimStreamsMavlinkInStepWithTheFrames) {
   const fs::path dir = TestDir("live");
   fs::remove_all(dir);
   fs::create_directories(dir);
-  const int port = 40000 + static_cast<int>(::getpid() % 20000);
+  const int port = test::FreePort(SOCK_DGRAM);
+  ASSERT_GT(port, 0);
   const std::string plan =
       kPlan + "frame_interval_s: 0.5\ncamera_latency_ms: 200\nmavlink_udp: \"127.0.0.1:" + std::to_string(port) +
       "\"\n";
@@ -255,12 +259,16 @@ TEST(SimTelemetryE2ETest, LiveSimStreamsMavlinkInStepWithTheFrames) {
   Session s;
   ASSERT_NO_FATAL_FAILURE(ReadSession(dir / "session", &s));
   const json& t = s.report["telemetry"];
+  const int dropped = s.report["dropped_by_queue"].get<int>();
+  std::printf("live: %d frames in, %d dropped by the live queue, telemetry %s\n", s.report["frames_in"].get<int>(),
+              dropped, t.dump().c_str());
+  EXPECT_LE(dropped, 2);  // 2 frames/s of 400x300 keep a loaded 2-core machine busy, not drowned
   EXPECT_EQ(t["kind"], "mavlink-udp");
-  EXPECT_GE(t["frames_placed"].get<int>(), kFrames - 1);
+  EXPECT_GE(t["frames_placed"].get<int>(), kFrames - 1 - dropped);
   // Each frame's position is the fix of the instant it was taken.
   const auto fixes = ReadGeoTxt(dir / "flight/geo.txt");
   const auto placed = ReadFramePositions(dir / "session/frames.csv");
-  EXPECT_GE(placed.size(), static_cast<size_t>(kFrames - 1));
+  EXPECT_GE(placed.size(), static_cast<size_t>(kFrames - 1 - dropped));
   double sq = 0;
   for (const auto& [name, latlon] : placed) {
     const GeoRow& f = fixes.at(name);
@@ -273,7 +281,7 @@ TEST(SimTelemetryE2ETest, LiveSimStreamsMavlinkInStepWithTheFrames) {
   // Measured 0.17-0.23 m: the receiver stamps a fix when it reads it, a little after it was sent (the rest of the way
   // to the next fix, 2.4 m on). The latency not compensated would put every frame 2 ticks on: ~4.8 m.
   EXPECT_LT(rms_m, 1.0);
-  ExpectGeoreferencedWithinTheGpsNoise(s, dir / "flight", "live");
+  ExpectGeoreferencedWithinTheGpsNoise(s, dir / "flight", "live", dropped);
   fs::remove_all(dir);
 }
 
