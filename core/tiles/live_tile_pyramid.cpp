@@ -1,0 +1,357 @@
+#include "core/tiles/live_tile_pyramid.h"
+
+#include <spdlog/spdlog.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <list>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "core/tiles/tile_render.h"
+#include "core/tiles/tile_store.h"
+#include "core/tiles/web_mercator.h"
+#include "core/util/clock.h"
+
+namespace uavm {
+
+bool LiveTileOptions::Check(std::string* why) const {
+  const auto fail = [why](const char* what) {
+    *why = std::string("live_tiles: ") + what;
+    return false;
+  };
+  if (cache_tiles < 16) return fail("cache_tiles must be >= 16");
+  if (frame_cache < 1) return fail("frame_cache must be >= 1");
+  if (queue_images < 0 || queue_jobs < 16) return fail("queue_images must be >= 0 and queue_jobs >= 16");
+  if (feather_px < 0 || feather_px > 256) return fail("feather_px must be in [0, 256]");
+  if (png_compression < 0 || png_compression > 9) return fail("png_compression must be in [0, 9]");
+  if (levels < 0 || levels > 24) return fail("levels must be in [0, 24]");
+  if (!(redraw_shift_px >= 0)) return fail("redraw_shift_px must be >= 0");
+  return true;
+}
+
+// The worker's state: the grid, the tiles and what each frame covers.
+class LiveTilePyramid::Renderer {
+ public:
+  Renderer(std::string dir, const LiveTileOptions& o, FrameReader reader)
+      : options_(o), store_(std::move(dir), o.cache_tiles, o.png_compression), reader_(std::move(reader)) {
+    store_.Clear();  // a previous run's tiles are not this flight's (a resumed one draws its frames again)
+  }
+
+  void Reset(const TileGrid& grid) {
+    store_.Clear();
+    grid_ = grid;
+    records_.clear();
+    index_.clear();
+    images_.clear();
+    bounds_ = cv::Rect2d();
+    ++generation_;
+  }
+
+  // Draws a new frame or one that moved; false when nothing was drawn (no pixels, or a move too small to matter).
+  bool Draw(const TileFrame& f, bool* redrawn, bool* reread) {
+    auto it = records_.find(f.id);
+    if (it == records_.end()) return DrawNew(f, reread);
+    Record& r = it->second;
+    // Sub-pixel moves of a solve cost nothing (the tiles keep the old place).
+    if (MaxCornerShift(r.grid_from_work, f.grid_from_work, r.work_size) <= options_.redraw_shift_px) return false;
+    *redrawn = true;
+    std::unordered_set<TileKey, TileKeyHash> dirty(r.tiles.begin(), r.tiles.end());
+    Unindex(f.id, r);
+    r.grid_from_work = f.grid_from_work;
+    r.tiles = TilesOf(f.grid_from_work, f.work_size);
+    Index(f.id, r);
+    dirty.insert(r.tiles.begin(), r.tiles.end());
+    for (const TileKey& k : dirty) RenderAgain(k, reread);
+    Cascade(dirty);
+    return true;
+  }
+
+  [[nodiscard]] bool Flush(std::string* error) { return store_.Flush(error); }
+  [[nodiscard]] const TileStore& store() const { return store_; }
+
+  [[nodiscard]] std::shared_ptr<const TileSetInfo> Info(int frames) const {
+    auto info = std::make_shared<TileSetInfo>();
+    info->dir = store_.dir();
+    info->geographic = grid_.geographic;
+    info->min_zoom = grid_.min_zoom;
+    info->max_zoom = grid_.max_zoom;
+    info->generation = generation_;
+    info->updated_ns = MonotonicNs();
+    info->frames = frames;
+    if (grid_.geographic) {
+      const Vec2 nw = LonLatFromMercatorPixel(Vec2(bounds_.x, bounds_.y), grid_.max_zoom);
+      const Vec2 se = LonLatFromMercatorPixel(Vec2(bounds_.br().x, bounds_.br().y), grid_.max_zoom);
+      info->west = nw.x(), info->north = nw.y(), info->east = se.x(), info->south = se.y();
+    } else {
+      const double s = std::ldexp(1.0, grid_.max_zoom);
+      info->west = bounds_.x / s, info->east = bounds_.br().x / s;
+      info->north = -bounds_.y / s, info->south = -bounds_.br().y / s;
+    }
+    return info;
+  }
+  [[nodiscard]] int frames() const { return static_cast<int>(records_.size()); }
+
+ private:
+  struct Record {
+    std::string path;
+    cv::Size work_size;
+    Mat3 grid_from_work;
+    std::vector<TileKey> tiles;  // max_zoom tiles it touches
+  };
+
+  bool DrawNew(const TileFrame& f, bool* reread) {
+    Record& r = records_[f.id];
+    r.path = f.path;
+    r.work_size = f.work_size;
+    r.grid_from_work = f.grid_from_work;
+    r.tiles = TilesOf(f.grid_from_work, f.work_size);
+    Index(f.id, r);
+    const auto fp = Footprint(f.grid_from_work, f.work_size.width, f.work_size.height);
+    const cv::Rect2d box = cv::boundingRect(fp);
+    bounds_ = bounds_.area() > 0 ? (bounds_ | box) : box;
+    const FramePixels* px = f.image ? Remember(f.id, *f.image) : Pixels(f.id, r, reread);
+    if (px == nullptr) return false;
+    for (const TileKey& k : r.tiles) {
+      cv::Mat& tile = store_.Get(k);
+      if (PaintFrame(px->bgr, px->weight, TileFromWork(k, f.grid_from_work), &tile)) store_.MarkDirty(k);
+    }
+    Cascade({r.tiles.begin(), r.tiles.end()});
+    return true;
+  }
+
+  // The max_zoom tiles the frame's footprint touches, inside the world.
+  [[nodiscard]] std::vector<TileKey> TilesOf(const Mat3& grid_from_work, cv::Size size) const {
+    const cv::Rect2d box = cv::boundingRect(Footprint(grid_from_work, size.width, size.height));
+    const int n = 1 << grid_.max_zoom;
+    const int x0 = std::max(0, static_cast<int>(std::floor(box.x / kTileSize)));
+    const int y0 = std::max(0, static_cast<int>(std::floor(box.y / kTileSize)));
+    const int x1 = std::min(n - 1, static_cast<int>(std::floor(box.br().x / kTileSize)));
+    const int y1 = std::min(n - 1, static_cast<int>(std::floor(box.br().y / kTileSize)));
+    std::vector<TileKey> keys;
+    const cv::Size work = size;
+    for (int y = y0; y <= y1; ++y)
+      for (int x = x0; x <= x1; ++x)
+        if (FrameTouchesTile(grid_from_work, work, x, y)) keys.push_back({grid_.max_zoom, x, y});
+    return keys;
+  }
+
+  [[nodiscard]] Mat3 TileFromWork(const TileKey& k, const Mat3& grid_from_work) const {
+    // Tile pixel centres: global pixel corner (x*256, y*256) is the tile's pixel (0,0)'s corner.
+    return Translation(-k.x * kTileSize - 0.5, -k.y * kTileSize - 0.5) * grid_from_work;
+  }
+
+  void Index(int id, const Record& r) {
+    for (const TileKey& k : r.tiles) {
+      auto& ids = index_[k];
+      ids.insert(std::upper_bound(ids.begin(), ids.end(), id), id);
+    }
+  }
+  void Unindex(int id, const Record& r) {
+    for (const TileKey& k : r.tiles) {
+      auto it = index_.find(k);
+      if (it == index_.end()) continue;
+      auto& ids = it->second;
+      ids.erase(std::remove(ids.begin(), ids.end(), id), ids.end());
+      if (ids.empty()) index_.erase(it);
+    }
+  }
+
+  // A max_zoom tile drawn again from every frame that touches it, oldest first (as they were drawn live).
+  void RenderAgain(const TileKey& k, bool* reread) {
+    cv::Mat& tile = store_.Get(k);
+    tile.setTo(cv::Scalar::all(0));
+    store_.MarkDirty(k);
+    auto it = index_.find(k);
+    if (it == index_.end()) return;
+    const std::vector<int> ids = it->second;
+    for (int id : ids) {
+      const Record& r = records_.at(id);
+      const FramePixels* px = Pixels(id, r, reread);
+      if (px == nullptr) continue;
+      cv::Mat& t = store_.Get(k);  // Pixels() does not touch the tile cache: still the same tile
+      PaintFrame(px->bgr, px->weight, TileFromWork(k, r.grid_from_work), &t);
+    }
+  }
+
+  // Parents of the changed tiles, zoom by zoom, down to min_zoom.
+  void Cascade(std::unordered_set<TileKey, TileKeyHash> changed) {
+    for (int z = grid_.max_zoom - 1; z >= grid_.min_zoom; --z) {
+      std::unordered_set<TileKey, TileKeyHash> parents;
+      for (const TileKey& c : changed) parents.insert({z, c.x >> 1, c.y >> 1});
+      for (const TileKey& p : parents) {
+        cv::Mat children(2 * kTileSize, 2 * kTileSize, CV_8UC4);
+        for (int q = 0; q < 4; ++q) {
+          const TileKey c{z + 1, 2 * p.x + (q & 1), 2 * p.y + (q >> 1)};
+          store_.Get(c).copyTo(children(cv::Rect((q & 1) * kTileSize, (q >> 1) * kTileSize, kTileSize, kTileSize)));
+        }
+        cv::Mat& tile = store_.Get(p);
+        HalveRgba(children, &tile);
+        store_.MarkDirty(p);
+      }
+      changed = std::move(parents);
+    }
+  }
+
+  struct FramePixels {
+    cv::Mat bgr;
+    cv::Mat weight;
+  };
+  const FramePixels* Remember(int id, const cv::Mat& bgr) {
+    for (auto it = images_.begin(); it != images_.end(); ++it)
+      if (it->first == id) {
+        images_.splice(images_.begin(), images_, it);
+        return &images_.front().second;
+      }
+    if (images_.size() >= static_cast<size_t>(options_.frame_cache)) images_.pop_back();
+    images_.emplace_front(id, FramePixels{bgr, FeatherWeight(bgr.size(), options_.feather_px)});
+    return &images_.front().second;
+  }
+  const FramePixels* Pixels(int id, const Record& r, bool* reread) {
+    for (auto it = images_.begin(); it != images_.end(); ++it)
+      if (it->first == id) {
+        images_.splice(images_.begin(), images_, it);
+        return &images_.front().second;
+      }
+    const cv::Mat bgr = reader_ ? reader_(r.path, r.work_size) : cv::Mat();
+    if (bgr.empty()) {
+      spdlog::warn("live tiles: cannot read {} again; its tiles miss it", r.path);
+      return nullptr;
+    }
+    *reread = true;
+    return Remember(id, bgr);
+  }
+
+  LiveTileOptions options_;
+  TileStore store_;
+  FrameReader reader_;
+  TileGrid grid_;
+  int64_t generation_ = 0;
+  std::unordered_map<int, Record> records_;
+  std::unordered_map<TileKey, std::vector<int>, TileKeyHash> index_;  // max_zoom tile -> frames, ascending
+  std::list<std::pair<int, FramePixels>> images_;                     // most recently used first
+  cv::Rect2d bounds_;                                                  // max_zoom pixels drawn so far
+};
+
+LiveTilePyramid::LiveTilePyramid(std::string dir, const LiveTileOptions& options, FrameReader reader,
+                                 Listener listener)
+    : options_(options),
+      listener_(std::move(listener)),
+      renderer_(std::make_unique<Renderer>(std::move(dir), options, std::move(reader))) {
+  worker_ = std::thread([this] { Work(); });
+}
+
+LiveTilePyramid::~LiveTilePyramid() {
+  {
+    std::lock_guard lock(mutex_);
+    stop_ = true;
+  }
+  wake_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+void LiveTilePyramid::Reset(const TileGrid& grid) {
+  std::lock_guard lock(mutex_);
+  // Whatever waits was meant for the old grid.
+  jobs_.clear();
+  images_queued_ = 0;
+  Job j;
+  j.reset = true;
+  j.grid = grid;
+  jobs_.push_back(std::move(j));
+  ++stats_.resets;
+  wake_.notify_one();
+}
+
+bool LiveTilePyramid::Draw(TileFrame frame) {
+  std::lock_guard lock(mutex_);
+  if (stop_ || jobs_.size() >= static_cast<size_t>(options_.queue_jobs)) {
+    ++stats_.jobs_dropped;
+    return false;
+  }
+  if (frame.image) {
+    if (images_queued_ >= options_.queue_images)
+      frame.image.reset();  // read again from frames/ when its turn comes: the queue's memory stays bounded
+    else
+      ++images_queued_;
+  }
+  jobs_.push_back(Job{false, {}, std::move(frame)});
+  wake_.notify_one();
+  return true;
+}
+
+void LiveTilePyramid::Drain() {
+  std::unique_lock lock(mutex_);
+  idle_.wait(lock, [this] { return (jobs_.empty() && !busy_) || stop_; });
+}
+
+std::shared_ptr<const TileSetInfo> LiveTilePyramid::Info() const {
+  std::lock_guard lock(mutex_);
+  return info_;
+}
+
+LiveTileStats LiveTilePyramid::Stats() const {
+  std::lock_guard lock(mutex_);
+  LiveTileStats s = stats_;
+  return s;
+}
+
+size_t LiveTilePyramid::queued() const {
+  std::lock_guard lock(mutex_);
+  return jobs_.size();
+}
+
+void LiveTilePyramid::Work() {
+  // Below the frame loop: the map on the ground may lag, registration must not.
+  setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
+  for (;;) {
+    Job job;
+    {
+      std::unique_lock lock(mutex_);
+      busy_ = false;
+      idle_.notify_all();
+      wake_.wait(lock, [this] { return stop_ || !jobs_.empty(); });
+      if (stop_) return;
+      job = std::move(jobs_.front());
+      jobs_.pop_front();
+      if (job.frame.image) --images_queued_;
+      busy_ = true;
+    }
+    const int64_t t0 = MonotonicNs();
+    bool drawn = false, redrawn = false, reread = false;
+    if (job.reset)
+      renderer_->Reset(job.grid);
+    else
+      drawn = renderer_->Draw(job.frame, &redrawn, &reread);
+    std::string error;
+    const bool flushed = renderer_->Flush(&error);
+    auto info = renderer_->Info(renderer_->frames());
+    {
+      std::lock_guard lock(mutex_);
+      stats_.busy_ms += static_cast<double>(MonotonicNs() - t0) * 1e-6;
+      stats_.tiles_written = renderer_->store().tiles_written();
+      stats_.write_errors = renderer_->store().write_errors();
+      if (reread) ++stats_.frames_reread;
+      if (drawn && redrawn) ++stats_.frames_redrawn;
+      if (drawn && !redrawn) {
+        ++stats_.frames_drawn;
+        if (stats_.latency_ms.size() >= 1024) stats_.latency_ms.erase(stats_.latency_ms.begin());
+        stats_.latency_ms.push_back(static_cast<double>(MonotonicNs() - job.frame.registered_ns) * 1e-6);
+      }
+      info_ = info;
+      if (!flushed) {
+        // A full disk: stop drawing (what is on disk stays valid); the flight goes on without live tiles.
+        spdlog::error("live tiles stopped: {}", error);
+        stop_ = true;
+        jobs_.clear();
+        idle_.notify_all();
+      }
+    }
+    if (listener_) listener_(info);
+    if (!flushed) return;
+  }
+}
+
+}  // namespace uavm
