@@ -20,6 +20,22 @@ TEST(GeometryTest, OverlapOfShiftedSquares) {
   EXPECT_NEAR(ConvexOverlapArea(a, Footprint(Translation(500, 0), 101, 101)), 0.0, 1e-9);
 }
 
+TEST(GeometryTest, FootprintBoundsGrowsTheStartBox) {
+  const std::vector<Mat3> maps = {Translation(-5, 2), Mat3::Identity(), Translation(30, 40)};
+  const auto size_of = [](int id) { return id == 0 ? cv::Size(11, 21) : cv::Size(101, 51); };
+  const Bounds2 b = FootprintBounds({0, 2}, maps, size_of);
+  EXPECT_EQ(b.minx, -5);
+  EXPECT_EQ(b.miny, 2);
+  EXPECT_EQ(b.maxx, 130);
+  EXPECT_EQ(b.maxy, 90);
+  const Bounds2 grown = FootprintBounds({0}, maps, size_of, {-10, 0, 500, 5});
+  EXPECT_EQ(grown.minx, -10);
+  EXPECT_EQ(grown.miny, 0);
+  EXPECT_EQ(grown.maxx, 500);
+  EXPECT_EQ(grown.maxy, 22);
+  EXPECT_GT(FootprintBounds({}, maps, size_of).minx, FootprintBounds({}, maps, size_of).maxx);  // empty
+}
+
 TEST(GeometryTest, DecomposeSimilarity) {
   Mat3 m = Mat3::Identity();
   const double s = 1.3;

@@ -30,6 +30,30 @@ TEST(GeorefTest, ProjectionRoundTrip) {
   EXPECT_NEAR(lon[0], -91.9945598889, 1e-9);
 }
 
+// The frame loop's converter gives LatLonToProjected's numbers, bit for bit, across a change of zone and back.
+TEST(GeorefTest, ProjectedConverterMatchesLatLonToProjected) {
+  ProjectedConverter converter;
+  std::string err;
+  for (const int epsg : {32615, 32615, 32616, 32615}) {
+    std::vector<Vec2> expected;
+    ASSERT_TRUE(LatLonToProjected(epsg, {46.8426070833}, {-91.9945598889}, &expected, &err)) << err;
+    Vec2 xy;
+    ASSERT_TRUE(converter.ToProjected(epsg, 46.8426070833, -91.9945598889, &xy, &err)) << err;
+    EXPECT_EQ(xy, expected[0]) << "EPSG:" << epsg;
+  }
+  Vec2 xy;
+  EXPECT_FALSE(converter.ToProjected(999999, 46.8, -92.0, &xy, &err));
+  EXPECT_FALSE(err.empty());
+}
+
+TEST(GeorefTest, WorldFromPixel3IsHomogeneous) {
+  Eigen::Matrix<double, 2, 3> m;
+  m << 0.1, 0.02, 576000, 0.02, -0.1, 5187000;
+  const Mat3 w = WorldFromPixel3(m);
+  EXPECT_EQ(Apply(w, Vec2(10, 20)), Vec2(0.1 * 10 + 0.02 * 20 + 576000, 0.02 * 10 - 0.1 * 20 + 5187000));
+  EXPECT_EQ(w.row(2), Eigen::RowVector3d(0, 0, 1));
+}
+
 // Frames on a grid, their mosaic pixels related to UTM by a known similarity (rotation 30 deg, 5 cm/px), GPS noise of
 // 2 m and two frames with 60 m GPS jumps: the fit must reject the jumps and recover the map.
 TEST(GeorefTest, RobustSimilarityRejectsGpsJumps) {

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "core/session/session_dir.h"
+#include "tests/session_test_util.h"
 #include "tests/test_env.h"
 
 namespace uavm {
@@ -19,17 +20,14 @@ namespace {
 namespace fs = std::filesystem;
 const std::string kData = UAVM_TEST_DATA;
 
+using test::FramesOnTheGround;
+using test::ReadJson;
 using test::RunOnboard;
 
 fs::path TempDir(const std::string& name) {
   const fs::path p = fs::temp_directory_path() / ("uavm_e2e_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(p);
   return p;
-}
-
-nlohmann::json ReadJson(const fs::path& p) {
-  std::ifstream in(p);
-  return nlohmann::json::parse(in);
 }
 
 void ExpectCompleteSession(const fs::path& out, int frames, double max_rms) {
@@ -130,29 +128,6 @@ TEST(OnboardE2ETest, GeoTxtTelemetryPlacesTheMapAndIsReported) {
             2);
   fs::remove_all(exif_out);
   fs::remove_all(out);
-}
-
-// Frame centre and corners of each registered frame in the map's CRS (report.json's geotransform), by file name.
-std::map<std::string, std::vector<Vec2>> FramesOnTheGround(const fs::path& session, cv::Size size) {
-  const auto report = ReadJson(session / "report.json");
-  const auto& g = report["georef"]["geotransform"];
-  std::string text, err;
-  std::vector<TransformRow> rows;
-  EXPECT_TRUE(ReadTextFile((session / "transforms.csv").string(), &text, &err)) << err;
-  EXPECT_TRUE(ParseTransformsCsv(text, &rows, &err)) << err;
-  std::map<std::string, std::vector<Vec2>> out;
-  for (const auto& r : rows) {
-    if (!r.registered) continue;
-    std::vector<Vec2> points{Vec2(0.5 * (size.width - 1), 0.5 * (size.height - 1))};
-    for (const auto& c : ImageCorners(size.width, size.height)) points.push_back(c);
-    for (auto& p : points) {
-      const Vec2 px = Apply(r.mosaic_from_frame, p) + Vec2(0.5, 0.5);
-      p = Vec2(g[0].get<double>() + px.x() * g[1].get<double>() + px.y() * g[2].get<double>(),
-               g[3].get<double>() + px.x() * g[4].get<double>() + px.y() * g[5].get<double>());
-    }
-    out[r.filename] = points;
-  }
-  return out;
 }
 
 // Bridging on a real flight (issue 17): two mid-strip frames of caliterra_small turned into calm water (EXIF GPS

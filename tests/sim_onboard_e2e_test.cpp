@@ -1,19 +1,17 @@
 // End to end with ground truth: simulated flight -> onboard binary (replay) -> evaluator.
 #include <gtest/gtest.h>
-#include <ogr_spatialref.h>
 #include <sys/wait.h>
 
 #include <filesystem>
 #include <fstream>
-#include <map>
-#include <memory>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
-#include <sstream>
 
 #include "core/eval/evaluator.h"
 #include "core/eval/image_score.h"
 #include "core/session/session_dir.h"
+#include "tests/geo_txt_test_util.h"
+#include "tests/session_test_util.h"
 #include "tests/test_env.h"
 #include "tools/sim_writer.h"
 
@@ -115,39 +113,6 @@ TEST(SimOnboardE2ETest, OneDegreeTiltWithTheHomographyModelGoesBelowTheAffineFlo
   fs::remove_all(run.dir);
 }
 
-// WGS 84 longitude/latitude (in that order) to the UTM zone `epsg`.
-std::unique_ptr<OGRCoordinateTransformation> WgsToUtm(int epsg) {
-  OGRSpatialReference wgs84, utm;
-  wgs84.importFromEPSG(4326);
-  wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-  utm.importFromEPSG(epsg);
-  return std::unique_ptr<OGRCoordinateTransformation>(OGRCreateCoordinateTransformation(&wgs84, &utm));
-}
-
-// name -> (easting, northing) of an OpenDroneMap geo.txt in WGS 84 (extra columns ignored), through `to_utm`.
-std::map<std::string, Vec2> ReadGeoTxt(const fs::path& path, OGRCoordinateTransformation* to_utm) {
-  std::map<std::string, Vec2> out;
-  std::ifstream in(path);
-  std::string line, name;
-  std::getline(in, line);  // CRS
-  while (std::getline(in, line)) {
-    std::istringstream fields(line);
-    double lon = 0, lat = 0;
-    if (!(fields >> name >> lon >> lat)) continue;
-    to_utm->Transform(1, &lon, &lat);
-    out[name] = Vec2(lon, lat);
-  }
-  return out;
-}
-
-// The map position of a frame's centre through report.json's GDAL geotransform: x = g0 + (px + 0.5) g1,
-// y = g3 + (py + 0.5) g5 (the pixel's centre; north-up).
-Vec2 WorldOfCentre(const nlohmann::json& g, const Mat3& mosaic_from_frame, cv::Size size) {
-  const Vec2 px = Apply(mosaic_from_frame, Vec2(0.5 * (size.width - 1), 0.5 * (size.height - 1)));
-  return Vec2(g[0].get<double>() + (px.x() + 0.5) * g[1].get<double>(),
-              g[3].get<double>() + (px.y() + 0.5) * g[5].get<double>());
-}
-
 // The flight carries GPS (noise 1 m per axis, a 0.5 m wandering bias) as an OpenDroneMap geo.txt, replayed with
 // --telemetry geo: (the PNG frames have no EXIF). The map lands in the right UTM zone, and the frame centres, placed by
 // the images and fitted to all fixes at once, are closer to their true ground positions than the fixes themselves.
@@ -165,19 +130,17 @@ TEST(SimOnboardE2ETest, GpsTelemetryGeoreferencesTheMapWithinTheGpsNoise) {
   EXPECT_EQ(report["georef"]["epsg"].get<int>(), 32615);  // 91.99 W: UTM zone 15 N
   EXPECT_EQ(report["telemetry"]["frames_placed"].get<int>(), kFrames);
   // Truth and fixes in the map's CRS.
-  const auto to_utm = WgsToUtm(32615);
-  ASSERT_TRUE(to_utm);
-  const auto truth = ReadGeoTxt(run.dir / "flight/geo_truth.txt", to_utm.get());
-  const auto fixes = ReadGeoTxt(run.dir / "flight/geo.txt", to_utm.get());
+  const auto truth = test::ReadGeoTxt(run.dir / "flight/geo_truth.txt");
+  const auto fixes = test::ReadGeoTxt(run.dir / "flight/geo.txt");
   std::string text, err;
   std::vector<TransformRow> rows;
   ASSERT_TRUE(ReadTextFile((run.dir / "session/transforms.csv").string(), &text, &err)) << err;
   ASSERT_TRUE(ParseTransformsCsv(text, &rows, &err)) << err;
   double map_sq = 0, gps_sq = 0;
   for (const auto& r : rows) {
-    const Vec2 world = WorldOfCentre(report["georef"]["geotransform"], r.mosaic_from_frame, cv::Size(400, 300));
-    map_sq += (world - truth.at(r.filename)).squaredNorm();
-    gps_sq += (fixes.at(r.filename) - truth.at(r.filename)).squaredNorm();
+    const Vec2 world = test::WorldOfCentre(report["georef"]["geotransform"], r.mosaic_from_frame, cv::Size(400, 300));
+    map_sq += (world - truth.at(r.filename).utm).squaredNorm();
+    gps_sq += (fixes.at(r.filename).utm - truth.at(r.filename).utm).squaredNorm();
   }
   const double map_rms = std::sqrt(map_sq / static_cast<double>(rows.size()));
   const double gps_rms = std::sqrt(gps_sq / static_cast<double>(rows.size()));
@@ -262,17 +225,15 @@ TEST(SimOnboardE2ETest, WaterFlightWithTelemetryHasEveryFrameInTheMap) {
               images.max_px, by_telemetry);
   EXPECT_LT(images.rms_px, 0.5);  // frames placed by images are not moved by bridging
   // Frame centres placed by telemetry against their true ground position, beside the fixes' own error.
-  const auto to_utm = WgsToUtm(32615);
-  ASSERT_TRUE(to_utm);
-  const auto truth = ReadGeoTxt(geo / "geo_truth.txt", to_utm.get());
-  const auto fixes = ReadGeoTxt(geo / "geo.txt", to_utm.get());
+  const auto truth = test::ReadGeoTxt(geo / "geo_truth.txt");
+  const auto fixes = test::ReadGeoTxt(geo / "geo.txt");
   double map_sq = 0, gps_sq = 0;
   for (const auto& r : w.rows) {
     if (r.placed_by != "telemetry") continue;
-    map_sq +=
-        (WorldOfCentre(w.report["georef"]["geotransform"], r.mosaic_from_frame, kWaterFrame) - truth.at(r.filename))
-            .squaredNorm();
-    gps_sq += (fixes.at(r.filename) - truth.at(r.filename)).squaredNorm();
+    map_sq += (test::WorldOfCentre(w.report["georef"]["geotransform"], r.mosaic_from_frame, kWaterFrame) -
+               truth.at(r.filename).utm)
+                  .squaredNorm();
+    gps_sq += (fixes.at(r.filename).utm - truth.at(r.filename).utm).squaredNorm();
   }
   const double map_rms = std::sqrt(map_sq / by_telemetry), gps_rms = std::sqrt(gps_sq / by_telemetry);
   std::printf("frames placed by telemetry: centres %.2f m RMS from the truth, their fixes %.2f m RMS\n", map_rms,

@@ -1,7 +1,6 @@
 // End to end: a simulated flight's telemetry (hal/sim/sim_telemetry.h) as a .tlog replayed beside its frames, read by
 // an independent MAVLink implementation (node-mavlink), and live over UDP in step with frames rendered on the fly.
 #include <gtest/gtest.h>
-#include <ogr_spatialref.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -9,13 +8,13 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
 #include "core/eval/evaluator.h"
 #include "core/session/session_dir.h"
 #include "hal/sim/sim_telemetry.h"
+#include "tests/geo_txt_test_util.h"
 #include "tests/test_env.h"
 #include "tests/test_net.h"
 #include "tools/sim_writer.h"
@@ -25,6 +24,8 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
+using test::GeoRow;
+using test::ReadGeoTxt;
 
 const std::string kCanvas = std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg";
 const int kStrips = test::Emulated() ? 2 : 3;
@@ -34,36 +35,6 @@ const cv::Size kFrameSize(400, 300);
 const std::string kPlan = "frame_width: 400\nframe_height: 300\ngsd: 1.0\nstrips: " + std::to_string(kStrips) +
                           "\nstrip_length: 480\nforward_overlap: 0.7\nside_overlap: 0.3\nseed: 3\n"
                           "gps: 1\nmetres_per_px: 0.1\ngps_noise_m: 1.0\ngps_bias_m: 0.5\n";
-
-struct GeoRow {
-  Vec2 utm = Vec2::Zero();
-  double lat = 0, lon = 0, alt = 0, kappa = 0;
-};
-
-// An OpenDroneMap geo.txt in WGS 84 (name lon lat alt [omega phi kappa]), with each position in UTM zone 15 N.
-std::map<std::string, GeoRow> ReadGeoTxt(const fs::path& path) {
-  OGRSpatialReference wgs84, utm;
-  wgs84.importFromEPSG(4326);
-  wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-  utm.importFromEPSG(32615);
-  std::unique_ptr<OGRCoordinateTransformation> to_utm(OGRCreateCoordinateTransformation(&wgs84, &utm));
-  std::map<std::string, GeoRow> out;
-  std::ifstream in(path);
-  std::string line, name;
-  std::getline(in, line);  // CRS
-  while (std::getline(in, line)) {
-    std::istringstream fields(line);
-    GeoRow r;
-    double omega = 0, phi = 0;
-    if (!(fields >> name >> r.lon >> r.lat >> r.alt)) continue;
-    fields >> omega >> phi >> r.kappa;
-    double x = r.lon, y = r.lat;
-    to_utm->Transform(1, &x, &y);
-    r.utm = Vec2(x, y);
-    out[name] = r;
-  }
-  return out;
-}
 
 fs::path TestDir(const std::string& name) {
   return fs::temp_directory_path() / ("uavm_simtel_e2e_" + name + "_" + std::to_string(::getpid()));

@@ -2,6 +2,7 @@
 
 #include <Eigen/QR>
 #include <Eigen/SVD>
+#include <algorithm>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
@@ -46,6 +47,20 @@ std::vector<cv::Point2f> Footprint(const Mat3& tgt_from_src, int width, int heig
     out.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
   }
   return out;
+}
+
+Bounds2 FootprintBounds(const std::vector<int>& ids, const std::vector<Mat3>& tgt_from_src,
+                        const std::function<cv::Size(int)>& size_of, Bounds2 box) {
+  for (int id : ids) {
+    const cv::Size size = size_of(id);
+    for (const auto& p : Footprint(tgt_from_src[static_cast<size_t>(id)], size.width, size.height)) {
+      box.minx = std::min<double>(box.minx, p.x);
+      box.miny = std::min<double>(box.miny, p.y);
+      box.maxx = std::max<double>(box.maxx, p.x);
+      box.maxy = std::max<double>(box.maxy, p.y);
+    }
+  }
+  return box;
 }
 
 double PolygonArea(const std::vector<cv::Point2f>& polygon) {

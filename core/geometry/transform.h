@@ -2,6 +2,7 @@
 #include <Eigen/Core>
 #include <Eigen/LU>  // inverse() and determinant() of the 3x3 maps
 #include <array>
+#include <functional>
 #include <opencv2/core.hpp>
 #include <vector>
 
@@ -24,6 +25,13 @@ using Vec2 = Eigen::Vector2d;
 [[nodiscard]] std::array<Vec2, 4> ImageCorners(int width, int height);
 // Corners of a w x h image mapped by tgt_from_src.
 [[nodiscard]] std::vector<cv::Point2f> Footprint(const Mat3& tgt_from_src, int width, int height);
+// An axis-aligned box; the default one is empty (the first point added makes it that point).
+struct Bounds2 {
+  double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
+};
+// `box` grown to hold the footprints of the images `ids`: image id, of size size_of(id), mapped by tgt_from_src[id].
+[[nodiscard]] Bounds2 FootprintBounds(const std::vector<int>& ids, const std::vector<Mat3>& tgt_from_src,
+                                      const std::function<cv::Size(int)>& size_of, Bounds2 box = {});
 [[nodiscard]] double PolygonArea(const std::vector<cv::Point2f>& polygon);
 // Area of the intersection of two convex polygons (0 when disjoint or degenerate).
 [[nodiscard]] double ConvexOverlapArea(const std::vector<cv::Point2f>& a, const std::vector<cv::Point2f>& b);

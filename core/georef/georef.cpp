@@ -133,6 +133,27 @@ bool LatLonToProjected(int epsg, const std::vector<double>& lat, const std::vect
   return true;
 }
 
+ProjectedConverter::ProjectedConverter() = default;
+ProjectedConverter::~ProjectedConverter() = default;
+
+bool ProjectedConverter::ToProjected(int epsg, double latitude_deg, double longitude_deg, Vec2* out,
+                                     std::string* error_out) {
+  std::string ignored;
+  std::string* error = error_out != nullptr ? error_out : &ignored;
+  if (!transform_ || epsg != epsg_) {
+    epsg_ = epsg;
+    transform_ = MakeTransform(epsg, true, error);
+    if (!transform_) return false;
+  }
+  double x = longitude_deg, y = latitude_deg;
+  if (!transform_->Transform(1, &x, &y)) {
+    *error = "PROJ failed to project the positions";
+    return false;
+  }
+  *out = Vec2(x, y);
+  return true;
+}
+
 bool ProjectedToLatLon(int epsg, const std::vector<Vec2>& xy, std::vector<double>* lat, std::vector<double>* lon,
                        std::string* error) {
   auto t = MakeTransform(epsg, false, error);
@@ -148,6 +169,12 @@ bool ProjectedToLatLon(int epsg, const std::vector<Vec2>& xy, std::vector<double
     return false;
   }
   return true;
+}
+
+Mat3 WorldFromPixel3(const Eigen::Matrix<double, 2, 3>& world_from_pixel) {
+  Mat3 m = Mat3::Identity();
+  m.topRows<2>() = world_from_pixel;
+  return m;
 }
 
 std::array<double, 6> GdalGeoTransform(const Eigen::Matrix<double, 2, 3>& m) {

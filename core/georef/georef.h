@@ -1,9 +1,12 @@
 #pragma once
 #include <Eigen/Core>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "core/geometry/transform.h"
+
+class OGRCoordinateTransformation;
 
 namespace uavm {
 
@@ -49,6 +52,9 @@ struct GeorefFit {
   std::vector<double> residuals_m;  // per point, in input order
 };
 
+// world_from_pixel (2x3) as a homogeneous 3x3 map, to compose with the canvas's maps or invert.
+[[nodiscard]] Mat3 WorldFromPixel3(const Eigen::Matrix<double, 2, 3>& world_from_pixel);
+
 // EPSG code of the WGS 84 / UTM zone holding (lat, lon) (Norway/Svalbard exceptions ignored).
 [[nodiscard]] int UtmEpsg(double latitude_deg, double longitude_deg);
 
@@ -59,6 +65,23 @@ struct GeorefFit {
 [[nodiscard]] bool ProjectedToLatLon(int epsg, const std::vector<Vec2>& xy, std::vector<double>* lat,
                                      std::vector<double>* lon, std::string* error);
 [[nodiscard]] std::string EpsgWkt(int epsg);
+
+// WGS 84 lat/lon -> a projected CRS, one position at a time, for the frame loop: PROJ's transformation (~0.4 ms to
+// build) is kept and built again only when the EPSG changes. The same numbers as LatLonToProjected.
+class ProjectedConverter {
+ public:
+  ProjectedConverter();
+  ~ProjectedConverter();
+  ProjectedConverter(const ProjectedConverter&) = delete;
+  ProjectedConverter& operator=(const ProjectedConverter&) = delete;
+
+  [[nodiscard]] bool ToProjected(int epsg, double latitude_deg, double longitude_deg, Vec2* out,
+                                 std::string* error = nullptr);
+
+ private:
+  int epsg_ = 0;  // of transform_
+  std::unique_ptr<OGRCoordinateTransformation> transform_;
+};
 
 [[nodiscard]] GeorefFit FitGeoref(const std::vector<GeoPoint>& points, const GeorefOptions& options);
 

@@ -168,9 +168,7 @@ LiveGeorefView LiveGeoref::Describe(const Mat3& image_from_mosaic, int width, in
     v.reason = attempted_ && !fit_.failure.empty() ? fit_.failure : WaitingReason();
     return v;
   }
-  Mat3 world = Mat3::Identity();
-  world.topRows<2>() = fit_.world_from_pixel;
-  Mat3 world_from_image = world * image_from_mosaic.inverse();
+  Mat3 world_from_image = WorldFromPixel3(fit_.world_from_pixel) * image_from_mosaic.inverse();
   world_from_image /= world_from_image(2, 2);
   v.world_from_pixel = world_from_image.topRows<2>();
   // The picture's outer corners: pixel centres are integers, so its edges lie half a pixel beyond them.

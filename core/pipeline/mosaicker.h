@@ -166,6 +166,7 @@ class Mosaicker {
   nlohmann::json bridge_report_ = nlohmann::json::object();
   PreviewListener preview_listener_;
   LiveGeoref live_georef_{LiveGeorefOptions{.fit = options_.georef}};
+  mutable ProjectedConverter hint_projection_;  // PositionHintFor(): lat/lon -> the live georeference's CRS
   int live_sidecar_epsg_ = -1;  // the CRS live.jpg.aux.xml names; 0: no sidecars; -1: unknown (a previous run's?)
   double georef_rotation_removed_deg_ = 0;
   int georef_gps_frames_ = 0;

@@ -13,16 +13,6 @@
 
 namespace uavm {
 
-namespace {
-
-Mat3 WorldFromPixel(const GeorefFit& fit) {
-  Mat3 w = Mat3::Identity();
-  w.topRows<2>() = fit.world_from_pixel;
-  return w;
-}
-
-}  // namespace
-
 // Frames of `placed` are the map's; the others that are stored in the session become the pieces bridging may place.
 std::vector<BridgeFrame> Mosaicker::BridgeInputs(const std::vector<int>& placed,
                                                  const std::vector<Mat3>& canvas_from_original, int* candidates) {
@@ -30,7 +20,7 @@ std::vector<BridgeFrame> Mosaicker::BridgeInputs(const std::vector<int>& placed,
   std::unordered_map<int, int> piece_of;  // frames of the other image-linked pieces: the piece's first frame
   for (const auto& members : solution_.other_components)
     for (int id : members) piece_of[id] = members.front();
-  const Mat3 world = WorldFromPixel(georef_);
+  const Mat3 world = WorldFromPixel3(georef_.world_from_pixel);
   std::vector<BridgeFrame> frames;
   std::vector<double> lat, lon;
   *candidates = 0;
@@ -89,7 +79,7 @@ void Mosaicker::BridgeFrames(std::vector<int>* placed, std::vector<Mat3>* canvas
     spdlog::warn("bridge: {} frames not placed ({})", candidates, r.failure);
     return;
   }
-  const Mat3 pixel_from_world = WorldFromPixel(georef_).inverse();
+  const Mat3 pixel_from_world = WorldFromPixel3(georef_.world_from_pixel).inverse();
   std::vector<int> added;
   for (const BridgePlacement& p : r.placed) {
     (*canvas_from_original)[static_cast<size_t>(p.id)] = pixel_from_world * p.world_from_frame;
@@ -114,19 +104,11 @@ void Mosaicker::BridgeFrames(std::vector<int>* placed, std::vector<Mat3>* canvas
 // Grows the canvas (and shifts every placed frame and the georeference) to hold `placed`; false, with nothing
 // changed, when that would exceed max_canvas_side.
 bool Mosaicker::GrowCanvas(const std::vector<int>& placed, std::vector<Mat3>* canvas_from_original, cv::Size* canvas) {
-  double minx = 0, miny = 0, maxx = canvas->width - 1.0, maxy = canvas->height - 1.0;
-  for (int id : placed) {
-    const FrameState& f = frames_[static_cast<size_t>(id)];
-    for (const auto& p :
-         Footprint((*canvas_from_original)[static_cast<size_t>(id)], f.original_size.width, f.original_size.height)) {
-      minx = std::min<double>(minx, p.x);
-      miny = std::min<double>(miny, p.y);
-      maxx = std::max<double>(maxx, p.x);
-      maxy = std::max<double>(maxy, p.y);
-    }
-  }
-  const double x0 = std::floor(minx), y0 = std::floor(miny);
-  const double w = std::ceil(maxx) - x0 + 1, h = std::ceil(maxy) - y0 + 1;
+  const Bounds2 box = FootprintBounds(placed, *canvas_from_original,
+                                      [this](int id) { return frames_[static_cast<size_t>(id)].original_size; },
+                                      {0, 0, canvas->width - 1.0, canvas->height - 1.0});
+  const double x0 = std::floor(box.minx), y0 = std::floor(box.miny);
+  const double w = std::ceil(box.maxx) - x0 + 1, h = std::ceil(box.maxy) - y0 + 1;
   if (std::max(w, h) > options_.max_canvas_side) {
     spdlog::warn("bridge: the canvas would grow to {:.0f}x{:.0f} (max_canvas_side {}): no frame placed by telemetry", w,
                  h, options_.max_canvas_side);
@@ -135,7 +117,7 @@ bool Mosaicker::GrowCanvas(const std::vector<int>& placed, std::vector<Mat3>* ca
   const Mat3 shift = Translation(-x0, -y0);
   for (int id : placed)
     (*canvas_from_original)[static_cast<size_t>(id)] = shift * (*canvas_from_original)[static_cast<size_t>(id)];
-  georef_.world_from_pixel = (WorldFromPixel(georef_) * shift.inverse()).topRows<2>();
+  georef_.world_from_pixel = (WorldFromPixel3(georef_.world_from_pixel) * shift.inverse()).topRows<2>();
   *canvas = cv::Size(static_cast<int>(w), static_cast<int>(h));
   return true;
 }

@@ -53,9 +53,7 @@ GeorefFit Mosaicker::GeorefCanvas(const std::vector<int>& component, std::vector
   // new canvas = T * old canvas (an affine map: shift, turn, any shrink), T from the reference frame's maps.
   Mat3 T = (*canvas_from_original)[static_cast<size_t>(ref)] * old_from_ref.inverse();
   T /= T(2, 2);
-  Mat3 world = Mat3::Identity();
-  world.topRows<2>() = fit.world_from_pixel;
-  const Mat3 world_from_new = world * T.inverse();
+  const Mat3 world_from_new = WorldFromPixel3(fit.world_from_pixel) * T.inverse();
   fit.world_from_pixel = world_from_new.topRows<2>();
   // North-up by construction: what is left off the diagonal is rounding.
   const double scale = std::abs(fit.world_from_pixel(0, 0));

@@ -11,14 +11,11 @@ std::optional<PositionHint> Mosaicker::PositionHintFor(const FrameMetadata& m) c
   if (!live_georef_.ok() || !m.latitude_deg || !m.longitude_deg) return std::nullopt;
   const GeorefFit& fit = live_georef_.fit();
   if (fit.inlier_ids.empty()) return std::nullopt;
-  std::vector<Vec2> world;
-  std::string error;
-  if (!LatLonToProjected(fit.epsg, {*m.latitude_deg}, {*m.longitude_deg}, &world, &error)) return std::nullopt;
-  Mat3 world_from_pixel = Mat3::Identity();
-  world_from_pixel.topRows<2>() = fit.world_from_pixel;
+  Vec2 world;
+  if (!hint_projection_.ToProjected(fit.epsg, *m.latitude_deg, *m.longitude_deg, &world)) return std::nullopt;
   // The fit's pixels are the mosaic coordinates the preview drew its frames in: those of its newest inlier's
   // component (a later merge may have moved it; the hint only chooses candidates, a wrong one costs a few matches).
-  return PositionHint{fit.inlier_ids.back(), Apply(world_from_pixel.inverse(), world.front())};
+  return PositionHint{fit.inlier_ids.back(), Apply(WorldFromPixel3(fit.world_from_pixel).inverse(), world)};
 }
 
 }  // namespace uavm

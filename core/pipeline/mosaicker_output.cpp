@@ -94,21 +94,13 @@ double Mosaicker::PlaceCanvas(const std::vector<int>& component, std::vector<Mat
   const auto place = [&](const Mat3& pre) {
     for (int attempt = 0; attempt < 2; ++attempt) {
       const Mat3 out_from_mosaic_work = pre * ResizeMap(scale, scale) * ref.work_from_original.inverse();
-      double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
-      for (int id : component) {
-        const FrameState& f = frames_[static_cast<size_t>(id)];
+      for (int id : component)
         (*canvas_from_original)[static_cast<size_t>(id)] =
-            out_from_mosaic_work * engine_.mosaic_from_work(id) * f.work_from_original;
-        for (const auto& p : Footprint((*canvas_from_original)[static_cast<size_t>(id)], f.original_size.width,
-                                       f.original_size.height)) {
-          minx = std::min<double>(minx, p.x);
-          miny = std::min<double>(miny, p.y);
-          maxx = std::max<double>(maxx, p.x);
-          maxy = std::max<double>(maxy, p.y);
-        }
-      }
-      const double w = std::ceil(maxx) - std::floor(minx) + 1;
-      const double h = std::ceil(maxy) - std::floor(miny) + 1;
+            out_from_mosaic_work * engine_.mosaic_from_work(id) * frames_[static_cast<size_t>(id)].work_from_original;
+      const Bounds2 box = FootprintBounds(component, *canvas_from_original,
+                                          [this](int id) { return frames_[static_cast<size_t>(id)].original_size; });
+      const double w = std::ceil(box.maxx) - std::floor(box.minx) + 1;
+      const double h = std::ceil(box.maxy) - std::floor(box.miny) + 1;
       if (std::max(w, h) > options_.max_canvas_side && attempt == 0) {
         const double shrink = options_.max_canvas_side / std::max(w, h);
         spdlog::warn("canvas {:.0f}x{:.0f} exceeds max_canvas_side {}; mosaic_scale {:.3f} -> {:.3f}", w, h,
@@ -116,7 +108,7 @@ double Mosaicker::PlaceCanvas(const std::vector<int>& component, std::vector<Mat
         scale *= shrink * 0.999;
         continue;
       }
-      const Mat3 shift = Translation(-std::floor(minx), -std::floor(miny));
+      const Mat3 shift = Translation(-std::floor(box.minx), -std::floor(box.miny));
       for (int id : component)
         (*canvas_from_original)[static_cast<size_t>(id)] = shift * (*canvas_from_original)[static_cast<size_t>(id)];
       *canvas = cv::Size(static_cast<int>(w), static_cast<int>(h));
