@@ -3,12 +3,16 @@
 #include <httplib.h>
 #include <pthread.h>
 #include <spdlog/spdlog.h>
+#include <sys/socket.h>
 
+#include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <functional>
 #include <nlohmann/json.hpp>
 #include <vector>
+
+#include "firmware_app/tile_routes.h"
 
 namespace uavm::app {
 
@@ -79,6 +83,10 @@ class BoundedPool : public httplib::TaskQueue {
 // the view costs the flight nothing more. Georeferenced, the picture (not north-up) is laid on a web-mercator map by
 // a CSS affine transform through three of its corners, which arrive with the picture itself (X-Georef-Corners) so that
 // a picture never gets another's place; otherwise it is shown in its own pixel frame (CRS.Simple).
+// Once the flight publishes its tile pyramid (status.json "tiles"), the page shows the tiles instead (web mercator, or
+// CRS.Simple for a local set), the frames' footprints and the set's outline; a new layer with a `?v=` bump replaces
+// the old one once loaded (no flicker; the server ignores the query). The optional base map (?basemap=, else
+// Options::basemap_url) lies under them.
 const char* kLivePage = R"HTML(<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>uavmosaic live</title>
 <link rel="stylesheet" href="/leaflet/leaflet.css"><script src="/leaflet/leaflet.js"></script>
@@ -88,6 +96,9 @@ font:12px monospace;border-radius:4px}</style></head>
 <body><div id="map"></div><div id="s">waiting for the first picture&hellip;</div>
 <script>
 var map = null, geo = null, layer = null, seq = -1, followed = true, url = null;
+// Tile mode: the published set, its shown and loading layers, the footprints and the set's outline.
+var tset = null, tiles = null, pending = null, prints = null, outline = null, shown = '', epoch = 0;
+var basemap = new URLSearchParams(location.search).get('basemap') || /*BASEMAP*/"";
 // An image on the map by its corners [top-left, top-right, bottom-right, bottom-left] (lat, lon).
 var Placed = L.Layer.extend({
   onAdd: function (m) {
@@ -110,19 +121,70 @@ var Placed = L.Layer.extend({
       (p3.y - p0.y) / h, p0.x, p0.y].join(',') + ')';
   }
 });
-function makeMap(georeferenced) {
+function makeMap(georeferenced, t) {
   if (map) map.remove();
   geo = georeferenced;
   layer = null;
   followed = true;
   map = geo ? L.map('map', {zoomSnap: 0, zoomAnimation: false, maxZoom: 24})
-            : L.map('map', {crs: L.CRS.Simple, minZoom: -4, zoomSnap: 0});
-  if (geo) L.control.scale({imperial: false}).addTo(map);
+            : L.map('map', {crs: L.CRS.Simple, zoomSnap: 0, zoomAnimation: false,
+                            minZoom: t ? t.min_zoom - 8 : -4, maxZoom: t ? t.max_zoom + 4 : 18});
+  if (!geo) return;
+  L.control.scale({imperial: false}).addTo(map);
+  var host = basemap.replace(/^[a-z]+:\/\/([^/]+).*$/i, '$1').replace(/[^A-Za-z0-9.:-]/g, '');
+  if (basemap) L.tileLayer(basemap, {maxZoom: 24, maxNativeZoom: 19, zIndex: 0, attribution: 'base map: ' + host})
+    .addTo(map);
+}
+function tileBounds(t) { return L.latLngBounds([[t.bounds[1], t.bounds[0]], [t.bounds[3], t.bounds[2]]]); }
+function makeTileMap(t) {
+  makeMap(t.geographic, t);
+  tset = t; tiles = null; pending = null; shown = ''; ++epoch;
+  prints = L.geoJSON(null, {style: {color: '#ffeb3b', weight: 1, opacity: 0.8, fill: false}, interactive: false})
+    .addTo(map);
+  outline = L.rectangle(tileBounds(t), {color: '#4fc3f7', weight: 1, fill: false, dashArray: '4 4',
+                                        interactive: false}).addTo(map);
+  map.fitBounds(tileBounds(t), {animate: false});
+}
+// Fit the newest footprints (else the whole set) while the operator has not taken the view.
+function follow(t) {
+  if (!followed) return;
+  var f = prints.getLayers(), b = null;
+  for (var i = Math.max(0, f.length - 3); i < f.length; ++i) {
+    if (!f[i].getBounds) continue;
+    var fb = f[i].getBounds();
+    b = b ? b.extend(fb) : L.latLngBounds(fb.getSouthWest(), fb.getNorthEast());
+  }
+  map.fitBounds(b ? b.pad(0.25) : tileBounds(t), {animate: false, maxZoom: t.max_zoom});
+}
+function showTiles(t) {
+  if (!tset || tset.generation !== t.generation || geo !== t.geographic) makeTileMap(t);
+  var key = t.generation + '.' + t.updated_ns + '.' + t.frames;
+  if (key === shown || pending) return;
+  shown = key; tset = t;
+  outline.setBounds(tileBounds(t));
+  var next = L.tileLayer('/tiles/{z}/{x}/{y}.png?v=' + key, {minNativeZoom: t.min_zoom, maxNativeZoom: t.max_zoom,
+    minZoom: map.getMinZoom(), maxZoom: map.getMaxZoom(), bounds: tileBounds(t), noWrap: true, zIndex: 1});
+  var e = epoch, swap = function () {
+    if (e !== epoch || pending !== next) return;
+    if (tiles) map.removeLayer(tiles);
+    tiles = next; pending = null;
+  };
+  pending = next;
+  next.on('load', swap);
+  setTimeout(swap, 3000);  // no 'load' when no tile is in view
+  next.addTo(map);
+  fetch('/footprints.geojson').then(function (r) { return r.json(); }).then(function (g) {
+    if (e !== epoch) return;
+    prints.clearLayers();
+    prints.addData(g);
+    follow(t);
+  }).catch(function () {});
 }
 // The view follows the growing mosaic until the operator pans or zooms.
 document.getElementById('map').addEventListener('pointerdown', function () { followed = false; });
 document.getElementById('map').addEventListener('wheel', function () { followed = false; });
 function picture(img, corners) {
+  if (tset) return;  // the tiles took over meanwhile
   if (map === null || geo !== !!corners) makeMap(!!corners);
   var b = corners ? L.latLngBounds(corners) : L.latLngBounds([[-img.naturalHeight, 0], [0, img.naturalWidth]]);
   if (corners) {
@@ -142,7 +204,11 @@ function show(st) {
     st.rss_mib.toFixed(0) + '/' + st.budget_mib.toFixed(0) + ' MiB' +
     (g.georeferenced ? ' | ' + g.crs + ', RMS ' + g.rms_m.toFixed(1) + ' m over ' + g.frames_used + ' frames'
                      : ' | not georeferenced' + (g.reason ? ': ' + g.reason : '')) +
+    (st.tiles ? ' | tiles z' + st.tiles.min_zoom + '-' + st.tiles.max_zoom + ', ' + st.tiles.frames + ' frames' +
+                (st.tiles.final ? ', final' : '') : '') +
     (st.last_error ? ' | ' + st.last_error : '');
+  if (st.tiles) { showTiles(st.tiles); return; }
+  if (tset) { tset = null; map.remove(); map = null; seq = -1; }  // tiles withdrawn: back to the picture
   if (st.jpeg_seq === seq || st.jpeg_seq === 0) return;
   seq = st.jpeg_seq;
   fetch('/live.jpg?seq=' + seq).then(function (r) {
@@ -165,6 +231,38 @@ function poll() {
 poll();
 </script></body></html>
 )HTML";
+
+// httplib listens with a backlog of 5: a burst of connections (a browser opens ~6, GDAL several, a few clients at
+// once) would overflow it, and a dropped SYN costs its client a 1 s retransmit. Raised by listening again after bind.
+constexpr int kListenBacklog = 64;
+
+// The bounded pool, short timeouts, and the listening socket's descriptor once bound (-1 until then).
+std::shared_ptr<int> Configure(httplib::Server* s, const LiveServer::Options& o) {
+  const int threads = o.threads, queue = o.queue;
+  s->new_task_queue = [threads, queue] { return new BoundedPool(threads, queue); };
+  // Short timeouts and no long keep-alive: a slow or idle client must not hold one of the few workers.
+  s->set_keep_alive_max_count(4);
+  s->set_keep_alive_timeout(1);
+  s->set_read_timeout(2, 0);
+  s->set_write_timeout(2, 0);
+  s->set_payload_max_length(4096);
+  auto fd = std::make_shared<int>(-1);
+  s->set_socket_options([fd](socket_t sock) {
+    httplib::default_socket_options(sock);
+    *fd = sock;  // the last socket tried is the one bound
+  });
+  return fd;
+}
+
+// The page with the operator's default base map (a JS string literal; '<' escaped so that it cannot end the script).
+std::string LivePage(const std::string& basemap) {
+  std::string page = kLivePage;
+  std::string literal = nlohmann::json(basemap).dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+  for (size_t i = 0; (i = literal.find('<', i)) != std::string::npos;) literal.replace(i, 1, "\\u003c");
+  const std::string mark = "/*BASEMAP*/\"\"";
+  page.replace(page.find(mark), mark.size(), literal);
+  return page;
+}
 
 }  // namespace
 
@@ -191,14 +289,7 @@ bool ParseHostPort(const std::string& text, std::string* host, int* port) {
 bool LiveServer::Start(const Options& o, std::string* error) {
   server_ = std::make_unique<httplib::Server>();
   auto& s = *server_;
-  const int threads = o.threads, queue = o.queue;
-  s.new_task_queue = [threads, queue] { return new BoundedPool(threads, queue); };
-  // Short timeouts and no long keep-alive: a slow or idle client must not hold one of the few workers.
-  s.set_keep_alive_max_count(4);
-  s.set_keep_alive_timeout(1);
-  s.set_read_timeout(2, 0);
-  s.set_write_timeout(2, 0);
-  s.set_payload_max_length(4096);
+  const auto listen_fd = Configure(&s, o);
   const auto busy = [this](httplib::Response& res) {
     if (!t_overflow) return false;
     ++refused_;
@@ -209,67 +300,18 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     return true;
   };
   s.Get("/live.jpg", [this, busy](const httplib::Request&, httplib::Response& res) {
-    if (busy(res)) return;
-    std::shared_ptr<const std::string> jpeg;
-    std::shared_ptr<const nlohmann::json> georef;
-    {
-      std::lock_guard<std::mutex> lock(jpeg_mutex_);
-      jpeg = jpeg_;
-      georef = georef_;
-    }
-    ++served_;
-    res.set_header("Cache-Control", "no-store");
-    // This picture's own corners: the page places it by them, never by a status read before a newer picture came.
-    res.set_header("X-Georef-Corners",
-                   georef && georef->value("georeferenced", false) ? (*georef)["corners"].dump() : std::string("null"));
-    if (!jpeg) {
-      res.status = 503;
-      res.set_header("Retry-After", "1");
-      res.set_content("no picture yet\n", "text/plain");
-      return;
-    }
-    // Streamed from the shared buffer: no copy, and the frame loop may publish a new one meanwhile.
-    res.set_content_provider(jpeg->size(), "image/jpeg", [jpeg](size_t offset, size_t length, httplib::DataSink& sink) {
-      return sink.write(jpeg->data() + offset, length);
-    });
+    if (!busy(res)) ServeJpeg(res);
   });
   s.Get("/status.json", [this, busy](const httplib::Request&, httplib::Response& res) {
     if (busy(res)) return;
-    LiveStatus st;
-    long seq = 0;
-    std::shared_ptr<const nlohmann::json> georef;
-    {
-      std::lock_guard<std::mutex> lock(status_mutex_);
-      st = status_;
-    }
-    {
-      std::lock_guard<std::mutex> lock(jpeg_mutex_);
-      seq = jpeg_seq_;
-      georef = georef_;
-    }
     ++served_;
-    const nlohmann::json j = {
-        {"state", st.state},
-        {"frames_in", st.frames_in},
-        {"registered", st.registered},
-        {"dropped", st.dropped},
-        {"fps", st.fps},
-        {"median_frame_ms", st.median_frame_ms},
-        {"rss_mib", st.rss_mib},
-        {"budget_mib", st.budget_mib},
-        {"last_error", st.last_error},
-        {"uptime_s", st.uptime_s},
-        {"jpeg_seq", seq},
-        {"http_served", served_.load()},
-        {"http_refused", refused_.load()},
-        {"georef", georef ? *georef : nlohmann::json{{"georeferenced", false}, {"reason", "no picture yet"}}}};
     res.set_header("Cache-Control", "no-store");
-    res.set_content(j.dump(), "application/json");
+    res.set_content(StatusJson().dump(), "application/json");
   });
-  s.Get("/", [this, busy](const httplib::Request&, httplib::Response& res) {
+  s.Get("/", [this, busy, page = LivePage(o.basemap_url)](const httplib::Request&, httplib::Response& res) {
     if (busy(res)) return;
     ++served_;
-    res.set_content(kLivePage, "text/html");
+    res.set_content(page, "text/html");
   });
   if (!s.set_mount_point("/leaflet", o.leaflet_dir))
     spdlog::warn("live view: Leaflet not found in {} (install libjs-leaflet)", o.leaflet_dir);
@@ -279,12 +321,72 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     server_.reset();
     return false;
   }
+  if (*listen_fd >= 0) ::listen(*listen_fd, kListenBacklog);
+  AddTileRoutes(&s, {[this] { return TileSnapshotNow(); }, busy, &served_, o.host + ":" + std::to_string(port_)});
   listener_ = std::thread([this] {
     pthread_setname_np(pthread_self(), "uavm-http-acc");
     server_->listen_after_bind();
   });
-  spdlog::info("live view on http://{}:{}/ (/live.jpg, /status.json)", o.host, port_);
+  // httplib's stop() does nothing before its loop runs (the loop would then accept for ever): Stop() right after
+  // Start() must not hang.
+  for (int i = 0; i < 2000 && !server_->is_running(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  spdlog::info("live view on http://{}:{}/ (/live.jpg, /status.json, /tiles.json)", o.host, port_);
   return true;
+}
+
+void LiveServer::ServeJpeg(httplib::Response& res) {
+  std::shared_ptr<const std::string> jpeg;
+  std::shared_ptr<const nlohmann::json> georef;
+  {
+    std::lock_guard<std::mutex> lock(jpeg_mutex_);
+    jpeg = jpeg_;
+    georef = georef_;
+  }
+  ++served_;
+  res.set_header("Cache-Control", "no-store");
+  // This picture's own corners: the page places it by them, never by a status read before a newer picture came.
+  res.set_header("X-Georef-Corners",
+                 georef && georef->value("georeferenced", false) ? (*georef)["corners"].dump() : std::string("null"));
+  if (!jpeg) {
+    res.status = 503;
+    res.set_header("Retry-After", "1");
+    res.set_content("no picture yet\n", "text/plain");
+    return;
+  }
+  // Streamed from the shared buffer: no copy, and the frame loop may publish a new one meanwhile.
+  res.set_content_provider(jpeg->size(), "image/jpeg", [jpeg](size_t offset, size_t length, httplib::DataSink& sink) {
+    return sink.write(jpeg->data() + offset, length);
+  });
+}
+
+nlohmann::json LiveServer::StatusJson() {
+  LiveStatus st;
+  long seq = 0;
+  std::shared_ptr<const nlohmann::json> georef;
+  {
+    std::lock_guard<std::mutex> lock(status_mutex_);
+    st = status_;
+  }
+  {
+    std::lock_guard<std::mutex> lock(jpeg_mutex_);
+    seq = jpeg_seq_;
+    georef = georef_;
+  }
+  return {{"state", st.state},
+          {"frames_in", st.frames_in},
+          {"registered", st.registered},
+          {"dropped", st.dropped},
+          {"fps", st.fps},
+          {"median_frame_ms", st.median_frame_ms},
+          {"rss_mib", st.rss_mib},
+          {"budget_mib", st.budget_mib},
+          {"last_error", st.last_error},
+          {"uptime_s", st.uptime_s},
+          {"jpeg_seq", seq},
+          {"http_served", served_.load()},
+          {"http_refused", refused_.load()},
+          {"georef", georef ? *georef : nlohmann::json{{"georeferenced", false}, {"reason", "no picture yet"}}},
+          {"tiles", TilesStatus(TileSnapshotNow().tiles.get())}};
 }
 
 void LiveServer::Stop() {
@@ -299,6 +401,21 @@ void LiveServer::PublishJpeg(std::shared_ptr<const std::string> jpeg, std::share
   jpeg_ = std::move(jpeg);
   georef_ = std::move(georef);
   ++jpeg_seq_;
+}
+
+void LiveServer::PublishTiles(std::shared_ptr<const TileSetInfo> tiles) {
+  std::lock_guard<std::mutex> lock(tiles_mutex_);
+  tiles_ = std::move(tiles);
+}
+
+void LiveServer::PublishFootprints(std::shared_ptr<const std::string> geojson) {
+  std::lock_guard<std::mutex> lock(tiles_mutex_);
+  footprints_ = std::move(geojson);
+}
+
+TileSnapshot LiveServer::TileSnapshotNow() {
+  std::lock_guard<std::mutex> lock(tiles_mutex_);
+  return {tiles_, footprints_};
 }
 
 void LiveServer::PublishStatus(const LiveStatus& status, bool wait) {

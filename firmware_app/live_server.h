@@ -6,11 +6,16 @@
 #include <string>
 #include <thread>
 
+#include "core/tiles/tile_set.h"
+
 namespace httplib {
 class Server;
-}
+struct Response;
+}  // namespace httplib
 
 namespace uavm::app {
+
+struct TileSnapshot;
 
 // What /status.json reports; filled by the frame loop.
 struct LiveStatus {
@@ -27,7 +32,9 @@ struct LiveStatus {
 };
 
 // The operator's live view over HTTP (cpp-httplib): GET /live.jpg (the latest live preview), /status.json and / (a
-// Leaflet page showing the growing picture, laid on the map once the picture is georeferenced). Bounded: a fixed pool
+// Leaflet page showing the growing picture, laid on the map once the picture is georeferenced; the live tile pyramid
+// once one is published), and the pyramid itself for map clients (firmware_app/tile_routes.h: /tiles/{z}/{x}/{y}.png,
+// /tiles.json, /wmts/1.0.0/WMTSCapabilities.xml, /tiles.xml, /footprints.geojson). Bounded: a fixed pool
 // of worker threads and a short queue; a request that finds both full is answered 503 at once by the accepting thread.
 // The frame loop only swaps a pointer (JPEG) or copies a small struct (status, skipped if a reader holds the lock): it
 // never waits for a client.
@@ -36,9 +43,14 @@ class LiveServer {
   struct Options {
     std::string host = "127.0.0.1";
     int port = 8080;  // 0 = any free port (see port())
-    int threads = 2;
-    int queue = 4;
+    // Sized for tile clients (a browser opens ~6 connections, GDAL several, a few of each at once): a queued connection
+    // costs only its socket; still bounded, 503 beyond.
+    int threads = 4;
+    int queue = 64;
     std::string leaflet_dir = "/usr/share/javascript/leaflet";
+    // The live page's default base map under the tiles, an XYZ template (e.g.
+    // https://tile.openstreetmap.org/{z}/{x}/{y}.png; /?basemap=... overrides it). Empty: none, the page works offline.
+    std::string basemap_url;
   };
   LiveServer();
   ~LiveServer();
@@ -54,11 +66,19 @@ class LiveServer {
   void PublishJpeg(std::shared_ptr<const std::string> jpeg, std::shared_ptr<const nlohmann::json> georef = nullptr);
   // Non-blocking unless `wait`: dropped if a reader holds the lock (the next frame publishes again).
   void PublishStatus(const LiveStatus& status, bool wait = false);
+  // The live tile pyramid's description (null: none) and the frames' footprints (a GeoJSON FeatureCollection, in the
+  // tiles' coordinates): pointer swaps, never waiting for a client.
+  void PublishTiles(std::shared_ptr<const TileSetInfo> tiles);
+  void PublishFootprints(std::shared_ptr<const std::string> geojson);
 
   [[nodiscard]] long served() const { return served_.load(); }
   [[nodiscard]] long refused() const { return refused_.load(); }
 
  private:
+  TileSnapshot TileSnapshotNow();
+  nlohmann::json StatusJson();
+  void ServeJpeg(httplib::Response& res);
+
   std::unique_ptr<httplib::Server> server_;
   std::thread listener_;
   int port_ = 0;
@@ -66,6 +86,9 @@ class LiveServer {
   std::shared_ptr<const std::string> jpeg_;
   std::shared_ptr<const nlohmann::json> georef_;
   long jpeg_seq_ = 0;
+  std::mutex tiles_mutex_;  // held only for pointer copies
+  std::shared_ptr<const TileSetInfo> tiles_;
+  std::shared_ptr<const std::string> footprints_;
   std::mutex status_mutex_;
   LiveStatus status_;
   std::atomic<long> served_{0};
