@@ -186,7 +186,7 @@ cv::Vec4b Decode(const std::string& png, int x, int y) {
 class LiveTilesHttpTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = fs::temp_directory_path() / ("uavm_live_tiles_" + std::to_string(::getpid()));
+    root_ = fs::temp_directory_path() / ("uavm_tiles_http_" + std::to_string(::getpid()));
     fs::remove_all(root_);
     geo_ = MakeGeographic(root_ / "geo");
     local_ = MakeLocal(root_ / "local");
