@@ -259,6 +259,12 @@ class FlightStatus {
   FlightStatus(const Mosaicker& mosaicker, double budget_mib) : mosaicker_(mosaicker) {
     status_.budget_mib = budget_mib;
   }
+  // The mosaicker (declared first in Run) outlives the server: its tile worker must stop calling into it.
+  ~FlightStatus() {
+    if (tiles_source_ != nullptr) tiles_source_->SetTilesListeners(nullptr, nullptr);
+  }
+  FlightStatus(const FlightStatus&) = delete;
+  FlightStatus& operator=(const FlightStatus&) = delete;
 
   // The live view (off without --http). kExitOk, or the exit code.
   int StartLiveView(const RunConfig& config, const PipelineOptions& pipeline, Mosaicker* mosaicker) {
@@ -280,6 +286,9 @@ class FlightStatus {
         [this](std::shared_ptr<const std::string> jpeg, std::shared_ptr<const nlohmann::json> georef) {
           live_.PublishJpeg(std::move(jpeg), std::move(georef));
         });
+    mosaicker->SetTilesListeners([this](std::shared_ptr<const TileSetInfo> t) { live_.PublishTiles(std::move(t)); },
+                                 [this](std::shared_ptr<const std::string> g) { live_.PublishFootprints(std::move(g)); });
+    tiles_source_ = mosaicker;
     run_start_ns_ = MonotonicNs();  // the run's uptime starts with the server up
     return kExitOk;
   }
@@ -312,6 +321,15 @@ class FlightStatus {
                    registered_live, CurrentRssMiB());
   }
 
+  // The finished map stays served (a client that kept the URL gets the end-of-flight tiles) until `seconds` have
+  // passed or a stop signal comes.
+  void Linger(double seconds) const {
+    if (!serving_ || !(seconds > 0)) return;
+    spdlog::info("live view: the finished map stays served for {:.0f} s (SIGTERM ends it)", seconds);
+    const int64_t end = MonotonicNs() + static_cast<int64_t>(seconds * 1e9);
+    while (g_stop_signal == 0 && MonotonicNs() < end) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+
   LiveStatus& status() { return status_; }
   StatusLine& line() { return line_; }
 
@@ -320,6 +338,7 @@ class FlightStatus {
   StatusLine line_;
   // Declared before the loop's state in Run, so it stops last; it only ever reads copies.
   LiveServer live_;
+  Mosaicker* tiles_source_ = nullptr;  // borrowed: the listeners it calls are cleared before live_ goes
   bool serving_ = false;
   int64_t run_start_ns_ = 0;
   LiveStatus status_;
@@ -516,8 +535,10 @@ int Run(const RunConfig& config) {
                       static_cast<int>(journal.frames.size()), &queue, &capture_outcome);
   const bool storage_stopped = !RegisterFrames(config, &queue, &mosaicker, &notifier, &status, telemetry.get());
   capture.join();
-  return FinishFlight(source.get(), telemetry.get(), queue, capture_outcome, storage_stopped, &mosaicker, &notifier,
-                      &status);
+  const int rc = FinishFlight(source.get(), telemetry.get(), queue, capture_outcome, storage_stopped, &mosaicker,
+                              &notifier, &status);
+  status.Linger(config.http_linger_s);
+  return rc;
 }
 
 }  // namespace uavm::app

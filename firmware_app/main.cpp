@@ -78,9 +78,15 @@ int main(int argc, char** argv) {
   cli.add_option("--http", config.http,
                  "Live view over HTTP on HOST:PORT (e.g. 0.0.0.0:8080): / (map page), /live.jpg, /status.json; "
                  "off by default");
+  cli.add_option("--http-linger", config.http_linger_s,
+                 "With --http: keep serving the finished map (tiles, status) this many seconds after the flight, or "
+                 "until SIGTERM/SIGINT (a ground station that kept the URL gets the final tiles)");
   cli.add_flag(
       "--no-products", [&](std::int64_t) { p.write_products = false; },
       "Do not write mosaic.kmz, tiles/ and index.html (mosaic.tif stays a COG)");
+  bool no_live_tiles = false;
+  cli.add_flag("--no-live-tiles", no_live_tiles,
+               "With --http: no live tile pyramid (live_tiles/, /tiles/...); the live view shows live.jpg only");
   cli.add_option("--log-level", log_level, "trace|debug|info|warn|error");
   cli.add_flag("--print-config", print_config, "Print the effective configuration as YAML and exit");
 
@@ -99,6 +105,9 @@ int main(int argc, char** argv) {
     return e.get_exit_code() == 0 ? cli.exit(e) : (cli.exit(e), app::kExitUsage);
   }
   spdlog::set_level(spdlog::level::from_str(log_level));
+  // The live tiles are for the live server's clients: on with it, unless asked not to (or the config turned them on).
+  if (!config.http.empty() && !no_live_tiles) p.live_tiles.enabled = true;
+  if (no_live_tiles) p.live_tiles.enabled = false;
   if (list_cameras) return app::ListCameras();
   CountLogWarnings();  // report.json says how many warnings and errors the run logged
   std::string why;

@@ -20,7 +20,9 @@ namespace {
 constexpr std::string_view kTilesPrefix = "/tiles/";
 constexpr int kMaxZoom = 30;              // 2^z still fits the parsed range; no real grid goes beyond 24
 constexpr long kMaxTileBytes = 8L << 20;  // a 256x256 RGBA PNG is far smaller; anything bigger is not a tile
-constexpr double kWebMercatorHalf = 20037508.3427892;
+// Full precision (pi * 6378137): with the OGC's 7 decimals a client that snaps windows to the grid can land a pixel
+// off (GDAL 3.6's gdal_translate -projwin did, by one row).
+constexpr double kWebMercatorHalf = 20037508.342789244;
 constexpr double kScaleZ0 = 559082264.0287178;  // GoogleMapsCompatible scale denominator at zoom 0
 constexpr const char* kNoCache = "no-cache";
 
@@ -124,7 +126,7 @@ std::string WmtsMatrixSet(const TileSetInfo& t) {
       "<TileMatrixSet><ows:Identifier>GoogleMapsCompatible</ows:Identifier>\n"
       "<ows:SupportedCRS>urn:ogc:def:crs:EPSG::3857</ows:SupportedCRS>\n"
       "<WellKnownScaleSet>urn:ogc:def:wkss:OGC:1.0:GoogleMapsCompatible</WellKnownScaleSet>\n";
-  const std::string corner = Number(-kWebMercatorHalf, "%.7f") + " " + Number(kWebMercatorHalf, "%.7f");
+  const std::string corner = Number(-kWebMercatorHalf, "%.9f") + " " + Number(kWebMercatorHalf, "%.9f");
   for (int z = 0; z <= std::min(t.max_zoom, kMaxZoom); ++z) {
     const std::string n = std::to_string(int64_t{1} << z);
     s += "<TileMatrix><ows:Identifier>" + std::to_string(z) + "</ows:Identifier><ScaleDenominator>";
@@ -273,7 +275,7 @@ Reply WmtsReply(const TileSetInfo* tiles, const std::string& base_url) {
 Reply GdalWmsReply(const TileSetInfo* tiles, const std::string& base_url) {
   if (!tiles) return Text(404, "no tile set yet");
   if (!tiles->geographic) return NotGeoreferenced("The GDAL XYZ description");
-  const std::string half = Number(kWebMercatorHalf, "%.2f");
+  const std::string half = Number(kWebMercatorHalf, "%.9f");
   Reply r;
   r.body = "<GDAL_WMS>\n<Service name=\"TMS\"><ServerUrl>" + base_url +
            "/tiles/${z}/${x}/${y}.png</ServerUrl></Service>\n<DataWindow><UpperLeftX>-" + half +
@@ -281,7 +283,7 @@ Reply GdalWmsReply(const TileSetInfo* tiles, const std::string& base_url) {
            half + "</LowerRightY><TileLevel>" + std::to_string(tiles->max_zoom) +
            "</TileLevel><TileCountX>1</TileCountX><TileCountY>1</TileCountY><YOrigin>top</YOrigin></DataWindow>\n"
            "<Projection>EPSG:3857</Projection><BlockSizeX>256</BlockSizeX><BlockSizeY>256</BlockSizeY>"
-           "<BandsCount>4</BandsCount>\n<ZeroBlockHttpCodes>204,404</ZeroBlockHttpCodes>\n<Cache/>\n</GDAL_WMS>\n";
+           "<BandsCount>4</BandsCount>\n<ZeroBlockHttpCodes>204,404</ZeroBlockHttpCodes>\n</GDAL_WMS>\n";
   r.content_type = "application/xml";
   r.cache_control = kNoCache;
   return r;

@@ -24,6 +24,7 @@
 
 #include "tests/browser_shot.h"
 #include "tests/test_env.h"
+#include "tests/process_util.h"
 #include "tests/test_net.h"
 
 namespace uavm {
@@ -31,15 +32,6 @@ namespace {
 
 namespace fs = std::filesystem;
 const std::string kData = UAVM_TEST_DATA;
-
-pid_t Spawn(const std::string& cmd) {
-  const pid_t pid = ::fork();
-  if (pid == 0) {
-    ::execl("/bin/sh", "sh", "-c", ("exec " + cmd).c_str(), static_cast<char*>(nullptr));
-    ::_exit(127);
-  }
-  return pid;
-}
 
 // EXIF GPS (lat, lon) of the bundled flight's frames, in name order (its manifest).
 std::vector<std::array<double, 2>> FlightGps(const std::string& manifest) {
@@ -70,16 +62,6 @@ bool InsideQuad(const nlohmann::json& corners, double lat, double lon) {
     sign = s;
   }
   return true;
-}
-
-std::string CommandOutput(const std::string& cmd) {
-  std::string out;
-  FILE* p = ::popen(cmd.c_str(), "r");
-  if (p == nullptr) return out;
-  char buf[4096];
-  for (size_t n; (n = std::fread(buf, 1, sizeof(buf), p)) > 0;) out.append(buf, n);
-  ::pclose(p);
-  return out;
 }
 
 // During the flight (state "flying") the status gets a georeference from the frames' EXIF GPS: the flight's UTM zone,
@@ -125,7 +107,7 @@ void CheckLiveGeoref(httplib::Client* client, const fs::path& out) {
   EXPECT_EQ(corners.size(), 4u);
   // GIS: live.jgw and live.jpg.aux.xml beside live.jpg.
   EXPECT_TRUE(fs::exists(out / "live.jgw"));
-  const std::string info = CommandOutput("gdalinfo " + (out / "live.jpg").string() + " 2>&1");
+  const std::string info = test::CommandOutput("gdalinfo " + (out / "live.jpg").string() + " 2>&1");
   EXPECT_NE(info.find("WGS 84 / UTM zone 15N"), std::string::npos) << info;
   EXPECT_NE(info.find("ID[\"EPSG\",32615]"), std::string::npos) << info;
   EXPECT_NE(info.find("Upper Left  (  5"), std::string::npos) << info;  // easting 5xxxxx, not pixels
@@ -139,7 +121,7 @@ TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   // Under emulation the first 8 frames (each takes longer there).
   const test::FlightForTest flight(kData + "/brighton_beach_small/images", 8, out.string() + "_in");
   // ~2.4 s per frame: the run lasts long enough to look at it.
-  const pid_t pid = Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + flight.string() + " --out " +
+  const pid_t pid = test::Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + flight.string() + " --out " +
                           out.string() + " --http 127.0.0.1:" + std::to_string(port) +
                           " --process-delay-ms 1500 --preview-every 1 --log-level warn" + test::EmulationArgsString());
   ASSERT_GT(pid, 0);

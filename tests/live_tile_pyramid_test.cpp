@@ -15,6 +15,7 @@
 
 #include "core/tiles/tile_render.h"
 #include "core/tiles/web_mercator.h"
+#include "core/util/clock.h"
 
 namespace uavm {
 namespace {
@@ -56,6 +57,7 @@ TileFrame FrameAt(const Flight& f, int id, cv::Rect crop, bool with_pixels) {
   // Work pixel centre (u, v) is ground pixel centre (crop.x + u, crop.y + v): global corner coordinates + 0.5.
   t.grid_from_work = Translation(f.origin.x + crop.x + 0.5, f.origin.y + crop.y + 0.5);
   if (with_pixels) t.image = std::make_shared<const cv::Mat>(pixels);
+  t.registered_ns = with_pixels ? MonotonicNs() : 0;  // a new frame (its latency is measured), not a redraw
   return t;
 }
 
@@ -82,7 +84,7 @@ double TileError(const Flight& f, const fs::path& dir, int z, int x, int y, int*
 }
 
 LiveTilePyramid::FrameReader PngReader() {
-  return [](const std::string& path, cv::Size) { return cv::imread(path, cv::IMREAD_COLOR); };
+  return [](const std::string& path, cv::Size, int) { return cv::imread(path, cv::IMREAD_COLOR); };
 }
 
 TEST(LiveTilePyramidTest, TilesShowTheGroundWhereTheFramesAre) {
@@ -113,7 +115,7 @@ TEST(LiveTilePyramidTest, TilesShowTheGroundWhereTheFramesAre) {
   for (int y = 20; y <= 23; ++y)
     for (int x = 10; x <= 15; ++x) {
       int opaque = 0;
-      const double err = TileError(f, dir / "tiles", 12, x, y, &opaque);
+      const double err = TileError(f, dir / "tiles/1", 12, x, y, &opaque);
       if (opaque == 0) continue;
       ++tiles;
       opaque_total += opaque;
@@ -122,8 +124,8 @@ TEST(LiveTilePyramidTest, TilesShowTheGroundWhereTheFramesAre) {
   EXPECT_GE(tiles, 12);
   EXPECT_NEAR(opaque_total, 1200 * 700, 1200 * 700 * 0.01);  // covered: the ground, nothing more
   // Coarser zooms down to min_zoom exist and are the ground halved.
-  for (int z = 11; z >= 9; --z) EXPECT_TRUE(fs::exists(dir / "tiles" / std::to_string(z)));
-  const cv::Mat t11 = ReadPng(dir / "tiles/11/5/10.png");
+  for (int z = 11; z >= 9; --z) EXPECT_TRUE(fs::exists(dir / "tiles/1" / std::to_string(z)));
+  const cv::Mat t11 = ReadPng(dir / "tiles/1/11/5/10.png");  // grid generation 1
   ASSERT_FALSE(t11.empty());
   // Tile 11/5/10's pixel (c, r) is zoom-12 global pixels (2560 + 2c, 5120 + 2r) and the next ones: the mean of
   // those 2x2 ground pixels.
@@ -147,6 +149,7 @@ TEST(LiveTilePyramidTest, TilesShowTheGroundWhereTheFramesAre) {
   EXPECT_EQ(info->max_zoom, 12);
   EXPECT_EQ(info->min_zoom, 9);
   EXPECT_EQ(info->generation, 1);
+  EXPECT_EQ(fs::path(info->dir), dir / "tiles/1");
   EXPECT_LT(info->west, info->east);
   EXPECT_LT(info->south, info->north);
   EXPECT_FALSE(published.empty());
@@ -165,7 +168,7 @@ TEST(LiveTilePyramidTest, AMovedFrameLeavesItsOldPlaceAndAResetClearsAll) {
   wrong.grid_from_work = Translation(600, 0) * wrong.grid_from_work;
   ASSERT_TRUE(pyramid.Draw(wrong));
   pyramid.Drain();
-  const fs::path far_tile = dir / "tiles/10/7/5.png";  // only the wrong place reaches x >= 7*256
+  const fs::path far_tile = dir / "tiles/1/10/7/5.png";  // only the wrong place reaches x >= 7*256
   EXPECT_TRUE(fs::exists(far_tile));
   ASSERT_TRUE(pyramid.Draw(FrameAt(f, 1, {300, 200, 400, 300}, false)));
   pyramid.Drain();
@@ -174,7 +177,7 @@ TEST(LiveTilePyramidTest, AMovedFrameLeavesItsOldPlaceAndAResetClearsAll) {
   int opaque = 0;
   for (int y = 4; y <= 5; ++y)
     for (int x = 4; x <= 6; ++x) {
-      const double err = TileError(f, dir / "tiles", 10, x, y, &opaque);
+      const double err = TileError(f, dir / "tiles/1", 10, x, y, &opaque);
       if (opaque > 0) {
         EXPECT_LT(err, 2.0) << x << "," << y;
       }
@@ -185,11 +188,14 @@ TEST(LiveTilePyramidTest, AMovedFrameLeavesItsOldPlaceAndAResetClearsAll) {
   ASSERT_TRUE(pyramid.Draw(nudged));
   pyramid.Drain();
   EXPECT_EQ(pyramid.Stats().frames_redrawn, 1);  // only the real move was drawn again
+  // A new grid is drawn beside the old one, which goes once the new one is published (nothing left to draw).
   pyramid.Reset({true, 11, 9});
+  ASSERT_TRUE(pyramid.Draw(FrameAt(f, 0, {0, 0, 400, 300}, true)));
   pyramid.Drain();
-  EXPECT_FALSE(fs::exists(dir / "tiles/10"));
+  EXPECT_FALSE(fs::exists(dir / "tiles/1"));
+  EXPECT_TRUE(fs::exists(dir / "tiles/2/11"));
   EXPECT_EQ(pyramid.Info()->generation, 2);
-  EXPECT_EQ(pyramid.Info()->frames, 0);
+  EXPECT_EQ(pyramid.Info()->frames, 1);
   fs::remove_all(dir);
 }
 

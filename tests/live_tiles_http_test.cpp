@@ -26,6 +26,7 @@
 #include "core/tiles/tile_set.h"
 #include "firmware_app/live_server.h"
 #include "firmware_app/tile_routes.h"
+#include "tests/process_util.h"
 #include "tests/browser_shot.h"
 
 namespace uavm {
@@ -167,16 +168,6 @@ int RawGet(int port, const std::string& target) {
   return RawStatus(port, "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
 }
 
-std::string CommandOutput(const std::string& cmd) {
-  std::string out;
-  FILE* p = ::popen(cmd.c_str(), "r");
-  if (p == nullptr) return out;
-  char buf[4096];
-  for (size_t n; (n = std::fread(buf, 1, sizeof(buf), p)) > 0;) out.append(buf, n);
-  ::pclose(p);
-  return out;
-}
-
 cv::Vec4b Decode(const std::string& png, int x, int y) {
   const cv::Mat m = cv::imdecode(std::vector<uchar>(png.begin(), png.end()), cv::IMREAD_UNCHANGED);
   if (m.empty() || m.channels() != 4) return {};
@@ -226,7 +217,7 @@ class LiveTilesHttpTest : public ::testing::Test {
     char win[256];
     std::snprintf(win, sizeof(win), "-projwin %.4f %.4f %.4f %.4f -projwin_srs EPSG:3857", ulx, uly, ulx + 512 * res,
                   uly - 512 * res);
-    const std::string log = CommandOutput(Env() + "gdal_translate -q -of PNG -outsize 512 512 " + win + " '" + source +
+    const std::string log = test::CommandOutput(Env() + "gdal_translate -q -of PNG -outsize 512 512 " + win + " '" + source +
                                           "' " + out.string() + " 2>&1");
     const cv::Mat img = cv::imread(out.string(), cv::IMREAD_UNCHANGED);
     ASSERT_FALSE(img.empty()) << name << ": " << log;
@@ -632,7 +623,7 @@ TEST_F(LiveTilesHttpTest, WmtsCapabilitiesAndXyzDescriptionReadTheTiles) {
   EXPECT_EQ(r->status, 200);
 
   const std::string wmts = "WMTS:" + Url("/wmts/1.0.0/WMTSCapabilities.xml");
-  const std::string info = CommandOutput(Env() + "gdalinfo '" + wmts + "' 2>&1");
+  const std::string info = test::CommandOutput(Env() + "gdalinfo '" + wmts + "' 2>&1");
   EXPECT_NE(info.find("Driver: WMTS"), std::string::npos) << info;
   EXPECT_NE(info.find("uavmosaic"), std::string::npos) << info;
   EXPECT_NE(info.find("3857"), std::string::npos) << info;
@@ -649,7 +640,7 @@ TEST_F(LiveTilesHttpTest, WmtsCapabilitiesAndXyzDescriptionReadTheTiles) {
     std::fwrite(r->body.data(), 1, r->body.size(), f);
     std::fclose(f);
   }
-  const std::string xyz_info = CommandOutput(Env() + "gdalinfo " + desc.string() + " 2>&1");
+  const std::string xyz_info = test::CommandOutput(Env() + "gdalinfo " + desc.string() + " 2>&1");
   EXPECT_NE(xyz_info.find("Driver: WMS"), std::string::npos) << xyz_info;
   ExpectBlockRead(desc.string(), "via_tiles_xml");
   // GDAL can also open the description straight from the server.

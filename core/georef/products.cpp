@@ -254,6 +254,11 @@ void ChooseZooms(const MercatorBox& box, double gsd_m, const TileOptions& option
   set->max_zoom = std::clamp(static_cast<int>(Log2Ceil(world * std::cos(lat) / (kTile * gsd_m))), 0, 24);
   const double extent = std::max(box.x_max - box.x_min, box.y_max - box.y_min);
   set->min_zoom = std::clamp(static_cast<int>(std::floor(std::log2(world / extent))), 0, set->max_zoom);
+  if (options.force_max_zoom >= 0) {
+    set->max_zoom = options.force_max_zoom;
+    set->min_zoom = std::clamp(std::min(set->min_zoom, options.force_min_zoom), 0, set->max_zoom);
+    return;
+  }
   for (;;) {
     long total = 0;
     for (int z = set->min_zoom; z <= set->max_zoom; ++z) {

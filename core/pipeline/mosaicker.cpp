@@ -87,6 +87,7 @@ Mosaicker::Mosaicker(const PipelineOptions& options, SessionPaths paths)
       preview_(options.preview_side),
       start_ns_(MonotonicNs()) {
   resources_.FlightStart();
+  StartLiveTiles();
 }
 
 Mosaicker::~Mosaicker() = default;
@@ -138,6 +139,7 @@ void Mosaicker::UpdatePreview(int id, const cv::Mat& work_bgr) {
     if (!preview_.Write(paths_.Join("live.jpg"), &err)) spdlog::warn("live preview: {}", err);
     auto georef = UpdateLiveGeoref();
     if (preview_listener_) preview_listener_(preview_.last_jpeg(), std::move(georef));
+    PublishLiveFootprints();
   }
 }
 
@@ -254,6 +256,9 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   t.Restart();
   if (engine_.frame(id).failure.empty() || id == 0) UpdatePreview(id, prepared.work_bgr);
   stats_.Add("preview", t.ElapsedMs());
+  t.Restart();
+  UpdateLiveTiles(id, prepared.work_bgr);
+  if (live_tiles_) stats_.Add("live_tiles", t.ElapsedMs());  // the frame loop's share; the drawing is the worker's
   // Every few frames, not every frame: a trim walks the arenas (~1 ms).
   if (options_.trim_heap_every > 0 && id % options_.trim_heap_every == 0) TrimHeap();
   const double frame_ms = frame_timer.ElapsedMs();

@@ -20,6 +20,7 @@
 #include "core/session/feature_store.h"
 #include "core/session/journal.h"
 #include "core/session/session_dir.h"
+#include "core/tiles/live_tile_pyramid.h"
 #include "core/util/memory.h"
 #include "core/util/stats.h"
 
@@ -89,6 +90,11 @@ class Mosaicker {
   void SetPreviewListener(PreviewListener listener) {
     preview_listener_ = std::move(listener);
   }
+  // The live tile pyramid's state after each batch of tiles (called on its worker thread) and the newest frames'
+  // outlines as GeoJSON (frame loop, with each live.jpg); both must not block. No-op unless live_tiles.enabled.
+  using TilesListener = std::function<void(std::shared_ptr<const TileSetInfo>)>;
+  using FootprintsListener = std::function<void(std::shared_ptr<const std::string>)>;
+  void SetTilesListeners(TilesListener tiles, FootprintsListener footprints);
 
  private:
   // The session's record of one frame (the engine keeps the registration's, under the same id).
@@ -116,6 +122,19 @@ class Mosaicker {
   void AddLiveGeorefPoint(int id);
   [[nodiscard]] std::shared_ptr<const nlohmann::json> UpdateLiveGeoref();
   void WriteLiveSidecars(const LiveGeorefView& view);
+  // The live tile pyramid (mosaicker_tiles.cpp).
+  struct LiveTiles;
+  void StartLiveTiles();
+  void UpdateLiveTiles(int id, const cv::Mat& work_bgr);
+  [[nodiscard]] bool TileGridStale(int id);
+  [[nodiscard]] bool StartTileGrid(int id);
+  [[nodiscard]] double FinalGsdFromLiveFit() const;
+  [[nodiscard]] Mat3 GridFromWork(int id) const;  // zero when it cannot be computed
+  void DrawTile(int id, std::shared_ptr<const cv::Mat> image);
+  void PublishLiveFootprints();
+  [[nodiscard]] TileOptions FinalTileOptions() const;
+  // Waits for the pyramid, reports it, and hands the tile server the end-of-flight tiles (null: none were written).
+  void FinishLiveTiles(const TileSet* final_tiles);
   // Session files, mosaic, products and report of the solved `component` (mosaicker_output.cpp, _report.cpp).
   [[nodiscard]] bool WriteOutputs(const std::vector<int>& component, std::string* error);
   [[nodiscard]] double PlaceCanvas(const std::vector<int>& component, std::vector<Mat3>* canvas_from_original,
@@ -179,6 +198,8 @@ class Mosaicker {
   Solution solution_;
   MemoryPlan memory_plan_;
   nlohmann::json report_sections_ = nlohmann::json::object();
+  std::shared_ptr<LiveTiles> live_tiles_;  // null unless live_tiles.enabled (shared_ptr: LiveTiles is incomplete here)
+  nlohmann::json live_tiles_report_ = {{"enabled", false}};
 };
 
 }  // namespace uavm

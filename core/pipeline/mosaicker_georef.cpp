@@ -121,7 +121,10 @@ nlohmann::json Mosaicker::MakeProducts(const std::vector<int>& component, const 
   }
   j["cog"] = cog;
   j["cog_ms"] = timer.ElapsedMs();
-  if (!options_.write_products) return j;
+  if (!options_.write_products) {
+    FinishLiveTiles(nullptr);
+    return j;
+  }
   if (georef_.ok) {
     StageTimer t;
     const bool kmz = WriteKmz(tif, paths_.Join("mosaic.kmz"), &err);
@@ -131,8 +134,9 @@ nlohmann::json Mosaicker::MakeProducts(const std::vector<int>& component, const 
   }
   TileSet tiles;
   StageTimer t;
-  const bool tiles_ok = WriteTiles(tif, paths_.Join("tiles"), georef_.ok, georef_.gsd_m, options_.tiles, &tiles, &err);
+  const bool tiles_ok = WriteTiles(tif, paths_.Join("tiles"), georef_.ok, georef_.gsd_m, FinalTileOptions(), &tiles, &err);
   if (!tiles_ok) spdlog::warn("tiles: {}", err);
+  FinishLiveTiles(tiles_ok ? &tiles : nullptr);
   j["tiles"] = {{"ok", tiles_ok},
                 {"crs", georef_.ok ? "EPSG:3857" : "local"},
                 {"min_zoom", tiles.min_zoom},

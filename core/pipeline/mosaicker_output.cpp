@@ -67,6 +67,7 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   std::string err;
   if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err))
     spdlog::warn("live preview: {}", err);
+  FinishLiveTiles(nullptr);  // when no products were made (no-op after MakeProducts)
   return WriteReport(placed, composite, canvas, scale, std::move(products), error);
 }
 

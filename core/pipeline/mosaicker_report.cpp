@@ -92,6 +92,7 @@ bool Mosaicker::WriteReport(const std::vector<int>& component, const CompositeRe
   report["placed_by_telemetry"] = placed_by_telemetry_.size();
   report["bridge"] = bridge_report_;
   report["dropped_by_queue"] = dropped_frames_;
+  report["live_tiles"] = live_tiles_report_;
   report["camera"] = {{"captured", capture_.captured},
                       {"dropped_in_source", capture_.dropped},
                       {"driver_gaps", capture_.driver_gaps},

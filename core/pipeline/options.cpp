@@ -109,6 +109,16 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"bridge", "piece_fit_min_spread_m", &o.bridge.piece_fit_min_spread_m},
       {"products", "write", &o.write_products},
       {"products", "max_tiles", &o.tiles.max_tiles},
+      {"live_tiles", "enabled", &o.live_tiles.enabled},
+      {"live_tiles", "cache_tiles", &o.live_tiles.cache_tiles},
+      {"live_tiles", "frame_cache", &o.live_tiles.frame_cache},
+      {"live_tiles", "queue_images", &o.live_tiles.queue_images},
+      {"live_tiles", "queue_jobs", &o.live_tiles.queue_jobs},
+      {"live_tiles", "feather_px", &o.live_tiles.feather_px},
+      {"live_tiles", "png_compression", &o.live_tiles.png_compression},
+      {"live_tiles", "levels", &o.live_tiles.levels},
+      {"live_tiles", "redraw_shift_px", &o.live_tiles.redraw_shift_px},
+      {"live_tiles", "refit_shift_m", &o.live_tiles.refit_shift_m},
       {"telemetry", "latency_ms", &o.telemetry.latency_ms},
       {"telemetry", "max_gap_s", &o.telemetry.max_gap_s},
       {"telemetry", "exif_utc_offset_s", &o.telemetry.exif_utc_offset_s},
@@ -130,6 +140,7 @@ bool PipelineOptions::Check(std::string* why) const {
   if (!georef.Check(why)) return false;
   if (!bridge.Check(why)) return false;
   if (tiles.max_tiles < 1) return Fail(why, "products.max_tiles must be >= 1");
+  if (!live_tiles.Check(why)) return false;
   if (!(telemetry.max_gap_s > 0 && telemetry.max_gap_s <= 60))
     return Fail(why, "telemetry.max_gap_s must be in (0,60]");
   if (!(std::abs(telemetry.latency_ms) <= 10000)) return Fail(why, "telemetry.latency_ms must be within +-10000");

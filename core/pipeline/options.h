@@ -11,6 +11,7 @@
 #include "core/matching/pair_matcher.h"
 #include "core/mosaic/compositor.h"
 #include "core/registration/registration_engine.h"
+#include "core/tiles/live_tile_pyramid.h"
 
 namespace uavm {
 
@@ -42,6 +43,8 @@ struct PipelineOptions : RegistrationOptions {
   BridgeOptions bridge;
   bool write_products = true;  // mosaic.kmz, tiles/, index.html (mosaic.tif is a COG whenever it is written)
   TileOptions tiles;
+  // The live tile pyramid (core/tiles): on with --http (unless --no-live-tiles) or live_tiles.enabled.
+  LiveTileOptions live_tiles;
   std::string leaflet_dir = "/usr/share/javascript/leaflet";
   // Telemetry beside the frames (--telemetry; hal/telemetry): how its times meet the frames'.
   struct Telemetry {

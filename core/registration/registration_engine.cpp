@@ -221,6 +221,7 @@ bool RegistrationEngine::IsNewGround(int id) {
 
 void RegistrationEngine::Place(int id) {
   const FrameRecord& f = Record(id);
+  if (track_moves_) moved_.push_back(id);
   footprints_.Set(id, cv::Rect2d(cv::boundingRect(Footprint(Map(id), f.work_size.width, f.work_size.height))));
 }
 

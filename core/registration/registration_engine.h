@@ -4,6 +4,7 @@
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
+#include <utility>
 #include <vector>
 
 #include "core/adjust/affine_adjuster.h"
@@ -154,6 +155,12 @@ class RegistrationEngine {
   // Frame `id`'s component during the flight (its root: frames of one component share it) and that component's size.
   [[nodiscard]] int ComponentOf(int id) { return components_.Find(id); }
   [[nodiscard]] int ComponentSize(int id) { return components_.SizeOf(id); }
+  // The frames of the component rooted at `root`, ascending.
+  [[nodiscard]] const std::vector<int>& MembersOf(int root);
+  // Frames placed or moved (a solve, a merge) since the last call, for a follower such as the live tiles; only
+  // recorded after TrackMoves(true), so that nobody's unread log grows.
+  void TrackMoves(bool on) { track_moves_ = on; }
+  [[nodiscard]] std::vector<int> TakeMoved() { return std::exchange(moved_, {}); }
   [[nodiscard]] const std::deque<Edge>& edges() const { return graph_.edges(); }
   // For writers after Finish(): they load an edge's points through the spill and give them back.
   [[nodiscard]] std::deque<Edge>& mutable_edges() { return graph_.mutable_edges(); }
@@ -172,7 +179,6 @@ class RegistrationEngine {
   // Checked access to a placed frame's map; SetMap() places a frame (or moves it).
   [[nodiscard]] Mat3& Map(int id) { return mosaic_from_work_.at(id); }
   void SetMap(int id, const Mat3& m) { mosaic_from_work_.insert_or_assign(id, m); }
-  [[nodiscard]] const std::vector<int>& MembersOf(int root);
   [[nodiscard]] std::vector<const Edge*> EdgesTouching(const std::unordered_set<int>& ids, int root);
   void AddEdge(Edge edge);
   void ReleaseColdEdges();
@@ -203,6 +209,8 @@ class RegistrationEngine {
   FootprintGrid footprints_;        // in_graph frames' footprints, for overlap candidates and new-ground checks
   std::deque<FrameRecord> frames_;  // grows chunk by chunk: no doubling copy in a long flight
   std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
+  bool track_moves_ = false;
+  std::vector<int> moved_;
   std::unordered_map<int, Mat3> mosaic_from_work_;  // per placed frame, in its component's coordinates
   std::deque<std::pair<int, int>> retry_;           // (frame id, attempts)
   RegistrationCounters counters_;

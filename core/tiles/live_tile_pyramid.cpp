@@ -1,11 +1,13 @@
 #include "core/tiles/live_tile_pyramid.h"
 
+#include <pthread.h>
 #include <spdlog/spdlog.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <list>
 #include <unordered_map>
 #include <unordered_set>
@@ -29,6 +31,7 @@ bool LiveTileOptions::Check(std::string* why) const {
   if (png_compression < 0 || png_compression > 9) return fail("png_compression must be in [0, 9]");
   if (levels < 0 || levels > 24) return fail("levels must be in [0, 24]");
   if (!(redraw_shift_px >= 0)) return fail("redraw_shift_px must be >= 0");
+  if (!(refit_shift_m > 0)) return fail("refit_shift_m must be > 0");
   return true;
 }
 
@@ -36,19 +39,37 @@ bool LiveTileOptions::Check(std::string* why) const {
 class LiveTilePyramid::Renderer {
  public:
   Renderer(std::string dir, const LiveTileOptions& o, FrameReader reader)
-      : options_(o), store_(std::move(dir), o.cache_tiles, o.png_compression), reader_(std::move(reader)) {
-    store_.Clear();  // a previous run's tiles are not this flight's (a resumed one draws its frames again)
+      : options_(o), base_(std::move(dir)), reader_(std::move(reader)) {
+    std::error_code ec;
+    std::filesystem::remove_all(base_, ec);  // a previous run's tiles are not this flight's (a resume draws again)
+    store_ = std::make_unique<TileStore>(base_ + "/0", o.cache_tiles, o.png_compression);
   }
 
+  // A new grid in a directory of its own (base/<generation>): the old one stays served until the new one has
+  // caught up (RemoveOlderGenerations), so that a client never sees the map vanish.
   void Reset(const TileGrid& grid) {
-    store_.Clear();
+    ++generation_;
+    written_before_ += store_->tiles_written();
+    errors_before_ += store_->write_errors();
+    store_ = std::make_unique<TileStore>(base_ + "/" + std::to_string(generation_), options_.cache_tiles,
+                                         options_.png_compression);
+    store_->Clear();
     grid_ = grid;
     records_.clear();
     index_.clear();
     images_.clear();
     bounds_ = cv::Rect2d();
-    ++generation_;
+    pending_.clear();
   }
+
+  void RemoveOlderGenerations() const {
+    std::error_code ec;
+    for (const auto& e : std::filesystem::directory_iterator(base_, ec))
+      if (e.path().filename() != std::to_string(generation_)) std::filesystem::remove_all(e.path(), ec);
+  }
+  [[nodiscard]] int64_t generation() const { return generation_; }
+  [[nodiscard]] int64_t tiles_written() const { return written_before_ + store_->tiles_written(); }
+  [[nodiscard]] int64_t write_errors() const { return errors_before_ + store_->write_errors(); }
 
   // Draws a new frame or one that moved; false when nothing was drawn (no pixels, or a move too small to matter).
   bool Draw(const TileFrame& f, bool* redrawn, bool* reread) {
@@ -64,17 +85,23 @@ class LiveTilePyramid::Renderer {
     r.tiles = TilesOf(f.grid_from_work, f.work_size);
     Index(f.id, r);
     dirty.insert(r.tiles.begin(), r.tiles.end());
-    for (const TileKey& k : dirty) RenderAgain(k, reread);
-    Cascade(dirty);
+    RenderAgain(dirty, reread);
+    pending_.insert(dirty.begin(), dirty.end());
     return true;
   }
 
-  [[nodiscard]] bool Flush(std::string* error) { return store_.Flush(error); }
-  [[nodiscard]] const TileStore& store() const { return store_; }
+  // The coarser zooms over what changed since the last call.
+  [[nodiscard]] bool HasPending() const { return !pending_.empty(); }
+  void CascadePending() {
+    Cascade(std::move(pending_));
+    pending_.clear();
+  }
+
+  [[nodiscard]] bool Flush(std::string* error) { return store_->Flush(error); }
 
   [[nodiscard]] std::shared_ptr<const TileSetInfo> Info(int frames) const {
     auto info = std::make_shared<TileSetInfo>();
-    info->dir = store_.dir();
+    info->dir = store_->dir();
     info->geographic = grid_.geographic;
     info->min_zoom = grid_.min_zoom;
     info->max_zoom = grid_.max_zoom;
@@ -98,6 +125,7 @@ class LiveTilePyramid::Renderer {
   struct Record {
     std::string path;
     cv::Size work_size;
+    int decode_reduce = 1;
     Mat3 grid_from_work;
     std::vector<TileKey> tiles;  // max_zoom tiles it touches
   };
@@ -106,6 +134,7 @@ class LiveTilePyramid::Renderer {
     Record& r = records_[f.id];
     r.path = f.path;
     r.work_size = f.work_size;
+    r.decode_reduce = f.decode_reduce;
     r.grid_from_work = f.grid_from_work;
     r.tiles = TilesOf(f.grid_from_work, f.work_size);
     Index(f.id, r);
@@ -115,10 +144,10 @@ class LiveTilePyramid::Renderer {
     const FramePixels* px = f.image ? Remember(f.id, *f.image) : Pixels(f.id, r, reread);
     if (px == nullptr) return false;
     for (const TileKey& k : r.tiles) {
-      cv::Mat& tile = store_.Get(k);
-      if (PaintFrame(px->bgr, px->weight, TileFromWork(k, f.grid_from_work), &tile)) store_.MarkDirty(k);
+      cv::Mat& tile = store_->Get(k);
+      if (PaintFrame(px->bgr, px->weight, TileFromWork(k, f.grid_from_work), &tile)) store_->MarkDirty(k);
     }
-    Cascade({r.tiles.begin(), r.tiles.end()});
+    pending_.insert(r.tiles.begin(), r.tiles.end());
     return true;
   }
 
@@ -159,20 +188,27 @@ class LiveTilePyramid::Renderer {
     }
   }
 
-  // A max_zoom tile drawn again from every frame that touches it, oldest first (as they were drawn live).
-  void RenderAgain(const TileKey& k, bool* reread) {
-    cv::Mat& tile = store_.Get(k);
-    tile.setTo(cv::Scalar::all(0));
-    store_.MarkDirty(k);
-    auto it = index_.find(k);
-    if (it == index_.end()) return;
-    const std::vector<int> ids = it->second;
+  // Max_zoom tiles drawn again from every frame that touches them, oldest first (as they were drawn live). Frame by
+  // frame, so that each is decoded once however many of the tiles it covers.
+  void RenderAgain(const std::unordered_set<TileKey, TileKeyHash>& tiles, bool* reread) {
+    std::vector<int> ids;
+    for (const TileKey& k : tiles) {
+      store_->Get(k).setTo(cv::Scalar::all(0));
+      store_->MarkDirty(k);
+      auto it = index_.find(k);
+      if (it != index_.end()) ids.insert(ids.end(), it->second.begin(), it->second.end());
+    }
+    std::sort(ids.begin(), ids.end());
+    ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
     for (int id : ids) {
       const Record& r = records_.at(id);
       const FramePixels* px = Pixels(id, r, reread);
       if (px == nullptr) continue;
-      cv::Mat& t = store_.Get(k);  // Pixels() does not touch the tile cache: still the same tile
-      PaintFrame(px->bgr, px->weight, TileFromWork(k, r.grid_from_work), &t);
+      for (const TileKey& k : r.tiles) {
+        if (tiles.count(k) == 0) continue;
+        cv::Mat& tile = store_->Get(k);
+        if (PaintFrame(px->bgr, px->weight, TileFromWork(k, r.grid_from_work), &tile)) store_->MarkDirty(k);
+      }
     }
   }
 
@@ -185,11 +221,11 @@ class LiveTilePyramid::Renderer {
         cv::Mat children(2 * kTileSize, 2 * kTileSize, CV_8UC4);
         for (int q = 0; q < 4; ++q) {
           const TileKey c{z + 1, 2 * p.x + (q & 1), 2 * p.y + (q >> 1)};
-          store_.Get(c).copyTo(children(cv::Rect((q & 1) * kTileSize, (q >> 1) * kTileSize, kTileSize, kTileSize)));
+          store_->Get(c).copyTo(children(cv::Rect((q & 1) * kTileSize, (q >> 1) * kTileSize, kTileSize, kTileSize)));
         }
-        cv::Mat& tile = store_.Get(p);
+        cv::Mat& tile = store_->Get(p);
         HalveRgba(children, &tile);
-        store_.MarkDirty(p);
+        store_->MarkDirty(p);
       }
       changed = std::move(parents);
     }
@@ -206,7 +242,8 @@ class LiveTilePyramid::Renderer {
         return &images_.front().second;
       }
     if (images_.size() >= static_cast<size_t>(options_.frame_cache)) images_.pop_back();
-    images_.emplace_front(id, FramePixels{bgr, FeatherWeight(bgr.size(), options_.feather_px)});
+    if (weight_.size() != bgr.size()) weight_ = FeatherWeight(bgr.size(), options_.feather_px);  // one per frame size
+    images_.emplace_front(id, FramePixels{bgr, weight_});
     return &images_.front().second;
   }
   const FramePixels* Pixels(int id, const Record& r, bool* reread) {
@@ -215,7 +252,7 @@ class LiveTilePyramid::Renderer {
         images_.splice(images_.begin(), images_, it);
         return &images_.front().second;
       }
-    const cv::Mat bgr = reader_ ? reader_(r.path, r.work_size) : cv::Mat();
+    const cv::Mat bgr = reader_ ? reader_(r.path, r.work_size, r.decode_reduce) : cv::Mat();
     if (bgr.empty()) {
       spdlog::warn("live tiles: cannot read {} again; its tiles miss it", r.path);
       return nullptr;
@@ -225,18 +262,21 @@ class LiveTilePyramid::Renderer {
   }
 
   LiveTileOptions options_;
-  TileStore store_;
+  std::string base_;
+  std::unique_ptr<TileStore> store_;
+  int64_t written_before_ = 0, errors_before_ = 0;  // by the stores of earlier grids
   FrameReader reader_;
   TileGrid grid_;
   int64_t generation_ = 0;
   std::unordered_map<int, Record> records_;
   std::unordered_map<TileKey, std::vector<int>, TileKeyHash> index_;  // max_zoom tile -> frames, ascending
   std::list<std::pair<int, FramePixels>> images_;                     // most recently used first
-  cv::Rect2d bounds_;                                                  // max_zoom pixels drawn so far
+  cv::Mat weight_;                                                    // shared, read-only: frames of one size
+  cv::Rect2d bounds_;                                                 // max_zoom pixels drawn so far
+  std::unordered_set<TileKey, TileKeyHash> pending_;  // max_zoom tiles whose parents are not rebuilt yet
 };
 
-LiveTilePyramid::LiveTilePyramid(std::string dir, const LiveTileOptions& options, FrameReader reader,
-                                 Listener listener)
+LiveTilePyramid::LiveTilePyramid(std::string dir, const LiveTileOptions& options, FrameReader reader, Listener listener)
     : options_(options),
       listener_(std::move(listener)),
       renderer_(std::make_unique<Renderer>(std::move(dir), options, std::move(reader))) {
@@ -303,53 +343,89 @@ size_t LiveTilePyramid::queued() const {
   return jobs_.size();
 }
 
+std::vector<LiveTilePyramid::Job> LiveTilePyramid::NextBatch() {
+  std::unique_lock lock(mutex_);
+  busy_ = false;
+  idle_.notify_all();
+  wake_.wait(lock, [this] { return stop_ || !jobs_.empty(); });
+  std::vector<Job> batch;
+  if (stop_) return batch;
+  while (!jobs_.empty() && batch.size() < static_cast<size_t>(std::max(1, options_.batch_jobs))) {
+    if (jobs_.front().frame.image) --images_queued_;
+    batch.push_back(std::move(jobs_.front()));
+    jobs_.pop_front();
+  }
+  busy_ = true;
+  return batch;
+}
+
+// Outcome bits of a job.
+constexpr int kDrawnNew = 1, kDrawnAgain = 2, kReadAgain = 4;
+
+std::shared_ptr<const TileSetInfo> LiveTilePyramid::Account(const std::vector<Job>& batch,
+                                                            const std::vector<int>& outcome, bool flushed, double ms,
+                                                            const std::string& error) {
+  std::lock_guard lock(mutex_);
+  stats_.busy_ms += ms;
+  stats_.tiles_written = renderer_->tiles_written();
+  stats_.write_errors = renderer_->write_errors();
+  const int64_t now = MonotonicNs();
+  for (size_t i = 0; i < batch.size(); ++i) {
+    if ((outcome[i] & kReadAgain) != 0) ++stats_.frames_reread;
+    if ((outcome[i] & kDrawnAgain) != 0) ++stats_.frames_redrawn;
+    if ((outcome[i] & kDrawnNew) == 0) continue;
+    ++stats_.frames_drawn;
+    if (batch[i].frame.registered_ns <= 0) continue;  // a redraw on a new grid: not a latency
+    if (stats_.latency_ms.size() >= 1024) stats_.latency_ms.erase(stats_.latency_ms.begin());
+    stats_.latency_ms.push_back(static_cast<double>(now - batch[i].frame.registered_ns) * 1e-6);
+  }
+  if (!flushed) {
+    // A full disk: stop drawing (what is on disk stays valid); the flight goes on without live tiles.
+    spdlog::error("live tiles stopped: {}", error);
+    stop_ = true;
+    jobs_.clear();
+    idle_.notify_all();
+  }
+  // A new grid is published once it has caught up (nothing queued): until then clients keep the previous one.
+  const bool newer = renderer_->generation() != published_generation_;
+  if (newer && !jobs_.empty() && flushed) return nullptr;
+  if (newer) {
+    renderer_->RemoveOlderGenerations();
+    published_generation_ = renderer_->generation();
+  }
+  info_ = renderer_->Info(renderer_->frames());
+  return info_;
+}
+
 void LiveTilePyramid::Work() {
   // Below the frame loop: the map on the ground may lag, registration must not.
   setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
+  pthread_setname_np(pthread_self(), "uavm-tiles");
+  int64_t last_cascade_ns = MonotonicNs();
   for (;;) {
-    Job job;
-    {
-      std::unique_lock lock(mutex_);
-      busy_ = false;
-      idle_.notify_all();
-      wake_.wait(lock, [this] { return stop_ || !jobs_.empty(); });
-      if (stop_) return;
-      job = std::move(jobs_.front());
-      jobs_.pop_front();
-      if (job.frame.image) --images_queued_;
-      busy_ = true;
-    }
+    const std::vector<Job> batch = NextBatch();
+    if (batch.empty()) return;
     const int64_t t0 = MonotonicNs();
-    bool drawn = false, redrawn = false, reread = false;
-    if (job.reset)
-      renderer_->Reset(job.grid);
-    else
-      drawn = renderer_->Draw(job.frame, &redrawn, &reread);
+    std::vector<int> outcome(batch.size(), 0);
+    for (size_t i = 0; i < batch.size(); ++i) {
+      if (batch[i].reset) {
+        renderer_->Reset(batch[i].grid);
+        continue;
+      }
+      bool redrawn = false, reread = false;
+      if (renderer_->Draw(batch[i].frame, &redrawn, &reread)) outcome[i] |= redrawn ? kDrawnAgain : kDrawnNew;
+      if (reread) outcome[i] |= kReadAgain;
+    }
+    // The coarser zooms when the queue is empty, or every cascade_every_s while it is not: every frame touches them.
+    const bool due = queued() == 0 || static_cast<double>(t0 - last_cascade_ns) * 1e-9 > options_.cascade_every_s;
+    if (renderer_->HasPending() && due) {
+      renderer_->CascadePending();
+      last_cascade_ns = MonotonicNs();
+    }
     std::string error;
     const bool flushed = renderer_->Flush(&error);
-    auto info = renderer_->Info(renderer_->frames());
-    {
-      std::lock_guard lock(mutex_);
-      stats_.busy_ms += static_cast<double>(MonotonicNs() - t0) * 1e-6;
-      stats_.tiles_written = renderer_->store().tiles_written();
-      stats_.write_errors = renderer_->store().write_errors();
-      if (reread) ++stats_.frames_reread;
-      if (drawn && redrawn) ++stats_.frames_redrawn;
-      if (drawn && !redrawn) {
-        ++stats_.frames_drawn;
-        if (stats_.latency_ms.size() >= 1024) stats_.latency_ms.erase(stats_.latency_ms.begin());
-        stats_.latency_ms.push_back(static_cast<double>(MonotonicNs() - job.frame.registered_ns) * 1e-6);
-      }
-      info_ = info;
-      if (!flushed) {
-        // A full disk: stop drawing (what is on disk stays valid); the flight goes on without live tiles.
-        spdlog::error("live tiles stopped: {}", error);
-        stop_ = true;
-        jobs_.clear();
-        idle_.notify_all();
-      }
-    }
-    if (listener_) listener_(info);
+    auto info = Account(batch, outcome, flushed, static_cast<double>(MonotonicNs() - t0) * 1e-6, error);
+    if (info && listener_) listener_(std::move(info));
     if (!flushed) return;
   }
 }

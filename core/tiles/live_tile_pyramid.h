@@ -31,11 +31,16 @@ struct LiveTileOptions {
   int cache_tiles = 64;     // decoded tiles kept (256 KiB each)
   int frame_cache = 4;      // decoded frames kept for re-rendering (work resolution)
   int queue_images = 3;     // frames waiting with their pixels; later ones are read again from frames/
-  int queue_jobs = 4096;    // jobs waiting (small); past it a job is dropped and counted
+  int queue_jobs = 16384;   // jobs waiting (~200 B each; a new grid queues the whole flight); past it, dropped, counted
   int feather_px = 16;      // the blend ramp at a frame's border, work pixels
-  int png_compression = 1;  // zlib level: fast (tiles are re-written often during the flight)
-  int levels = 8;           // zooms below max_zoom kept (min_zoom = max_zoom - levels, >= 0)
+  int png_compression = 1;  // zlib level: fast (tiles are re-written often during the flight; ~7 ms a tile at 1)
+  int batch_jobs = 8;       // queued frames drawn before their tiles are written (shared tiles written once)
+  double cascade_every_s = 2.0;  // coarser zooms rebuilt at most this often while frames wait (always when idle)
+  int levels = 8;                // zooms below max_zoom kept (min_zoom = max_zoom - levels, >= 0)
   double redraw_shift_px = 2.0;  // a moved frame is drawn again when a corner moved more (max_zoom pixels)
+  // The onboard program starts the pyramid again (every frame drawn anew) when a new live georeference moves the
+  // drawn map by more than this; smaller refits keep the tiles where they are (GPS noise, not the map, moved).
+  double refit_shift_m = 3.0;
   [[nodiscard]] bool Check(std::string* why) const;
 };
 
@@ -53,7 +58,8 @@ struct TileFrame {
   cv::Size work_size;
   Mat3 grid_from_work = Mat3::Identity();  // work pixel centres -> max_zoom global pixels (corners at integers)
   std::shared_ptr<const cv::Mat> image;    // work-resolution BGR, or null
-  int64_t registered_ns = 0;               // monotonic: when the frame loop registered it (tile latency)
+  int decode_reduce = 1;                   // JPEG DCT scaling (1, 2, 4, 8) that reads `path` no smaller than work size
+  int64_t registered_ns = 0;               // monotonic: when the frame loop registered it (tile latency); 0: a redraw
 };
 
 struct LiveTileStats {
@@ -71,7 +77,7 @@ struct LiveTileStats {
 class LiveTilePyramid {
  public:
   // Reads a stored frame at its work size (BGR); called on the worker thread, must be thread-safe.
-  using FrameReader = std::function<cv::Mat(const std::string& path, cv::Size work_size)>;
+  using FrameReader = std::function<cv::Mat(const std::string& path, cv::Size work_size, int decode_reduce)>;
   // Called on the worker thread after each batch of tiles is on disk; must not block.
   using Listener = std::function<void(std::shared_ptr<const TileSetInfo>)>;
 
@@ -80,8 +86,9 @@ class LiveTilePyramid {
   LiveTilePyramid(const LiveTilePyramid&) = delete;
   LiveTilePyramid& operator=(const LiveTilePyramid&) = delete;
 
-  // A new grid (the first georeference, a new one, another piece of the flight): every tile goes, generation + 1.
-  // The caller then draws the frames again.
+  // A new grid (the first georeference, a new one, another piece of the flight): generation + 1, drawn in a directory
+  // of its own (DIR/<generation>/z/x/y.png) and published once it has caught up with the queue; the previous grid's
+  // tiles stay served until then and are removed afterwards. The caller then draws the frames again.
   void Reset(const TileGrid& grid);
   // Never blocks. False when the job was dropped (queue full, or the pyramid stopped on a write error).
   [[nodiscard]] bool Draw(TileFrame frame);
@@ -97,6 +104,11 @@ class LiveTilePyramid {
     TileGrid grid;
     TileFrame frame;
   };
+  [[nodiscard]] std::vector<Job> NextBatch();  // blocks until jobs come; empty when stopping
+  // Counts the batch; returns the tile set to publish (null while a new grid is still catching up).
+  [[nodiscard]] std::shared_ptr<const TileSetInfo> Account(const std::vector<Job>& batch,
+                                                           const std::vector<int>& outcome, bool flushed, double ms,
+                                                           const std::string& error);
   class Renderer;
   void Work();
 
@@ -110,6 +122,7 @@ class LiveTilePyramid {
   bool busy_ = false;
   bool stop_ = false;
   std::shared_ptr<const TileSetInfo> info_;
+  int64_t published_generation_ = -1;
   LiveTileStats stats_;
   std::thread worker_;
 };

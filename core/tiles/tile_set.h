@@ -22,11 +22,11 @@ struct TileSetInfo {
   // Extent of what the tiles show: degrees (geographic; west/east longitudes, south/north latitudes) or CRS.Simple
   // units (local: lng = x / 2^max_zoom, lat = -y / 2^max_zoom, so north = 0 and south < 0).
   double west = 0, south = 0, east = 0, north = 0;
-  bool final = false;       // the end-of-flight tiles (they no longer change)
-  int64_t generation = 0;   // changes when the grid does (local -> geographic, a new georeference, the final tiles):
-                            // a client drops what it cached of an older generation
-  int64_t updated_ns = 0;   // monotonic time of the last tile written
-  int frames = 0;           // frames drawn into the pyramid so far
+  bool final = false;      // the end-of-flight tiles (they no longer change)
+  int64_t generation = 0;  // changes when the grid does (local -> geographic, a new georeference, the final tiles):
+                           // a client drops what it cached of an older generation
+  int64_t updated_ns = 0;  // monotonic time of the last tile written
+  int frames = 0;          // frames drawn into the pyramid so far
 };
 
 }  // namespace uavm

@@ -1,0 +1,322 @@
+// The live tile pyramid during the flight (core/tiles/live_tile_pyramid.h): which grid it is on (local until the live
+// georeference holds, then web mercator), which piece of the flight it shows (the largest), each registered frame
+// and each frame a solve moved handed to its worker, the frame footprints for the live page, and at the end the
+// switch to the end-of-flight tiles/.
+#include <ogr_spatialref.h>
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <deque>
+#include <filesystem>
+#include <mutex>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "core/pipeline/mosaicker.h"
+#include "core/tiles/web_mercator.h"
+#include "core/util/clock.h"
+
+namespace uavm {
+
+namespace {
+
+// A local pyramid: one max_zoom pixel per mosaic pixel, the first frame at the middle of a 2^kLocalMaxZoom-tile world
+// (1 Mpx wide: room for a flight of ~1000 frame widths in any direction).
+constexpr int kLocalMaxZoom = 12;
+constexpr size_t kFootprintsShown = 300;  // the newest frames' outlines on the live page
+
+// A stored frame read back at its work size (the live tiles' re-rendering), DCT-scaled when the file is larger.
+cv::Mat ReadStoredFrame(const std::string& path, cv::Size work, int reduce) {
+  const int flag = reduce >= 8   ? cv::IMREAD_REDUCED_COLOR_8
+                   : reduce >= 4 ? cv::IMREAD_REDUCED_COLOR_4
+                   : reduce >= 2 ? cv::IMREAD_REDUCED_COLOR_2
+                                 : cv::IMREAD_COLOR;
+  cv::Mat img;
+  try {
+    img = cv::imread(path, flag | cv::IMREAD_IGNORE_ORIENTATION);
+  } catch (const cv::Exception&) {
+    return {};
+  }
+  if (img.empty() || img.size() == work) return img;
+  cv::Mat out;
+  cv::resize(img, out, work, 0, 0, cv::INTER_AREA);
+  return out;
+}
+
+// The largest JPEG DCT scaling (1/2, 1/4, 1/8) that still decodes the frame at least at its work size.
+int DecodeReduce(cv::Size original, cv::Size work) {
+  int r = 1;
+  while (r < 8 && original.width / (2 * r) >= work.width && original.height / (2 * r) >= work.height) r *= 2;
+  return r;
+}
+
+}  // namespace
+
+struct Mosaicker::LiveTiles {
+  std::unique_ptr<LiveTilePyramid> pyramid;
+  bool started = false;
+  TileGrid grid;
+  int anchor = -1;  // a frame of the piece shown (its component's root changes with merges)
+  // Geographic: the live georeference the tiles were drawn with and lat/lon from its CRS.
+  int refits_seen = -1;
+  GeorefFit fit;
+  std::unique_ptr<OGRCoordinateTransformation> to_wgs84;
+  Vec2 local_offset = Vec2::Zero();  // local: max_zoom pixels = mosaic pixels + offset
+  cv::Rect2d drawn_mosaic;           // what has been drawn, mosaic pixels (the refit's shift is measured on it)
+  std::unordered_set<int> drawn;
+  std::deque<std::pair<int, std::array<Vec2, 4>>> outlines;  // max_zoom pixels, newest last
+  std::mutex listeners_mutex;                                // the tile listener runs on the pyramid's worker
+  TilesListener tiles_listener;
+  FootprintsListener footprints_listener;
+};
+
+void Mosaicker::SetTilesListeners(TilesListener tiles, FootprintsListener footprints) {
+  if (!live_tiles_) return;
+  std::lock_guard lock(live_tiles_->listeners_mutex);
+  live_tiles_->tiles_listener = std::move(tiles);
+  live_tiles_->footprints_listener = std::move(footprints);
+}
+
+void Mosaicker::StartLiveTiles() {
+  if (!options_.live_tiles.enabled) return;
+  live_tiles_ = std::make_shared<LiveTiles>();
+  engine_.TrackMoves(true);
+  LiveTiles* lt = live_tiles_.get();
+  lt->pyramid = std::make_unique<LiveTilePyramid>(paths_.Join("live_tiles"), options_.live_tiles, ReadStoredFrame,
+                                                  [lt](std::shared_ptr<const TileSetInfo> info) {
+                                                    std::lock_guard lock(lt->listeners_mutex);
+                                                    if (lt->tiles_listener) lt->tiles_listener(std::move(info));
+                                                  });
+}
+
+Mat3 Mosaicker::GridFromWork(int id) const {
+  const LiveTiles& lt = *live_tiles_;
+  const Mat3& mosaic_from_work = engine_.mosaic_from_work(id);
+  if (!lt.grid.geographic) return Translation(lt.local_offset.x(), lt.local_offset.y()) * mosaic_from_work;
+  // Work pixels -> mosaic -> UTM (the live fit, affine) -> lat/lon -> web mercator: not affine over the map, but a
+  // homography fitted on a 3x3 lattice of the frame is exact to far below a pixel over one footprint.
+  const cv::Size size = engine_.frame(id).work_size;
+  std::vector<cv::Point2d> src, dst;
+  for (int j = 0; j < 3; ++j)
+    for (int i = 0; i < 3; ++i) {
+      const Vec2 w(0.5 * i * (size.width - 1), 0.5 * j * (size.height - 1));
+      const Vec2 m = Apply(mosaic_from_work, w);
+      double e =
+          lt.fit.world_from_pixel(0, 0) * m.x() + lt.fit.world_from_pixel(0, 1) * m.y() + lt.fit.world_from_pixel(0, 2);
+      double n =
+          lt.fit.world_from_pixel(1, 0) * m.x() + lt.fit.world_from_pixel(1, 1) * m.y() + lt.fit.world_from_pixel(1, 2);
+      if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &e, &n)) return Mat3::Zero();
+      const Vec2 px = MercatorPixelFromLatLon(n, e, lt.grid.max_zoom);  // traditional order: e = lon, n = lat
+      src.emplace_back(w.x(), w.y());
+      dst.emplace_back(px.x(), px.y());
+    }
+  const cv::Mat h = cv::findHomography(src, dst, 0);
+  if (h.empty()) return Mat3::Zero();
+  Mat3 m;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) m(r, c) = h.at<double>(r, c);
+  return m;
+}
+
+// The final mosaic's ground pixel, which the pyramid's finest zoom matches (mosaic_scale of the original frames).
+double Mosaicker::FinalGsdFromLiveFit() const {
+  const FrameState& ref = frames_.front();
+  const double work_per_original = std::sqrt(std::abs(ref.work_from_original.topLeftCorner<2, 2>().determinant()));
+  return live_tiles_->fit.gsd_m * work_per_original / options_.mosaic_scale;
+}
+
+bool Mosaicker::StartTileGrid(int id) {
+  LiveTiles& lt = *live_tiles_;
+  const FrameMetadata& m = frames_[static_cast<size_t>(id)].metadata;
+  const bool has_position = m.latitude_deg && m.longitude_deg;
+  if (live_georef_.ok()) {
+    lt.fit = live_georef_.fit();
+    lt.refits_seen = live_georef_.refits();
+    OGRSpatialReference utm, wgs;
+    utm.importFromEPSG(lt.fit.epsg);
+    wgs.SetWellKnownGeogCS("WGS84");
+    utm.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
+    wgs.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
+    lt.to_wgs84.reset(OGRCreateCoordinateTransformation(&utm, &wgs));
+    double lon = lt.fit.world_from_pixel(0, 2), lat = lt.fit.world_from_pixel(1, 2);
+    if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &lon, &lat)) return false;
+    lt.grid.geographic = true;
+    lt.grid.max_zoom = MaxZoomForGsd(lat, FinalGsdFromLiveFit());
+  } else if (!has_position && !lt.started) {
+    const cv::Size s = engine_.frame(id).work_size;
+    const Vec2 centre = Apply(engine_.mosaic_from_work(id), Vec2(0.5 * (s.width - 1), 0.5 * (s.height - 1)));
+    lt.grid.geographic = false;
+    lt.grid.max_zoom = kLocalMaxZoom;
+    lt.local_offset = Vec2::Constant(kTileSize * std::ldexp(1.0, kLocalMaxZoom - 1)) - centre;
+  } else {
+    return false;  // positions are coming: wait for the live georeference rather than draw twice
+  }
+  lt.grid.min_zoom = std::max(0, lt.grid.max_zoom - options_.live_tiles.levels);
+  lt.started = true;
+  lt.anchor = id;
+  lt.drawn.clear();
+  lt.outlines.clear();
+  lt.drawn_mosaic = cv::Rect2d();
+  lt.pyramid->Reset(lt.grid);
+  spdlog::info("live tiles: {} grid, zoom {}-{}", lt.grid.geographic ? "web-mercator" : "local", lt.grid.min_zoom,
+               lt.grid.max_zoom);
+  return true;
+}
+
+// Whether the pyramid must start again: the first georeference, a new one that moves the drawn map by more than
+// refit_shift_m, or another piece of the flight has become the largest.
+bool Mosaicker::TileGridStale(int id) {
+  LiveTiles& lt = *live_tiles_;
+  if (!lt.started) return true;
+  if (engine_.ComponentOf(id) != engine_.ComponentOf(lt.anchor) &&
+      engine_.ComponentSize(id) > engine_.ComponentSize(lt.anchor))
+    return true;
+  if (!live_georef_.ok() || live_georef_.refits() == lt.refits_seen) return false;
+  if (!lt.grid.geographic) return true;
+  lt.refits_seen = live_georef_.refits();
+  const auto& a = lt.fit.world_from_pixel;
+  const auto& b = live_georef_.fit().world_from_pixel;
+  double shift = 0;
+  const cv::Rect2d r = lt.drawn_mosaic;
+  for (const Vec2& c : {Vec2(r.x, r.y), Vec2(r.br().x, r.y), Vec2(r.x, r.br().y), Vec2(r.br().x, r.br().y)})
+    shift = std::max(shift, ((a.leftCols<2>() - b.leftCols<2>()) * c + a.col(2) - b.col(2)).norm());
+  return live_georef_.fit().epsg != lt.fit.epsg || shift > options_.live_tiles.refit_shift_m;
+}
+
+void Mosaicker::DrawTile(int id, std::shared_ptr<const cv::Mat> image) {
+  LiveTiles& lt = *live_tiles_;
+  const Mat3 grid_from_work = GridFromWork(id);
+  if (grid_from_work.isZero()) return;
+  const FrameState& st = frames_[static_cast<size_t>(id)];
+  const cv::Size size = engine_.frame(id).work_size;
+  const int64_t registered_ns = image ? MonotonicNs() : 0;  // a new frame's latency is measured, not a redraw's
+  TileFrame f;
+  f.id = id;
+  f.path = st.stored_file;
+  f.work_size = size;
+  f.grid_from_work = grid_from_work;
+  f.image = std::move(image);
+  f.decode_reduce = DecodeReduce(st.original_size, size);
+  f.registered_ns = registered_ns;
+  if (!lt.pyramid->Draw(std::move(f))) return;
+  const bool is_new = lt.drawn.insert(id).second;
+  const cv::Rect2d box = cv::boundingRect(Footprint(engine_.mosaic_from_work(id), size.width, size.height));
+  lt.drawn_mosaic = lt.drawn_mosaic.area() > 0 ? (lt.drawn_mosaic | box) : box;
+  if (!is_new) return;
+  std::array<Vec2, 4> outline;
+  const auto corners = ImageCorners(size.width, size.height);
+  for (size_t k = 0; k < 4; ++k) outline[k] = Apply(grid_from_work, corners[k]);
+  lt.outlines.emplace_back(id, outline);
+  if (lt.outlines.size() > kFootprintsShown) lt.outlines.pop_front();
+}
+
+void Mosaicker::UpdateLiveTiles(int id, const cv::Mat& work_bgr) {
+  if (!live_tiles_) return;
+  LiveTiles& lt = *live_tiles_;
+  std::vector<int> moved = engine_.TakeMoved();
+  if (!engine_.frame(id).failure.empty() || !engine_.placed(id)) return;
+  if (TileGridStale(id)) {
+    if (!StartTileGrid(id)) return;
+    // Everything of the piece shown is drawn again on the new grid (read back from frames/ by the worker).
+    for (int k : engine_.MembersOf(engine_.ComponentOf(id)))
+      if (k != id && engine_.placed(k)) DrawTile(k, nullptr);
+    moved.clear();
+  }
+  const int root = engine_.ComponentOf(lt.anchor);
+  for (int k : moved)  // a solve or a merge moved them (or brought them into the piece shown)
+    if (k != id && engine_.ComponentOf(k) == root) DrawTile(k, nullptr);
+  if (engine_.ComponentOf(id) == root) DrawTile(id, std::make_shared<const cv::Mat>(work_bgr));
+}
+
+void Mosaicker::PublishLiveFootprints() {
+  if (!live_tiles_ || !live_tiles_->started) return;
+  LiveTiles& lt = *live_tiles_;
+  nlohmann::json features = nlohmann::json::array();
+  const double local_unit = std::ldexp(1.0, lt.grid.max_zoom);
+  for (const auto& [id, outline] : lt.outlines) {
+    nlohmann::json ring = nlohmann::json::array();
+    for (size_t k = 0; k <= 4; ++k) {
+      const Vec2& p = outline[k % 4];
+      const Vec2 ll = lt.grid.geographic ? LonLatFromMercatorPixel(p, lt.grid.max_zoom)
+                                         : Vec2(p.x() / local_unit, -p.y() / local_unit);
+      ring.push_back({ll.x(), ll.y()});
+    }
+    features.push_back({{"type", "Feature"},
+                        {"properties", {{"id", id}, {"name", frames_[static_cast<size_t>(id)].name}}},
+                        {"geometry", {{"type", "Polygon"}, {"coordinates", {ring}}}}});
+  }
+  const nlohmann::json doc = {
+      {"type", "FeatureCollection"}, {"crs", lt.grid.geographic ? "EPSG:4326" : "local"}, {"features", features}};
+  std::lock_guard lock(lt.listeners_mutex);
+  if (lt.footprints_listener) lt.footprints_listener(std::make_shared<const std::string>(doc.dump()));
+}
+
+TileOptions Mosaicker::FinalTileOptions() const {
+  TileOptions o = options_.tiles;
+  // The end-of-flight tiles on the live grid's zooms, so that a client keeps its URLs (and sees every zoom it had).
+  if (live_tiles_ && live_tiles_->started && live_tiles_->grid.geographic && georef_.ok) {
+    o.force_max_zoom = live_tiles_->grid.max_zoom;
+    o.force_min_zoom = live_tiles_->grid.min_zoom;
+  }
+  return o;
+}
+
+void Mosaicker::FinishLiveTiles(const TileSet* final_tiles) {
+  if (!live_tiles_ || !live_tiles_->pyramid) return;
+  LiveTiles& lt = *live_tiles_;
+  lt.pyramid->Drain();
+  const LiveTileStats stats = lt.pyramid->Stats();
+  std::vector<double> latency = stats.latency_ms;
+  std::sort(latency.begin(), latency.end());
+  const auto at = [&](double q) {
+    return latency.empty() ? 0.0 : latency[static_cast<size_t>(q * static_cast<double>(latency.size() - 1))];
+  };
+  live_tiles_report_ = {{"enabled", true},
+                        {"grid", !lt.started          ? "none"
+                                 : lt.grid.geographic ? "EPSG:3857"
+                                                      : "local"},
+                        {"min_zoom", lt.grid.min_zoom},
+                        {"max_zoom", lt.grid.max_zoom},
+                        {"frames_drawn", stats.frames_drawn},
+                        {"frames_redrawn", stats.frames_redrawn},
+                        {"frames_reread", stats.frames_reread},
+                        {"grid_resets", stats.resets},
+                        {"tiles_written", stats.tiles_written},
+                        {"jobs_dropped", stats.jobs_dropped},
+                        {"write_errors", stats.write_errors},
+                        {"worker_ms", stats.busy_ms},
+                        {"latency_ms_median", at(0.5)},
+                        {"latency_ms_p95", at(0.95)}};
+  auto last = lt.pyramid->Info();
+  lt.pyramid.reset();  // the worker stops
+  if (final_tiles == nullptr || final_tiles->tiles == 0) {
+    // No end-of-flight tiles (--no-products, or they failed): the live pyramid stays, as it is, the map served.
+    std::lock_guard lock(lt.listeners_mutex);
+    if (last && lt.tiles_listener) {
+      auto info = std::make_shared<TileSetInfo>(*last);
+      info->final = true;
+      lt.tiles_listener(std::move(info));
+    }
+    return;
+  }
+  auto info = std::make_shared<TileSetInfo>();
+  info->dir = paths_.Join("tiles");
+  info->geographic = final_tiles->geographic;
+  info->min_zoom = final_tiles->min_zoom;
+  info->max_zoom = final_tiles->max_zoom;
+  info->west = final_tiles->west, info->south = final_tiles->south;
+  info->east = final_tiles->east, info->north = final_tiles->north;
+  info->final = true;
+  info->generation = (last ? last->generation : 0) + 1;
+  info->updated_ns = MonotonicNs();
+  info->frames = final_registered_;
+  {
+    std::lock_guard lock(lt.listeners_mutex);
+    if (lt.tiles_listener) lt.tiles_listener(std::move(info));
+  }
+  std::error_code ec;
+  std::filesystem::remove_all(paths_.Join("live_tiles"), ec);  // superseded: the server reads tiles/ now
+}
+
+}  // namespace uavm
