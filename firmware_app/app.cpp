@@ -274,6 +274,7 @@ class FlightStatus {
     std::string error;
     LiveServer::Options lo;
     lo.leaflet_dir = pipeline.leaflet_dir;
+    lo.basemap_url = config.basemap;
     if (!ParseHostPort(config.http, &lo.host, &lo.port)) {
       spdlog::error("--http: expected HOST:PORT, got '{}'", config.http);
       return kExitUsage;

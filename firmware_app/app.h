@@ -24,6 +24,7 @@ struct RunConfig {
   bool resume = false;
   int process_delay_ms = 0;  // test hook: sleep this long per processed frame (a slow consumer)
   std::string http;          // live view HOST:PORT (firmware_app/live_server.h); empty = off
+  std::string basemap;       // live page base map URL template (online); empty = offline
   double http_linger_s = 0;  // after the flight, the final map stays served this long (or until SIGTERM)
   std::string telemetry;     // --telemetry KIND:ARG (hal/telemetry/telemetry_source.h); empty = EXIF GPS only
   PipelineOptions pipeline;

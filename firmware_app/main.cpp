@@ -78,6 +78,9 @@ int main(int argc, char** argv) {
   cli.add_option("--http", config.http,
                  "Live view over HTTP on HOST:PORT (e.g. 0.0.0.0:8080): / (map page), /live.jpg, /status.json; "
                  "off by default");
+  cli.add_option("--basemap", config.basemap,
+                 "With --http: a base map under the live tiles, as an XYZ URL template the operator's browser fetches "
+                 "(e.g. https://tile.openstreetmap.org/{z}/{x}/{y}.png); none by default (offline)");
   cli.add_option("--http-linger", config.http_linger_s,
                  "With --http: keep serving the finished map (tiles, status) this many seconds after the flight, or "
                  "until SIGTERM/SIGINT (a ground station that kept the URL gets the final tiles)");

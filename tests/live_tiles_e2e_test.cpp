@@ -226,5 +226,61 @@ TEST(LiveTilesE2ETest, GdalAndABrowserReadTheMapDuringTheFlightAndTheFinalTilesA
   }
 }
 
+// A flight without positions (a simulated one: gps off): the pyramid is local (Leaflet CRS.Simple), served as XYZ
+// tiles and TileJSON, not as WMTS (no CRS); the end of the flight switches the URL to the final local tiles.
+TEST(LiveTilesE2ETest, WithoutPositionsThePyramidIsLocal) {
+  const fs::path dir = fs::temp_directory_path() / ("uavm_live_tiles_local_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string canvas = std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg";
+  std::ofstream(dir / "plan.yaml") << "frame_width: 400\nframe_height: 300\ngsd: 1.0\nstrips: 2\nstrip_length: 480\n"
+                                      "forward_overlap: 0.7\nside_overlap: 0.3\nseed: 3\ngps: 0\ncanvas: \""
+                                   << canvas << "\"\n";
+  const int port = test::FreePort();
+  ASSERT_GT(port, 0);
+  const pid_t pid =
+      test::Spawn(std::string(UAVM_ONBOARD_BIN) + " --source sim:" + (dir / "plan.yaml").string() + " --out " +
+                  (dir / "session").string() + " --http 127.0.0.1:" + std::to_string(port) +
+                  " --http-linger 60 --process-delay-ms 300 --log-level warn" + test::EmulationArgsString());
+  ASSERT_GT(pid, 0);
+  httplib::Client client("127.0.0.1", port);
+  client.set_connection_timeout(1, 0);
+  client.set_read_timeout(5, 0);
+  const json mid = WaitForTiles(&client, 120, [](const json& st) { return st["tiles"]["frames"].get<int>() >= 3; });
+  ASSERT_FALSE(mid.is_null()) << "no live tiles";
+  const json& t = mid["tiles"];
+  EXPECT_FALSE(t["geographic"].get<bool>());
+  // A drawn tile at the finest zoom, under the set's bounds (CRS.Simple: x = lng * 2^z, y = -lat * 2^z).
+  const int z = t["max_zoom"].get<int>();
+  const double unit = std::ldexp(1.0, z) / 256.0;
+  const int x = static_cast<int>(0.5 * (t["bounds"][0].get<double>() + t["bounds"][2].get<double>()) * unit);
+  const int y = static_cast<int>(-0.5 * (t["bounds"][1].get<double>() + t["bounds"][3].get<double>()) * unit);
+  auto tile = client.Get("/tiles/" + std::to_string(z) + "/" + std::to_string(x) + "/" + std::to_string(y) + ".png");
+  ASSERT_TRUE(tile);
+  EXPECT_EQ(tile->status, 200) << "tile " << z << "/" << x << "/" << y;
+  const cv::Mat png = cv::imdecode(std::vector<uchar>(tile->body.begin(), tile->body.end()), cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(png.channels(), 4);
+  EXPECT_GT(OpaqueShare(png), 0.5);  // the middle of the drawn map
+  auto tilejson = client.Get("/tiles.json");
+  ASSERT_TRUE(tilejson);
+  EXPECT_EQ(tilejson->status, 200);
+  auto wmts = client.Get("/wmts/1.0.0/WMTSCapabilities.xml");
+  ASSERT_TRUE(wmts);
+  EXPECT_EQ(wmts->status, 404);  // no CRS: said, not faked
+  const json done = WaitForTiles(&client, 300, [](const json& st) { return st["tiles"]["final"].get<bool>(); });
+  ASSERT_FALSE(done.is_null());
+  EXPECT_FALSE(done["tiles"]["geographic"].get<bool>());
+  EXPECT_GT(done["tiles"]["generation"].get<int64_t>(), t["generation"].get<int64_t>());
+  ::kill(pid, SIGTERM);
+  int wstatus = 0;
+  ASSERT_EQ(::waitpid(pid, &wstatus, 0), pid);
+  EXPECT_TRUE(WIFEXITED(wstatus) && WEXITSTATUS(wstatus) == 0);
+  std::ifstream in(dir / "session/report.json");
+  const json report = json::parse(in);
+  EXPECT_EQ(report["live_tiles"]["grid"], "local");
+  EXPECT_EQ(report["live_tiles"]["write_errors"].get<int>(), 0);
+  if (!::testing::Test::HasFailure()) fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace uavm

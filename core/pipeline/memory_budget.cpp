@@ -37,11 +37,21 @@ double FeatureSetMiB(int max_features) {
 }  // namespace
 
 double MemoryPlan::FlightMiB() const {
-  return baseline_mib + graph_mib + sift_mib + queue_mib + feature_cache_mib + relocalization_mib;
+  return baseline_mib + graph_mib + sift_mib + queue_mib + feature_cache_mib + relocalization_mib + live_tiles_mib;
 }
 
 double MemoryPlan::EndMiB() const {
-  return baseline_mib + graph_mib + residue_mib + std::max(refine_mib, image_cache_mib + blend_mib + gdal_cache_mib);
+  return baseline_mib + graph_mib + residue_mib + live_tiles_mib +
+         std::max(refine_mib, image_cache_mib + blend_mib + gdal_cache_mib);
+}
+
+double LiveTilesMiB(const LiveTileOptions& o, int work_width, int work_height) {
+  if (!o.enabled) return 0;
+  const double tile = 256.0 * 256 * 4 / kMiB;
+  // A decoded frame: colour (3 B/px) plus its share of the blend weight; a tile write's PNG buffer; the children of a
+  // parent being rebuilt; per-frame records (bounded by the flight, counted in the graph's reserve).
+  const double frame = static_cast<double>(work_width) * work_height * 3 / kMiB;
+  return o.cache_tiles * tile + (o.frame_cache + o.queue_images) * frame + 6 * tile;
 }
 
 double QueuedFrameMiB(int work_width, int work_height, int max_features) {
@@ -66,6 +76,7 @@ MemoryPlan DescribeUnbudgeted(const PipelineOptions& o, int work_width, int work
   p.relocalization_mib = IndexMiB(o.relocalization.max_descriptors);
   p.refine_correspondences = o.refine.max_correspondences;
   p.refine_mib = o.refine.max_correspondences * kBytesPerSolverCorrespondence / kMiB;
+  p.live_tiles_mib = LiveTilesMiB(o.live_tiles, work_width, work_height);
   p.image_cache_mib = static_cast<double>(o.mosaic.image_cache_bytes) / kMiB;
   p.blend_mib = BlendMiB(o.mosaic);
   p.gdal_cache_mib = o.mosaic.WriterMiB();
@@ -91,7 +102,8 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   }
 
   const double budget = o.memory_budget_mib;
-  const double avail = budget - p.baseline_mib - p.graph_mib;
+  p.live_tiles_mib = LiveTilesMiB(o.live_tiles, work_width, work_height);
+  const double avail = budget - p.baseline_mib - p.graph_mib - p.live_tiles_mib;
   const auto fail = [&](const std::string& msg) {
     if (why != nullptr) *why = msg;
     return false;

@@ -24,6 +24,7 @@ struct MemoryPlan {
   double feature_cache_mib = 0;
   double relocalization_mib = 0;
   int relocalization_descriptors = 0;
+  double live_tiles_mib = 0;  // the live tile pyramid (flight and end: its worker lives until the final tiles)
   // End of flight.
   double refine_mib = 0;
   int refine_correspondences = 0;
@@ -35,6 +36,9 @@ struct MemoryPlan {
   [[nodiscard]] double FlightMiB() const;
   [[nodiscard]] double EndMiB() const;
 };
+
+// The live tile pyramid's fixed memory (core/tiles/live_tile_pyramid.h): its tile cache, decoded and queued frames.
+[[nodiscard]] double LiveTilesMiB(const LiveTileOptions& o, int work_width, int work_height);
 
 // Per-frame working memory of a width x height working frame in the queue (colour + grey copies, float descriptors).
 [[nodiscard]] double QueuedFrameMiB(int work_width, int work_height, int max_features);
