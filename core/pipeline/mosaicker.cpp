@@ -270,6 +270,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
 
 bool Mosaicker::Finish(std::string* error) {
   resources_.FlightEnd();
+  StopLiveTilesForFinalTiles();
   solution_ = engine_.Finish();
   if (!solution_.ok) {
     *error = solution_.failure;

@@ -128,11 +128,12 @@ class Mosaicker {
   void UpdateLiveTiles(int id, const cv::Mat& work_bgr);
   [[nodiscard]] bool TileGridStale(int id);
   [[nodiscard]] bool StartTileGrid(int id);
-  [[nodiscard]] double FinalGsdFromLiveFit() const;
+  [[nodiscard]] double FinalGsdFromLiveFit(int id) const;
   [[nodiscard]] Mat3 GridFromWork(int id) const;  // zero when it cannot be computed
   void DrawTile(int id, std::shared_ptr<const cv::Mat> image);
   void PublishLiveFootprints();
   [[nodiscard]] TileOptions FinalTileOptions() const;
+  void StopLiveTilesForFinalTiles();
   // Waits for the pyramid, reports it, and hands the tile server the end-of-flight tiles (null: none were written).
   void FinishLiveTiles(const TileSet* final_tiles);
   // Session files, mosaic, products and report of the solved `component` (mosaicker_output.cpp, _report.cpp).

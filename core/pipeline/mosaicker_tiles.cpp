@@ -119,11 +119,15 @@ Mat3 Mosaicker::GridFromWork(int id) const {
   return m;
 }
 
-// The final mosaic's ground pixel, which the pyramid's finest zoom matches (mosaic_scale of the original frames).
-double Mosaicker::FinalGsdFromLiveFit() const {
-  const FrameState& ref = frames_.front();
-  const double work_per_original = std::sqrt(std::abs(ref.work_from_original.topLeftCorner<2, 2>().determinant()));
-  return live_tiles_->fit.gsd_m * work_per_original / options_.mosaic_scale;
+// The final mosaic's ground pixel, which the pyramid's finest zoom matches: mosaic_scale canvas pixels per original
+// pixel of a frame (frame `id`, the newest: the reference frame may have been taken lower, at take-off).
+double Mosaicker::FinalGsdFromLiveFit(int id) const {
+  const FrameState& st = frames_[static_cast<size_t>(id)];
+  const cv::Size work = engine_.frame(id).work_size;
+  const Vec2 centre(0.5 * (work.width - 1), 0.5 * (work.height - 1));
+  const double mosaic_per_work = LocalScale(engine_.mosaic_from_work(id), centre);
+  const double work_per_original = std::sqrt(std::abs(st.work_from_original.topLeftCorner<2, 2>().determinant()));
+  return live_tiles_->fit.gsd_m * mosaic_per_work * work_per_original / options_.mosaic_scale;
 }
 
 bool Mosaicker::StartTileGrid(int id) {
@@ -141,8 +145,11 @@ bool Mosaicker::StartTileGrid(int id) {
     lt.to_wgs84.reset(OGRCreateCoordinateTransformation(&utm, &wgs));
     double lon = lt.fit.world_from_pixel(0, 2), lat = lt.fit.world_from_pixel(1, 2);
     if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &lon, &lat)) return false;
+    // The zoom of the first georeference stays unless a later one differs by two levels or more (a GSD estimate
+    // near a level's edge must not redraw the map back and forth).
+    const int zoom = MaxZoomForGsd(lat, FinalGsdFromLiveFit(id));
+    if (!lt.grid.geographic || std::abs(zoom - lt.grid.max_zoom) >= 2) lt.grid.max_zoom = zoom;
     lt.grid.geographic = true;
-    lt.grid.max_zoom = MaxZoomForGsd(lat, FinalGsdFromLiveFit());
   } else if (!has_position && !lt.started) {
     const cv::Size s = engine_.frame(id).work_size;
     const Vec2 centre = Apply(engine_.mosaic_from_work(id), Vec2(0.5 * (s.width - 1), 0.5 * (s.height - 1)));
@@ -159,8 +166,9 @@ bool Mosaicker::StartTileGrid(int id) {
   lt.outlines.clear();
   lt.drawn_mosaic = cv::Rect2d();
   lt.pyramid->Reset(lt.grid);
-  spdlog::info("live tiles: {} grid, zoom {}-{}", lt.grid.geographic ? "web-mercator" : "local", lt.grid.min_zoom,
-               lt.grid.max_zoom);
+  spdlog::info("live tiles: {} grid, zoom {}-{} (final GSD estimate {:.1f} cm)",
+               lt.grid.geographic ? "web-mercator" : "local", lt.grid.min_zoom, lt.grid.max_zoom,
+               lt.grid.geographic ? 100 * FinalGsdFromLiveFit(id) : 0.0);
   return true;
 }
 
@@ -181,7 +189,9 @@ bool Mosaicker::TileGridStale(int id) {
   const cv::Rect2d r = lt.drawn_mosaic;
   for (const Vec2& c : {Vec2(r.x, r.y), Vec2(r.br().x, r.y), Vec2(r.x, r.br().y), Vec2(r.br().x, r.br().y)})
     shift = std::max(shift, ((a.leftCols<2>() - b.leftCols<2>()) * c + a.col(2) - b.col(2)).norm());
-  return live_georef_.fit().epsg != lt.fit.epsg || shift > options_.live_tiles.refit_shift_m;
+  // Moves within the fit's own residual are GPS noise, not news: the map stays where it is.
+  const double threshold = std::max(options_.live_tiles.refit_shift_m, 2.0 * live_georef_.fit().rms_m);
+  return live_georef_.fit().epsg != lt.fit.epsg || shift > threshold;
 }
 
 void Mosaicker::DrawTile(int id, std::shared_ptr<const cv::Mat> image) {
@@ -262,6 +272,12 @@ TileOptions Mosaicker::FinalTileOptions() const {
   return o;
 }
 
+void Mosaicker::StopLiveTilesForFinalTiles() {
+  // The final tiles will replace the live ones: what still waits to be drawn would only slow the end of the flight.
+  if (live_tiles_ && live_tiles_->pyramid && options_.write_products && options_.write_tiff)
+    live_tiles_->pyramid->Cancel();
+}
+
 void Mosaicker::FinishLiveTiles(const TileSet* final_tiles) {
   if (!live_tiles_ || !live_tiles_->pyramid) return;
   LiveTiles& lt = *live_tiles_;
@@ -284,6 +300,7 @@ void Mosaicker::FinishLiveTiles(const TileSet* final_tiles) {
                         {"grid_resets", stats.resets},
                         {"tiles_written", stats.tiles_written},
                         {"jobs_dropped", stats.jobs_dropped},
+                        {"jobs_superseded", stats.jobs_superseded},
                         {"write_errors", stats.write_errors},
                         {"worker_ms", stats.busy_ms},
                         {"latency_ms_median", at(0.5)},

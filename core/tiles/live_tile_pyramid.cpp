@@ -327,6 +327,16 @@ void LiveTilePyramid::Drain() {
   idle_.wait(lock, [this] { return (jobs_.empty() && !busy_) || stop_; });
 }
 
+void LiveTilePyramid::Cancel() {
+  {
+    std::lock_guard lock(mutex_);
+    stats_.jobs_superseded += static_cast<int64_t>(jobs_.size());
+    jobs_.clear();
+    images_queued_ = 0;
+  }
+  Drain();
+}
+
 std::shared_ptr<const TileSetInfo> LiveTilePyramid::Info() const {
   std::lock_guard lock(mutex_);
   return info_;

@@ -69,6 +69,7 @@ struct LiveTileStats {
   int64_t resets = 0;
   int64_t tiles_written = 0;
   int64_t jobs_dropped = 0;
+  int64_t jobs_superseded = 0;  // dropped by Cancel()
   int64_t write_errors = 0;
   double busy_ms = 0;
   std::vector<double> latency_ms;  // registered -> its tiles on disk, the newest 1024 frames
@@ -94,6 +95,9 @@ class LiveTilePyramid {
   [[nodiscard]] bool Draw(TileFrame frame);
   // Waits until every queued job is done (end of flight, tests).
   void Drain();
+  // Drops what waits (counted in jobs_superseded) and waits for the batch being drawn: at the end of a flight whose
+  // final tiles will replace the live ones, the backlog would only compete with the final solve and compositing.
+  void Cancel();
   [[nodiscard]] std::shared_ptr<const TileSetInfo> Info() const;
   [[nodiscard]] LiveTileStats Stats() const;
   [[nodiscard]] size_t queued() const;
