@@ -254,11 +254,6 @@ void ChooseZooms(const MercatorBox& box, double gsd_m, const TileOptions& option
   set->max_zoom = std::clamp(static_cast<int>(Log2Ceil(world * std::cos(lat) / (kTile * gsd_m))), 0, 24);
   const double extent = std::max(box.x_max - box.x_min, box.y_max - box.y_min);
   set->min_zoom = std::clamp(static_cast<int>(std::floor(std::log2(world / extent))), 0, set->max_zoom);
-  if (options.force_max_zoom >= 0) {
-    set->max_zoom = options.force_max_zoom;
-    set->min_zoom = std::clamp(std::min(set->min_zoom, options.force_min_zoom), 0, set->max_zoom);
-    return;
-  }
   for (;;) {
     long total = 0;
     for (int z = set->min_zoom; z <= set->max_zoom; ++z) {
@@ -267,6 +262,11 @@ void ChooseZooms(const MercatorBox& box, double gsd_m, const TileOptions& option
     }
     if (total <= options.max_tiles || set->max_zoom == set->min_zoom) break;
     --set->max_zoom;
+  }
+  // Every zoom the live pyramid had stays (a client keeps its URLs), whatever the cap.
+  if (options.keep_max_zoom >= 0) {
+    set->max_zoom = std::max(set->max_zoom, options.keep_max_zoom);
+    set->min_zoom = std::clamp(std::min(set->min_zoom, options.keep_min_zoom), 0, set->max_zoom);
   }
 }
 

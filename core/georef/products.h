@@ -31,9 +31,9 @@ struct TileSet {
 struct TileOptions {
   int max_tiles = 20000;     // the finest zooms are dropped past this
   int levels_below_fit = 2;  // zoom levels below the one where the whole mosaic fits in one tile
-  // Georeferenced: the zooms of the live pyramid (its clients keep their URLs); max_tiles then does not apply.
-  int force_min_zoom = -1;
-  int force_max_zoom = -1;
+  // Georeferenced: zooms the pyramid must also have (the live pyramid's: its clients keep their URLs).
+  int keep_min_zoom = -1;
+  int keep_max_zoom = -1;
 };
 
 // tiles/z/x/y.png (RGBA). With a georeferenced mosaic: EPSG:3857 XYZ tiles from max_zoom (ground pixel no larger

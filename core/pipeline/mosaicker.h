@@ -128,7 +128,7 @@ class Mosaicker {
   void UpdateLiveTiles(int id, const cv::Mat& work_bgr);
   [[nodiscard]] bool TileGridStale(int id);
   [[nodiscard]] bool StartTileGrid(int id);
-  [[nodiscard]] double FinalGsdFromLiveFit(int id) const;
+  [[nodiscard]] double LiveTilesGsd(int id) const;
   [[nodiscard]] Mat3 GridFromWork(int id) const;  // zero when it cannot be computed
   void DrawTile(int id, std::shared_ptr<const cv::Mat> image);
   void PublishLiveFootprints();

@@ -119,15 +119,16 @@ Mat3 Mosaicker::GridFromWork(int id) const {
   return m;
 }
 
-// The final mosaic's ground pixel, which the pyramid's finest zoom matches: mosaic_scale canvas pixels per original
-// pixel of a frame (frame `id`, the newest: the reference frame may have been taken lower, at take-off).
-double Mosaicker::FinalGsdFromLiveFit(int id) const {
+// The ground pixel the live tiles need: what they are drawn from (the newest frame's working copy; the reference frame
+// may have been taken lower, at take-off), but no finer than the final mosaic's (mosaic_scale of the originals): a
+// finer zoom would only enlarge the same pixels into more tiles.
+double Mosaicker::LiveTilesGsd(int id) const {
   const FrameState& st = frames_[static_cast<size_t>(id)];
   const cv::Size work = engine_.frame(id).work_size;
   const Vec2 centre(0.5 * (work.width - 1), 0.5 * (work.height - 1));
-  const double mosaic_per_work = LocalScale(engine_.mosaic_from_work(id), centre);
+  const double work_gsd = live_tiles_->fit.gsd_m * LocalScale(engine_.mosaic_from_work(id), centre);
   const double work_per_original = std::sqrt(std::abs(st.work_from_original.topLeftCorner<2, 2>().determinant()));
-  return live_tiles_->fit.gsd_m * mosaic_per_work * work_per_original / options_.mosaic_scale;
+  return std::max(work_gsd, work_gsd * work_per_original / options_.mosaic_scale);
 }
 
 bool Mosaicker::StartTileGrid(int id) {
@@ -147,7 +148,7 @@ bool Mosaicker::StartTileGrid(int id) {
     if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &lon, &lat)) return false;
     // The zoom of the first georeference stays unless a later one differs by two levels or more (a GSD estimate
     // near a level's edge must not redraw the map back and forth).
-    const int zoom = MaxZoomForGsd(lat, FinalGsdFromLiveFit(id));
+    const int zoom = MaxZoomForGsd(lat, LiveTilesGsd(id));
     if (!lt.grid.geographic || std::abs(zoom - lt.grid.max_zoom) >= 2) lt.grid.max_zoom = zoom;
     lt.grid.geographic = true;
   } else if (!has_position && !lt.started) {
@@ -166,9 +167,9 @@ bool Mosaicker::StartTileGrid(int id) {
   lt.outlines.clear();
   lt.drawn_mosaic = cv::Rect2d();
   lt.pyramid->Reset(lt.grid);
-  spdlog::info("live tiles: {} grid, zoom {}-{} (final GSD estimate {:.1f} cm)",
+  spdlog::info("live tiles: {} grid, zoom {}-{} (tile pixel no coarser than {:.1f} cm)",
                lt.grid.geographic ? "web-mercator" : "local", lt.grid.min_zoom, lt.grid.max_zoom,
-               lt.grid.geographic ? 100 * FinalGsdFromLiveFit(id) : 0.0);
+               lt.grid.geographic ? 100 * LiveTilesGsd(id) : 0.0);
   return true;
 }
 
@@ -266,8 +267,8 @@ TileOptions Mosaicker::FinalTileOptions() const {
   TileOptions o = options_.tiles;
   // The end-of-flight tiles on the live grid's zooms, so that a client keeps its URLs (and sees every zoom it had).
   if (live_tiles_ && live_tiles_->started && live_tiles_->grid.geographic && georef_.ok) {
-    o.force_max_zoom = live_tiles_->grid.max_zoom;
-    o.force_min_zoom = live_tiles_->grid.min_zoom;
+    o.keep_max_zoom = live_tiles_->grid.max_zoom;
+    o.keep_min_zoom = live_tiles_->grid.min_zoom;
   }
   return o;
 }
