@@ -12,6 +12,25 @@
 #include "firmware_app/app.h"
 #include "hal/common/camera_options.h"
 
+namespace {
+
+// --http and what goes with it: the live view, its tiles, its base map and how long it outlives the flight.
+void AddLiveViewOptions(CLI::App* cli, uavm::app::RunConfig* config, bool* no_live_tiles) {
+  cli->add_option("--http", config->http,
+                  "Live view over HTTP on HOST:PORT (e.g. 0.0.0.0:8080): / (map page), /live.jpg, /status.json; "
+                  "off by default");
+  cli->add_option("--basemap", config->basemap,
+                  "With --http: a base map under the live tiles, as an XYZ URL template the operator's browser fetches "
+                  "(e.g. https://tile.openstreetmap.org/{z}/{x}/{y}.png); none by default (offline)");
+  cli->add_option("--http-linger", config->http_linger_s,
+                  "With --http: keep serving the finished map (tiles, status) this many seconds after the flight, or "
+                  "until SIGTERM/SIGINT (a ground station that kept the URL gets the final tiles)");
+  cli->add_flag("--no-live-tiles", *no_live_tiles,
+                "With --http: no live tile pyramid (live_tiles/, /tiles/...); the live view shows live.jpg only");
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   using namespace uavm;
   // Resident memory must follow what the program holds: two malloc arenas (what glibc would grow to per core is
@@ -75,21 +94,11 @@ int main(int argc, char** argv) {
                  "0.0.0.0:14550), mavlink-serial:DEVICE:BAUD (e.g. /dev/ttyAMA0:921600), tlog:FILE (a MAVLink "
                  "telemetry log of the replayed flight), geo:FILE (OpenDroneMap geo.txt); timing keys: telemetry.* in "
                  "--config");
-  cli.add_option("--http", config.http,
-                 "Live view over HTTP on HOST:PORT (e.g. 0.0.0.0:8080): / (map page), /live.jpg, /status.json; "
-                 "off by default");
-  cli.add_option("--basemap", config.basemap,
-                 "With --http: a base map under the live tiles, as an XYZ URL template the operator's browser fetches "
-                 "(e.g. https://tile.openstreetmap.org/{z}/{x}/{y}.png); none by default (offline)");
-  cli.add_option("--http-linger", config.http_linger_s,
-                 "With --http: keep serving the finished map (tiles, status) this many seconds after the flight, or "
-                 "until SIGTERM/SIGINT (a ground station that kept the URL gets the final tiles)");
+  bool no_live_tiles = false;
+  AddLiveViewOptions(&cli, &config, &no_live_tiles);
   cli.add_flag(
       "--no-products", [&](std::int64_t) { p.write_products = false; },
       "Do not write mosaic.kmz, tiles/ and index.html (mosaic.tif stays a COG)");
-  bool no_live_tiles = false;
-  cli.add_flag("--no-live-tiles", no_live_tiles,
-               "With --http: no live tile pyramid (live_tiles/, /tiles/...); the live view shows live.jpg only");
   cli.add_option("--log-level", log_level, "trace|debug|info|warn|error");
   cli.add_flag("--print-config", print_config, "Print the effective configuration as YAML and exit");
 

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <list>
+#include <opencv2/imgproc.hpp>
 #include <unordered_map>
 #include <unordered_set>
 
