@@ -13,6 +13,7 @@
 
 #include "core/mosaic/gdal_writer.h"
 #include "core/pipeline/mosaicker.h"
+#include "core/pipeline/stored_frame.h"
 #include "core/util/clock.h"
 #include "core/util/memory.h"
 
@@ -29,20 +30,7 @@ struct CanvasLoad {
 };
 
 cv::Mat LoadForCanvas(const std::string& path, const CanvasLoad& how) {
-  const int flag = how.reduce >= 8   ? cv::IMREAD_REDUCED_COLOR_8
-                   : how.reduce >= 4 ? cv::IMREAD_REDUCED_COLOR_4
-                   : how.reduce >= 2 ? cv::IMREAD_REDUCED_COLOR_2
-                                     : cv::IMREAD_COLOR;
-  cv::Mat img;
-  try {
-    img = cv::imread(path, flag | cv::IMREAD_IGNORE_ORIENTATION);
-  } catch (const cv::Exception&) {
-    return {};
-  }
-  if (img.empty() || img.size() == how.size) return img;
-  cv::Mat out;
-  cv::resize(img, out, how.size, 0, 0, cv::INTER_AREA);
-  return out;
+  return LoadStoredFrame(path, how.size, how.reduce);
 }
 
 }  // namespace
@@ -61,8 +49,7 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
       !WriteFramesCsv(in_map, error) || !WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error))
     return false;
   CompositeResult composite;
-  if (!placed.empty() && !CompositeMosaic(placed, canvas_from_original, canvas, scale, &composite, error))
-    return false;
+  if (!placed.empty() && !CompositeMosaic(placed, canvas_from_original, canvas, scale, &composite, error)) return false;
   nlohmann::json products = MakeProducts(placed, canvas_from_original, options_.write_tiff && !placed.empty());
   std::string err;
   if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err))

@@ -14,6 +14,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/pipeline/mosaicker.h"
+#include "core/pipeline/stored_frame.h"
 #include "core/tiles/web_mercator.h"
 #include "core/util/clock.h"
 
@@ -27,23 +28,6 @@ constexpr int kLocalMaxZoom = 12;
 constexpr size_t kFootprintsShown = 300;  // the newest frames' outlines on the live page
 
 // A stored frame read back at its work size (the live tiles' re-rendering), DCT-scaled when the file is larger.
-cv::Mat ReadStoredFrame(const std::string& path, cv::Size work, int reduce) {
-  const int flag = reduce >= 8   ? cv::IMREAD_REDUCED_COLOR_8
-                   : reduce >= 4 ? cv::IMREAD_REDUCED_COLOR_4
-                   : reduce >= 2 ? cv::IMREAD_REDUCED_COLOR_2
-                                 : cv::IMREAD_COLOR;
-  cv::Mat img;
-  try {
-    img = cv::imread(path, flag | cv::IMREAD_IGNORE_ORIENTATION);
-  } catch (const cv::Exception&) {
-    return {};
-  }
-  if (img.empty() || img.size() == work) return img;
-  cv::Mat out;
-  cv::resize(img, out, work, 0, 0, cv::INTER_AREA);
-  return out;
-}
-
 // The largest JPEG DCT scaling (1/2, 1/4, 1/8) that still decodes the frame at least at its work size.
 int DecodeReduce(cv::Size original, cv::Size work) {
   int r = 1;
@@ -83,7 +67,7 @@ void Mosaicker::StartLiveTiles() {
   live_tiles_ = std::make_shared<LiveTiles>();
   engine_.TrackMoves(true);
   LiveTiles* lt = live_tiles_.get();
-  lt->pyramid = std::make_unique<LiveTilePyramid>(paths_.Join("live_tiles"), options_.live_tiles, ReadStoredFrame,
+  lt->pyramid = std::make_unique<LiveTilePyramid>(paths_.Join("live_tiles"), options_.live_tiles, LoadStoredFrame,
                                                   [lt](std::shared_ptr<const TileSetInfo> info) {
                                                     std::lock_guard lock(lt->listeners_mutex);
                                                     if (lt->tiles_listener) lt->tiles_listener(std::move(info));

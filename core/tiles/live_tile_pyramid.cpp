@@ -236,23 +236,24 @@ class LiveTilePyramid::Renderer {
     cv::Mat bgr;
     cv::Mat weight;
   };
-  const FramePixels* Remember(int id, const cv::Mat& bgr) {
+  // The frame's pixels if cached (then most recently used), else null.
+  const FramePixels* Cached(int id) {
     for (auto it = images_.begin(); it != images_.end(); ++it)
       if (it->first == id) {
         images_.splice(images_.begin(), images_, it);
         return &images_.front().second;
       }
+    return nullptr;
+  }
+  const FramePixels* Remember(int id, const cv::Mat& bgr) {
+    if (const FramePixels* px = Cached(id)) return px;
     if (images_.size() >= static_cast<size_t>(options_.frame_cache)) images_.pop_back();
     if (weight_.size() != bgr.size()) weight_ = FeatherWeight(bgr.size(), options_.feather_px);  // one per frame size
     images_.emplace_front(id, FramePixels{bgr, weight_});
     return &images_.front().second;
   }
   const FramePixels* Pixels(int id, const Record& r, bool* reread) {
-    for (auto it = images_.begin(); it != images_.end(); ++it)
-      if (it->first == id) {
-        images_.splice(images_.begin(), images_, it);
-        return &images_.front().second;
-      }
+    if (const FramePixels* px = Cached(id)) return px;
     const cv::Mat bgr = reader_ ? reader_(r.path, r.work_size, r.decode_reduce) : cv::Mat();
     if (bgr.empty()) {
       spdlog::warn("live tiles: cannot read {} again; its tiles miss it", r.path);
