@@ -1,19 +1,29 @@
 // Georeferenced products of a real flight with EXIF GPS (brighton_beach_small: Brighton Beach, Duluth MN) and of the
-// same frames without GPS: mosaic.tif as a COG in the right UTM zone, frame centres against their GPS, KMZ, tiles and
-// the Leaflet page rendered by headless Chromium.
+// same frames without GPS: mosaic.tif as a COG in the right UTM zone, frame centres against their GPS, KMZ (a
+// super-overlay of the tiles: boxes, links, doc.kml first), tiles (against GDAL's own warp of mosaic.tif) and the
+// Leaflet page rendered by headless Chromium.
 #include <cpl_conv.h>
+#include <cpl_minixml.h>
+#include <cpl_string.h>
 #include <gdal_priv.h>
+#include <gdal_utils.h>
 #include <gtest/gtest.h>
 #include <ogr_spatialref.h>
 #include <sys/wait.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <set>
 #include <sstream>
+#include <tuple>
 
 #include "core/session/session_dir.h"
 #include "tests/browser_shot.h"
@@ -228,6 +238,162 @@ TEST_F(ProductsE2ETest, KmzAndTilesDecode) {
   ASSERT_FALSE(img.empty()) << p;
   const int px = static_cast<int>((fx - std::floor(fx)) * 256), py = static_cast<int>((fy - std::floor(fy)) * 256);
   EXPECT_GT(img.at<cv::Vec4b>(py, px)[3], 0);
+}
+
+// The tile (z, x, y)'s bounds in degrees (west, south, east, north), from the XYZ numbers.
+std::array<double, 4> TileBounds(int z, int x, int y) {
+  const double n = std::ldexp(1.0, z);
+  const auto lat = [&](int row) { return std::atan(std::sinh(M_PI * (1 - 2 * row / n))) * 180 / M_PI; };
+  return {x / n * 360 - 180, lat(y + 1), (x + 1) / n * 360 - 180, lat(y)};
+}
+
+// The independent reference for a tile: GDAL's warper (bilinear, destination alpha) into a MEM dataset of the tile's
+// EPSG:3857 grid, read as BGRA (how the tiles were made before issue 23).
+cv::Mat ReferenceTile(GDALDataset* src, int z, int x, int y) {
+  const double half = 20037508.342789244, span = 2 * half / std::ldexp(1.0, z);
+  std::unique_ptr<GDALDataset, Closer> dst(
+      GetGDALDriverManager()->GetDriverByName("MEM")->Create("", 256, 256, 4, GDT_Byte, nullptr));
+  double gt[6] = {-half + x * span, span / 256, 0, half - y * span, 0, -span / 256};
+  dst->SetGeoTransform(gt);
+  OGRSpatialReference merc;
+  merc.importFromEPSG(3857);
+  dst->SetSpatialRef(&merc);
+  dst->GetRasterBand(4)->SetColorInterpretation(GCI_AlphaBand);
+  char** args = nullptr;
+  for (const char* a : {"-r", "bilinear", "-dstalpha", "-q"}) args = CSLAddString(args, a);
+  GDALWarpAppOptions* opts = GDALWarpAppOptionsNew(args, nullptr);
+  CSLDestroy(args);
+  GDALDatasetH src_h = GDALDataset::ToHandle(src);
+  int usage = 0;
+  const bool ok = GDALWarp(nullptr, GDALDataset::ToHandle(dst.get()), 1, &src_h, opts, &usage) != nullptr;
+  GDALWarpAppOptionsFree(opts);
+  cv::Mat tile(256, 256, CV_8UC4, cv::Scalar::all(0));
+  int bands[4] = {3, 2, 1, 4};
+  if (!ok || usage != 0 ||
+      dst->RasterIO(GF_Read, 0, 0, 256, 256, tile.data, 256, 256, GDT_Byte, 4, bands, 4,
+                    static_cast<GSpacing>(tile.step[0]), 1, nullptr) != CE_None)
+    return {};
+  return tile;
+}
+
+// A few tiles of zoom z: the `count` with the most opaque pixels (the most to compare), as (x, y).
+std::vector<std::pair<int, int>> MostOpaqueTiles(const fs::path& tiles, int z, size_t count) {
+  std::vector<std::tuple<int, int, int>> found;  // opaque pixels, x, y
+  for (const auto& e : fs::recursive_directory_iterator(tiles / std::to_string(z))) {
+    if (e.path().extension() != ".png") continue;
+    cv::Mat a;
+    cv::extractChannel(cv::imread(e.path().string(), cv::IMREAD_UNCHANGED), a, 3);
+    found.emplace_back(cv::countNonZero(a), std::stoi(e.path().parent_path().filename().string()),
+                       std::stoi(e.path().stem().string()));
+  }
+  std::sort(found.rbegin(), found.rend());
+  std::vector<std::pair<int, int>> out;
+  for (size_t i = 0; i < found.size() && i < count; ++i) out.emplace_back(std::get<1>(found[i]), std::get<2>(found[i]));
+  return out;
+}
+
+TEST_F(ProductsE2ETest, TilesAgreeWithGdalWarp) {
+  ASSERT_EQ(gps_exit_, 0);
+  std::unique_ptr<GDALDataset, Closer> ds(
+      GDALDataset::Open((gps_ / "mosaic.tif").c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY));
+  ASSERT_TRUE(ds);
+  const auto report = ReadJson(gps_ / "report.json");
+  const int zmin = report["products"]["tiles"]["min_zoom"], zmax = report["products"]["tiles"]["max_zoom"];
+  std::vector<std::tuple<int, int, int>> picked;
+  for (const auto& [x, y] : MostOpaqueTiles(gps_ / "tiles", zmax, 3)) picked.emplace_back(zmax, x, y);
+  for (const auto& [x, y] : MostOpaqueTiles(gps_ / "tiles", zmin, 1)) picked.emplace_back(zmin, x, y);
+  ASSERT_EQ(picked.size(), 4u);
+  for (const auto& [z, x, y] : picked) {
+    const std::string name = std::to_string(z) + "/" + std::to_string(x) + "/" + std::to_string(y);
+    const cv::Mat ours = cv::imread((gps_ / "tiles" / (name + ".png")).string(), cv::IMREAD_UNCHANGED);
+    const cv::Mat ref = ReferenceTile(ds.get(), z, x, y);
+    ASSERT_FALSE(ref.empty()) << name << ": " << CPLGetLastErrorMsg();
+    ASSERT_EQ(ours.type(), CV_8UC4) << name;
+    double diff = 0;
+    int both = 0, agree = 0;
+    for (int r = 0; r < 256; ++r)
+      for (int c = 0; c < 256; ++c) {
+        const auto a = ours.at<cv::Vec4b>(r, c), b = ref.at<cv::Vec4b>(r, c);
+        agree += (a[3] > 0) == (b[3] > 0);
+        if (a[3] < 255 || b[3] < 255) continue;
+        ++both;
+        for (int k = 0; k < 3; ++k) diff += std::abs(a[k] - b[k]);
+      }
+    ASSERT_GT(both, 1000) << name;
+    const double mad = diff / (3.0 * both), agreement = agree / 65536.0;
+    std::printf("tile %s: mean |difference| %.2f over %d pixels, alpha agrees on %.2f %%\n", name.c_str(), mad, both,
+                100 * agreement);
+    EXPECT_LT(mad, 3.0) << name;
+    EXPECT_GE(agreement, 0.98) << name;
+  }
+}
+
+// The KML element `path` (dot-separated) under `node`, as text.
+std::string Xml(const CPLXMLNode* node, const char* path) {
+  const char* v = CPLGetXMLValue(node, path, nullptr);
+  return v == nullptr ? std::string() : std::string(v);
+}
+
+// A tile KML's GroundOverlay: its LatLonBox is the bounds of the tile the file is named after (z/x/y.kml), its image
+// that tile's PNG, present in the zip.
+void CheckOverlay(const CPLXMLNode* overlay, const std::string& entry, const std::set<std::string>& entries) {
+  int z = -1, x = -1, y = -1;
+  ASSERT_EQ(std::sscanf(entry.c_str(), "%d/%d/%d.kml", &z, &x, &y), 3) << entry;
+  const auto b = TileBounds(z, x, y);
+  EXPECT_NEAR(std::stod(Xml(overlay, "LatLonBox.west")), b[0], 1e-9) << entry;
+  EXPECT_NEAR(std::stod(Xml(overlay, "LatLonBox.south")), b[1], 1e-9) << entry;
+  EXPECT_NEAR(std::stod(Xml(overlay, "LatLonBox.east")), b[2], 1e-9) << entry;
+  EXPECT_NEAR(std::stod(Xml(overlay, "LatLonBox.north")), b[3], 1e-9) << entry;
+  const std::string png = (fs::path(entry).parent_path() / Xml(overlay, "Icon.href")).lexically_normal().string();
+  EXPECT_EQ(png, std::to_string(z) + "/" + std::to_string(x) + "/" + std::to_string(y) + ".png");
+  EXPECT_EQ(entries.count(png), 1u) << entry;
+}
+
+// One KML file of the KMZ: its GroundOverlays (CheckOverlay) and every NetworkLink's target, resolved against the
+// zip's entries. Returns the GroundOverlays seen.
+int CheckKml(const std::string& kmz, const std::string& entry, const std::set<std::string>& entries) {
+  CPLXMLNode* root = CPLParseXMLFile((kmz + "/" + entry).c_str());
+  EXPECT_NE(root, nullptr) << entry;
+  if (root == nullptr) return 0;
+  const CPLXMLNode* doc = CPLGetXMLNode(root, "=kml.Document");
+  EXPECT_NE(doc, nullptr) << entry;
+  int overlays = 0;
+  for (const CPLXMLNode* n = doc == nullptr ? nullptr : doc->psChild; n != nullptr; n = n->psNext) {
+    if (n->eType != CXT_Element) continue;
+    if (std::string(n->pszValue) == "NetworkLink") {
+      const std::string target = (fs::path(entry).parent_path() / Xml(n, "Link.href")).lexically_normal().string();
+      EXPECT_EQ(entries.count(target), 1u) << entry << " links to " << target;
+    } else if (std::string(n->pszValue) == "GroundOverlay") {
+      ++overlays;
+      CheckOverlay(n, entry, entries);
+    }
+  }
+  CPLDestroyXMLNode(root);
+  return overlays;
+}
+
+TEST_F(ProductsE2ETest, KmzIsASuperOverlayOfTheTiles) {
+  ASSERT_EQ(gps_exit_, 0);
+  // Google Earth takes the first .kml of the archive: doc.kml must be entry 0 (the zip's first local file header).
+  std::ifstream zip(gps_ / "mosaic.kmz", std::ios::binary);
+  unsigned char head[30] = {};
+  zip.read(reinterpret_cast<char*>(head), sizeof(head));
+  ASSERT_TRUE(zip);
+  ASSERT_EQ(std::string(reinterpret_cast<char*>(head), 4), std::string("PK\x03\x04", 4));
+  const int name_len = head[26] | (head[27] << 8);
+  std::string first(static_cast<size_t>(name_len), '\0');
+  zip.read(first.data(), name_len);
+  EXPECT_EQ(first, "doc.kml");
+  const std::string kmz = "/vsizip/" + (gps_ / "mosaic.kmz").string();
+  std::set<std::string> entries;
+  char** listing = VSIReadDirRecursive(kmz.c_str());
+  for (char** p = listing; p != nullptr && *p != nullptr; ++p) entries.insert(*p);
+  CSLDestroy(listing);
+  int overlays = 0;
+  for (const std::string& e : entries)
+    if (e.size() > 4 && e.substr(e.size() - 4) == ".kml") overlays += CheckKml(kmz, e, entries);
+  // One GroundOverlay per tile written.
+  EXPECT_EQ(overlays, ReadJson(gps_ / "report.json")["products"]["tiles"]["count"].get<int>());
 }
 
 TEST_F(ProductsE2ETest, BrowserShowsTheMosaic) {

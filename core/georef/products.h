@@ -8,14 +8,12 @@
 namespace uavm {
 
 // The map products of a session, made from the tiled mosaic at the end of the flight, tile by tile: GDAL's block cache
-// (GDALSetCacheMax, set by the caller) and one 256² web tile at a time are all they hold in memory.
+// (GDALSetCacheMax, set by the caller) and, per worker, one 256² web tile and the mosaic window it covers (read from
+// the overview level just finer than the tile) are all they hold in memory.
 
 // Copies a tiled GeoTIFF into a Cloud Optimized GeoTIFF (GDAL's COG driver, DEFLATE, 512² blocks); the source's
 // overviews are reused. Written as `dst`.part and renamed.
 [[nodiscard]] bool WriteCog(const std::string& src, const std::string& dst, std::string* error);
-
-// mosaic.kmz: a KML super-overlay (GDAL's KMLSUPEROVERLAY driver, PNG tiles: transparent outside the flown area).
-[[nodiscard]] bool WriteKmz(const std::string& georeferenced_tif, const std::string& kmz, std::string* error);
 
 struct TileSet {
   bool geographic = false;  // EPSG:3857 XYZ tiles; else a local pyramid (Leaflet CRS.Simple)
@@ -37,9 +35,16 @@ struct TileOptions {
 };
 
 // tiles/z/x/y.png (RGBA). With a georeferenced mosaic: EPSG:3857 XYZ tiles from max_zoom (ground pixel no larger
-// than the GSD) down to the whole map in one tile; without, a local pyramid of the canvas.
+// than the GSD) down to the whole map in one tile, each warped through a homography fitted to 9 of its points (PROJ),
+// on 2 threads; without, a local pyramid of the canvas.
 [[nodiscard]] bool WriteTiles(const std::string& tif, const std::string& dir, bool geographic, double gsd_m,
                               const TileOptions& options, TileSet* out, std::string* error);
+
+// mosaic.kmz for Google Earth: a KML super-overlay (doc.kml first, then z/x/y.kml + z/x/y.png with regions and links
+// to the children) of the EPSG:3857 tiles WriteTiles wrote to `tiles_dir` (`tiles` its result; geographic only). The
+// PNGs are the tiles' own, stored uncompressed in the zip. Written as mosaic.part.kmz and renamed.
+[[nodiscard]] bool WriteKmz(const std::string& tiles_dir, const TileSet& tiles, const std::string& kmz,
+                            std::string* error);
 
 // One frame for the web page's footprints and match graph.
 struct MapFrame {

@@ -125,25 +125,27 @@ nlohmann::json Mosaicker::MakeProducts(const std::vector<int>& component, const 
     FinishLiveTiles(nullptr);
     return j;
   }
-  if (georef_.ok) {
-    StageTimer t;
-    const bool kmz = WriteKmz(tif, paths_.Join("mosaic.kmz"), &err);
-    if (!kmz) spdlog::warn("mosaic.kmz: {}", err);
-    j["kmz"] = kmz;
-    j["kmz_ms"] = t.ElapsedMs();
-  }
   TileSet tiles;
   StageTimer t;
-  const bool tiles_ok = WriteTiles(tif, paths_.Join("tiles"), georef_.ok, georef_.gsd_m, FinalTileOptions(), &tiles, &err);
+  const bool tiles_ok =
+      WriteTiles(tif, paths_.Join("tiles"), georef_.ok, georef_.gsd_m, FinalTileOptions(), &tiles, &err);
   if (!tiles_ok) spdlog::warn("tiles: {}", err);
+  const double tiles_ms = t.ElapsedMs();
   FinishLiveTiles(tiles_ok ? &tiles : nullptr);
+  if (georef_.ok) {  // the KMZ is made of the tiles just written
+    StageTimer tk;
+    const bool kmz = tiles_ok && WriteKmz(paths_.Join("tiles"), tiles, paths_.Join("mosaic.kmz"), &err);
+    if (!kmz) spdlog::warn("mosaic.kmz: {}", tiles_ok ? err : "no tiles");
+    j["kmz"] = kmz;
+    j["kmz_ms"] = tk.ElapsedMs();
+  }
   j["tiles"] = {{"ok", tiles_ok},
                 {"crs", georef_.ok ? "EPSG:3857" : "local"},
                 {"min_zoom", tiles.min_zoom},
                 {"max_zoom", tiles.max_zoom},
                 {"count", tiles.tiles},
                 {"empty_skipped", tiles.tiles_empty},
-                {"ms", t.ElapsedMs()}};
+                {"ms", tiles_ms}};
   if (tiles_ok) {
     std::unordered_set<int> in(component.begin(), component.end());
     std::vector<MapFrame> frames;
