@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <set>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -177,6 +178,31 @@ TEST(CompositorTest, CanvasWiderThan32767PxComposesCorrectly) {
   }
   GDALClose(ds);
   std::filesystem::remove(path);
+}
+
+// The tile order: every tile once, clipped at the canvas; consecutive tiles share an edge on a power-of-two grid; and
+// each aligned 2x2 block of tiles comes in one run (what keeps a TIFF overview block open only briefly).
+TEST(CompositorTest, TilesFollowAHilbertCurve) {
+  const std::vector<cv::Rect> square = TilesAlongHilbertCurve(cv::Size(4096, 4096), 512);
+  ASSERT_EQ(square.size(), 64u);
+  for (size_t k = 1; k < square.size(); ++k)
+    EXPECT_EQ(std::abs(square[k].x - square[k - 1].x) + std::abs(square[k].y - square[k - 1].y), 512) << k;
+  for (size_t k = 0; k < square.size(); k += 4) {
+    std::set<std::pair<int, int>> block;
+    for (size_t j = k; j < k + 4; ++j) block.insert({square[j].x / 1024, square[j].y / 1024});
+    EXPECT_EQ(block.size(), 1u) << "tiles " << k << ".." << k + 3 << " span several 2x2 blocks";
+  }
+  const cv::Size odd(2600, 1100);  // 6 x 3 tiles, the last column and row clipped
+  const std::vector<cv::Rect> tiles = TilesAlongHilbertCurve(odd, 512);
+  ASSERT_EQ(tiles.size(), 18u);
+  std::set<std::pair<int, int>> seen;
+  long area = 0;
+  for (const cv::Rect& t : tiles) {
+    EXPECT_TRUE(seen.insert({t.x, t.y}).second) << "tile at " << t.x << "," << t.y << " twice";
+    EXPECT_EQ(t, t & cv::Rect(0, 0, odd.width, odd.height));
+    area += t.area();
+  }
+  EXPECT_EQ(area, static_cast<long>(odd.area()));
 }
 
 TEST(SelectionTest, DropsAFrameCoveredByOthers) {

@@ -95,6 +95,21 @@ TEST(PairMatcherTest, RecoversKnownAffineOnAerialFrame) {
   ASSERT_TRUE(g.ok);
   for (const Vec2& c : ImageCorners(img.cols, img.rows))
     EXPECT_LT((Apply(g.tgt_from_src, c) - Apply(truth, c)).norm(), 1.0);
+  // A tight query cap (a quarter of what the overlap offers) asks at most that many points, yet keeps a full edge
+  // and the same warp; without a cap the guided query asks every predicted-inside point.
+  MatchOptions all = mo;
+  all.max_guided_queries = 0;
+  const PairResult u = MatchPair(index, tgt, src, all, &guide);
+  ASSERT_TRUE(u.ok);
+  MatchOptions capped = mo;
+  capped.max_guided_queries = std::max(mo.min_inliers, u.num_matches / 4);
+  ASSERT_GT(u.num_matches, capped.max_guided_queries) << "the cap must bind for this test to mean anything";
+  const PairResult c = MatchPair(index, tgt, src, capped, &guide);
+  ASSERT_TRUE(c.ok) << c.failure;
+  EXPECT_LE(c.num_matches, capped.max_guided_queries);
+  EXPECT_EQ(c.src_points.size(), u.src_points.size());
+  for (const Vec2& corner : ImageCorners(img.cols, img.rows))
+    EXPECT_LT((Apply(c.tgt_from_src, corner) - Apply(truth, corner)).norm(), 1.0);
 }
 
 TEST(PairMatcherTest, GridSubsampleSpreadsPoints) {

@@ -27,6 +27,8 @@ bool MatchOptions::Check(std::string* why) const {
   if (max_edge_correspondences < 3) return fail("matching.max_edge_correspondences must be >= 3");
   if (correspondence_grid < 1) return fail("matching.correspondence_grid must be >= 1");
   if (holdout_correspondences < 0) return fail("matching.holdout_correspondences must be >= 0");
+  if (max_guided_queries != 0 && max_guided_queries < min_inliers)
+    return fail("matching.max_guided_queries must be 0 (all) or >= min_inliers");
   return ransac.Check(why);
 }
 
@@ -166,6 +168,15 @@ PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, cons
     if (static_cast<int>(rows.size()) < options.min_inliers) {
       result.failure = "predicted overlap too small";
       return result;
+    }
+    if (options.max_guided_queries > 0 && static_cast<int>(rows.size()) > options.max_guided_queries) {
+      std::vector<Vec2> inside;
+      inside.reserve(rows.size());
+      for (int r : rows) inside.emplace_back(src.points[static_cast<size_t>(r)].x, src.points[static_cast<size_t>(r)].y);
+      constexpr int kQueryGrid = 16;
+      std::vector<int> spread;
+      for (size_t k : GridSubsampleIndices(inside, kQueryGrid, options.max_guided_queries)) spread.push_back(rows[k]);
+      rows = std::move(spread);
     }
     cv::Mat query(static_cast<int>(rows.size()), src.descriptors.cols, src.descriptors.type());
     for (size_t k = 0; k < rows.size(); ++k) src.descriptors.row(rows[k]).copyTo(query.row(static_cast<int>(k)));

@@ -27,6 +27,10 @@ struct MatchOptions {
   // Further inliers, disjoint from those, kept aside per edge: the report's held-out residual (a check of the final
   // maps on points the adjustment never saw).
   int holdout_correspondences = 16;
+  // A guided query (the pair's overlap already predicted) asks at most this many of the source points predicted
+  // inside, spread over the overlap: the edge keeps max_edge_correspondences + holdout_correspondences inliers, and
+  // hundreds of inliers fix a relative affine as well as thousands, at a fraction of the kd-tree searches. 0 = all.
+  int max_guided_queries = 1200;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };

@@ -78,9 +78,14 @@ struct CompositeResult {
   int frames_unreadable = 0;
   int tiles_written = 0;
   int image_loads = 0;  // decodes, counting reloads after cache eviction
+  double load_ms = 0.0;  // time in those decodes (serialised: a worker waits while another decodes)
   double ms = 0.0;
   cv::Mat quicklook;  // BGRA, transparent outside the flown area
 };
+
+// The canvas's tiles of tile_size (clipped at its edges) in the order the compositor makes them: along a Hilbert curve
+// over the smallest power-of-two grid that holds them.
+[[nodiscard]] std::vector<cv::Rect> TilesAlongHilbertCurve(cv::Size canvas, int tile_size);
 
 // Composites `frames` onto a canvas of size `canvas` tile by tile: per tile, each pixel is owned by the frame whose
 // border is farthest (distance-to-border seams, in canvas pixels), owners are warped and blended with multi-band

@@ -2,6 +2,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -21,13 +22,43 @@ namespace uavm {
 
 namespace {
 
-// Decodes a stored frame no larger than needed: JPEG DCT scaling by 1/f when the canvas samples it that coarsely.
-// How a stored frame is read for the canvas: JPEG DCT-scaled decode by 1/reduce, then resized to `size` (the
-// canvas's own sampling of the frame), so cached images are no larger than the canvas needs.
+// How a stored frame is read for the canvas: JPEG DCT-scaled decode by 1/reduce, then resized to `size` only when the
+// decode is finer than the canvas's own sampling of the frame (an enlargement would add bytes, not detail: the warp
+// onto the canvas resamples anyway), so cached images are no larger than the canvas needs.
 struct CanvasLoad {
   int reduce = 1;
   cv::Size size;
+  size_t peak_bytes = 0;  // the decode plus its resized copy, if any: what one load holds at once
 };
+
+bool IsJpeg(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext == ".jpg" || ext == ".jpeg";
+}
+
+// `keep`: canvas pixels per original pixel (at most 1).
+CanvasLoad PlanCanvasLoad(const std::string& path, cv::Size original, double keep) {
+  CanvasLoad how;
+  // DCT-scaled decoding is 2-3x cheaper than full; a decode up to 1.25x coarser than the canvas is accepted for it.
+  while (how.reduce < 8 && 1.25 / (how.reduce * 2) >= keep) how.reduce *= 2;
+  const cv::Size wanted(std::max(1, static_cast<int>(std::lround(original.width * keep))),
+                        std::max(1, static_cast<int>(std::lround(original.height * keep))));
+  const bool jpeg = IsJpeg(path);
+  // libjpeg's scaled output is ceil(size / reduce); other formats are decoded whole (OpenCV then shrinks them).
+  const cv::Size decoded = jpeg ? cv::Size((original.width + how.reduce - 1) / how.reduce,
+                                           (original.height + how.reduce - 1) / how.reduce)
+                                : original;
+  const auto bytes = [](cv::Size s) { return static_cast<size_t>(s.area()) * 3; };
+  if (jpeg && decoded.width <= wanted.width) {
+    how.size = decoded;  // used as decoded
+    how.peak_bytes = bytes(decoded);
+  } else {
+    how.size = wanted;
+    how.peak_bytes = bytes(decoded) + bytes(wanted);
+  }
+  return how;
+}
 
 cv::Mat LoadForCanvas(const std::string& path, const CanvasLoad& how) {
   return LoadStoredFrame(path, how.size, how.reduce);
@@ -194,16 +225,12 @@ bool Mosaicker::CompositeMosaic(const std::vector<int>& component, const std::ve
     // Canvas pixels per original pixel; the frame is loaded at that sampling (never above its own resolution).
     const double local_scale =
         LocalScale(c, Vec2(0.5 * (f.original_size.width - 1), 0.5 * (f.original_size.height - 1)));
-    const double keep = std::min(1.0, local_scale);
-    CanvasLoad how;
-    // DCT-scaled decoding is 2-3x cheaper than full; allow the final resize to enlarge by up to 1.25x for it.
-    while (how.reduce < 8 && 1.25 / (how.reduce * 2) >= keep) how.reduce *= 2;
-    how.size = cv::Size(std::max(1, static_cast<int>(std::lround(f.original_size.width * keep))),
-                        std::max(1, static_cast<int>(std::lround(f.original_size.height * keep))));
+    const CanvasLoad how = PlanCanvasLoad(f.stored_file, f.original_size, std::min(1.0, local_scale));
     load_of[id] = how;
     CompositeInput in;
     in.id = id;
     in.image_size = how.size;
+    in.load_bytes = how.peak_bytes;
     in.canvas_from_image = c * ResizeMap(static_cast<double>(how.size.width) / f.original_size.width,
                                          static_cast<double>(how.size.height) / f.original_size.height)
                                    .inverse();
@@ -229,9 +256,11 @@ bool Mosaicker::CompositeMosaic(const std::vector<int>& component, const std::ve
   if (!cv::imencode(".png", composite->quicklook, png) ||
       !WriteFileAtomic(paths_.Join("mosaic.png"), std::string(png.begin(), png.end()), error))
     return false;
-  spdlog::info("mosaic {}x{} px (scale {:.3f}), {} frames blended, {} dropped by overlap, {} tiles, {:.0f} ms",
-               canvas.width, canvas.height, scale, composite->frames_used, composite->frames_dropped_by_overlap,
-               composite->tiles_written, composite->ms);
+  spdlog::info(
+      "mosaic {}x{} px (scale {:.3f}), {} frames blended, {} dropped by overlap, {} tiles, {} frame loads ({:.0f} ms), "
+      "{:.0f} ms",
+      canvas.width, canvas.height, scale, composite->frames_used, composite->frames_dropped_by_overlap,
+      composite->tiles_written, composite->image_loads, composite->load_ms, composite->ms);
   return true;
 }
 

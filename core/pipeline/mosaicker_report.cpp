@@ -127,7 +127,8 @@ bool Mosaicker::WriteReport(const std::vector<int>& component, const CompositeRe
                       {"frames_dropped_by_overlap", composite.frames_dropped_by_overlap},
                       {"frames_unreadable", composite.frames_unreadable},
                       {"tiles", composite.tiles_written},
-                      {"image_loads", composite.image_loads}};
+                      {"image_loads", composite.image_loads},
+                      {"image_load_ms", composite.load_ms}};
   report["georef"] = GeorefJson();
   report["products"] = products;
   for (const auto& [key, value] : report_sections_.items()) report[key] = value;

@@ -66,6 +66,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"matching", "max_edge_correspondences", &o.matching.max_edge_correspondences},
       {"matching", "correspondence_grid", &o.matching.correspondence_grid},
       {"matching", "holdout_correspondences", &o.matching.holdout_correspondences},
+      {"matching", "max_guided_queries", &o.matching.max_guided_queries},
       {"matching", "ransac_max_error_px", &o.matching.ransac.max_error},
       {"matching", "ransac_confidence", &o.matching.ransac.confidence},
       {"matching", "ransac_min_iterations", &o.matching.ransac.min_iterations},

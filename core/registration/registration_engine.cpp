@@ -59,6 +59,7 @@ struct RegistrationEngine::Candidates {
   std::unordered_set<int> tried;
   std::vector<Edge> found;
   bool have_estimate = false;  // Map(id) holds a first estimate once a candidate matched
+  std::optional<Mat3> motion;  // Map(id) predicted from the previous frames' motion, until a candidate matched
   int root = -1;               // the base component: the largest one the found edges touch
 };
 
@@ -277,17 +278,32 @@ void RegistrationEngine::TryCandidate(int cand, Candidates* c) {
   if (!other) return;
   MatchGuide guide;
   const bool guided = c->have_estimate && components_.Find(cand) == components_.Find(c->found.front().src);
-  if (guided) {
-    guide.tgt_from_src = Map(c->id).inverse() * Map(cand);
+  // Before any match, the motion prediction guides the candidates of the previous frame's component: a guided query
+  // asks a few hundred spread points instead of all of them (see MatchOptions::max_guided_queries).
+  const bool predicted = !guided && c->motion && c->id > 0 && components_.Find(cand) == components_.Find(c->id - 1);
+  if (guided || predicted) {
+    guide.tgt_from_src = (guided ? Map(c->id) : *c->motion).inverse() * Map(cand);
     guide.tgt_size = Record(c->id).work_size;
   }
-  PairResult r = MatchPair(*c->index, *c->feats, *other, options_.matching, guided ? &guide : nullptr);
+  PairResult r = MatchPair(*c->index, *c->feats, *other, options_.matching, guided || predicted ? &guide : nullptr);
+  // The motion changed (a turn, a gust): every point is asked, as without a prediction.
+  if (predicted && !Acceptable(r)) r = MatchPair(*c->index, *c->feats, *other, options_.matching);
   if (!Acceptable(r)) return;
   c->found.push_back(EdgeFromPair(cand, c->id, std::move(r)));
   if (!c->have_estimate) {
     SetMap(c->id, Map(cand) * c->found.back().tgt_from_src.inverse());
     c->have_estimate = true;
   }
+}
+
+std::optional<Mat3> RegistrationEngine::PredictFromMotion(int id) {
+  const int before = id - 2;
+  const int prev = id - 1;
+  if (before < 0 || !Record(before).in_graph || !Record(prev).in_graph) return std::nullopt;
+  if (components_.Find(before) != components_.Find(prev)) return std::nullopt;
+  if (!placed(before) || !placed(prev)) return std::nullopt;
+  const Mat3 before_from_prev = Map(before).inverse() * Map(prev);
+  return Map(prev) * before_from_prev;
 }
 
 // The candidate set: 1) the last K frames in the graph; when they gave nothing, 2) the frames where telemetry places
@@ -406,6 +422,7 @@ FrameOutcome RegistrationEngine::Register(int id, const Features& features, Regi
   c.feats = &features;
   c.index = &index;
   c.hint = hint;
+  c.motion = PredictFromMotion(id);
   FindCandidates(id, &c);
   if (timing != nullptr) timing->matching_ms = t.ElapsedMs();
   t.Restart();

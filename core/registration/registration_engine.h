@@ -1,6 +1,7 @@
 #pragma once
 #include <deque>
 #include <memory>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -188,6 +189,8 @@ class RegistrationEngine {
   void Densify();
   [[nodiscard]] bool Acceptable(const PairResult& r) const;
   void TryCandidate(int cand, Candidates* c);
+  // Map(id) if the flight keeps the motion between its two previous frames; empty when they are not both placed.
+  [[nodiscard]] std::optional<Mat3> PredictFromMotion(int id);
   void FindCandidates(int id, Candidates* c);
   void TryWhereTelemetryPlaces(int id, Candidates* c);
   void Join(int id, Candidates* c);
