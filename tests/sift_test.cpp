@@ -2,10 +2,12 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <iostream>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "tests/test_env.h"
 
@@ -73,6 +75,39 @@ TEST(SiftTest, BandedDetectionAgreesWithTheWholeImage) {
             << b.size() << " keypoints as in the whole image\n";
   EXPECT_GT(located, static_cast<int>(0.95 * static_cast<double>(b.size())));
   EXPECT_GT(same, static_cast<int>(0.8 * static_cast<double>(b.size())));
+}
+
+// Half-size detection maps its keypoints back to the working copy's pixel-centre convention: keypoints it shares with a
+// full-resolution detection (nearest within 1 px) sit at the same place, without a constant offset (a wrong centre
+// mapping, 2p instead of 2p + 0.5, would show as a 0.5 px median); and it still finds plenty.
+TEST(SiftTest, HalfSizePositionsAgreeWithFullResolution) {
+  const cv::Mat gray = WorkingGray(static_cast<int>(1000 * test::EmulationImageScale()));
+  FeatureOptions half;
+  half.half_size = true;
+  const Features h = SiftExtractor(half).Extract(gray);
+  const Features f = SiftExtractor(FeatureOptions{}).Extract(gray);
+  EXPECT_GE(h.size(), 1000u);
+  std::vector<float> dx, dy;
+  for (const auto& p : h.points) {
+    float best = 1.0f;
+    cv::Point2f d;
+    for (const auto& q : f.points) {
+      const float dist = std::hypot(q.x - p.x, q.y - p.y);
+      if (dist < best) {
+        best = dist;
+        d = q - p;
+      }
+    }
+    if (best < 1.0f) {
+      dx.push_back(d.x);
+      dy.push_back(d.y);
+    }
+  }
+  ASSERT_GE(dx.size(), 200u);
+  std::nth_element(dx.begin(), dx.begin() + static_cast<long>(dx.size() / 2), dx.end());
+  std::nth_element(dy.begin(), dy.begin() + static_cast<long>(dy.size() / 2), dy.end());
+  EXPECT_LT(std::abs(dx[dx.size() / 2]), 0.15f);
+  EXPECT_LT(std::abs(dy[dy.size() / 2]), 0.15f);
 }
 
 TEST(SiftTest, OptionsAreChecked) {

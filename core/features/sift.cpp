@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <opencv2/features2d.hpp>
+#include <opencv2/imgproc.hpp>
 
 namespace uavm {
 
@@ -102,9 +103,12 @@ void SiftExtractor::Detect(const cv::Mat& gray, double threshold, std::vector<cv
   }
 }
 
-Features SiftExtractor::Extract(const cv::Mat& gray) const {
+Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
   Features out;
-  if (gray.empty() || gray.type() != CV_8UC1) return out;
+  if (gray_in.empty() || gray_in.type() != CV_8UC1) return out;
+  cv::Mat gray = gray_in;
+  const bool half = options_.half_size && std::min(gray_in.cols, gray_in.rows) >= 64;
+  if (half) cv::resize(gray_in, gray, cv::Size((gray_in.cols + 1) / 2, (gray_in.rows + 1) / 2), 0, 0, cv::INTER_AREA);
   std::vector<cv::KeyPoint> keypoints;
   double threshold = options_.contrast_threshold;
   for (;;) {
@@ -122,6 +126,9 @@ Features SiftExtractor::Extract(const cv::Mat& gray) const {
   constexpr float kSiftCentreShift = 0.25f;
   out.points.reserve(keypoints.size());
   for (const auto& kp : keypoints) out.points.emplace_back(kp.pt.x - kSiftCentreShift, kp.pt.y - kSiftCentreShift);
+  // Half-size pixel i averages working pixels 2i and 2i+1: its centre is at 2i + 0.5 there.
+  if (half)
+    for (auto& p : out.points) p = cv::Point2f(2.0f * p.x + 0.5f, 2.0f * p.y + 0.5f);
   if (options_.root_sift && !out.descriptors.empty()) {
     for (int r = 0; r < out.descriptors.rows; ++r) {
       cv::Mat row = out.descriptors.row(r);

@@ -22,6 +22,10 @@ struct FeatureOptions {
   // Set from the memory budget.
   int max_scale_space_mib = 0;
   int band_margin = 48;
+  // Detect and describe on a half-size copy (area-averaged): SIFT doubles its input first, so this is SIFT's scale
+  // space from the working resolution up, at ~1/4 of the time and memory; positions are mapped back to the working
+  // copy (measured in bench/results/speed-profile-*.md).
+  bool half_size = false;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
