@@ -81,7 +81,13 @@ void BM_SiftExtract(benchmark::State& state) {
   state.counters["keypoints"] = static_cast<double>(n);
   state.counters["bands"] = uavm::SiftBands(gray.cols, gray.rows, options);
 }
-BENCHMARK(BM_SiftExtract)->Arg(1)->Arg(2)->Arg(3)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+BENCHMARK(BM_SiftExtract)
+    ->Arg(1)
+    ->Arg(2)
+    ->Arg(3)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
 
 void BM_IndexBuild(benchmark::State& state) {
   if (!Ready(state)) return;

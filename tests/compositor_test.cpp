@@ -5,9 +5,9 @@
 #include <unistd.h>
 
 #include <filesystem>
-#include <set>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <set>
 
 #include "core/mosaic/gdal_writer.h"
 #include "core/mosaic/selection.h"

@@ -94,7 +94,8 @@ void SiftExtractor::Detect(const cv::Mat& gray, double threshold, std::vector<cv
   std::vector<size_t> order(all.size());
   for (size_t i = 0; i < order.size(); ++i) order[i] = i;
   std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return all[a].response > all[b].response; });
-  if (order.size() > static_cast<size_t>(options_.max_features)) order.resize(static_cast<size_t>(options_.max_features));
+  if (order.size() > static_cast<size_t>(options_.max_features))
+    order.resize(static_cast<size_t>(options_.max_features));
   keypoints->clear();
   descriptors->create(static_cast<int>(order.size()), rows.empty() ? 128 : rows.front().cols, CV_32F);
   for (size_t i = 0; i < order.size(); ++i) {

@@ -56,8 +56,7 @@ class SiftExtractor {
 
  private:
   // One detection at `threshold`, whole image or banded; strongest max_features kept.
-  void Detect(const cv::Mat& gray, double threshold, std::vector<cv::KeyPoint>* keypoints,
-              cv::Mat* descriptors) const;
+  void Detect(const cv::Mat& gray, double threshold, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors) const;
 
   FeatureOptions options_;
 };

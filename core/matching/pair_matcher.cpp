@@ -172,7 +172,8 @@ PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, cons
     if (options.max_guided_queries > 0 && static_cast<int>(rows.size()) > options.max_guided_queries) {
       std::vector<Vec2> inside;
       inside.reserve(rows.size());
-      for (int r : rows) inside.emplace_back(src.points[static_cast<size_t>(r)].x, src.points[static_cast<size_t>(r)].y);
+      for (int r : rows)
+        inside.emplace_back(src.points[static_cast<size_t>(r)].x, src.points[static_cast<size_t>(r)].y);
       constexpr int kQueryGrid = 16;
       std::vector<int> spread;
       for (size_t k : GridSubsampleIndices(inside, kQueryGrid, options.max_guided_queries)) spread.push_back(rows[k]);

@@ -77,7 +77,7 @@ struct CompositeResult {
   int frames_dropped_by_overlap = 0;
   int frames_unreadable = 0;
   int tiles_written = 0;
-  int image_loads = 0;  // decodes, counting reloads after cache eviction
+  int image_loads = 0;   // decodes, counting reloads after cache eviction
   double load_ms = 0.0;  // time in those decodes (serialised: a worker waits while another decodes)
   double ms = 0.0;
   cv::Mat quicklook;  // BGRA, transparent outside the flown area

@@ -33,7 +33,8 @@ struct CanvasLoad {
 
 bool IsJpeg(const std::string& path) {
   std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   return ext == ".jpg" || ext == ".jpeg";
 }
 
@@ -46,9 +47,9 @@ CanvasLoad PlanCanvasLoad(const std::string& path, cv::Size original, double kee
                         std::max(1, static_cast<int>(std::lround(original.height * keep))));
   const bool jpeg = IsJpeg(path);
   // libjpeg's scaled output is ceil(size / reduce); other formats are decoded whole (OpenCV then shrinks them).
-  const cv::Size decoded = jpeg ? cv::Size((original.width + how.reduce - 1) / how.reduce,
-                                           (original.height + how.reduce - 1) / how.reduce)
-                                : original;
+  const cv::Size decoded =
+      jpeg ? cv::Size((original.width + how.reduce - 1) / how.reduce, (original.height + how.reduce - 1) / how.reduce)
+           : original;
   const auto bytes = [](cv::Size s) { return static_cast<size_t>(s.area()) * 3; };
   if (jpeg && decoded.width <= wanted.width) {
     how.size = decoded;  // used as decoded

@@ -211,7 +211,7 @@ class RegistrationEngine {
   Components components_;
   FootprintGrid footprints_;        // in_graph frames' footprints, for overlap candidates and new-ground checks
   std::deque<FrameRecord> frames_;  // grows chunk by chunk: no doubling copy in a long flight
-  std::vector<std::vector<size_t>> adjacency_;      // edge indices per frame
+  std::vector<std::vector<size_t>> adjacency_;  // edge indices per frame
   bool track_moves_ = false;
   std::vector<int> moved_;
   std::unordered_map<int, Mat3> mosaic_from_work_;  // per placed frame, in its component's coordinates
