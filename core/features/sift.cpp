@@ -127,9 +127,13 @@ Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
   constexpr float kSiftCentreShift = 0.25f;
   out.points.reserve(keypoints.size());
   for (const auto& kp : keypoints) out.points.emplace_back(kp.pt.x - kSiftCentreShift, kp.pt.y - kSiftCentreShift);
-  // Half-size pixel i averages working pixels 2i and 2i+1: its centre is at 2i + 0.5 there.
-  if (half)
-    for (auto& p : out.points) p = cv::Point2f(2.0f * p.x + 0.5f, 2.0f * p.y + 0.5f);
+  // Pixel centres map as (p + 0.5) * s - 0.5 with s the exact size ratio (2 for an even side: 2p + 0.5; an odd side
+  // is shrunk by slightly less than 2).
+  if (half) {
+    const float sx = static_cast<float>(gray_in.cols) / static_cast<float>(gray.cols);
+    const float sy = static_cast<float>(gray_in.rows) / static_cast<float>(gray.rows);
+    for (auto& p : out.points) p = cv::Point2f((p.x + 0.5f) * sx - 0.5f, (p.y + 0.5f) * sy - 0.5f);
+  }
   if (options_.root_sift && !out.descriptors.empty()) {
     for (int r = 0; r < out.descriptors.rows; ++r) {
       cv::Mat row = out.descriptors.row(r);
