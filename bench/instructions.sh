@@ -23,8 +23,8 @@
 #   UAVM_BUILD_DIR          x86-64 build (default <repo>/build); needs bench/uavm-micro-bench
 #   UAVM_AARCH64_BUILD_DIR  aarch64 build (default <repo>/build-aarch64); needs bench/uavm-micro-bench (configure it
 #                           with -DUAVM_BUILD_BENCH=ON, then `ninja -j1 uavm-micro-bench`); skipped when missing
-#   UAVM_SYSROOT            arm64 sysroot for qemu -L (default /var/cache/uavmosaic/sysroot-arm64-bookworm)
-#   DATA                    data folder (default /work/shared/data), for the 12 MP photos and the whole run
+#   UAVM_SYSROOT            arm64 sysroot for qemu -L (default: scripts/make_sysroot.sh's, under $UAVM_CACHE_DIR)
+#   DATA                    data folder (default ../shared/data beside the clone), for the 12 MP photos and the whole run
 #   WHOLE                   1 = also count the whole onboard run (slow: callgrind took ~2 min per frame here, so ~40
 #                           min; aarch64 qemu ~15 min); x86 = only the x86-64 one
 #   QEMU_CPU                CPU model qemu-aarch64 shows the program (default cortex-a72, the Pi 4's ARMv8.0-A: OpenCV
@@ -43,8 +43,9 @@ fi
 OUT_DIR=${1:-/tmp/uavm-instructions-$(date +%Y%m%d-%H%M%S)}
 BUILD=${UAVM_BUILD_DIR:-$REPO/build}
 A64_BUILD=${UAVM_AARCH64_BUILD_DIR:-$REPO/build-aarch64}
-SYSROOT=${UAVM_SYSROOT:-/var/cache/uavmosaic/sysroot-arm64-bookworm}
-DATA=${DATA:-/work/shared/data}
+# The sysroot scripts/make_sysroot.sh makes (same default: the cache directory outside the clone).
+SYSROOT=${UAVM_SYSROOT:-${UAVM_CACHE_DIR:-/var/cache/uavmosaic}/sysroot-arm64-bookworm}
+DATA=${DATA:-$REPO/../shared/data}  # ../shared beside the clone, as in CI
 WHOLE=${WHOLE:-0}
 REUSE=${REUSE:-0}
 export QEMU_CPU=${QEMU_CPU:-cortex-a72}
