@@ -61,10 +61,6 @@ CanvasLoad PlanCanvasLoad(const std::string& path, cv::Size original, double kee
   return how;
 }
 
-cv::Mat LoadForCanvas(const std::string& path, const CanvasLoad& how) {
-  return LoadStoredFrame(path, how.size, how.reduce);
-}
-
 }  // namespace
 
 bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* error) {
@@ -237,7 +233,10 @@ bool Mosaicker::CompositeMosaic(const std::vector<int>& component, const std::ve
                                    .inverse();
     inputs.push_back(in);
   }
-  auto load = [&](int id) { return LoadForCanvas(frames_[static_cast<size_t>(id)].stored_file, load_of[id]); };
+  auto load = [&](int id) {
+    const CanvasLoad& how = load_of[id];
+    return LoadStoredFrame(frames_[static_cast<size_t>(id)].stored_file, how.size, how.reduce);
+  };
   GdalTiffWriter tiff;
   const bool write_tiff = options_.write_tiff;
   // The compositor writes a tiled GeoTIFF; MakeProducts() copies it into the COG mosaic.tif.
