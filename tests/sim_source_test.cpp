@@ -168,6 +168,142 @@ TEST(SimSourceTest, ReturnStripsFaceTheOtherWay) {
   for (int i = 5; i < 10; ++i) EXPECT_NEAR(std::abs(yaw[static_cast<size_t>(i)]), M_PI, 1e-9);
 }
 
+// A canvas written to a temporary file (the source reads its canvas from disk); removed by the caller.
+std::string WriteCanvas(const std::string& name, const cv::Mat& image) {
+  const fs::path path = fs::temp_directory_path() / ("uavm_sim_" + name + "_" + std::to_string(::getpid()) + ".png");
+  EXPECT_TRUE(cv::imwrite(path.string(), image));
+  return path.string();
+}
+
+TEST(SimPlanTest, LensAndRadiometryKeysParseValidateAndRoundTrip) {
+  SimPlan plan;
+  std::string err;
+  ASSERT_TRUE(ParseSimPlan("", "", &plan, &err)) << err;
+  EXPECT_EQ(plan.vignetting, 1.0);
+  EXPECT_EQ(plan.vignetting_per_channel, 0.0);
+  EXPECT_EQ(plan.white_balance, 0.0);
+  EXPECT_TRUE(plan.Camera().distortion.IsZero());
+  ASSERT_TRUE(
+      ParseSimPlan("vignetting: 0.6\nvignetting_per_channel: 0.05\nwhite_balance: 0.1\nk1: -0.1\n"
+                   "k2: 0.01\np1: 0.001\np2: -0.002\n",
+                   "", &plan, &err))
+      << err;
+  EXPECT_NEAR(plan.Vignetting(0).At(1.0), 0.6 * 0.95, 1e-12);
+  EXPECT_NEAR(plan.Vignetting(1).At(1.0), 0.6, 1e-12);
+  EXPECT_NEAR(plan.Vignetting(2).At(1.0), 0.6 * 1.05, 1e-12);
+  const PinholeCamera cam = plan.Camera();
+  EXPECT_EQ(cam.cx, 199.5);
+  EXPECT_EQ(cam.cy, 149.5);
+  EXPECT_EQ(cam.focal_px, 400.0);
+  EXPECT_EQ(cam.distortion.k1, -0.1);
+  EXPECT_EQ(cam.distortion.p2, -0.002);
+  SimPlan back;
+  ASSERT_TRUE(ParseSimPlan(ToYaml(plan), "", &back, &err)) << err;
+  EXPECT_EQ(ToYaml(back), ToYaml(plan));
+  EXPECT_EQ(back.k2, 0.01);
+  EXPECT_EQ(back.vignetting_per_channel, 0.05);
+  for (const char* bad : {"vignetting: 0.1\n", "vignetting: 1.2\n", "vignetting: 0.95\nvignetting_per_channel: 0.1\n",
+                          "vignetting_per_channel: -0.1\n", "white_balance: -0.1\n", "white_balance: 0.6\n", "k1: -2\n",
+                          "k2: 5\n", "p1: 0.3\n"}) {
+    EXPECT_FALSE(ParseSimPlan(bad, "", &plan, &err)) << bad;
+    EXPECT_FALSE(err.empty());
+  }
+  EXPECT_NE(err.find("distortion too strong"), std::string::npos) << err;
+}
+
+TEST(SimSourceTest, VignettingDarkensTheCornersToThePlannedRatio) {
+  const std::string canvas = WriteCanvas("flat", cv::Mat(750, 1000, CV_8UC3, cv::Scalar(200, 200, 200)));
+  SimSource src({"", kNadirPlan + "vignetting: 0.6\n", canvas, 0});
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  Frame f;
+  ASSERT_EQ(src.Next(&f, &err), Status::kOk) << err;
+  const cv::Scalar centre = cv::mean(f.image(cv::Rect(197, 147, 6, 6)));
+  for (const cv::Point corner : {cv::Point(0, 0), cv::Point(397, 0), cv::Point(0, 297), cv::Point(397, 297)}) {
+    const cv::Scalar c = cv::mean(f.image(cv::Rect(corner, cv::Size(3, 3))));
+    for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(c[ch] / centre[ch], 0.6, 0.03) << corner << " channel " << ch;
+  }
+  EXPECT_NEAR(centre[1], 200.0, 1.0);
+  fs::remove(canvas);
+}
+
+TEST(SimSourceTest, WhiteBalanceIsPerFrameAndChannelAndLeavesTheOtherDrawsAlone) {
+  const std::string canvas = WriteCanvas("flat100", cv::Mat(750, 1000, CV_8UC3, cv::Scalar(100, 100, 100)));
+  SimSource src({"", kNadirPlan + "exposure_gain: 0.1\nwhite_balance: 0.2\n", canvas, 0});
+  SimSource plain({"", kNadirPlan + "exposure_gain: 0.1\n", canvas, 0});
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  ASSERT_EQ(plain.Open(&err), Status::kOk) << err;
+  Frame f;
+  for (size_t i = 0; i < 4; ++i) {
+    ASSERT_EQ(src.Next(&f, &err), Status::kOk) << err;
+    const SimPose& pose = src.last_truth().pose;
+    EXPECT_EQ(pose.gain, plain.poses()[i].gain);  // white balance draws from a stream of its own
+    const cv::Scalar mean = cv::mean(f.image);
+    for (size_t ch = 0; ch < 3; ++ch) {
+      EXPECT_NEAR(pose.white_balance[ch], 1.0, 0.2);
+      EXPECT_NEAR(mean[static_cast<int>(ch)], 100.0 * pose.gain * pose.white_balance[ch], 0.6) << i << " " << ch;
+    }
+    EXPECT_NE(pose.white_balance[0], pose.white_balance[2]);
+  }
+  fs::remove(canvas);
+}
+
+// Row (distorted pixels) where a canvas line at ideal row v0 crosses distorted column x, by the lens model alone.
+double PredictedRow(const PinholeCamera& cam, double x, double v0) {
+  double y = v0;
+  for (int it = 0; it < 50; ++it) y -= cam.UndistortPixel(Vec2(x, y)).y() - v0;
+  return y;
+}
+
+// Darkness-weighted centroid of column x's rows within +-5 of `around`.
+double MeasuredRow(const cv::Mat& image, int x, double around) {
+  double sw = 0, swy = 0;
+  const int y0 = static_cast<int>(std::lround(around));
+  for (int y = y0 - 5; y <= y0 + 5; ++y) {
+    const double w = std::max(0.0, 230.0 - image.at<cv::Vec3b>(y, x)[1]);
+    sw += w;
+    swy += w * y;
+  }
+  return swy / sw;
+}
+
+TEST(SimSourceTest, DistortionBowsAStraightCanvasLineAsTheModelPredicts) {
+  cv::Mat lines(750, 1000, CV_8UC3, cv::Scalar::all(230));
+  for (int y = 30; y + 1 < lines.rows; y += 60) lines.rowRange(y - 1, y + 2).setTo(cv::Scalar::all(20));
+  const std::string canvas = WriteCanvas("lines", lines);
+  for (const double k1 : {0.0, -0.1}) {
+    SimSource src({"", kNadirPlan + "k1: " + std::to_string(k1) + "\n", canvas, 0});
+    std::string err;
+    ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+    Frame f;
+    ASSERT_EQ(src.Next(&f, &err), Status::kOk) << err;
+    // The canvas line nearest to ideal row 30 of frame 0 (nadir, gsd 1, yaw 0: canvas rows are ideal rows).
+    const Mat3 frame_from_canvas = src.last_truth().canvas_from_frame.inverse();
+    double v0 = 1e9;
+    for (int y = 30; y + 1 < lines.rows; y += 60) {
+      const double v = Apply(frame_from_canvas, Vec2(500, y)).y();
+      if (std::abs(v - 30) < std::abs(v0 - 30)) v0 = v;
+    }
+    ASSERT_LT(std::abs(v0 - 30), 31);
+    const PinholeCamera cam = src.plan().Camera();
+    for (const int x : {3, 100, 200, 300, 396}) {
+      const double predicted = PredictedRow(cam, x, v0);
+      EXPECT_NEAR(MeasuredRow(f.image, x, predicted), predicted, 0.15) << "k1 " << k1 << " column " << x;
+    }
+    // The bow, edge against centre: ~3 px towards the centre at the edges for k1 = -0.1, none without distortion.
+    const double bow = PredictedRow(cam, 3, v0) - PredictedRow(cam, 200, v0);
+    if (k1 == 0.0) {
+      EXPECT_NEAR(bow, 0.0, 1e-9);
+    } else {
+      EXPECT_GT(bow, 2.5);
+      std::printf("k1 %.2f: the line at ideal row %.2f bows %.3f px between the edge and the centre column\n", k1, v0,
+                  bow);
+    }
+  }
+  fs::remove(canvas);
+}
+
 TEST(SimWriterTest, WritesImagesGroundTruthAndPlan) {
   const fs::path dir = fs::temp_directory_path() / ("uavm_sim_writer_" + std::to_string(::getpid()));
   fs::remove_all(dir);
@@ -194,6 +330,39 @@ TEST(SimWriterTest, WritesImagesGroundTruthAndPlan) {
   ASSERT_EQ(again.Next(&f, &err), Status::kOk);
   const cv::Mat read = cv::imread((dir / "images" / "frame_000000.jpg").string());
   EXPECT_EQ(cv::norm(read, f.image, cv::NORM_INF), 0.0);
+  fs::remove_all(dir);
+}
+
+TEST(SimWriterTest, WritesTheCameraAndExposureTruth) {
+  const fs::path dir = fs::temp_directory_path() / ("uavm_sim_writer_cam_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  SimSource src = Make(kNadirPlan +
+                       "k1: -0.1\nvignetting: 0.6\nvignetting_per_channel: 0.05\nexposure_gain: 0.25\n"
+                       "exposure_offset: 3\nwhite_balance: 0.1\n");
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  ASSERT_TRUE(tools::WriteSimFlight(&src, dir.string(), 3, &err)) << err;
+  std::optional<eval::GtCamera> cam;
+  ASSERT_TRUE(eval::LoadGroundTruthCamera((dir / "gt.csv").string(), &cam, &err)) << err;
+  ASSERT_TRUE(cam.has_value());
+  EXPECT_EQ(cam->camera.distortion.k1, -0.1);
+  EXPECT_EQ(cam->camera.cx, 199.5);
+  EXPECT_EQ(cam->camera.focal_px, 400.0);
+  EXPECT_EQ(cam->half_diagonal_px, 250.0);
+  EXPECT_NEAR(cam->vignetting[0].At(1.0), 0.57, 1e-12);
+  EXPECT_NEAR(cam->vignetting[2].At(1.0), 0.63, 1e-12);
+  std::string text;
+  ASSERT_TRUE(ReadTextFile((dir / eval::kGroundTruthExposureFile).string(), &text, &err)) << err;
+  std::vector<eval::GtExposure> exposure;
+  ASSERT_TRUE(eval::ParseGroundTruthExposure(text, &exposure, &err)) << err;
+  ASSERT_EQ(exposure.size(), 3u);
+  EXPECT_EQ(exposure[2].filename, "frame_000002.png");
+  EXPECT_EQ(exposure[2].gain, src.poses()[2].gain);
+  EXPECT_EQ(exposure[2].offset, src.poses()[2].offset);
+  EXPECT_EQ(exposure[2].white_balance, src.poses()[2].white_balance);
+  // gt.csv itself is as before: old readers still read it.
+  ASSERT_TRUE(ReadTextFile((dir / "gt.csv").string(), &text, &err)) << err;
+  EXPECT_EQ(text.substr(0, text.find('\n')), eval::kGroundTruthHeader);
   fs::remove_all(dir);
 }
 

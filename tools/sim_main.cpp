@@ -13,7 +13,8 @@ int main(int argc, char** argv) {
   app.add_option("--plan", options.plan_path, "flight plan YAML (keys: hal/sim/sim_plan.h)")->required();
   app.add_option("--canvas", options.canvas_path, "image to fly over (overrides the plan's canvas key)");
   app.add_option("--out", out,
-                 "output folder: images/, gt.csv, plan.yaml (with gps: geo.txt, geo_truth.txt, flight.tlog)")
+                 "output folder: images/, gt.csv, gt_camera.yaml, gt_exposure.csv, plan.yaml (with gps: geo.txt, "
+                 "geo_truth.txt, flight.tlog)")
       ->required();
   app.add_option("--frames", options.max_frames, "stop after N frames (0 = whole flight)")
       ->check(CLI::NonNegativeNumber);

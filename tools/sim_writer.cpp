@@ -1,5 +1,6 @@
 #include "tools/sim_writer.h"
 
+#include <cmath>
 #include <filesystem>
 #include <opencv2/imgcodecs.hpp>
 #include <sstream>
@@ -12,6 +13,18 @@ namespace uavm::tools {
 
 namespace fs = std::filesystem;
 
+namespace {
+
+eval::GtCamera CameraTruth(const hal::SimPlan& plan) {
+  eval::GtCamera g;
+  g.camera = plan.Camera();
+  g.half_diagonal_px = 0.5 * std::hypot(plan.frame_width, plan.frame_height);  // as SimSource renders
+  for (int c = 0; c < 3; ++c) g.vignetting[static_cast<size_t>(c)] = plan.Vignetting(c);
+  return g;
+}
+
+}  // namespace
+
 bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_frames, std::string* error) {
   std::error_code ec;
   const fs::path root(out_dir);
@@ -21,6 +34,7 @@ bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_
     return false;
   }
   std::vector<eval::GtRow> rows;
+  std::vector<eval::GtExposure> exposure;
   std::ostringstream geo;        // what the receiver reported (--telemetry geo:OUT/geo.txt)
   std::ostringstream geo_truth;  // where the frame centres really were, same format
   geo.precision(10);
@@ -48,6 +62,8 @@ bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_
     if (!WriteFileAtomic(file.string(), contents, error)) return false;
     const hal::SimTruth& t = source->last_truth();
     rows.push_back({static_cast<int>(frame.index), frame.source_name, t.canvas_from_frame, t.affine});
+    exposure.push_back(
+        {static_cast<int>(frame.index), frame.source_name, t.pose.gain, t.pose.offset, t.pose.white_balance});
     // omega phi kappa: a nadir camera; kappa is the heading of the direction of flight (compass degrees).
     geo << frame.source_name << ' ' << t.gps_position.lon_deg << ' ' << t.gps_position.lat_deg << ' '
         << t.gps_altitude_m << " 0 0 " << t.gps_heading_deg << '\n';
@@ -68,6 +84,10 @@ bool WriteSimFlight(hal::SimSource* source, const std::string& out_dir, int max_
                          WriteFileAtomic((root / "flight.tlog").string(), hal::SimTlog(*source, first, end), error)))
     return false;
   return WriteFileAtomic((root / "gt.csv").string(), eval::FormatGroundTruthCsv(rows), error) &&
+         WriteFileAtomic((root / eval::kGroundTruthCameraFile).string(),
+                         eval::FormatGroundTruthCamera(CameraTruth(plan)), error) &&
+         WriteFileAtomic((root / eval::kGroundTruthExposureFile).string(), eval::FormatGroundTruthExposure(exposure),
+                         error) &&
          WriteFileAtomic((root / "plan.yaml").string(), yaml, error);
 }
 

@@ -9,6 +9,8 @@ namespace uavm::tools {
 //   OUT/images/frame_000000.jpg ...  (.png when the plan has no JPEG round trip; JPEG files hold exactly the bytes
 //                                     the source decoded, so replayed frames equal the emitted ones)
 //   OUT/gt.csv                        ground truth (core/eval/ground_truth.h)
+//   OUT/gt_camera.yaml                the camera's truth: lens distortion and vignetting (core/eval/ground_truth.h)
+//   OUT/gt_exposure.csv               each frame's exposure gain, offset and white balance (same)
 //   OUT/plan.yaml                     the effective plan, canvas path made absolute
 //   OUT/geo.txt, OUT/geo_truth.txt    with the plan's gps: each frame's reported and true position (OpenDroneMap
 //                                     geo.txt, EPSG:4326), for --telemetry geo: and for measuring against the truth

@@ -46,6 +46,13 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"tilt_deg", &p.tilt_deg},
           {"exposure_gain", &p.exposure_gain},
           {"exposure_offset", &p.exposure_offset},
+          {"white_balance", &p.white_balance},
+          {"vignetting", &p.vignetting},
+          {"vignetting_per_channel", &p.vignetting_per_channel},
+          {"k1", &p.k1},
+          {"k2", &p.k2},
+          {"p1", &p.p1},
+          {"p2", &p.p2},
           {"noise_sigma", &p.noise_sigma},
           {"blur_px", &p.blur_px},
           {"jpeg_quality", &p.jpeg_quality},
@@ -85,7 +92,7 @@ bool SimPlan::Check(std::string* error) const {
   if (!(water_from >= 0 && water_to <= 1 && water_from <= water_to))
     return Fail(error, "water_from and water_to must satisfy 0 <= water_from <= water_to <= 1");
   if (!(gsd > 0)) return Fail(error, "gsd must be > 0");
-  if (!CheckTelemetry(error)) return false;
+  if (!CheckTelemetry(error) || !CheckCamera(error)) return false;
   if (strips < 0 || strip_length < 0 || strip_spacing < 0)
     return Fail(error, "strips/strip_length/spacing must be >= 0");
   if (forward_overlap < 0 || forward_overlap > 0.95) return Fail(error, "forward_overlap must be in [0, 0.95]");
@@ -111,6 +118,32 @@ bool SimPlan::CheckTelemetry(std::string* error) const {
     return Fail(error, "camera_latency_ms must be in [0, frame_interval_s)");
   if (!mavlink_udp.empty() && gps != 1) return Fail(error, "mavlink_udp needs gps: 1");
   return true;
+}
+
+bool SimPlan::CheckCamera(std::string* error) const {
+  if (!(white_balance >= 0 && white_balance <= 0.5)) return Fail(error, "white_balance must be in [0, 0.5]");
+  if (!(vignetting >= 0.2 && vignetting <= 1)) return Fail(error, "vignetting must be in [0.2, 1]");
+  if (!(vignetting_per_channel >= 0 && vignetting * (1 + vignetting_per_channel) <= 1))
+    return Fail(error, "vignetting_per_channel must be >= 0 with vignetting * (1 + vignetting_per_channel) <= 1");
+  if (!(std::isfinite(k1) && std::isfinite(k2) && std::isfinite(p1) && std::isfinite(p2)))
+    return Fail(error, "k1, k2, p1, p2 must be finite");
+  // Bound on the distortion's derivative over the frame: the rendering's undistortion converges and the lens maps
+  // the frame one-to-one.
+  const double r = 0.5 * std::hypot(frame_width, frame_height) / Focal();
+  const double strength =
+      3 * std::abs(k1) * r * r + 5 * std::abs(k2) * std::pow(r, 4) + 6 * (std::abs(p1) + std::abs(p2)) * r;
+  if (!(strength <= 0.8))
+    return Fail(error, "lens distortion too strong: 3|k1| R^2 + 5|k2| R^4 + 6(|p1| + |p2|) R = " +
+                           std::to_string(strength) + " > 0.8 at the half-diagonal R = " + std::to_string(r));
+  return true;
+}
+
+PinholeCamera SimPlan::Camera() const {
+  return PinholeCamera::Centred(frame_width, frame_height, Focal(), {k1, k2, p1, p2});
+}
+
+RadialFalloff SimPlan::Vignetting(int channel) const {
+  return RadialFalloff::FromCorner(vignetting * (1.0 + vignetting_per_channel * (channel - 1)));
 }
 
 bool ParseSimPlan(const std::string& yaml_text, const std::string& base_dir, SimPlan* plan, std::string* error) {
@@ -216,6 +249,7 @@ bool BuildFlight(const SimPlan& plan, cv::Size canvas_size, std::vector<SimPose>
   const int total = per_strip * strips * plan.passes;
 
   Draws draws(plan.seed);
+  Draws white_balance_draws(plan.seed * 2654435761ULL + 12345);  // its own stream: see white_balance in sim_plan.h
   for (int pass = 0; pass < plan.passes; ++pass) {
     for (int s = 0; s < strips; ++s) {
       for (int k = 0; k < per_strip; ++k) {
@@ -235,6 +269,7 @@ bool BuildFlight(const SimPlan& plan, cv::Size canvas_size, std::vector<SimPose>
         pose.pitch_deg = plan.tilt_deg * std::sin(tilt_dir);
         pose.gain = 1.0 + plan.exposure_gain * gain;
         pose.offset = plan.exposure_offset * offset;
+        for (double& wb : pose.white_balance) wb = 1.0 + plan.white_balance * white_balance_draws.Symmetric();
         const double t = total > 1 ? static_cast<double>(poses->size()) / (total - 1) : 0.0;
         pose.altitude = 1.0 + plan.altitude_change * std::sin(2.0 * kPi * t) + plan.altitude_drift * t;
         poses->push_back(pose);

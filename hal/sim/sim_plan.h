@@ -1,8 +1,10 @@
 #pragma once
+#include <array>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
 
+#include "core/geometry/camera_model.h"
 #include "core/geometry/transform.h"
 
 namespace uavm::hal {
@@ -24,6 +26,22 @@ namespace uavm::hal {
 //   altitude_drift: linear altitude change from the first to the last frame, fraction of nominal [0]
 //   tilt_deg: camera tilt off nadir (every frame, random direction): a perspective view of the flat canvas [0]
 //   exposure_gain, exposure_offset: per-frame gain uniform in 1 +- gain, offset uniform in +- offset grey levels [0, 0]
+//   white_balance: per-frame, per-channel gain uniform in 1 +- white_balance, on top of the exposure gain (drawn from
+//     a generator of its own: the other draws of a flight do not change with it) [0]
+//   vignetting: brightness of the image corners as a fraction of the centre, 0.2..1: every frame is multiplied by the
+//     radial falloff V(r) = 1 + a1 r^2 + a2 r^4 with a1 = 1.25 (vignetting - 1), a2 = -0.25 (vignetting - 1), a
+//     cos^4-like shape (RadialFalloff::FromCorner, core/geometry/camera_model.h); r = distance from the image centre
+//     / half the image diagonal sqrt(w^2 + h^2) / 2, measured in the recorded (distorted) image [1 = none]
+//   vignetting_per_channel: spread of the corner value between channels: B, G, R corners at vignetting x (1 - s, 1,
+//     1 + s); vignetting x (1 + s) must stay <= 1 [0 = the same for B, G, R]
+//   A recorded pixel is gain x white_balance[c] x V_c(r) x canvas_c + offset (then noise, clipping, JPEG).
+//   k1, k2, p1, p2: lens distortion, Brown-Conrady on normalised ideal coordinates x = (u - cx) / f, y = (v - cy) / f
+//     (cx, cy the image centre, f = Focal()); see LensDistortion. The frame is the distorted picture: its pixel p
+//     shows the canvas at canvas_from_frame(undistorted p), so the truth's homography acts on undistorted pixels.
+//     k1 is not "the distortion at the corner": the radial displacement at the half-diagonal, as a fraction of that
+//     radius, is k1 R^2 + k2 R^4 with R = sqrt(w^2 + h^2) / 2 / f (0.625 for 400x300 frames and the default focal,
+//     so k1 = -0.1 moves the corners 3.9 % = 9.8 px inwards; the "-0.1 at the half-diagonal" is k1 = -0.256
+//     there). 3 |k1| R^2 + 5 |k2| R^4 + 6 (|p1| + |p2|) R must be <= 0.8 (an invertible, moderate lens) [0, 0, 0, 0]
 //   noise_sigma: Gaussian sensor noise, grey levels [0]
 //   blur_px: motion blur length along the flight direction, frame pixels [0]
 //   jpeg_quality: JPEG encode + decode round trip, 1..100; 0 = off [0]
@@ -71,6 +89,13 @@ struct SimPlan {
   double tilt_deg = 0.0;
   double exposure_gain = 0.0;
   double exposure_offset = 0.0;
+  double white_balance = 0.0;
+  double vignetting = 1.0;
+  double vignetting_per_channel = 0.0;
+  double k1 = 0.0;
+  double k2 = 0.0;
+  double p1 = 0.0;
+  double p2 = 0.0;
   double noise_sigma = 0.0;
   double blur_px = 0.0;
   int jpeg_quality = 0;
@@ -95,8 +120,13 @@ struct SimPlan {
   std::string mavlink_udp;
 
   [[nodiscard]] double Focal() const { return focal_px > 0 ? focal_px : frame_width; }
+  // The frames' camera: principal point at the image centre, Focal(), the plan's k1, k2, p1, p2.
+  [[nodiscard]] PinholeCamera Camera() const;
+  // Vignetting of channel 0, 1, 2 = B, G, R (V(1) = vignetting x (1 - s, 1, 1 + s)).
+  [[nodiscard]] RadialFalloff Vignetting(int channel) const;
   [[nodiscard]] bool Check(std::string* error) const;
   [[nodiscard]] bool CheckTelemetry(std::string* error) const;
+  [[nodiscard]] bool CheckCamera(std::string* error) const;
 };
 
 // Parses YAML text; `base_dir` resolves a relative `canvas`. False with a message naming the key on any problem.
@@ -117,6 +147,7 @@ struct SimPose {
   double pitch_deg = 0.0;        // rotation about the frame y axis
   double gain = 1.0;
   double offset = 0.0;
+  std::array<double, 3> white_balance{1.0, 1.0, 1.0};  // B, G, R gains on top of `gain`
 };
 
 // WGS84 position of canvas point `p` (local tangent plane at the canvas centre: exact enough over a few km).

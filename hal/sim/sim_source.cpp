@@ -79,7 +79,8 @@ Status SimSource::Open(std::string* error) {
     *error = "sim: cannot read canvas image " + plan_.canvas;
     return Status::kError;
   }
-  PaintWater();
+  PaintSimWater(plan_, &canvas_);
+  PrepareLens();
   std::string note;
   if (!BuildFlight(plan_, canvas_.size(), &poses_, &note, error)) return Status::kError;
   if (!note.empty()) spdlog::warn("{}", note);
@@ -98,15 +99,43 @@ Status SimSource::Open(std::string* error) {
 
 // Calm water: one colour with a gentle gradient (under one grey level across a frame), so a frame wholly over it has
 // no features and looks "uniform" to the input checks, as real calm water does.
-void SimSource::PaintWater() {
-  if (!(plan_.water_to > plan_.water_from)) return;
-  const int x0 = static_cast<int>(std::lround(plan_.water_from * canvas_.cols));
-  const int x1 = static_cast<int>(std::lround(plan_.water_to * canvas_.cols));
+void PaintSimWater(const SimPlan& plan, cv::Mat* canvas) {
+  if (!(plan.water_to > plan.water_from)) return;
+  const int x0 = static_cast<int>(std::lround(plan.water_from * canvas->cols));
+  const int x1 = static_cast<int>(std::lround(plan.water_to * canvas->cols));
   if (x1 <= x0) return;
-  cv::Mat band = canvas_.colRange(x0, x1);
+  cv::Mat band = canvas->colRange(x0, x1);
   for (int y = 0; y < band.rows; ++y) {
     const double shade = 4.0 * y / std::max(1, band.rows - 1);  // 4 grey levels over the whole canvas height
     band.row(y).setTo(cv::Scalar(118 + shade, 96 + shade, 52 + shade));
+  }
+}
+
+// The lens, once per flight: every frame has the same camera, so the undistorted position of each recorded pixel and
+// the vignetting of each pixel are the same for all frames.
+void SimSource::PrepareLens() {
+  const PinholeCamera camera = plan_.Camera();
+  const cv::Size size(plan_.frame_width, plan_.frame_height);
+  ideal_from_frame_.release();
+  falloff_.release();
+  if (!camera.distortion.IsZero()) {
+    ideal_from_frame_.create(size, CV_32FC2);
+    for (int y = 0; y < size.height; ++y)
+      for (int x = 0; x < size.width; ++x) {
+        const Vec2 u = camera.UndistortPixel(Vec2(x, y));
+        ideal_from_frame_.at<cv::Vec2f>(y, x) = cv::Vec2f(static_cast<float>(u.x()), static_cast<float>(u.y()));
+      }
+  }
+  if (plan_.vignetting < 1.0) {
+    falloff_.create(size, CV_32FC3);
+    const double half_diagonal = 0.5 * std::hypot(size.width, size.height);
+    const std::array<RadialFalloff, 3> v{plan_.Vignetting(0), plan_.Vignetting(1), plan_.Vignetting(2)};
+    for (int y = 0; y < size.height; ++y)
+      for (int x = 0; x < size.width; ++x) {
+        const double r = std::hypot(x - camera.cx, y - camera.cy) / half_diagonal;
+        falloff_.at<cv::Vec3f>(y, x) =
+            cv::Vec3f(static_cast<float>(v[0].At(r)), static_cast<float>(v[1].At(r)), static_cast<float>(v[2].At(r)));
+      }
   }
 }
 
@@ -189,6 +218,46 @@ SimFix SimSource::FixAt(double t_s, uint64_t draw) const {
   return fix;
 }
 
+cv::Mat SimSource::Project(const cv::Mat& src, const Mat3& src_from_frame) const {
+  cv::Mat frame;
+  if (ideal_from_frame_.empty()) {
+    // WARP_INVERSE_MAP: the matrix maps destination (frame) pixels to source pixels, exactly the truth's direction.
+    cv::warpPerspective(src, frame, ToCv(src_from_frame), cv::Size(plan_.frame_width, plan_.frame_height),
+                        cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REFLECT);
+    return frame;
+  }
+  cv::Mat src_from_pixel;
+  cv::perspectiveTransform(ideal_from_frame_, src_from_pixel, ToCv(src_from_frame));
+  cv::remap(src, frame, src_from_pixel, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+  return frame;
+}
+
+// Vignetting, exposure and white balance, sensor noise. The falloff is applied after the motion blur, not before as
+// in a real camera: it is smooth, so over a blur of a few pixels the order changes nothing measurable.
+void SimSource::Expose(size_t i, cv::Mat* frame) const {
+  const SimPose& pose = poses_[i];
+  const auto& wb = pose.white_balance;
+  const bool colour = !falloff_.empty() || wb[0] != 1.0 || wb[1] != 1.0 || wb[2] != 1.0;
+  if (!colour && pose.gain == 1.0 && pose.offset == 0.0 && !(plan_.noise_sigma > 0)) return;
+  cv::Mat f;
+  if (colour) {
+    frame->convertTo(f, CV_32F);
+    if (!falloff_.empty()) f = f.mul(falloff_);
+    cv::multiply(f, cv::Scalar(pose.gain * wb[0], pose.gain * wb[1], pose.gain * wb[2]), f);
+    f += cv::Scalar::all(pose.offset);
+  } else {
+    frame->convertTo(f, CV_32F, pose.gain, pose.offset);  // the flights made before white balance, byte for byte
+  }
+  if (plan_.noise_sigma > 0) {
+    // Per-frame generator: frame i's noise does not depend on which frames were rendered before.
+    cv::RNG rng(plan_.seed * 1000003ULL + i + 1);
+    cv::Mat noise(f.size(), f.type());
+    rng.fill(noise, cv::RNG::NORMAL, 0.0, plan_.noise_sigma);
+    f += noise;
+  }
+  f.convertTo(*frame, CV_8U);
+}
+
 bool SimSource::Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uchar>* encoded, std::string* error) {
   if (i >= poses_.size()) {
     *error = "sim: no frame " + std::to_string(i);
@@ -211,10 +280,7 @@ bool SimSource::Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uc
   const Mat3 src_from_frame =
       ResizeMap(static_cast<double>(src.cols) / canvas_.cols, static_cast<double>(src.rows) / canvas_.rows) *
       truth->canvas_from_frame;
-  cv::Mat frame;
-  // WARP_INVERSE_MAP: the matrix maps destination (frame) pixels to source pixels, exactly the truth's direction.
-  cv::warpPerspective(src, frame, ToCv(src_from_frame), size, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
-                      cv::BORDER_REFLECT);
+  cv::Mat frame = Project(src, src_from_frame);
 
   if (plan_.blur_px > 0) {
     // Motion blur along frame x (the flight direction), a centred box of the given length with fractional ends,
@@ -227,18 +293,7 @@ bool SimSource::Render(size_t i, cv::Mat* image, SimTruth* truth, std::vector<uc
     k /= cv::sum(k)[0];
     cv::filter2D(frame, frame, -1, k, cv::Point(-1, -1), 0, cv::BORDER_REFLECT);
   }
-  if (pose.gain != 1.0 || pose.offset != 0.0 || plan_.noise_sigma > 0) {
-    cv::Mat f;
-    frame.convertTo(f, CV_32F, pose.gain, pose.offset);
-    if (plan_.noise_sigma > 0) {
-      // Per-frame generator: frame i's noise does not depend on which frames were rendered before.
-      cv::RNG rng(plan_.seed * 1000003ULL + i + 1);
-      cv::Mat noise(f.size(), f.type());
-      rng.fill(noise, cv::RNG::NORMAL, 0.0, plan_.noise_sigma);
-      f += noise;
-    }
-    f.convertTo(frame, CV_8U);
-  }
+  Expose(i, &frame);
   encoded->clear();
   if (plan_.jpeg_quality > 0) {
     if (!cv::imencode(".jpg", frame, *encoded, {cv::IMWRITE_JPEG_QUALITY, plan_.jpeg_quality})) {

@@ -42,9 +42,14 @@ struct SimFix {
 
 class SimUdpLink;
 
+// The plan's band of calm water painted over the canvas (water_from/water_to; nothing when there is none): the canvas
+// the frames really show, for anyone who compares a mosaic with it.
+void PaintSimWater(const SimPlan& plan, cv::Mat* canvas);
+
 // A virtual camera flying a lawn-mower plan over a large image (the canvas). Every frame is rendered from the
-// canvas through its true canvas_from_frame (cv::warpPerspective, reflected border), then blurred, exposed, noised
-// and JPEG round-tripped as the plan says. Deterministic by the plan's seed.
+// canvas through its true canvas_from_frame (cv::warpPerspective, reflected border; with lens distortion each pixel
+// is undistorted first and the canvas sampled there), then blurred, vignetted, exposed, noised and JPEG round-tripped
+// as the plan says. Deterministic by the plan's seed.
 class SimSource final : public FrameSource {
  public:
   explicit SimSource(SimOptions options);
@@ -76,7 +81,9 @@ class SimSource final : public FrameSource {
   [[nodiscard]] double FrameTime(size_t i) const { return static_cast<double>(i) * plan_.frame_interval_s; }
 
  private:
-  void PaintWater();
+  void PrepareLens();
+  [[nodiscard]] cv::Mat Project(const cv::Mat& src, const Mat3& src_from_frame) const;
+  void Expose(size_t i, cv::Mat* frame) const;
   [[nodiscard]] Vec2 GroundOf(size_t i) const;                 // canvas point under frame i's centre
   [[nodiscard]] Vec2 GpsErrorM(double f, cv::RNG* rng) const;  // east, north metres at fractional frame index f
   const cv::Mat& CanvasLevel(int level);
@@ -87,6 +94,8 @@ class SimSource final : public FrameSource {
   cv::Mat canvas_;
   std::map<int, cv::Mat> levels_;  // canvas reduced by 2^(level/4), for anti-aliased downsampling
   std::vector<SimPose> poses_;
+  cv::Mat ideal_from_frame_;  // CV_32FC2: each recorded pixel's undistorted position; empty without distortion
+  cv::Mat falloff_;           // CV_32FC3: vignetting per pixel and channel; empty without vignetting
   size_t next_ = 0;
   SimTruth truth_;
   std::vector<uchar> encoded_;
