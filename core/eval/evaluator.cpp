@@ -27,6 +27,35 @@ Mat3 Normaliser(const std::vector<Vec2>& pts) {
   return t;
 }
 
+// Frame pixel p through a camera's undistortion; p itself without a camera or distortion.
+Vec2 Undistorted(const std::optional<PinholeCamera>& camera, const Vec2& p) {
+  return camera && !camera->distortion.IsZero() ? camera->UndistortPixel(p) : p;
+}
+
+// The session row of each ground-truth frame (nullptr when unregistered or absent): by filename when every
+// registered session filename is in the ground truth (robust to skipped inputs shifting indices), else by index.
+std::vector<const TransformRow*> PairRows(const std::vector<TransformRow>& session, const std::vector<GtRow>& gt) {
+  std::map<std::string, size_t> gt_by_name;
+  std::map<int, size_t> gt_by_index;
+  for (size_t i = 0; i < gt.size(); ++i) {
+    gt_by_name[gt[i].filename] = i;
+    gt_by_index[gt[i].index] = i;
+  }
+  bool by_name = true;
+  for (const auto& r : session)
+    if (r.registered && !gt_by_name.count(r.filename)) by_name = false;
+  std::vector<const TransformRow*> match(gt.size(), nullptr);
+  for (const auto& r : session) {
+    if (!r.registered) continue;
+    if (by_name) {
+      match[gt_by_name[r.filename]] = &r;
+    } else if (auto it = gt_by_index.find(r.index); it != gt_by_index.end()) {
+      match[it->second] = &r;
+    }
+  }
+  return match;
+}
+
 double SumSquares(const std::vector<double>& v) {
   double s = 0.0;
   for (double x : v) s += x * x;
@@ -135,25 +164,7 @@ bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector
     *error = "frame size and grid must be at least 2";
     return false;
   }
-  // Pair rows: by filename when the names agree (robust to skipped inputs shifting indices), else by index.
-  std::map<std::string, size_t> gt_by_name;
-  std::map<int, size_t> gt_by_index;
-  for (size_t i = 0; i < gt.size(); ++i) {
-    gt_by_name[gt[i].filename] = i;
-    gt_by_index[gt[i].index] = i;
-  }
-  bool by_name = true;
-  for (const auto& r : session)
-    if (r.registered && !gt_by_name.count(r.filename)) by_name = false;
-  std::vector<const TransformRow*> match(gt.size(), nullptr);
-  for (const auto& r : session) {
-    if (!r.registered) continue;
-    if (by_name) {
-      match[gt_by_name[r.filename]] = &r;
-    } else if (auto it = gt_by_index.find(r.index); it != gt_by_index.end()) {
-      match[it->second] = &r;
-    }
-  }
+  const std::vector<const TransformRow*> match = PairRows(session, gt);
 
   // Grid of frame points, through both maps.
   std::vector<Vec2> grid;
@@ -167,9 +178,10 @@ bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector
   for (size_t f = 0; f < gt.size(); ++f) {
     if (match[f] == nullptr) continue;
     for (const Vec2& p : grid) {
-      const double s = LocalScale(gt[f].canvas_from_frame, p);
-      mosaic_pts.push_back(Apply(match[f]->mosaic_from_frame, p));
-      canvas_pts.push_back(Apply(gt[f].canvas_from_frame, p));
+      const Vec2 ideal = Undistorted(options.truth_camera, p);
+      const double s = LocalScale(gt[f].canvas_from_frame, ideal);
+      mosaic_pts.push_back(Apply(match[f]->mosaic_from_frame, Undistorted(options.session_camera, p)));
+      canvas_pts.push_back(Apply(gt[f].canvas_from_frame, ideal));
       scales.push_back(s);
       weights.push_back(1.0 / (s * s));
       owner.push_back(f);

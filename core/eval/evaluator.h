@@ -1,6 +1,7 @@
 #pragma once
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -12,6 +13,13 @@ namespace uavm::eval {
 struct EvalOptions {
   int grid = 9;                // grid x grid points per frame
   int refine_iterations = 20;  // Levenberg-Marquardt steps after the DLT
+  // The truth's camera (gt_camera.yaml): the frames are distorted pictures, so the true canvas point of frame pixel
+  // p is canvas_from_frame(truth_camera.UndistortPixel(p)). A mosaicker that ignores the lens then shows the error it
+  // really has. nullopt, or a camera without distortion: canvas_from_frame(p), as before the lens keys.
+  std::optional<PinholeCamera> truth_camera;
+  // The session's own camera, when its transforms act on undistorted pixels (a mosaicker that corrects the lens):
+  // the mosaic point of p is mosaic_from_frame(session_camera.UndistortPixel(p)). nullopt: mosaic_from_frame(p).
+  std::optional<PinholeCamera> session_camera;
 };
 
 struct FrameError {
@@ -42,7 +50,9 @@ struct EvalResult {
 // Compares a session's mosaic_from_frame with the true canvas_from_frame. Rows are paired by filename when every
 // registered session filename appears in the ground truth, else by index. The mosaic's own frame is arbitrary, so
 // one homography canvas_from_mosaic is fitted over all point pairs (normalised DLT + LM, weighted so the residual is
-// in frame pixels); errors are then canvas-pixel distances divided by the true map's local scale sqrt|det J|.
+// in frame pixels); errors are then canvas-pixel distances divided by the true map's local scale sqrt|det J|. With a
+// distorted truth_camera the grid is laid on the recorded frame and the local scale taken at each point's undistorted
+// position: errors are in pixels of the ideal pinhole frame (uniform over it, the units of the homographies).
 [[nodiscard]] bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector<GtRow>& gt,
                                    cv::Size frame_size, EvalResult* result, std::string* error,
                                    const EvalOptions& options = {});
