@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "core/estimators/affine.h"
+#include "core/imageio/jpeg_region.h"
 #include "core/estimators/ransac.h"
 #include "core/features/sift.h"
 #include "core/matching/pair_matcher.h"
@@ -173,6 +174,32 @@ void BM_JpegDecode(benchmark::State& state) {
   state.counters["megapixels"] = size.area() / 1e6;
 }
 BENCHMARK(BM_JpegDecode)->Arg(1)->Arg(2)->Arg(4)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// Part of a frame decoded at 1/2 (core/imageio): Arg 0 = percent of the side kept (a centred square share), Arg 1 =
+// where the part sits (0 top, 1 bottom: rows above it are skipped but still entropy-decoded).
+void BM_JpegDecodeRegion(benchmark::State& state) {
+  if (!Ready(state)) return;
+  const double share = static_cast<double>(state.range(0)) / 100.0;
+  uavm::JpegRegion part;
+  std::string why;
+  if (!uavm::DecodeJpegRegion(Frames().jpeg_path, 2, cv::Rect(0, 0, 1, 1), &part, &why)) {
+    state.SkipWithError(why.c_str());
+    return;
+  }
+  const cv::Size whole = part.scaled_size;
+  const cv::Size size(static_cast<int>(whole.width * share), static_cast<int>(whole.height * share));
+  const cv::Rect region((whole.width - size.width) / 2, state.range(1) == 0 ? 0 : whole.height - size.height,
+                        size.width, size.height);
+  for (auto _ : state) benchmark::DoNotOptimize(uavm::DecodeJpegRegion(Frames().jpeg_path, 2, region, &part, &why));
+  state.counters["megapixels"] = region.area() / 1e6;
+}
+BENCHMARK(BM_JpegDecodeRegion)
+    ->Args({100, 0})
+    ->Args({50, 0})
+    ->Args({50, 1})
+    ->Args({25, 1})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // One 256 px BGRA map tile of real ground; Arg: PNG compression level.
 void BM_TilePngEncode(benchmark::State& state) {

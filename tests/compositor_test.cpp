@@ -103,6 +103,86 @@ TEST(CompositorTest, TilesMatchAWholeCanvasBlend) {
   EXPECT_LE(v[static_cast<size_t>(0.999 * static_cast<double>(v.size()))], 2) << "tile borders must be invisible";
 }
 
+// A loader of parts (what JPEG region decoding gives: a little more than asked for, at an offset) composes the same
+// mosaic as whole frames, and is asked for less than whole frames where frames overlap.
+TEST(CompositorTest, PartLoadsComposeLikeWholeFrames) {
+  Scene s = MakeScene();
+  s.images[1].convertTo(s.images[1], -1, 1.15, 12);
+  CompositorOptions o;
+  o.tiff_block = 128;
+  o.tile_size = 256;
+  o.num_bands = 4;
+  o.max_covered_fraction = 1.0;
+  o.quicklook_long_side = 4096;
+  const cv::Size canvas(s.ground.cols, s.ground.rows);
+  const auto whole = Composite(
+      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  ASSERT_TRUE(whole.ok);
+  for (auto& in : s.inputs) in.region_loads = true;
+  int smaller = 0;
+  const auto parts = Composite(
+      s.inputs, canvas,
+      [&](int id, const cv::Rect& need) {
+        const cv::Mat& img = s.images[static_cast<size_t>(id)];
+        smaller += need.size() != img.size() ? 1 : 0;
+        // Widened to the left by up to 8 px, as libjpeg widens to its MCU columns.
+        const cv::Rect part = cv::Rect(need.x - 8, need.y, need.width + 8, need.height) & cv::Rect(cv::Point(), img.size());
+        return FramePart{img(part).clone(), cv::Point2d(part.tl())};
+      },
+      o, nullptr);
+  ASSERT_TRUE(parts.ok);
+  EXPECT_GT(smaller, 0) << "a frame partly covered by others is needed only in part";
+  cv::Mat diff;
+  cv::absdiff(whole.quicklook, parts.quicklook, diff);
+  EXPECT_EQ(cv::countNonZero(diff.reshape(1)), 0);
+}
+
+// With room for one decoded part only, parts evicted between tiles come back from the cache's in-memory JPEG: each
+// frame is loaded once, and the mosaic differs from the all-decoded one by about a grey level at most on average.
+TEST(CompositorTest, EvictedPartsComeBackFromMemory) {
+  Scene s = MakeScene();
+  CompositorOptions o;
+  o.tiff_block = 128;
+  o.tile_size = 128;
+  o.num_bands = 3;
+  o.threads = 1;
+  o.max_covered_fraction = 1.0;
+  o.quicklook_long_side = 4096;
+  const cv::Size canvas(s.ground.cols, s.ground.rows);
+  const size_t quicklook = static_cast<size_t>(canvas.area()) * 4;
+  const size_t part = 520 * 420 * 3;
+  for (auto& in : s.inputs) in.load_bytes = part;
+  o.image_cache_bytes = quicklook + part + part + part / 2;  // one load in flight, one decoded part and a half
+  int loads_decoded_only = 0;
+  o.compressed_share = 0.0;
+  const auto decoded_only = Composite(
+      s.inputs, canvas,
+      [&](int id) {
+        ++loads_decoded_only;
+        return s.images[static_cast<size_t>(id)];
+      },
+      o, nullptr);
+  ASSERT_TRUE(decoded_only.ok);
+  ASSERT_GT(loads_decoded_only, 3) << "the test needs a cache too small for every frame";
+  int loads = 0;
+  o.compressed_share = 1.0;
+  const auto two_tiers = Composite(
+      s.inputs, canvas,
+      [&](int id) {
+        ++loads;
+        return s.images[static_cast<size_t>(id)];
+      },
+      o, nullptr);
+  ASSERT_TRUE(two_tiers.ok);
+  EXPECT_EQ(loads, 3);
+  EXPECT_EQ(two_tiers.image_loads, 3);
+  EXPECT_EQ(two_tiers.reloads_from_memory, loads_decoded_only - 3);
+  cv::Mat diff;
+  cv::absdiff(decoded_only.quicklook, two_tiers.quicklook, diff);
+  const cv::Scalar mean = cv::mean(diff);
+  EXPECT_LT((mean[0] + mean[1] + mean[2]) / 3, 1.0);
+}
+
 // A strip longer than 32767 px (where OpenCV's warps and its stitcher stop): 40 overlapping frames along a synthetic
 // 34000 px ground, composited tile by tile into a BigTIFF with overviews; the far end reads back like the ground.
 TEST(CompositorTest, CanvasWiderThan32767PxComposesCorrectly) {

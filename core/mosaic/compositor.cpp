@@ -7,6 +7,7 @@
 #include <cmath>
 #include <list>
 #include <mutex>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <unordered_map>
 
@@ -30,6 +31,7 @@ bool CompositorOptions::Check(std::string* why) const {
   if (num_bands < 0 || num_bands > 10) return fail("mosaic.num_bands must be in [0,10]");
   if (threads < 1 || threads > 64) return fail("mosaic.threads must be in [1,64]");
   if (gdal_cache_mib < 1) return fail("mosaic.gdal_cache_mib must be >= 1");
+  if (!(compressed_share >= 0.0 && compressed_share <= 1.0)) return fail("mosaic.compressed_share must be in [0, 1]");
   if (!(max_covered_fraction > 0.0 && max_covered_fraction <= 1.0))
     return fail("mosaic.max_covered_fraction must be in (0,1]");
   if (quicklook_long_side < 16) return fail("mosaic.quicklook_long_side must be >= 16");
@@ -47,6 +49,9 @@ constexpr double kWriterOverheadMiB = 8;
 // A JPEG decoded at 1/2^k (DCT scaling) and resized to the image: the decode may be up to 1.6x the image's side
 // (the loader enlarges by up to 1.25x after a reduction that halves again), i.e. 2.56x its area, beside the image.
 constexpr double kWorstLoadPerImageByte = 2.56 + 1.0;
+// Image pixels a region load may add on each side of the part asked for: libjpeg's MCU columns (16 px at most) and
+// the margin a resized region keeps.
+constexpr double kRegionPad = 24;
 
 }  // namespace
 
@@ -63,6 +68,7 @@ CompositorMemory FitCompositorMemory(size_t pixel_bytes, size_t quicklook_bytes,
                                      size_t largest_crop, int threads, size_t blend_bytes_per_worker) {
   CompositorMemory m;
   m.threads = std::max(1, threads);
+  m.largest_part = largest_crop;
   for (;;) {
     const size_t fixed = quicklook_bytes + largest_load;
     const size_t cache = pixel_bytes > fixed ? pixel_bytes - fixed : 0;
@@ -167,7 +173,7 @@ void BorderDistance(const FrameGeometry& g, const cv::Mat& map_x, const cv::Mat&
 
 // Blends one ROI from the frames listed in `candidates` (indices into geometry / images).
 bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size_t>& candidates,
-              const std::function<cv::Mat(size_t, cv::Point*)>& image_of, const cv::Rect& roi, int num_bands,
+              const std::function<cv::Mat(size_t, cv::Point2d*)>& image_of, const cv::Rect& roi, int num_bands,
               cv::Mat* out_image, cv::Mat* out_mask) {
   const int cx0 = roi.x / kSeamStep;
   const int cy0 = roi.y / kSeamStep;
@@ -208,7 +214,7 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
   for (size_t k = 0; k < candidates.size(); ++k) {
     cv::compare(owner, cv::Scalar(static_cast<double>(k)), mask, cv::CMP_EQ);
     if (cv::countNonZero(mask) == 0) continue;
-    cv::Point crop_tl;  // the image may be a crop of the frame (see OwnedCanvasBoxes)
+    cv::Point2d crop_tl;  // the image may be part of the frame (see NeededParts)
     // Held (shared with the cache) only while it is warped: a worker pins one frame, not all of its tile's.
     const cv::Mat img = image_of(candidates[k], &crop_tl);
     if (img.empty()) continue;
@@ -220,7 +226,7 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
             cv::Rect(0, 0, roi.width, roi.height);
     const cv::Rect sub(roi.x + owned.x, roi.y + owned.y, owned.width, owned.height);
     ComputeMaps(geometry[candidates[k]], sub, &map_x, &map_y);
-    if (crop_tl != cv::Point()) {
+    if (crop_tl != cv::Point2d()) {
       map_x -= static_cast<float>(crop_tl.x);
       map_y -= static_cast<float>(crop_tl.y);
     }
@@ -288,7 +294,6 @@ std::vector<cv::Rect> OwnedCanvasBoxes(const std::vector<FrameGeometry>& geometr
   return owned;
 }
 
-// Bounded LRU of decoded frames between tiles.
 // (x, y) of cell `d` along a Hilbert curve over a side x side grid (side a power of two).
 cv::Point HilbertCell(int side, long d) {
   int x = 0, y = 0;
@@ -309,60 +314,176 @@ cv::Point HilbertCell(int side, long d) {
   return {x, y};
 }
 
-class ImageCache {
+// Frames' needed parts between tiles, in two tiers of bounded bytes: decoded parts (least recently used first out)
+// and, behind them, the same parts kept as in-memory JPEG (~1/10 of the bytes), so that a part evicted from the first
+// tier comes back from a 3 MP decode of our own copy instead of another 12 MP decode of the stored frame (whose
+// entropy decoding alone is most of a load). Thread-safe. Loads run outside the lock so that the other worker keeps
+// blending; they are serialised when a load is a whole frame (the compositor's largest transient buffer).
+class PartCache {
  public:
-  ImageCache(const ImageLoadFn& load, size_t capacity) : load_(load), capacity_(capacity) {}
-  // Both calls under the caller's lock; the decode itself happens outside it (see Composite).
-  [[nodiscard]] cv::Mat Peek(int id) {
-    auto it = entries_.find(id);
-    if (it == entries_.end()) return {};
-    lru_.splice(lru_.begin(), lru_, it->second.pos);
-    return it->second.image;  // shares the buffer: an eviction cannot free it under a user
-  }
-  cv::Mat Insert(int id, cv::Mat img) {
-    ++loads_;
-    auto it = entries_.find(id);
-    if (it != entries_.end()) return it->second.image;  // another worker decoded it meanwhile
-    const size_t bytes = img.total() * img.elemSize();
-    // Evict least recently used images that no worker holds: evicting a held one would free nothing, and a later
-    // decode of it would be a second copy. When every cached image is held, the cache may exceed its capacity.
-    auto victim = lru_.end();
-    while (used_ + bytes > capacity_ && victim != lru_.begin()) {
-      --victim;
-      auto e = entries_.find(*victim);
-      if (e->second.image.u != nullptr && e->second.image.u->refcount > 1) continue;
-      used_ -= e->second.bytes;
-      entries_.erase(e);
-      victim = lru_.erase(victim);
+  PartCache(const PartLoadFn& load, size_t decoded_bytes, size_t compressed_bytes, bool parallel_loads)
+      : load_(load), decoded_(decoded_bytes), compressed_(compressed_bytes), parallel_loads_(parallel_loads) {}
+
+  // At least `need` of frame `id`; an empty image when it cannot be read. The part shares the cache's buffer while
+  // the caller holds it, so that another worker's eviction cannot free it.
+  [[nodiscard]] FramePart Get(int id, const cv::Rect& need) {
+    std::vector<uchar> jpeg;
+    cv::Point2d origin;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (const FramePart* hit = decoded_.Find(id)) return *hit;
+      if (const CompressedPart* hit = compressed_.Find(id)) {
+        ++compressed_hits_;
+        jpeg = hit->jpeg;  // copied: an eviction may drop the entry while it is decoded
+        origin = hit->origin;
+      }
     }
-    lru_.push_front(id);
-    auto& e = entries_[id];
-    e.image = img;
-    e.bytes = bytes;
-    e.pos = lru_.begin();
-    used_ += bytes;
-    return img;
+    FramePart part = jpeg.empty() ? Load(id, need) : FramePart{cv::imdecode(jpeg, cv::IMREAD_COLOR), origin};
+    if (part.image.empty()) return part;
+    if (jpeg.empty()) Compress(id, part);
+    std::lock_guard<std::mutex> lock(mutex_);
+    const size_t bytes = part.image.total() * part.image.elemSize();
+    return decoded_.Insert(id, std::move(part), bytes);
   }
-  [[nodiscard]] const ImageLoadFn& loader() const { return load_; }
-
- private:
-  struct Entry {
-    cv::Mat image;
-    size_t bytes = 0;
-    std::list<int>::iterator pos;
-  };
-  ImageLoadFn load_;
-  size_t capacity_;
-  size_t loads_ = 0;
-
- public:
   [[nodiscard]] size_t loads() const { return loads_; }
+  [[nodiscard]] double load_ms() const { return load_ms_; }
+  [[nodiscard]] size_t reloads_from_memory() const { return compressed_hits_; }
 
  private:
-  size_t used_ = 0;
-  std::list<int> lru_;
-  std::unordered_map<int, Entry> entries_;
+  struct CompressedPart {
+    std::vector<uchar> jpeg;
+    cv::Point2d origin;
+  };
+
+  // A least-recently-used map of bounded bytes. An entry whose buffer a caller still holds is not evicted (that
+  // would free nothing); when every entry is held, the tier may exceed its capacity.
+  template <typename Value>
+  class Lru {
+   public:
+    explicit Lru(size_t capacity) : capacity_(capacity) {}
+    [[nodiscard]] size_t capacity() const { return capacity_; }
+    const Value* Find(int id) {
+      auto it = entries_.find(id);
+      if (it == entries_.end()) return nullptr;
+      order_.splice(order_.begin(), order_, it->second.pos);
+      return &it->second.value;
+    }
+    Value Insert(int id, Value value, size_t bytes) {
+      auto it = entries_.find(id);
+      if (it != entries_.end()) return it->second.value;  // another worker loaded it meanwhile
+      auto victim = order_.end();
+      while (used_ + bytes > capacity_ && victim != order_.begin()) {
+        --victim;
+        auto e = entries_.find(*victim);
+        if (Held(e->second.value)) continue;
+        used_ -= e->second.bytes;
+        entries_.erase(e);
+        victim = order_.erase(victim);
+      }
+      order_.push_front(id);
+      entries_[id] = Entry{value, bytes, order_.begin()};
+      used_ += bytes;
+      return value;
+    }
+
+   private:
+    struct Entry {
+      Value value;
+      size_t bytes = 0;
+      std::list<int>::iterator pos;
+    };
+    static bool Held(const FramePart& p) { return p.image.u != nullptr && p.image.u->refcount > 1; }
+    static bool Held(const CompressedPart&) { return false; }
+    size_t capacity_;
+    size_t used_ = 0;
+    std::list<int> order_;
+    std::unordered_map<int, Entry> entries_;
+  };
+
+  FramePart Load(int id, const cv::Rect& need) {
+    std::unique_lock<std::mutex> serial(load_mutex_, std::defer_lock);
+    if (!parallel_loads_) serial.lock();
+    const StageTimer timer;
+    FramePart part = Trim(load_(id, need), need);
+    const double ms = timer.ElapsedMs();
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++loads_;
+    load_ms_ += ms;
+    return part;
+  }
+
+  // Keeps a JPEG of the part when the second tier is on and the copy is smaller than the pixels. Quality 95: the
+  // blend sees differences of about a grey level, far below the exposure differences it blends away.
+  void Compress(int id, const FramePart& part) {
+    if (compressed_.capacity() == 0) return;
+    CompressedPart c{{}, part.origin};
+    if (!cv::imencode(".jpg", part.image, c.jpeg, {cv::IMWRITE_JPEG_QUALITY, 95})) return;
+    const size_t bytes = c.jpeg.size();
+    if (bytes >= part.image.total() * part.image.elemSize() || bytes > compressed_.capacity()) return;
+    std::lock_guard<std::mutex> lock(mutex_);
+    compressed_.Insert(id, std::move(c), bytes);
+  }
+
+  // A whole frame (or more than needed at whole-pixel offsets) is cut to `need` before it is cached; the rest is freed.
+  static FramePart Trim(FramePart part, const cv::Rect& need) {
+    if (part.image.empty() || part.origin.x != std::floor(part.origin.x) || part.origin.y != std::floor(part.origin.y))
+      return part;
+    const cv::Point tl(static_cast<int>(part.origin.x), static_cast<int>(part.origin.y));
+    const cv::Rect rel = (need - tl) & cv::Rect(0, 0, part.image.cols, part.image.rows);
+    if (rel.empty() || rel.size() == part.image.size()) return part;
+    return FramePart{part.image(rel).clone(), cv::Point2d(rel.x + tl.x, rel.y + tl.y)};
+  }
+
+  PartLoadFn load_;
+  Lru<FramePart> decoded_;
+  Lru<CompressedPart> compressed_;
+  bool parallel_loads_;
+  std::mutex mutex_;       // both tiers and the counters
+  std::mutex load_mutex_;  // serial loads
+  size_t loads_ = 0;       // counting reloads after eviction
+  double load_ms_ = 0.0;   // summed over workers
+  size_t compressed_hits_ = 0;
 };
+
+// Each frame is needed only over what it owns plus the pyramid's reach: with 75 % / 40 % overlaps a frame owns a
+// fifth of its area, so the cache holds ~5x more frames and decodes each about once. Rectangles in each frame's image
+// grid; empty = the frame owns nothing.
+std::vector<cv::Rect> NeededParts(const std::vector<FrameGeometry>& geometry, cv::Size canvas, int num_bands) {
+  const int reach = BlendReach(num_bands) + 2 * kSeamStep;
+  const std::vector<cv::Rect> owned = OwnedCanvasBoxes(geometry, canvas);
+  std::vector<cv::Rect> need(geometry.size());
+  for (size_t i = 0; i < geometry.size(); ++i) {
+    if (owned[i].empty()) continue;
+    const cv::Rect2d box(owned[i].x - reach, owned[i].y - reach, owned[i].width + 2 * reach,
+                         owned[i].height + 2 * reach);
+    // Corners suffice: a projective map takes the rectangle to a convex quadrilateral.
+    double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
+    for (const Vec2& c : {Vec2(box.x, box.y), Vec2(box.x + box.width, box.y), Vec2(box.x, box.y + box.height),
+                          Vec2(box.x + box.width, box.y + box.height)}) {
+      const Vec2 p = Apply(geometry[i].image_from_canvas, c);
+      x0 = std::min(x0, p.x());
+      y0 = std::min(y0, p.y());
+      x1 = std::max(x1, p.x());
+      y1 = std::max(y1, p.y());
+    }
+    const cv::Rect grown(static_cast<int>(std::floor(x0)) - 2, static_cast<int>(std::floor(y0)) - 2,
+                         static_cast<int>(std::ceil(x1 - x0)) + 5, static_cast<int>(std::ceil(y1 - y0)) + 5);
+    need[i] = grown & cv::Rect(0, 0, geometry[i].size.width, geometry[i].size.height);
+    spdlog::debug("composite: frame {} owns {}x{} canvas px; needs {}x{} of {}x{}", i, owned[i].width, owned[i].height,
+                  need[i].width, need[i].height, geometry[i].size.width, geometry[i].size.height);
+  }
+  return need;
+}
+
+// Bytes one load of frame `in` holds at once when it reads `need` (empty = the whole image).
+size_t LoadBytes(const CompositeInput& in, const cv::Rect& need) {
+  const double image = static_cast<double>(in.image_size.area()) * 3;
+  const double whole = in.load_bytes > 0 ? static_cast<double>(in.load_bytes) : kWorstLoadPerImageByte * image;
+  if (!in.region_loads || need.empty()) return static_cast<size_t>(whole);
+  // A region grows to libjpeg's MCU columns and by the resize's margin: kRegionPad image px per side at most.
+  const double part = (need.width + 2.0 * kRegionPad) * (need.height + 2.0 * kRegionPad) * 3;
+  return static_cast<size_t>(whole * std::min(1.0, part / image));
+}
 
 }  // namespace
 
@@ -375,7 +496,7 @@ bool RenderRoi(const std::vector<CompositeInput>& frames, const std::vector<cv::
     if ((geometry.back().bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
   }
   return BlendRoi(
-      geometry, candidates, [&](size_t i, cv::Point*) { return images[i]; }, roi, num_bands, image, mask);
+      geometry, candidates, [&](size_t i, cv::Point2d*) { return images[i]; }, roi, num_bands, image, mask);
 }
 
 std::vector<cv::Rect> TilesAlongHilbertCurve(cv::Size canvas, int tile_size) {
@@ -394,7 +515,113 @@ std::vector<cv::Rect> TilesAlongHilbertCurve(cv::Size canvas, int tile_size) {
   return tiles;
 }
 
+namespace {
+
+// Frame pixels are the quick-look, the loads in flight and the cache of needed parts. Under a budget they are also
+// held to what the budget leaves once the flight's remains (measured, not assumed: they vary with the flight), the TIFF
+// writer and the workers are counted; frames too large for that then cost a worker rather than the budget.
+CompositorMemory PlanMemory(const std::vector<CompositeInput>& used, const std::vector<cv::Rect>& need,
+                            size_t quicklook_bytes, bool parallel_loads, bool with_tiff, double resident_mib,
+                            const CompositorOptions& options) {
+  size_t largest_part = 0;
+  size_t largest_load = 0;
+  for (size_t i = 0; i < used.size(); ++i) {
+    largest_load = std::max(largest_load, LoadBytes(used[i], need[i]));
+    const cv::Size part = need[i].empty() ? used[i].image_size : need[i].size();
+    largest_part = std::max(largest_part, static_cast<size_t>(part.area()) * 3);
+  }
+  const size_t blend_bytes = static_cast<size_t>(options.BlendMiBPerWorker() * kMiB);
+  size_t pixel_bytes = options.image_cache_bytes;
+  if (options.memory_budget_mib > 0) {
+    const double left = options.memory_budget_mib - resident_mib - (with_tiff ? options.WriterMiB() : 0.0) -
+                        options.threads * options.BlendMiBPerWorker();
+    pixel_bytes = std::min(pixel_bytes, static_cast<size_t>(std::max(0.0, left) * kMiB));
+  }
+  // Parallel loads only when they take little from the cache: with large parts a load in flight per worker would
+  // evict what the next tiles need and cost more loads than the parallelism saves.
+  parallel_loads =
+      parallel_loads && largest_load * static_cast<size_t>(std::max(1, options.threads)) * 4 <= pixel_bytes;
+  const size_t in_flight = largest_load * static_cast<size_t>(parallel_loads ? std::max(1, options.threads) : 1);
+  CompositorMemory memory =
+      FitCompositorMemory(pixel_bytes, quicklook_bytes, in_flight, largest_part, options.threads, blend_bytes);
+  memory.parallel_loads = parallel_loads;
+  const auto mib = [](size_t bytes) { return static_cast<double>(bytes) / kMiB; };
+  spdlog::info("composite: {} worker(s), frame cache {:.0f} MiB, loads {:.0f} MiB{}, quick-look {:.0f} MiB{}",
+               memory.threads, mib(memory.cache_bytes), mib(in_flight), parallel_loads ? " (parts, in parallel)" : "",
+               mib(quicklook_bytes),
+               options.memory_budget_mib > 0 ? fmt::format(" ({:.0f} MiB resident at the start)", resident_mib) : "");
+  if (!memory.fits)
+    spdlog::warn(
+        "composite: frames of {:.0f} MiB per load do not fit the memory budget of {} MiB with one worker; "
+        "lower mosaic_scale to hold it",
+        mib(largest_load), options.memory_budget_mib);
+  return memory;
+}
+
+// Where finished tiles go: the TIFF (may be null) and the quick-look. Thread-safe; the first write error stops it.
+class TileSink {
+ public:
+  TileSink(cv::Size canvas, int quicklook_long_side, GdalTiffWriter* tiff) : tiff_(tiff) {
+    q_ = std::min(1.0, quicklook_long_side / static_cast<double>(std::max(canvas.width, canvas.height)));
+    quicklook_ = cv::Mat(std::max(1, static_cast<int>(std::lround(canvas.height * q_))),
+                         std::max(1, static_cast<int>(std::lround(canvas.width * q_))), CV_8UC4, cv::Scalar::all(0));
+  }
+  [[nodiscard]] size_t quicklook_bytes() const { return quicklook_.total() * quicklook_.elemSize(); }
+  [[nodiscard]] bool failed() const { return failed_; }
+
+  void Put(const cv::Rect& tile, const cv::Mat& image, const cv::Mat& mask) {
+    // Quick-look share of this tile, made outside the lock.
+    const int x0 = static_cast<int>(std::lround(tile.x * q_));
+    const int y0 = static_cast<int>(std::lround(tile.y * q_));
+    const int x1 = std::min(quicklook_.cols, static_cast<int>(std::lround((tile.x + tile.width) * q_)));
+    const int y1 = std::min(quicklook_.rows, static_cast<int>(std::lround((tile.y + tile.height) * q_)));
+    cv::Mat small;
+    if (x1 > x0 && y1 > y0) {
+      cv::Mat bgra;
+      cv::cvtColor(image, bgra, cv::COLOR_BGR2BGRA);
+      cv::insertChannel(mask, bgra, 3);
+      cv::resize(bgra, small, cv::Size(x1 - x0, y1 - y0), 0, 0, cv::INTER_AREA);
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (failed_) return;
+    std::string err;
+    if (tiff_ != nullptr && !tiff_->Write(image, mask, tile.tl(), &err)) {
+      error_ = err;
+      failed_ = true;
+      return;
+    }
+    ++tiles_written_;
+    if (!small.empty()) small.copyTo(quicklook_(cv::Rect(x0, y0, x1 - x0, y1 - y0)));
+  }
+  void Finish(CompositeResult* result) {
+    result->tiles_written = tiles_written_;
+    result->error = error_;
+    result->quicklook = std::move(quicklook_);
+  }
+
+ private:
+  GdalTiffWriter* tiff_;
+  double q_ = 1.0;
+  cv::Mat quicklook_;  // BGRA
+  std::mutex mutex_;
+  std::atomic<bool> failed_{false};
+  std::string error_;
+  int tiles_written_ = 0;
+};
+
+}  // namespace
+
 CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas, const ImageLoadFn& load,
+                          const CompositorOptions& options, GdalTiffWriter* tiff) {
+  return Composite(
+      frames, canvas,
+      [&](int id, const cv::Rect&) {
+        return FramePart{load(id), cv::Point2d()};
+      },
+      options, tiff);
+}
+
+CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas, const PartLoadFn& load,
                           const CompositorOptions& options, GdalTiffWriter* tiff) {
   CompositeResult result;
   StageTimer timer;
@@ -417,167 +644,61 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
   result.frames_used = static_cast<int>(used.size());
   std::vector<FrameGeometry> geometry;
   for (const auto& f : used) geometry.push_back(MakeGeometry(f));
-  // Each frame is kept decoded only over what it owns plus the pyramid's reach: with 75 % / 40 % overlaps a frame
-  // owns a fifth of its area, so the cache holds ~5x more frames and decodes each about once.
-  const int reach = BlendReach(options.num_bands) + 2 * kSeamStep;
-  std::vector<cv::Rect> crop(used.size());
-  {
-    const std::vector<cv::Rect> owned = OwnedCanvasBoxes(geometry, canvas);
-    for (size_t i = 0; i < used.size(); ++i) {
-      if (owned[i].empty()) continue;
-      const cv::Rect2d need(owned[i].x - reach, owned[i].y - reach, owned[i].width + 2 * reach,
-                            owned[i].height + 2 * reach);
-      // Corners suffice: a projective map takes the rectangle to a convex quadrilateral.
-      double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
-      for (const Vec2& c : {Vec2(need.x, need.y), Vec2(need.x + need.width, need.y), Vec2(need.x, need.y + need.height),
-                            Vec2(need.x + need.width, need.y + need.height)}) {
-        const Vec2 p = Apply(geometry[i].image_from_canvas, c);
-        x0 = std::min(x0, p.x());
-        y0 = std::min(y0, p.y());
-        x1 = std::max(x1, p.x());
-        y1 = std::max(y1, p.y());
-      }
-      const cv::Rect2d box(x0, y0, x1 - x0, y1 - y0);
-      const cv::Rect grown(static_cast<int>(std::floor(box.x)) - 2, static_cast<int>(std::floor(box.y)) - 2,
-                           static_cast<int>(std::ceil(box.width)) + 5, static_cast<int>(std::ceil(box.height)) + 5);
-      crop[i] = grown & cv::Rect(0, 0, geometry[i].size.width, geometry[i].size.height);
-      spdlog::debug("composite: frame {} owns {}x{} canvas px; kept {}x{} of {}x{}", used[i].id, owned[i].width,
-                    owned[i].height, crop[i].width, crop[i].height, geometry[i].size.width, geometry[i].size.height);
-    }
-  }
-
-  const double q =
-      std::min(1.0, options.quicklook_long_side / static_cast<double>(std::max(canvas.width, canvas.height)));
-  result.quicklook = cv::Mat(std::max(1, static_cast<int>(std::lround(canvas.height * q))),
-                             std::max(1, static_cast<int>(std::lround(canvas.width * q))), CV_8UC4, cv::Scalar::all(0));
-  // image_cache_bytes is all the memory for frame pixels: the quick-look, one load at a time (loads are serialised)
-  // and the cache of cropped frames. Under a budget it is also held to what the budget leaves once the flight's
-  // remains (measured, not assumed: they vary with the flight), the TIFF writer and the workers are counted; frames
-  // too large for that then cost a worker rather than the budget.
-  size_t largest_crop = 0;
-  size_t largest_load = 0;
-  for (size_t i = 0; i < used.size(); ++i) {
-    const size_t image = static_cast<size_t>(geometry[i].size.area()) * 3;
-    largest_load =
-        std::max(largest_load, used[i].load_bytes > 0
-                                   ? used[i].load_bytes
-                                   : static_cast<size_t>(kWorstLoadPerImageByte * static_cast<double>(image)));
-    largest_crop =
-        std::max(largest_crop, static_cast<size_t>((crop[i].empty() ? geometry[i].size : crop[i].size()).area()) * 3);
-  }
-  const size_t blend_bytes = static_cast<size_t>(options.BlendMiBPerWorker() * kMiB);
-  size_t pixel_bytes = options.image_cache_bytes;
-  if (options.memory_budget_mib > 0) {
-    const double left = options.memory_budget_mib - resident_mib - (tiff != nullptr ? options.WriterMiB() : 0.0) -
-                        options.threads * options.BlendMiBPerWorker();
-    pixel_bytes = std::min(pixel_bytes, static_cast<size_t>(std::max(0.0, left) * kMiB));
-  }
-  const size_t quicklook_bytes = result.quicklook.total() * result.quicklook.elemSize();
+  const std::vector<cv::Rect> need = NeededParts(geometry, canvas, options.num_bands);
+  TileSink sink(canvas, options.quicklook_long_side, tiff);
+  // Parts may be loaded in parallel (see PlanMemory); a whole-frame load, the largest transient buffer, one at a time.
+  const bool parallel_loads =
+      !used.empty() && std::all_of(used.begin(), used.end(), [](const CompositeInput& in) { return in.region_loads; });
   const CompositorMemory memory =
-      FitCompositorMemory(pixel_bytes, quicklook_bytes, largest_load, largest_crop, options.threads, blend_bytes);
-  const int threads = memory.threads;
-  const auto mib = [](size_t bytes) { return static_cast<double>(bytes) / kMiB; };
-  spdlog::info("composite: {} worker(s), frame cache {:.0f} MiB, load {:.0f} MiB, quick-look {:.0f} MiB{}", threads,
-               mib(memory.cache_bytes), mib(largest_load), mib(quicklook_bytes),
-               options.memory_budget_mib > 0 ? fmt::format(" ({:.0f} MiB resident at the start)", resident_mib) : "");
-  if (!memory.fits)
-    spdlog::warn(
-        "composite: frames of {:.0f} MiB per load do not fit the memory budget of {} MiB with one worker; "
-        "lower mosaic_scale to hold it",
-        mib(largest_load), options.memory_budget_mib);
-  const size_t cache_bytes = memory.cache_bytes;
-  ImageCache cache(load, cache_bytes);
-  std::mutex decode_mutex;
+      PlanMemory(used, need, sink.quicklook_bytes(), parallel_loads, tiff != nullptr, resident_mib, options);
+  // The decoded tier keeps at least one part per worker; the second tier a share of the rest.
+  const size_t floor = static_cast<size_t>(memory.threads) * memory.largest_part;
+  const auto compressed = static_cast<size_t>(
+      options.compressed_share * static_cast<double>(memory.cache_bytes > floor ? memory.cache_bytes - floor : 0));
+  PartCache cache(load, memory.cache_bytes - compressed, compressed, memory.parallel_loads);
+  std::mutex report_mutex;
   std::vector<bool> reported_unreadable(used.size(), false);
+  auto image_of = [&](size_t i, cv::Point2d* origin) -> cv::Mat {
+    const cv::Rect whole(cv::Point(), geometry[i].size);
+    FramePart part = cache.Get(used[i].id, need[i].empty() ? whole : need[i]);
+    *origin = part.origin;
+    if (part.image.empty()) {
+      std::lock_guard<std::mutex> lock(report_mutex);
+      if (!reported_unreadable[i]) {
+        reported_unreadable[i] = true;
+        ++result.frames_unreadable;
+        spdlog::warn("composite: frame {} could not be loaded; its area stays empty", used[i].id);
+      }
+    }
+    return part.image;
+  };
   const int margin = options.Margin();
   const cv::Rect canvas_rect(0, 0, canvas.width, canvas.height);
-  // Tiles are independent; workers take them along a Hilbert curve. Consecutive tiles are neighbours, so a frame
-  // decoded for one tile serves the next few from a small cache (row-major order went across the whole canvas and
-  // decoded each 12 MP frame ~9 times), and every aligned 2^k x 2^k block of tiles is visited in one run, so each
-  // TIFF overview block (2^k tiles wide) is completed soon after it is started and GDAL's small block cache never
-  // writes one twice. Decoding and writing are serialised; warping and blending, the bulk of the work, run in parallel.
+  // Tiles are independent; workers take them along a Hilbert curve, claimed in increasing order. Consecutive tiles
+  // are neighbours, so a frame loaded for one tile serves the next few from a small cache (row-major order went across
+  // the whole canvas and decoded each 12 MP frame ~9 times), and every aligned 2^k x 2^k block of tiles is visited in
+  // one run, so each TIFF overview block (2^k tiles wide) is completed soon after it is started and GDAL's small block
+  // cache never writes one twice. Writing is serialised; warping and blending, the bulk of the work, run in parallel.
   const std::vector<cv::Rect> tiles = TilesAlongHilbertCurve(canvas, options.tile_size);
-  std::mutex cache_mutex;
-  std::mutex out_mutex;
-  std::atomic<bool> failed{false};  // a tile write failed: the remaining tiles are skipped
-  std::string write_error;
-  // Tiles are claimed in increasing order, as the comment above needs.
-  ParallelFor(tiles.size(), threads, [&](size_t t) {
-    if (failed) return;
+  ParallelFor(tiles.size(), memory.threads, [&](size_t t) {
+    if (sink.failed()) return;
     const cv::Rect tile = tiles[t];
     const cv::Rect roi =
         cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & canvas_rect;
     std::vector<size_t> candidates;
     for (size_t i = 0; i < geometry.size(); ++i)
       if ((geometry[i].bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
-    if (candidates.empty()) return;
-    // The image shares the cache's buffer while the worker uses it, so that another worker's eviction cannot free it.
-    auto image_of = [&](size_t i, cv::Point* tl) -> cv::Mat {
-      *tl = crop[i].empty() ? cv::Point() : crop[i].tl();
-      {
-        std::lock_guard<std::mutex> lock(cache_mutex);
-        cv::Mat cached = cache.Peek(used[i].id);
-        if (!cached.empty()) return cached;
-      }
-      cv::Mat img;
-      {
-        // Outside the cache lock (the other worker keeps blending) but one at a time: a load is the largest
-        // transient buffer of the compositor.
-        std::lock_guard<std::mutex> decode_lock(decode_mutex);
-        const StageTimer load_timer;
-        img = cache.loader()(used[i].id);
-        result.load_ms += load_timer.ElapsedMs();  // under decode_mutex
-        if (!img.empty() && !crop[i].empty() && img.size() == geometry[i].size && crop[i].size() != img.size())
-          img = img(crop[i]).clone();  // the full decode is freed here
-      }
-      std::lock_guard<std::mutex> lock(cache_mutex);
-      if (img.empty()) {
-        if (!reported_unreadable[i]) {
-          reported_unreadable[i] = true;
-          ++result.frames_unreadable;
-          spdlog::warn("composite: frame {} could not be loaded; its area stays empty", used[i].id);
-        }
-        return {};
-      }
-      return cache.Insert(used[i].id, std::move(img));
-    };
     cv::Mat image;
     cv::Mat mask;
-    if (!BlendRoi(geometry, candidates, image_of, roi, options.num_bands, &image, &mask)) return;
+    if (candidates.empty() || !BlendRoi(geometry, candidates, image_of, roi, options.num_bands, &image, &mask)) return;
     const cv::Rect inner(tile.x - roi.x, tile.y - roi.y, tile.width, tile.height);
-    const cv::Mat tile_image = image(inner);
-    const cv::Mat tile_mask = mask(inner);
-    if (cv::countNonZero(tile_mask) == 0) return;
-    // Quick-look share of this tile.
-    const int x0 = static_cast<int>(std::lround(tile.x * q));
-    const int y0 = static_cast<int>(std::lround(tile.y * q));
-    const int x1 = std::min(result.quicklook.cols, static_cast<int>(std::lround((tile.x + tile.width) * q)));
-    const int y1 = std::min(result.quicklook.rows, static_cast<int>(std::lround((tile.y + tile.height) * q)));
-    cv::Mat small;
-    if (x1 > x0 && y1 > y0) {
-      cv::Mat bgra;
-      cv::cvtColor(tile_image, bgra, cv::COLOR_BGR2BGRA);
-      cv::insertChannel(tile_mask, bgra, 3);
-      cv::resize(bgra, small, cv::Size(x1 - x0, y1 - y0), 0, 0, cv::INTER_AREA);
-    }
-    std::lock_guard<std::mutex> lock(out_mutex);
-    if (!write_error.empty()) return;
-    if (tiff != nullptr) {
-      std::string err;
-      if (!tiff->Write(tile_image, tile_mask, tile.tl(), &err)) {
-        write_error = err;
-        failed = true;
-        return;
-      }
-    }
-    ++result.tiles_written;
-    if (!small.empty()) small.copyTo(result.quicklook(cv::Rect(x0, y0, x1 - x0, y1 - y0)));
+    if (cv::countNonZero(mask(inner)) > 0) sink.Put(tile, image(inner), mask(inner));
   });
-  if (!write_error.empty()) {
-    result.error = write_error;
-    return result;
-  }
+  sink.Finish(&result);
+  if (!result.error.empty()) return result;
   result.image_loads = static_cast<int>(cache.loads());
+  result.reloads_from_memory = static_cast<int>(cache.reloads_from_memory());
+  result.load_ms = cache.load_ms();
   result.ms = timer.ElapsedMs();
   result.ok = true;
   return result;

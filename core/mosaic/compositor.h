@@ -23,8 +23,11 @@ struct CompositorOptions {
   int num_bands = 5;                  // multi-band levels; 0 = hard seams only
   double max_covered_fraction = 0.9;  // overlap-based frame selection (see SelectByOverlap)
   int quicklook_long_side = 2000;
-  // All frame pixels: the quick-look, one load at a time and the decoded frames kept between tiles.
+  // All frame pixels: the quick-look, the loads in flight and the decoded frame parts kept between tiles.
   size_t image_cache_bytes = size_t{256} << 20;
+  // Share of the frame cache, beyond one decoded part per worker, that keeps parts as in-memory JPEG (reloaded by a
+  // small decode instead of the stored frame's); 0 = decoded parts only.
+  double compressed_share = 0.75;
   bool build_overviews = true;
   int threads = 2;          // tile workers
   int gdal_cache_mib = 64;  // GDAL's block cache while the TIFF is written (tiles are written once)
@@ -46,13 +49,15 @@ struct CompositorOptions {
 // How the compositor's memory is split once the frames and the canvas are known.
 struct CompositorMemory {
   int threads = 1;
-  size_t cache_bytes = 0;  // decoded (cropped) frames kept between tiles
-  bool fits = true;        // false: even one worker with one cached frame exceeds the allowance
+  size_t cache_bytes = 0;       // decoded (cropped) frames kept between tiles
+  size_t largest_part = 0;      // bytes of the largest decoded part: the cache keeps one per worker at least
+  bool fits = true;             // false: even one worker with one cached frame exceeds the allowance
+  bool parallel_loads = false;  // workers load frame parts at the same time (set by the compositor)
 };
 
-// Splits `pixel_bytes`, all the memory for frame pixels (the quick-look, one load at a time, the cache), when the
-// largest load holds `largest_load` bytes and the largest cached crop is `largest_crop` bytes. Each of `threads`
-// workers holds at least one cached crop; while that does not fit, a worker is dropped and its
+// Splits `pixel_bytes`, all the memory for frame pixels (the quick-look, the loads in flight, the cache), when the
+// loads in flight hold `largest_load` bytes at most and the largest cached crop is `largest_crop` bytes. Each of
+// `threads` workers holds at least one cached crop; while that does not fit, a worker is dropped and its
 // `blend_bytes_per_worker` go to frame pixels.
 [[nodiscard]] CompositorMemory FitCompositorMemory(size_t pixel_bytes, size_t quicklook_bytes, size_t largest_load,
                                                    size_t largest_crop, int threads, size_t blend_bytes_per_worker);
@@ -62,12 +67,24 @@ struct CompositeInput {
   int id = -1;
   Mat3 canvas_from_image = Mat3::Identity();
   cv::Size image_size;
-  // Most bytes a load of this frame holds at once (e.g. a larger decode and its resized copy); 0 = not known, then
-  // taken as the worst a DCT-scaled JPEG decode resized to image_size gives (see Composite).
+  // Most bytes a load of the whole frame holds at once (e.g. a larger decode and its resized copy); 0 = not known,
+  // then taken as the worst a DCT-scaled JPEG decode resized to image_size gives (see Composite).
   size_t load_bytes = 0;
+  // The loader reads only the part asked for (JPEG region decoding): a load then holds about load_bytes times the
+  // part's share of the image, and such loads may run in parallel.
+  bool region_loads = false;
 };
 
 using ImageLoadFn = std::function<cv::Mat(int id)>;  // BGR8 image of a frame; empty = unreadable
+
+// Part of a frame's image: `image`'s pixel (0, 0) is at `origin` in the image_size grid (fractional when the loader
+// resized a decoded part: the part keeps the whole image's sampling, only its start moves).
+struct FramePart {
+  cv::Mat image;  // BGR8; empty = unreadable
+  cv::Point2d origin;
+};
+// Returns at least `need` (pixels of the frame's image_size grid) of frame `id`, or more (the whole image, origin 0).
+using PartLoadFn = std::function<FramePart(int id, const cv::Rect& need)>;
 
 struct CompositeResult {
   bool ok = false;
@@ -77,8 +94,9 @@ struct CompositeResult {
   int frames_dropped_by_overlap = 0;
   int frames_unreadable = 0;
   int tiles_written = 0;
-  int image_loads = 0;   // decodes, counting reloads after cache eviction
-  double load_ms = 0.0;  // time in those decodes (serialised: a worker waits while another decodes)
+  int image_loads = 0;          // loads of stored frames, counting reloads after cache eviction
+  int reloads_from_memory = 0;  // parts decoded again from the cache's in-memory JPEG instead
+  double load_ms = 0.0;         // time in those decodes, summed over the workers
   double ms = 0.0;
   cv::Mat quicklook;  // BGRA, transparent outside the flown area
 };
@@ -90,6 +108,9 @@ struct CompositeResult {
 // Composites `frames` onto a canvas of size `canvas` tile by tile: per tile, each pixel is owned by the frame whose
 // border is farthest (distance-to-border seams, in canvas pixels), owners are warped and blended with multi-band
 // blending over the tile plus a margin, and the tile goes to `tiff` (may be null) and the quick-look.
+[[nodiscard]] CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas,
+                                        const PartLoadFn& load, const CompositorOptions& options, GdalTiffWriter* tiff);
+// The same with a loader of whole frames.
 [[nodiscard]] CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas,
                                         const ImageLoadFn& load, const CompositorOptions& options,
                                         GdalTiffWriter* tiff);

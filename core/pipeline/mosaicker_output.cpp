@@ -14,54 +14,11 @@
 
 #include "core/mosaic/gdal_writer.h"
 #include "core/pipeline/mosaicker.h"
-#include "core/pipeline/stored_frame.h"
+#include "core/pipeline/canvas_load.h"
 #include "core/util/clock.h"
 #include "core/util/memory.h"
 
 namespace uavm {
-
-namespace {
-
-// How a stored frame is read for the canvas: JPEG DCT-scaled decode by 1/reduce, then resized to `size` only when the
-// decode is finer than the canvas's own sampling of the frame (an enlargement would add bytes, not detail: the warp
-// onto the canvas resamples anyway), so cached images are no larger than the canvas needs.
-struct CanvasLoad {
-  int reduce = 1;
-  cv::Size size;
-  size_t peak_bytes = 0;  // the decode plus its resized copy, if any: what one load holds at once
-};
-
-bool IsJpeg(const std::string& path) {
-  std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return ext == ".jpg" || ext == ".jpeg";
-}
-
-// `keep`: canvas pixels per original pixel (at most 1).
-CanvasLoad PlanCanvasLoad(const std::string& path, cv::Size original, double keep) {
-  CanvasLoad how;
-  // DCT-scaled decoding is 2-3x cheaper than full; a decode up to 1.25x coarser than the canvas is accepted for it.
-  while (how.reduce < 8 && 1.25 / (how.reduce * 2) >= keep) how.reduce *= 2;
-  const cv::Size wanted(std::max(1, static_cast<int>(std::lround(original.width * keep))),
-                        std::max(1, static_cast<int>(std::lround(original.height * keep))));
-  const bool jpeg = IsJpeg(path);
-  // libjpeg's scaled output is ceil(size / reduce); other formats are decoded whole (OpenCV then shrinks them).
-  const cv::Size decoded =
-      jpeg ? cv::Size((original.width + how.reduce - 1) / how.reduce, (original.height + how.reduce - 1) / how.reduce)
-           : original;
-  const auto bytes = [](cv::Size s) { return static_cast<size_t>(s.area()) * 3; };
-  if (jpeg && decoded.width <= wanted.width) {
-    how.size = decoded;  // used as decoded
-    how.peak_bytes = bytes(decoded);
-  } else {
-    how.size = wanted;
-    how.peak_bytes = bytes(decoded) + bytes(wanted);
-  }
-  return how;
-}
-
-}  // namespace
 
 bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* error) {
   const std::unordered_set<int> in_component(component.begin(), component.end());
@@ -228,14 +185,14 @@ bool Mosaicker::CompositeMosaic(const std::vector<int>& component, const std::ve
     in.id = id;
     in.image_size = how.size;
     in.load_bytes = how.peak_bytes;
+    in.region_loads = how.jpeg;
     in.canvas_from_image = c * ResizeMap(static_cast<double>(how.size.width) / f.original_size.width,
                                          static_cast<double>(how.size.height) / f.original_size.height)
                                    .inverse();
     inputs.push_back(in);
   }
-  auto load = [&](int id) {
-    const CanvasLoad& how = load_of[id];
-    return LoadStoredFrame(frames_[static_cast<size_t>(id)].stored_file, how.size, how.reduce);
+  auto load = [&](int id, const cv::Rect& need) {
+    return LoadCanvasPart(frames_[static_cast<size_t>(id)].stored_file, load_of.at(id), need);
   };
   GdalTiffWriter tiff;
   const bool write_tiff = options_.write_tiff;
@@ -258,9 +215,10 @@ bool Mosaicker::CompositeMosaic(const std::vector<int>& component, const std::ve
     return false;
   spdlog::info(
       "mosaic {}x{} px (scale {:.3f}), {} frames blended, {} dropped by overlap, {} tiles, {} frame loads ({:.0f} ms), "
-      "{:.0f} ms",
+      "{} parts again from memory, {:.0f} ms",
       canvas.width, canvas.height, scale, composite->frames_used, composite->frames_dropped_by_overlap,
-      composite->tiles_written, composite->image_loads, composite->load_ms, composite->ms);
+      composite->tiles_written, composite->image_loads, composite->load_ms, composite->reloads_from_memory,
+      composite->ms);
   return true;
 }
 

@@ -128,6 +128,7 @@ bool Mosaicker::WriteReport(const std::vector<int>& component, const CompositeRe
                       {"frames_unreadable", composite.frames_unreadable},
                       {"tiles", composite.tiles_written},
                       {"image_loads", composite.image_loads},
+                      {"reloads_from_memory", composite.reloads_from_memory},
                       {"image_load_ms", composite.load_ms}};
   report["georef"] = GeorefJson();
   report["products"] = products;

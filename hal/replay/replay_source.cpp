@@ -2,7 +2,6 @@
 
 #include <opencv2/videoio/registry.hpp>
 
-#include <jerror.h>
 #include <jpeglib.h>
 
 #include <algorithm>
@@ -14,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 #include <string_view>
 
+#include "core/imageio/jpeg_region.h"
 #include "core/util/clock.h"
 #include "hal/replay/natural_order.h"
 
@@ -132,27 +132,7 @@ bool DeclaredSize(Format format, const std::vector<uchar>& bytes, cv::Size* size
 
 // JPEG frames are decoded with libjpeg directly: it reports damaged entropy-coded data (bad Huffman codes, a scan
 // that ends early or late) as warnings and goes on, and OpenCV's decoder ignores those warnings and returns a smeared
-// frame. One pass decodes (DCT-scaled, as OpenCV's reduced modes) and collects them.
-struct JpegErrors {
-  jpeg_error_mgr mgr;
-  std::jmp_buf jump;
-  int corrupt = 0;
-  char message[JMSG_LENGTH_MAX] = {};
-};
-
-void JpegErrorExit(j_common_ptr cinfo) {
-  auto* err = reinterpret_cast<JpegErrors*>(cinfo->err);
-  (*cinfo->err->format_message)(cinfo, err->message);
-  std::longjmp(err->jump, 1);
-}
-
-void JpegEmitMessage(j_common_ptr cinfo, int level) {
-  // Level -1 is a warning; the JFIF version and Adobe transform warnings say nothing about the pixels.
-  auto* err = reinterpret_cast<JpegErrors*>(cinfo->err);
-  if (level >= 0 || err->mgr.msg_code == JWRN_JFIF_MAJOR || err->mgr.msg_code == JWRN_ADOBE_XFORM) return;
-  if (err->corrupt++ == 0) (*cinfo->err->format_message)(cinfo, err->message);
-}
-
+// frame. One pass decodes (DCT-scaled, as OpenCV's reduced modes) and collects them (JpegErrors).
 // The libjpeg calls that may long-jump, apart, so that no local of the caller lives across setjmp. Fills `image`
 // (8-bit, 3 channels BGR, or 4 channels CMYK as stored for CMYK/YCCK files).
 bool JpegDecodeScaled(jpeg_decompress_struct* cinfo, JpegErrors* err, const std::vector<uchar>& bytes, unsigned denom,
@@ -179,9 +159,7 @@ bool JpegDecodeScaled(jpeg_decompress_struct* cinfo, JpegErrors* err, const std:
 bool DecodeJpeg(const std::vector<uchar>& bytes, unsigned denom, cv::Mat* bgr, std::string* why) {
   jpeg_decompress_struct cinfo{};
   JpegErrors err{};
-  cinfo.err = jpeg_std_error(&err.mgr);
-  err.mgr.error_exit = JpegErrorExit;
-  err.mgr.emit_message = JpegEmitMessage;
+  InstallJpegErrors(&cinfo, &err);
   jpeg_create_decompress(&cinfo);
   cv::Mat image;
   const bool decoded = JpegDecodeScaled(&cinfo, &err, bytes, denom, &image);
