@@ -241,7 +241,9 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   st.metadata = frame.metadata;
   st.work_from_original = ResizeMap(static_cast<double>(prepared.work_bgr.cols) / frame.original_size.width,
                                     static_cast<double>(prepared.work_bgr.rows) / frame.original_size.height);
+  st.work_size = prepared.work_bgr.size();
   if (!StoreFrame(id, prepared, &st)) return FrameOutcome::kFailed;
+  StoreThumbnail(id, prepared.work_bgr);
   stats_.Add("prepare", prepared.prepare_ms + t.ElapsedMs());
   stats_.Add("features", prepared.features_ms);
   if (prepared.decode_ms > 0) stats_.Add("decode", prepared.decode_ms);
@@ -283,6 +285,7 @@ bool Mosaicker::Finish(std::string* error) {
   final_registered_ = static_cast<int>(solution_.component.size());
   spdlog::info("registered {}/{} frames, residual RMS {:.3f} px (median {:.3f}) at working resolution",
                final_registered_, frames_.size(), solution_.rms_px, solution_.median_px);
+  SolveFrameRadiometry(solution_.component);
   resources_.SolvesEnd();
   if (!WriteOutputs(solution_.component, error)) return false;
   std::string journal_error;

@@ -105,6 +105,7 @@ class Mosaicker {
     cv::Size original_size;
     int64_t timestamp_ns = 0;
     Mat3 work_from_original = Mat3::Identity();
+    cv::Size work_size;
     FrameMetadata metadata;
   };
   class StoreFeatures;
@@ -115,6 +116,11 @@ class Mosaicker {
   // Stores the frame's bytes and features and journals it; false (frame failed, maybe the storage) otherwise.
   [[nodiscard]] bool StoreFrame(int id, const Prepared& prepared, FrameState* st);
   void UpdatePreview(int id, const cv::Mat& work_bgr);
+  // Radiometry (mosaicker_radiometry.cpp): each frame's thumbnail in the session (thumbs/), the gains and vignetting
+  // solved over the component's edges at the end of the flight, and report.json's "radiometry".
+  void StoreThumbnail(int id, const cv::Mat& work_bgr);
+  void SolveFrameRadiometry(const std::vector<int>& component);
+  [[nodiscard]] nlohmann::json RadiometryJson() const;
   // Where the frame's position puts it on the live georeference (mosaicker_hint.cpp); none before a fit.
   [[nodiscard]] std::optional<PositionHint> PositionHintFor(const FrameMetadata& metadata) const;
   // The live picture's georeference (mosaicker_live.cpp): a drawn frame's point; after a live.jpg write the refit when
@@ -197,6 +203,8 @@ class Mosaicker {
   int64_t start_ns_ = 0;
   int final_registered_ = 0;
   Solution solution_;
+  RadiometryModel radiometry_;
+  double radiometry_ms_ = 0.0;
   MemoryPlan memory_plan_;
   nlohmann::json report_sections_ = nlohmann::json::object();
   std::shared_ptr<LiveTiles> live_tiles_;  // null unless live_tiles.enabled (shared_ptr: LiveTiles is incomplete here)

@@ -192,7 +192,10 @@ bool Mosaicker::CompositeMosaic(const std::vector<int>& component, const std::ve
     inputs.push_back(in);
   }
   auto load = [&](int id, const cv::Rect& need) {
-    return LoadCanvasPart(frames_[static_cast<size_t>(id)].stored_file, load_of.at(id), need);
+    const CanvasLoad& how = load_of.at(id);
+    FramePart part = LoadCanvasPart(frames_[static_cast<size_t>(id)].stored_file, how, need);
+    CorrectRadiometry(radiometry_, id, how.size, part.origin, &part.image);
+    return part;
   };
   GdalTiffWriter tiff;
   const bool write_tiff = options_.write_tiff;

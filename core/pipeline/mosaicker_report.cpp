@@ -130,6 +130,7 @@ bool Mosaicker::WriteReport(const std::vector<int>& component, const CompositeRe
                       {"image_loads", composite.image_loads},
                       {"reloads_from_memory", composite.reloads_from_memory},
                       {"image_load_ms", composite.load_ms}};
+  report["radiometry"] = RadiometryJson();
   report["georef"] = GeorefJson();
   report["products"] = products;
   for (const auto& [key, value] : report_sections_.items()) report[key] = value;

@@ -101,6 +101,14 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"mosaic", "build_overviews", &o.mosaic.build_overviews},
       {"mosaic", "threads", &o.mosaic.threads},
       {"mosaic", "gdal_cache_mib", &o.mosaic.gdal_cache_mib},
+      {"radiometry", "enabled", &o.radiometry.enabled},
+      {"radiometry", "vignetting", &o.radiometry.vignetting},
+      {"radiometry", "thumb_long_side", &o.radiometry.thumb_long_side},
+      {"radiometry", "samples_per_edge", &o.radiometry.samples_per_edge},
+      {"radiometry", "gain_prior_weight", &o.radiometry.gain_prior_weight},
+      {"radiometry", "huber_log", &o.radiometry.huber_log},
+      {"radiometry", "min_vignetting_samples", &o.radiometry.min_vignetting_samples},
+      {"radiometry", "max_corner_falloff", &o.radiometry.max_corner_falloff},
       {"georef", "inlier_threshold_m", &o.georef.inlier_threshold_m},
       {"georef", "min_points", &o.georef.min_points},
       {"georef", "affine_min_points", &o.georef.affine_min_points},
@@ -155,7 +163,7 @@ bool PipelineOptions::Check(std::string* why) const {
   if (feature_cache_mib < 1) return Fail(why, "feature_cache_mib must be >= 1");
   if (memory_budget_mib < 0) return Fail(why, "memory_budget_mib must be >= 0 (0 = no budget)");
   if (queue_capacity < 1 || queue_capacity > 1024) return Fail(why, "queue_capacity must be in [1,1024]");
-  return features.Check(why) && mosaic.Check(why);
+  return features.Check(why) && mosaic.Check(why) && radiometry.Check(why);
 }
 
 bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error) {

@@ -10,6 +10,7 @@
 #include "core/matching/global_index.h"
 #include "core/matching/pair_matcher.h"
 #include "core/mosaic/compositor.h"
+#include "core/radiometry/radiometry.h"
 #include "core/registration/registration_engine.h"
 #include "core/tiles/live_tile_pyramid.h"
 
@@ -37,6 +38,8 @@ struct PipelineOptions : RegistrationOptions {
   FeatureOptions features;
   // (matching, relocalization, adjust and refine are the engine's; refine's `model` is a top-level key.)
   CompositorOptions mosaic;
+  // Per-frame gains and the lens's vignetting, estimated from the overlaps and removed before blending.
+  RadiometryOptions radiometry;
   // Georeferencing from EXIF GPS and the map products (COG, KMZ, web tiles, index.html): core/georef.
   GeorefOptions georef;
   // Frames and pieces no image links, placed by their position, height and heading (core/georef/telemetry_bridge).

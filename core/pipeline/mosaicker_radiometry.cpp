@@ -1,0 +1,98 @@
+// Radiometry of the Mosaicker: thumbnails during the flight, the solve over the component's edges at its end.
+#include <spdlog/spdlog.h>
+
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "core/pipeline/mosaicker.h"
+#include "core/util/clock.h"
+
+namespace uavm {
+
+namespace {
+
+std::string ThumbPath(const std::string& dir, int id) {
+  return dir + "/" + std::to_string(id) + ".png";
+}
+
+}  // namespace
+
+// A thumbnail per frame on disk rather than in memory: the flight's memory stays flat however long it is, and the
+// end-of-flight solve reads each back a few times (~30 KB each).
+void Mosaicker::StoreThumbnail(int id, const cv::Mat& work_bgr) {
+  if (!options_.radiometry.enabled || work_bgr.empty()) return;
+  const std::string dir = paths_.Join("thumbs");
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  const cv::Mat thumb = MakeThumbnail(work_bgr, options_.radiometry.thumb_long_side);
+  try {
+    if (!cv::imwrite(ThumbPath(dir, id), thumb)) spdlog::warn("radiometry: cannot write the thumbnail of frame {}", id);
+  } catch (const cv::Exception& e) {
+    spdlog::warn("radiometry: cannot write the thumbnail of frame {}: {}", id, e.what());
+  }
+}
+
+void Mosaicker::SolveFrameRadiometry(const std::vector<int>& component) {
+  radiometry_ = RadiometryModel{};
+  if (!options_.radiometry.enabled || component.size() < 2) return;
+  const StageTimer timer;
+  const std::unordered_set<int> in_component(component.begin(), component.end());
+  const std::string dir = paths_.Join("thumbs");
+  // Edges come in flight order, so a small cache of thumbnails serves most of them.
+  std::unordered_map<int, cv::Mat> thumbs;
+  auto thumb_of = [&](int id) -> const cv::Mat& {
+    if (thumbs.size() > 256) thumbs.clear();
+    auto it = thumbs.find(id);
+    if (it == thumbs.end()) it = thumbs.emplace(id, cv::imread(ThumbPath(dir, id), cv::IMREAD_COLOR)).first;
+    return it->second;
+  };
+  std::vector<RadiometrySample> samples;
+  for (const Edge& e : engine_.edges()) {
+    if (in_component.count(e.src) == 0 || in_component.count(e.tgt) == 0) continue;
+    const cv::Mat& a = thumb_of(e.src);
+    const cv::Mat& b = thumb_of(e.tgt);
+    if (a.empty() || b.empty()) continue;
+    SampleOverlap(e.src, e.tgt, a, b, frames_[static_cast<size_t>(e.src)].work_size,
+                  frames_[static_cast<size_t>(e.tgt)].work_size, e.tgt_from_src, options_.radiometry.samples_per_edge,
+                  &samples);
+  }
+  radiometry_ = SolveRadiometry(samples, component, options_.radiometry);
+  radiometry_ms_ = timer.ElapsedMs();
+  if (!radiometry_.ok) {
+    spdlog::warn("radiometry: not corrected ({})", radiometry_.note);
+    return;
+  }
+  spdlog::info(
+      "radiometry: {} samples over {} edges, log RMS {:.4f} -> {:.4f}, corner falloff {:.3f} {:.3f} {:.3f}{} "
+      "({:.0f} ms)",
+      radiometry_.samples, radiometry_.edges, radiometry_.rms_log_before, radiometry_.rms_log_after,
+      radiometry_.Falloff(0, 1.0), radiometry_.Falloff(1, 1.0), radiometry_.Falloff(2, 1.0),
+      radiometry_.note.empty() ? "" : " (" + radiometry_.note + ")", radiometry_ms_);
+}
+
+nlohmann::json Mosaicker::RadiometryJson() const {
+  nlohmann::json j = {{"enabled", options_.radiometry.enabled}, {"corrected", radiometry_.ok}};
+  if (!options_.radiometry.enabled) return j;
+  double min_gain = 1e9, max_gain = 0;
+  for (const auto& [id, g] : radiometry_.log_gain)
+    for (int c = 0; c < 3; ++c) {
+      min_gain = std::min(min_gain, std::exp(g[c]));
+      max_gain = std::max(max_gain, std::exp(g[c]));
+    }
+  j["samples"] = radiometry_.samples;
+  j["edges"] = radiometry_.edges;
+  j["rms_log_before"] = radiometry_.rms_log_before;
+  j["rms_log_after"] = radiometry_.rms_log_after;
+  j["vignetting"] = radiometry_.vignetting;
+  j["corner_falloff_bgr"] = {radiometry_.Falloff(0, 1.0), radiometry_.Falloff(1, 1.0), radiometry_.Falloff(2, 1.0)};
+  j["log_falloff_c1_c2_bgr"] = radiometry_.log_falloff;
+  if (!radiometry_.log_gain.empty()) j["gain_range"] = {min_gain, max_gain};
+  j["note"] = radiometry_.note;
+  j["solve_ms"] = radiometry_ms_;
+  return j;
+}
+
+}  // namespace uavm

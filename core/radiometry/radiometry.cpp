@@ -1,0 +1,267 @@
+#include "core/radiometry/radiometry.h"
+
+#include <Eigen/Sparse>
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+namespace uavm {
+
+namespace {
+
+constexpr int kLutSize = 1024;  // falloff table over r^2 in [0, 1]
+
+// Bilinear BGR at (x, y) of an 8-bit image; false outside the interior where all four neighbours exist.
+bool SampleBgr(const cv::Mat& img, double x, double y, cv::Vec3f* out) {
+  if (x < 0 || y < 0 || x > img.cols - 1.001 || y > img.rows - 1.001) return false;
+  const int x0 = static_cast<int>(x);
+  const int y0 = static_cast<int>(y);
+  const auto fx = static_cast<float>(x - x0);
+  const auto fy = static_cast<float>(y - y0);
+  const auto* r0 = img.ptr<cv::Vec3b>(y0);
+  const auto* r1 = img.ptr<cv::Vec3b>(y0 + 1);
+  for (int c = 0; c < 3; ++c)
+    (*out)[c] =
+        (1 - fy) * ((1 - fx) * r0[x0][c] + fx * r0[x0 + 1][c]) + fy * ((1 - fx) * r1[x0][c] + fx * r1[x0 + 1][c]);
+  return true;
+}
+
+// r^2 of a pixel, r = distance from the image centre / half-diagonal.
+struct RadiusOf {
+  explicit RadiusOf(cv::Size s)
+      : cx(0.5 * (s.width - 1)),
+        cy(0.5 * (s.height - 1)),
+        inv_hd2(4.0 / (double(s.width) * s.width + double(s.height) * s.height)) {}
+  [[nodiscard]] double R2(double x, double y) const { return ((x - cx) * (x - cx) + (y - cy) * (y - cy)) * inv_hd2; }
+  double cx, cy, inv_hd2;
+};
+
+bool Usable(const cv::Vec3f& v) {
+  for (int c = 0; c < 3; ++c)
+    if (v[c] < 8.0f || v[c] > 247.0f) return false;
+  return true;
+}
+
+cv::Vec3f Log(const cv::Vec3f& v) {
+  return {std::log(v[0]), std::log(v[1]), std::log(v[2])};
+}
+
+// One channel's weighted least squares: x = [log gains of `frames`..., c1, c2]; `fit_falloff` false leaves c1 = c2 = 0.
+struct ChannelSolve {
+  std::vector<double> log_gain;
+  double c1 = 0, c2 = 0;
+  double rms_before = 0, rms_after = 0;
+};
+
+ChannelSolve SolveChannel(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index,
+                          int channel, bool fit_falloff, const RadiometryOptions& o) {
+  const int n = static_cast<int>(index.size());
+  const int unknowns = n + (fit_falloff ? 2 : 0);
+  std::vector<double> weight(samples.size(), 1.0);
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(unknowns);
+  // Relative to an average frame's share of the data, so that it means the same on any flight.
+  const double prior = o.gain_prior_weight * static_cast<double>(samples.size()) / std::max(1, n);
+  auto residual = [&](size_t k) {
+    const RadiometrySample& s = samples[k];
+    const int a = index.at(s.a), b = index.at(s.b);
+    double model = x[a] - x[b];
+    if (fit_falloff) model += x[n] * (s.r2_a - s.r2_b) + x[n + 1] * (double(s.r2_a) * s.r2_a - double(s.r2_b) * s.r2_b);
+    return double(s.log_a[channel] - s.log_b[channel]) - model;
+  };
+  ChannelSolve out;
+  std::vector<double> before(samples.size());
+  for (size_t k = 0; k < samples.size(); ++k) before[k] = residual(k);
+  for (int iteration = 0; iteration < 5; ++iteration) {
+    std::vector<Eigen::Triplet<double>> t;
+    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(unknowns);
+    for (int i = 0; i < n; ++i) t.emplace_back(i, i, prior);
+    if (fit_falloff) {  // a whisper of ridge: keeps the system definite when radii barely differ
+      t.emplace_back(n, n, 1e-6 * static_cast<double>(samples.size()));
+      t.emplace_back(n + 1, n + 1, 1e-6 * static_cast<double>(samples.size()));
+    }
+    for (size_t k = 0; k < samples.size(); ++k) {
+      const RadiometrySample& s = samples[k];
+      std::array<std::pair<int, double>, 4> row{{{index.at(s.a), 1.0}, {index.at(s.b), -1.0}, {-1, 0.0}, {-1, 0.0}}};
+      if (fit_falloff) {
+        row[2] = {n, double(s.r2_a) - s.r2_b};
+        row[3] = {n + 1, double(s.r2_a) * s.r2_a - double(s.r2_b) * s.r2_b};
+      }
+      const double d = double(s.log_a[channel] - s.log_b[channel]);
+      for (const auto& [i, vi] : row) {
+        if (i < 0) continue;
+        rhs[i] += weight[k] * vi * d;
+        for (const auto& [j, vj] : row)
+          if (j >= 0) t.emplace_back(i, j, weight[k] * vi * vj);
+      }
+    }
+    Eigen::SparseMatrix<double> normal(unknowns, unknowns);
+    normal.setFromTriplets(t.begin(), t.end());
+    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(normal);
+    if (solver.info() != Eigen::Success) break;
+    x = solver.solve(rhs);
+    for (size_t k = 0; k < samples.size(); ++k) {
+      const double r = std::abs(residual(k));
+      weight[k] = r <= o.huber_log ? 1.0 : o.huber_log / r;
+    }
+  }
+  // Both figures over the samples the model explains (within 3 loss widths): outliers would only add a constant.
+  double count = 0;
+  for (size_t k = 0; k < samples.size(); ++k) {
+    const double r = residual(k);
+    if (std::abs(r) > 3 * o.huber_log) continue;
+    out.rms_before += before[k] * before[k];
+    out.rms_after += r * r;
+    ++count;
+  }
+  out.rms_before = std::sqrt(out.rms_before / std::max(1.0, count));
+  out.rms_after = std::sqrt(out.rms_after / std::max(1.0, count));
+  out.log_gain.assign(x.data(), x.data() + n);
+  // The gauge: the mean frame keeps its brightness.
+  double mean = 0;
+  for (double g : out.log_gain) mean += g / std::max(1, n);
+  for (double& g : out.log_gain) g -= mean;
+  if (fit_falloff) {
+    out.c1 = x[n];
+    out.c2 = x[n + 1];
+  }
+  return out;
+}
+
+}  // namespace
+
+bool RadiometryOptions::Check(std::string* why) const {
+  auto fail = [why](const char* m) {
+    *why = m;
+    return false;
+  };
+  if (thumb_long_side < 16 || thumb_long_side > 1024) return fail("radiometry.thumb_long_side must be in [16, 1024]");
+  if (samples_per_edge < 4 || samples_per_edge > 4096) return fail("radiometry.samples_per_edge must be in [4, 4096]");
+  if (!(gain_prior_weight > 0)) return fail("radiometry.gain_prior_weight must be > 0");
+  if (!(huber_log > 0)) return fail("radiometry.huber_log must be > 0");
+  if (min_vignetting_samples < 0) return fail("radiometry.min_vignetting_samples must be >= 0");
+  if (!(max_corner_falloff > 0 && max_corner_falloff < 1))
+    return fail("radiometry.max_corner_falloff must be in (0, 1)");
+  return true;
+}
+
+double RadiometryModel::Falloff(int channel, double r2) const {
+  if (!vignetting) return 1.0;
+  const auto& c = log_falloff[static_cast<size_t>(channel)];
+  return std::exp(c[0] * r2 + c[1] * r2 * r2);
+}
+
+cv::Vec3d RadiometryModel::Gain(int id) const {
+  auto it = log_gain.find(id);
+  if (it == log_gain.end()) return {1, 1, 1};
+  return {std::exp(it->second[0]), std::exp(it->second[1]), std::exp(it->second[2])};
+}
+
+cv::Mat MakeThumbnail(const cv::Mat& bgr, int long_side) {
+  const double s = std::min(1.0, long_side / static_cast<double>(std::max(bgr.cols, bgr.rows)));
+  cv::Mat thumb;
+  cv::resize(bgr, thumb,
+             cv::Size(std::max(2, static_cast<int>(std::lround(bgr.cols * s))),
+                      std::max(2, static_cast<int>(std::lround(bgr.rows * s)))),
+             0, 0, cv::INTER_AREA);
+  return thumb;
+}
+
+void SampleOverlap(int a, int b, const cv::Mat& thumb_a, const cv::Mat& thumb_b, cv::Size work_a, cv::Size work_b,
+                   const Mat3& b_from_a, int max_samples, std::vector<RadiometrySample>* out) {
+  const Mat3 work_from_thumb_a =
+      ResizeMap(double(thumb_a.cols) / work_a.width, double(thumb_a.rows) / work_a.height).inverse();
+  const Mat3 thumb_from_work_b = ResizeMap(double(thumb_b.cols) / work_b.width, double(thumb_b.rows) / work_b.height);
+  const RadiusOf radius_a(work_a), radius_b(work_b);
+  // A denser grid than max_samples: only the overlap's share of it lands in b.
+  const int side = std::max(2, static_cast<int>(std::ceil(std::sqrt(4.0 * max_samples))));
+  std::vector<RadiometrySample> found;
+  for (int i = 0; i < side; ++i)
+    for (int j = 0; j < side; ++j) {
+      const Vec2 ta(1 + (j + 0.5) * (thumb_a.cols - 3) / side, 1 + (i + 0.5) * (thumb_a.rows - 3) / side);
+      const Vec2 wa = Apply(work_from_thumb_a, ta);
+      const Vec2 wb = Apply(b_from_a, wa);
+      const Vec2 tb = Apply(thumb_from_work_b, wb);
+      RadiometrySample s;
+      cv::Vec3f va, vb;
+      // One thumbnail pixel inside b's border: the area average there mixes no outside.
+      if (tb.x() < 1 || tb.y() < 1 || tb.x() > thumb_b.cols - 2 || tb.y() > thumb_b.rows - 2) continue;
+      if (!SampleBgr(thumb_a, ta.x(), ta.y(), &va) || !SampleBgr(thumb_b, tb.x(), tb.y(), &vb)) continue;
+      if (!Usable(va) || !Usable(vb)) continue;
+      s.a = a;
+      s.b = b;
+      s.r2_a = static_cast<float>(radius_a.R2(wa.x(), wa.y()));
+      s.r2_b = static_cast<float>(radius_b.R2(wb.x(), wb.y()));
+      s.log_a = Log(va);
+      s.log_b = Log(vb);
+      found.push_back(s);
+    }
+  // Evenly thinned to the bound.
+  const size_t keep = std::min(found.size(), static_cast<size_t>(max_samples));
+  for (size_t k = 0; k < keep; ++k) out->push_back(found[k * found.size() / keep]);
+}
+
+RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples, const std::vector<int>& frames,
+                                const RadiometryOptions& options) {
+  RadiometryModel m;
+  std::unordered_map<int, int> index;
+  for (int id : frames) index.emplace(id, static_cast<int>(index.size()));
+  std::vector<RadiometrySample> used;
+  std::vector<std::pair<int, int>> pairs;
+  for (const auto& s : samples)
+    if (index.count(s.a) != 0 && index.count(s.b) != 0) {
+      used.push_back(s);
+      pairs.emplace_back(std::min(s.a, s.b), std::max(s.a, s.b));
+    }
+  std::sort(pairs.begin(), pairs.end());
+  m.edges = static_cast<int>(std::unique(pairs.begin(), pairs.end()) - pairs.begin());
+  m.samples = static_cast<int>(used.size());
+  if (used.empty() || frames.size() < 2) {
+    m.note = "no overlap samples";
+    return m;
+  }
+  m.vignetting = options.vignetting && m.samples >= options.min_vignetting_samples;
+  if (options.vignetting && !m.vignetting) m.note = "too few samples to determine the vignetting";
+  std::array<ChannelSolve, 3> solved;
+  for (int c = 0; c < 3; ++c) solved[static_cast<size_t>(c)] = SolveChannel(used, index, c, m.vignetting, options);
+  if (m.vignetting) {
+    for (int c = 0; c < 3; ++c) {
+      const double corner = std::exp(solved[static_cast<size_t>(c)].c1 + solved[static_cast<size_t>(c)].c2);
+      if (corner < 1.0 - options.max_corner_falloff || corner > 1.2) m.vignetting = false;
+    }
+    if (!m.vignetting) {
+      m.note = "fitted vignetting implausible (corner outside [1 - max_corner_falloff, 1.2]); gains only";
+      for (int c = 0; c < 3; ++c) solved[static_cast<size_t>(c)] = SolveChannel(used, index, c, false, options);
+    }
+  }
+  for (int c = 0; c < 3; ++c) {
+    const ChannelSolve& s = solved[static_cast<size_t>(c)];
+    m.log_falloff[static_cast<size_t>(c)] = {s.c1, s.c2};
+    m.rms_log_before += s.rms_before / 3;
+    m.rms_log_after += s.rms_after / 3;
+    for (const auto& [id, i] : index) m.log_gain[id][c] = s.log_gain[static_cast<size_t>(i)];
+  }
+  m.ok = true;
+  return m;
+}
+
+void CorrectRadiometry(const RadiometryModel& model, int id, cv::Size full_size, cv::Point2d origin, cv::Mat* bgr) {
+  if (!model.ok || bgr->empty()) return;
+  const cv::Vec3d gain = model.Gain(id);
+  std::array<std::array<float, kLutSize + 1>, 3> lut{};
+  for (int c = 0; c < 3; ++c)
+    for (int k = 0; k <= kLutSize; ++k)
+      lut[static_cast<size_t>(c)][static_cast<size_t>(k)] =
+          static_cast<float>(1.0 / (gain[c] * model.Falloff(c, static_cast<double>(k) / kLutSize)));
+  const RadiusOf radius(full_size);
+  for (int r = 0; r < bgr->rows; ++r) {
+    auto* p = bgr->ptr<cv::Vec3b>(r);
+    const double y = origin.y + r;
+    for (int col = 0; col < bgr->cols; ++col) {
+      const double r2 = std::min(1.0, radius.R2(origin.x + col, y));
+      const auto k = static_cast<size_t>(r2 * kLutSize + 0.5);
+      for (int c = 0; c < 3; ++c) p[col][c] = cv::saturate_cast<uchar>(p[col][c] * lut[static_cast<size_t>(c)][k]);
+    }
+  }
+}
+
+}  // namespace uavm
