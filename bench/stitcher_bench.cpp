@@ -146,6 +146,10 @@ int main(int argc, char** argv) {
   app.add_option("--images", images_dir, "folder of .jpg/.JPG/.png frames (natural filename order)")->required();
   app.add_option("--out", out_file, "panorama output file (.png)")->required();
   app.add_option("--max-frames", max_frames, "use only the first N frames (0 = all)")->check(CLI::NonNegativeNumber);
+  std::string exposure = "none";
+  app.add_option("--exposure", exposure,
+                 "exposure compensator: none (SCANS' default), gain, channels, gain_blocks, channels_blocks")
+      ->check(CLI::IsMember({"none", "gain", "channels", "gain_blocks", "channels_blocks"}));
   CLI11_PARSE(app, argc, argv);
 
   // Keep stdout for the single JSON line; OpenCV's info chatter would go to stderr anyway,
@@ -175,6 +179,14 @@ int main(int argc, char** argv) {
     frames = imgs.size();
 
     cv::Ptr<cv::Stitcher> stitcher = cv::Stitcher::create(cv::Stitcher::SCANS);
+    using cv::detail::ExposureCompensator;
+    if (exposure != "none") {
+      const int type = exposure == "gain"          ? ExposureCompensator::GAIN
+                       : exposure == "channels"    ? ExposureCompensator::CHANNELS
+                       : exposure == "gain_blocks" ? ExposureCompensator::GAIN_BLOCKS
+                                                   : ExposureCompensator::CHANNELS_BLOCKS;
+      stitcher->setExposureCompensator(ExposureCompensator::createDefault(type));
+    }
     cv::Mat pano;
     const cv::Stitcher::Status st = stitcher->stitch(imgs, pano);
     in_result = stitcher->component().size();

@@ -65,13 +65,14 @@ TEST(RadiometryTest, RecoversGainsAndFalloffFromPairs) {
     EXPECT_NEAR(m.Falloff(c, 1.0), std::exp(TrueLogFalloff(c, 1.0)), 0.01) << "channel " << c;
     EXPECT_NEAR(m.Falloff(c, 0.5), std::exp(TrueLogFalloff(c, 0.5)), 0.01) << "channel " << c;
   }
-  // Gains are known up to one common factor per channel (the mean frame keeps its brightness); within 1.5 %: the
-  // Huber loss bounds, not removes, the pull of the outliers on frame 0, which has most of them.
+  // Gains are known up to one common factor per channel (the mean frame keeps its brightness); within 2 %: the
+  // Huber loss bounds, not removes, the pull of the outliers on frame 0, which has most of them, and the priors
+  // (towards the mean exposure, and the stronger one towards no colour change) shrink the +-9 % white balance a little.
   for (int c = 0; c < 3; ++c) {
     double mean = 0;
     for (const auto& lg : log_gain) mean += lg[c] / 40;
     for (int i = 0; i < 40; ++i)
-      EXPECT_NEAR(std::log(m.Gain(i)[c]), log_gain[static_cast<size_t>(i)][c] - mean, 0.015) << i << " " << c;
+      EXPECT_NEAR(std::log(m.Gain(i)[c]), log_gain[static_cast<size_t>(i)][c] - mean, 0.02) << i << " " << c;
   }
   EXPECT_LT(m.rms_log_after, 0.3 * m.rms_log_before);
 }

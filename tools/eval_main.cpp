@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <regex>
 
 #include "core/eval/evaluator.h"
@@ -167,7 +168,32 @@ int RunSession(const SessionArgs& a) {
   return 0;
 }
 
-int RunImage(const std::string& mosaic_path, const std::string& canvas_path, const std::string& json_path) {
+// The photometric error of a mosaic placed on the canvas by the image score's affine (any tool's output). A mosaic
+// without alpha (cv::Stitcher's) is taken as flown wherever it is not pure black.
+nlohmann::json ImagePhotometric(const cv::Mat& mosaic, const cv::Mat& canvas, const uavm::Mat3& canvas_from_mosaic,
+                                double footprint_px) {
+  using namespace uavm;
+  cv::Mat bgra = mosaic;
+  if (mosaic.channels() == 3) {
+    cv::Mat grey, alpha;
+    cv::cvtColor(mosaic, grey, cv::COLOR_BGR2GRAY);
+    cv::compare(grey, 0, alpha, cv::CMP_GT);
+    cv::cvtColor(mosaic, bgra, cv::COLOR_BGR2BGRA);
+    cv::insertChannel(alpha, bgra, 3);
+  }
+  eval::PhotometricResult r;
+  std::string err;
+  if (!eval::PhotometricError(bgra, Mat3::Identity(), canvas, canvas_from_mosaic, footprint_px, &r, &err)) {
+    spdlog::warn("{}: skipped", err);
+    return nullptr;
+  }
+  std::printf("low-frequency brightness error after one gain per channel: %.3f %% RMS (sigma %.1f canvas px)\n",
+              r.rms_percent, r.sigma_canvas_px);
+  return eval::ToJson(r);
+}
+
+int RunImage(const std::string& mosaic_path, const std::string& canvas_path, const std::string& json_path,
+             double footprint_px) {
   const cv::Mat mosaic = cv::imread(mosaic_path, cv::IMREAD_UNCHANGED | cv::IMREAD_IGNORE_ORIENTATION);
   const cv::Mat canvas = cv::imread(canvas_path, cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION);
   if (mosaic.empty() || canvas.empty()) {
@@ -182,11 +208,14 @@ int RunImage(const std::string& mosaic_path, const std::string& canvas_path, con
   }
   std::printf("matches %d, inliers %d, residual median %.3f px, p90 %.3f px (canvas pixels)\n", score.matches,
               score.inliers, score.median_px, score.p90_px);
+  const nlohmann::json photometric =
+      footprint_px > 0 ? ImagePhotometric(mosaic, canvas, score.canvas_from_mosaic, footprint_px) : nullptr;
   if (!json_path.empty()) {
     nlohmann::json j{{"matches", score.matches},
                      {"inliers", score.inliers},
                      {"median_px", score.median_px},
                      {"p90_px", score.p90_px}};
+    if (!photometric.is_null()) j["photometric"] = photometric;
     std::ofstream out(json_path);
     out << j.dump(2) << "\n";
     if (!out) return 4;
@@ -215,6 +244,11 @@ int main(int argc, char** argv) {
   image->add_option("--mosaic", mosaic, "mosaic image (alpha = flown area)")->required();
   image->add_option("--canvas", canvas, "the canvas the flight was simulated over")->required();
   image->add_option("--json", image_json, "write the figures as JSON");
+  double footprint_px = 0;
+  image
+      ->add_option("--footprint-px", footprint_px,
+                   "side of a frame's footprint in canvas px: also the photometric error (sigma 0.25 of it); 0 = not")
+      ->check(CLI::NonNegativeNumber);
   app.require_subcommand(0, 1);
   try {
     app.parse(argc, argv);
@@ -222,7 +256,7 @@ int main(int argc, char** argv) {
     const int code = app.exit(e);
     return code == 0 ? 0 : kBadArgs;
   }
-  if (image->parsed()) return RunImage(mosaic, canvas, image_json);
+  if (image->parsed()) return RunImage(mosaic, canvas, image_json, footprint_px);
   if (a.session.empty() || a.gt.empty()) {
     std::fprintf(stderr, "--session and --gt are required (or the 'image' subcommand)\n%s", app.help().c_str());
     return kBadArgs;

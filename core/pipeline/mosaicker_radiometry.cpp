@@ -65,6 +65,15 @@ void Mosaicker::SolveFrameRadiometry(const std::vector<int>& component) {
     spdlog::warn("radiometry: not corrected ({})", radiometry_.note);
     return;
   }
+  // Each frame's gains beside transforms.csv: what the mosaic divided out (a reader can compare them with the
+  // camera's recorded exposure, or undo them).
+  std::string csv = "frame,name,gain_b,gain_g,gain_r\n";
+  for (int id : component) {
+    const cv::Vec3d g = radiometry_.Gain(id);
+    csv += fmt::format("{},{},{:.5f},{:.5f},{:.5f}\n", id, frames_[static_cast<size_t>(id)].name, g[0], g[1], g[2]);
+  }
+  std::string error;
+  if (!WriteFileAtomic(paths_.Join("radiometry.csv"), csv, &error)) spdlog::warn("radiometry: {}", error);
   spdlog::info(
       "radiometry: {} samples over {} edges, log RMS {:.4f} -> {:.4f}, corner falloff {:.3f} {:.3f} {:.3f}{} "
       "({:.0f} ms)",

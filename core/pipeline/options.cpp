@@ -106,6 +106,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"radiometry", "thumb_long_side", &o.radiometry.thumb_long_side},
       {"radiometry", "samples_per_edge", &o.radiometry.samples_per_edge},
       {"radiometry", "gain_prior_weight", &o.radiometry.gain_prior_weight},
+      {"radiometry", "colour_prior_weight", &o.radiometry.colour_prior_weight},
       {"radiometry", "huber_log", &o.radiometry.huber_log},
       {"radiometry", "min_vignetting_samples", &o.radiometry.min_vignetting_samples},
       {"radiometry", "max_corner_falloff", &o.radiometry.max_corner_falloff},

@@ -127,6 +127,70 @@ ChannelSolve SolveChannel(const std::vector<RadiometrySample>& samples, const st
   return out;
 }
 
+// Brightness first, colour second: the exposure (mean of the log channels) is solved with the gain prior, then each
+// channel's deviation from it (white balance, a colour tint of the falloff) with the stronger colour prior. A colour
+// cast drifting along a flight is more visible than a brightness drift, and real white balance moves less than
+// exposure.
+std::array<ChannelSolve, 3> SolveColour(const std::vector<RadiometrySample>& samples,
+                                        const std::unordered_map<int, int>& index, bool fit_falloff,
+                                        const RadiometryOptions& options) {
+  std::vector<RadiometrySample> grey = samples;
+  for (auto& s : grey) {
+    s.log_a = cv::Vec3f::all((s.log_a[0] + s.log_a[1] + s.log_a[2]) / 3);
+    s.log_b = cv::Vec3f::all((s.log_b[0] + s.log_b[1] + s.log_b[2]) / 3);
+  }
+  const ChannelSolve exposure = SolveChannel(grey, index, 0, fit_falloff, options);
+  auto explained = [&](int id, float r2) {
+    const double g = exposure.log_gain[static_cast<size_t>(index.at(id))];
+    return static_cast<float>(g + exposure.c1 * r2 + exposure.c2 * double(r2) * r2);
+  };
+  std::vector<RadiometrySample> colour = samples;
+  for (auto& s : colour) {
+    s.log_a -= cv::Vec3f::all(explained(s.a, s.r2_a));
+    s.log_b -= cv::Vec3f::all(explained(s.b, s.r2_b));
+  }
+  RadiometryOptions colour_options = options;
+  colour_options.gain_prior_weight = options.colour_prior_weight;
+  std::array<ChannelSolve, 3> out;
+  for (int c = 0; c < 3; ++c) {
+    ChannelSolve& cs = out[static_cast<size_t>(c)];
+    cs = SolveChannel(colour, index, c, fit_falloff, colour_options);
+    for (size_t i = 0; i < cs.log_gain.size(); ++i) cs.log_gain[i] += exposure.log_gain[i];
+    cs.c1 += exposure.c1;
+    cs.c2 += exposure.c2;
+  }
+  // Both figures against the pairs' own differences, over the samples the model explains (within 3 loss widths).
+  double before = 0, after = 0, count = 0;
+  for (const auto& s : samples)
+    for (int c = 0; c < 3; ++c) {
+      const ChannelSolve& cs = out[static_cast<size_t>(c)];
+      const auto model = [&](int id, double r2) {
+        return cs.log_gain[static_cast<size_t>(index.at(id))] + cs.c1 * r2 + cs.c2 * r2 * r2;
+      };
+      const double d = double(s.log_a[c]) - s.log_b[c];
+      const double r = d - (model(s.a, s.r2_a) - model(s.b, s.r2_b));
+      if (std::abs(r) > 3 * options.huber_log) continue;
+      before += d * d;
+      after += r * r;
+      ++count;
+    }
+  for (ChannelSolve& cs : out) {
+    cs.rms_before = std::sqrt(before / std::max(1.0, count));
+    cs.rms_after = std::sqrt(after / std::max(1.0, count));
+  }
+  return out;
+}
+
+// A lens darkens its corners; it does not brighten them (what looks like it is the ground's reflectance changing
+// with the view direction, which a radial model must not absorb).
+bool PlausibleFalloff(const std::array<ChannelSolve, 3>& solved, const RadiometryOptions& options) {
+  for (const ChannelSolve& cs : solved) {
+    const double corner = std::exp(cs.c1 + cs.c2);
+    if (corner < 1.0 - options.max_corner_falloff || corner > 1.05) return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 bool RadiometryOptions::Check(std::string* why) const {
@@ -137,6 +201,7 @@ bool RadiometryOptions::Check(std::string* why) const {
   if (thumb_long_side < 16 || thumb_long_side > 1024) return fail("radiometry.thumb_long_side must be in [16, 1024]");
   if (samples_per_edge < 4 || samples_per_edge > 4096) return fail("radiometry.samples_per_edge must be in [4, 4096]");
   if (!(gain_prior_weight > 0)) return fail("radiometry.gain_prior_weight must be > 0");
+  if (!(colour_prior_weight > 0)) return fail("radiometry.colour_prior_weight must be > 0");
   if (!(huber_log > 0)) return fail("radiometry.huber_log must be > 0");
   if (min_vignetting_samples < 0) return fail("radiometry.min_vignetting_samples must be >= 0");
   if (!(max_corner_falloff > 0 && max_corner_falloff < 1))
@@ -221,24 +286,18 @@ RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples, co
   }
   m.vignetting = options.vignetting && m.samples >= options.min_vignetting_samples;
   if (options.vignetting && !m.vignetting) m.note = "too few samples to determine the vignetting";
-  std::array<ChannelSolve, 3> solved;
-  for (int c = 0; c < 3; ++c) solved[static_cast<size_t>(c)] = SolveChannel(used, index, c, m.vignetting, options);
-  if (m.vignetting) {
-    for (int c = 0; c < 3; ++c) {
-      const double corner = std::exp(solved[static_cast<size_t>(c)].c1 + solved[static_cast<size_t>(c)].c2);
-      if (corner < 1.0 - options.max_corner_falloff || corner > 1.2) m.vignetting = false;
-    }
-    if (!m.vignetting) {
-      m.note = "fitted vignetting implausible (corner outside [1 - max_corner_falloff, 1.2]); gains only";
-      for (int c = 0; c < 3; ++c) solved[static_cast<size_t>(c)] = SolveChannel(used, index, c, false, options);
-    }
+  std::array<ChannelSolve, 3> solved = SolveColour(used, index, m.vignetting, options);
+  if (m.vignetting && !PlausibleFalloff(solved, options)) {
+    m.vignetting = false;
+    m.note = "fitted vignetting implausible (a corner outside [1 - max_corner_falloff, 1.05]); gains only";
+    solved = SolveColour(used, index, false, options);
   }
   for (int c = 0; c < 3; ++c) {
-    const ChannelSolve& s = solved[static_cast<size_t>(c)];
-    m.log_falloff[static_cast<size_t>(c)] = {s.c1, s.c2};
-    m.rms_log_before += s.rms_before / 3;
-    m.rms_log_after += s.rms_after / 3;
-    for (const auto& [id, i] : index) m.log_gain[id][c] = s.log_gain[static_cast<size_t>(i)];
+    const ChannelSolve& cs = solved[static_cast<size_t>(c)];
+    m.log_falloff[static_cast<size_t>(c)] = {cs.c1, cs.c2};
+    m.rms_log_before += cs.rms_before / 3;
+    m.rms_log_after += cs.rms_after / 3;
+    for (const auto& [id, i] : index) m.log_gain[id][c] = cs.log_gain[static_cast<size_t>(i)];
   }
   m.ok = true;
   return m;

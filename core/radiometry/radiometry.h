@@ -19,7 +19,9 @@ struct RadiometryOptions {
   int samples_per_edge = 64;  // grid points sampled in each pair's overlap (bounded statistics per edge)
   // Pulls each log gain towards 0 (the mean exposure), as a share of an average frame's samples: fixes the gauge of
   // a flight whose pieces do not overlap and damps noise, while biasing a real gain by about this share.
-  double gain_prior_weight = 1e-4;
+  double gain_prior_weight = 0.01;
+  // The same for each channel's deviation from the exposure (white balance): stronger, as colour casts show more.
+  double colour_prior_weight = 0.05;
   double huber_log = 0.05;           // robust loss width in log intensity (moving objects, misregistration, glint)
   int min_vignetting_samples = 300;  // fewer: the flight does not determine the falloff; gains only
   double max_corner_falloff = 0.8;   // a fitted corner darker than 1 - this is refused as implausible
