@@ -1,6 +1,10 @@
 #pragma once
-// Reading part of a JPEG file without decoding the rest: the compositor needs only the part of a frame it owns (a
-// fifth of a frame with usual overlaps), and a whole 12 MP decode was most of its time and its largest buffer.
+// Reading part of a JPEG file without transforming the rest: the compositor needs only the part of a frame it owns
+// plus the blend's reach, and a whole 12 MP decode was most of its time and its largest buffer. (Rows above the part
+// are still entropy-decoded: without restart markers libjpeg cannot seek, so a part low in the frame saves less.)
+// jpeglib.h uses FILE and size_t without including their headers.
+#include <cstdio>
+// (kept apart so that include sorting leaves it after <cstdio>)
 #include <jpeglib.h>
 
 #include <csetjmp>

@@ -1,6 +1,7 @@
 // Radiometry of the Mosaicker: thumbnails during the flight, the solve over the component's edges at its end.
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -44,20 +45,25 @@ void Mosaicker::SolveFrameRadiometry(const std::vector<int>& component) {
   // Edges come in flight order, so a small cache of thumbnails serves most of them.
   std::unordered_map<int, cv::Mat> thumbs;
   auto thumb_of = [&](int id) -> const cv::Mat& {
-    if (thumbs.size() > 256) thumbs.clear();
+    if (thumbs.size() >= 64) thumbs.clear();
     auto it = thumbs.find(id);
     if (it == thumbs.end()) it = thumbs.emplace(id, cv::imread(ThumbPath(dir, id), cv::IMREAD_COLOR)).first;
     return it->second;
   };
+  std::vector<const Edge*> edges;
+  for (const Edge& e : engine_.edges())
+    if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0) edges.push_back(&e);
+  const int per_edge = std::clamp(options_.radiometry.max_samples / std::max<int>(1, static_cast<int>(edges.size())), 8,
+                                  options_.radiometry.samples_per_edge);
   std::vector<RadiometrySample> samples;
-  for (const Edge& e : engine_.edges()) {
-    if (in_component.count(e.src) == 0 || in_component.count(e.tgt) == 0) continue;
+  samples.reserve(edges.size() * static_cast<size_t>(per_edge));
+  for (const Edge* edge : edges) {
+    const Edge& e = *edge;
     const cv::Mat& a = thumb_of(e.src);
     const cv::Mat& b = thumb_of(e.tgt);
     if (a.empty() || b.empty()) continue;
     SampleOverlap(e.src, e.tgt, a, b, frames_[static_cast<size_t>(e.src)].work_size,
-                  frames_[static_cast<size_t>(e.tgt)].work_size, e.tgt_from_src, options_.radiometry.samples_per_edge,
-                  &samples);
+                  frames_[static_cast<size_t>(e.tgt)].work_size, e.tgt_from_src, per_edge, &samples);
   }
   radiometry_ = SolveRadiometry(samples, component, options_.radiometry);
   radiometry_ms_ = timer.ElapsedMs();

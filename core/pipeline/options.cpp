@@ -105,6 +105,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"radiometry", "vignetting", &o.radiometry.vignetting},
       {"radiometry", "thumb_long_side", &o.radiometry.thumb_long_side},
       {"radiometry", "samples_per_edge", &o.radiometry.samples_per_edge},
+      {"radiometry", "max_samples", &o.radiometry.max_samples},
       {"radiometry", "gain_prior_weight", &o.radiometry.gain_prior_weight},
       {"radiometry", "colour_prior_weight", &o.radiometry.colour_prior_weight},
       {"radiometry", "huber_log", &o.radiometry.huber_log},

@@ -53,70 +53,68 @@ struct ChannelSolve {
   double rms_before = 0, rms_after = 0;
 };
 
+// The unknowns a sample touches with their coefficients: +1 at a's gain, -1 at b's, and the radii terms of the falloff
+// (index -1 = unused).
+using SampleRow = std::array<std::pair<int, double>, 4>;
+
+SampleRow RowOf(const RadiometrySample& s, const std::unordered_map<int, int>& index, bool fit_falloff, int n) {
+  SampleRow row{{{index.at(s.a), 1.0}, {index.at(s.b), -1.0}, {-1, 0.0}, {-1, 0.0}}};
+  if (fit_falloff) {
+    row[2] = {n, double(s.r2_a) - s.r2_b};
+    row[3] = {n + 1, double(s.r2_a) * s.r2_a - double(s.r2_b) * s.r2_b};
+  }
+  return row;
+}
+
+// One weighted least-squares step: the normal equations with the gain prior (and a whisper of ridge on the falloff,
+// which keeps the system definite when radii barely differ). False when the factorisation fails.
+bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
+                   bool fit_falloff, double prior, const std::vector<double>& weight, Eigen::VectorXd* x) {
+  const int n = static_cast<int>(index.size());
+  const auto unknowns = static_cast<int>(x->size());
+  std::vector<Eigen::Triplet<double>> t;
+  Eigen::VectorXd rhs = Eigen::VectorXd::Zero(unknowns);
+  for (int i = 0; i < n; ++i) t.emplace_back(i, i, prior);
+  for (int i = n; i < unknowns; ++i) t.emplace_back(i, i, 1e-6 * static_cast<double>(samples.size()));
+  for (size_t k = 0; k < samples.size(); ++k) {
+    const SampleRow row = RowOf(samples[k], index, fit_falloff, n);
+    const double d = double(samples[k].log_a[channel] - samples[k].log_b[channel]);
+    for (const auto& [i, vi] : row) {
+      if (i < 0) continue;
+      rhs[i] += weight[k] * vi * d;
+      for (const auto& [j, vj] : row)
+        if (j >= 0) t.emplace_back(i, j, weight[k] * vi * vj);
+    }
+  }
+  Eigen::SparseMatrix<double> normal(unknowns, unknowns);
+  normal.setFromTriplets(t.begin(), t.end());
+  const Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(normal);
+  if (solver.info() != Eigen::Success) return false;
+  *x = solver.solve(rhs);
+  return true;
+}
+
+// One channel's robust fit (Huber, iteratively reweighted): x = [log gains of the frames in `index`..., c1, c2];
+// `fit_falloff` false leaves c1 = c2 = 0. The log gains come back centred (the mean frame keeps its brightness).
 ChannelSolve SolveChannel(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index,
                           int channel, bool fit_falloff, const RadiometryOptions& o) {
   const int n = static_cast<int>(index.size());
-  const int unknowns = n + (fit_falloff ? 2 : 0);
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(n + (fit_falloff ? 2 : 0));
   std::vector<double> weight(samples.size(), 1.0);
-  Eigen::VectorXd x = Eigen::VectorXd::Zero(unknowns);
   // Relative to an average frame's share of the data, so that it means the same on any flight.
   const double prior = o.gain_prior_weight * static_cast<double>(samples.size()) / std::max(1, n);
-  auto residual = [&](size_t k) {
-    const RadiometrySample& s = samples[k];
-    const int a = index.at(s.a), b = index.at(s.b);
-    double model = x[a] - x[b];
-    if (fit_falloff) model += x[n] * (s.r2_a - s.r2_b) + x[n + 1] * (double(s.r2_a) * s.r2_a - double(s.r2_b) * s.r2_b);
-    return double(s.log_a[channel] - s.log_b[channel]) - model;
-  };
-  ChannelSolve out;
-  std::vector<double> before(samples.size());
-  for (size_t k = 0; k < samples.size(); ++k) before[k] = residual(k);
   for (int iteration = 0; iteration < 5; ++iteration) {
-    std::vector<Eigen::Triplet<double>> t;
-    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(unknowns);
-    for (int i = 0; i < n; ++i) t.emplace_back(i, i, prior);
-    if (fit_falloff) {  // a whisper of ridge: keeps the system definite when radii barely differ
-      t.emplace_back(n, n, 1e-6 * static_cast<double>(samples.size()));
-      t.emplace_back(n + 1, n + 1, 1e-6 * static_cast<double>(samples.size()));
-    }
+    if (!SolveWeighted(samples, index, channel, fit_falloff, prior, weight, &x)) break;
     for (size_t k = 0; k < samples.size(); ++k) {
-      const RadiometrySample& s = samples[k];
-      std::array<std::pair<int, double>, 4> row{{{index.at(s.a), 1.0}, {index.at(s.b), -1.0}, {-1, 0.0}, {-1, 0.0}}};
-      if (fit_falloff) {
-        row[2] = {n, double(s.r2_a) - s.r2_b};
-        row[3] = {n + 1, double(s.r2_a) * s.r2_a - double(s.r2_b) * s.r2_b};
-      }
-      const double d = double(s.log_a[channel] - s.log_b[channel]);
-      for (const auto& [i, vi] : row) {
-        if (i < 0) continue;
-        rhs[i] += weight[k] * vi * d;
-        for (const auto& [j, vj] : row)
-          if (j >= 0) t.emplace_back(i, j, weight[k] * vi * vj);
-      }
-    }
-    Eigen::SparseMatrix<double> normal(unknowns, unknowns);
-    normal.setFromTriplets(t.begin(), t.end());
-    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(normal);
-    if (solver.info() != Eigen::Success) break;
-    x = solver.solve(rhs);
-    for (size_t k = 0; k < samples.size(); ++k) {
-      const double r = std::abs(residual(k));
+      double model = 0;
+      for (const auto& [i, v] : RowOf(samples[k], index, fit_falloff, n))
+        if (i >= 0) model += v * x[i];
+      const double r = std::abs(double(samples[k].log_a[channel] - samples[k].log_b[channel]) - model);
       weight[k] = r <= o.huber_log ? 1.0 : o.huber_log / r;
     }
   }
-  // Both figures over the samples the model explains (within 3 loss widths): outliers would only add a constant.
-  double count = 0;
-  for (size_t k = 0; k < samples.size(); ++k) {
-    const double r = residual(k);
-    if (std::abs(r) > 3 * o.huber_log) continue;
-    out.rms_before += before[k] * before[k];
-    out.rms_after += r * r;
-    ++count;
-  }
-  out.rms_before = std::sqrt(out.rms_before / std::max(1.0, count));
-  out.rms_after = std::sqrt(out.rms_after / std::max(1.0, count));
+  ChannelSolve out;
   out.log_gain.assign(x.data(), x.data() + n);
-  // The gauge: the mean frame keeps its brightness.
   double mean = 0;
   for (double g : out.log_gain) mean += g / std::max(1, n);
   for (double& g : out.log_gain) g -= mean;
@@ -200,6 +198,7 @@ bool RadiometryOptions::Check(std::string* why) const {
   };
   if (thumb_long_side < 16 || thumb_long_side > 1024) return fail("radiometry.thumb_long_side must be in [16, 1024]");
   if (samples_per_edge < 4 || samples_per_edge > 4096) return fail("radiometry.samples_per_edge must be in [4, 4096]");
+  if (max_samples < 1000) return fail("radiometry.max_samples must be >= 1000");
   if (!(gain_prior_weight > 0)) return fail("radiometry.gain_prior_weight must be > 0");
   if (!(colour_prior_weight > 0)) return fail("radiometry.colour_prior_weight must be > 0");
   if (!(huber_log > 0)) return fail("radiometry.huber_log must be > 0");
