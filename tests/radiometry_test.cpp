@@ -134,6 +134,40 @@ TEST(RadiometryTest, OverlapSamplesAndCorrectionOfRenderedFrames) {
   EXPECT_LE(hi, 153);
 }
 
+// During the flight: frames of a textured ground seen through a 0.6-corner lens, each overlapping the previous two;
+// after `solve_every` frames the live model has the lens's falloff (and no gains), from the window only.
+TEST(RadiometryTest, LiveFitFindsTheVignettingFromRecentFrames) {
+  const cv::Size work(600, 400);
+  cv::Mat ground(work.height, work.width + 40 * 120, CV_8UC3);
+  cv::randu(ground, cv::Scalar::all(60), cv::Scalar::all(200));
+  cv::GaussianBlur(ground, ground, cv::Size(0, 0), 25);  // low-frequency texture: the thumbnails see the same values
+  RadiometryModel lens;
+  lens.ok = true;
+  lens.vignetting = true;
+  for (int c = 0; c < 3; ++c)
+    lens.log_falloff[static_cast<size_t>(c)] = {std::log(0.6) / 0.8, -0.2 * std::log(0.6) / 0.8};
+  const double hd2 = (work.width * work.width + work.height * work.height) / 4.0;
+  LiveRadiometry live(RadiometryOptions{}, 24, 20);
+  for (int id = 0; id < 30; ++id) {
+    cv::Mat f = ground(cv::Rect(120 * id, 0, work.width, work.height)).clone();
+    for (int y = 0; y < work.height; ++y)
+      for (int x = 0; x < work.width; ++x) {
+        const double v = lens.Falloff(0, ((x - 299.5) * (x - 299.5) + (y - 199.5) * (y - 199.5)) / hd2);
+        auto& p = f.at<cv::Vec3b>(y, x);
+        for (int c = 0; c < 3; ++c) p[c] = cv::saturate_cast<uchar>(p[c] * v);
+      }
+    live.AddFrame(id, f);
+    for (int back : {1, 2, 3})  // frame id - back seen 120 * back px further along
+      if (id - back >= 0) live.AddEdge(id, id - back, Translation(120.0 * back, 0));
+    const bool solved = live.MaybeSolve();
+    EXPECT_EQ(solved, id == 19) << id;  // 20 frames, then the next solve would come at 40
+  }
+  ASSERT_TRUE(live.model().ok);
+  ASSERT_TRUE(live.model().vignetting);
+  EXPECT_TRUE(live.model().log_gain.empty());
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(live.model().Falloff(c, 1.0), 0.6, 0.03);
+}
+
 TEST(RadiometryTest, OptionsAreChecked) {
   std::string why;
   EXPECT_TRUE(RadiometryOptions{}.Check(&why)) << why;

@@ -210,8 +210,12 @@ bool Mosaicker::StoreFrame(int id, const Prepared& prepared, FrameState* st) {
     storage_failure_ = error;
   } else {
     // Accepted: its bytes and features are in the session, so a resumed run will find it.
-    JournalFrame jf{id, st->name, fs::path(st->stored_file).filename().string(), st->timestamp_ns,
-                    st->original_size.width, st->original_size.height};
+    JournalFrame jf{id,
+                    st->name,
+                    fs::path(st->stored_file).filename().string(),
+                    st->timestamp_ns,
+                    st->original_size.width,
+                    st->original_size.height};
     jf.latitude_deg = st->metadata.latitude_deg;
     jf.longitude_deg = st->metadata.longitude_deg;
     jf.relative_altitude_m = st->metadata.relative_altitude_m;
@@ -252,14 +256,16 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   feats.descriptors = DequantizeDescriptors(QuantizeDescriptors(feats.descriptors));
   RegisterTiming timing;
   const std::optional<PositionHint> hint = PositionHintFor(st.metadata);
+  const size_t edges_before = engine_.edges().size();
   const FrameOutcome outcome = engine_.Register(id, feats, &timing, hint ? &*hint : nullptr);
   stats_.Add("matching", timing.matching_ms);
   stats_.Add("adjust", timing.adjust_ms);
   t.Restart();
-  if (engine_.frame(id).failure.empty() || id == 0) UpdatePreview(id, prepared.work_bgr);
+  const cv::Mat live_bgr = LiveViewImage(id, prepared.work_bgr, edges_before);
+  if (engine_.frame(id).failure.empty() || id == 0) UpdatePreview(id, live_bgr);
   stats_.Add("preview", t.ElapsedMs());
   t.Restart();
-  UpdateLiveTiles(id, prepared.work_bgr);
+  UpdateLiveTiles(id, live_bgr);
   if (live_tiles_) stats_.Add("live_tiles", t.ElapsedMs());  // the frame loop's share; the drawing is the worker's
   // Every few frames, not every frame: a trim walks the arenas (~1 ms).
   if (options_.trim_heap_every > 0 && id % options_.trim_heap_every == 0) TrimHeap();

@@ -36,6 +36,26 @@ void Mosaicker::StoreThumbnail(int id, const cv::Mat& work_bgr) {
   }
 }
 
+cv::Mat Mosaicker::LiveViewImage(int id, const cv::Mat& work_bgr, size_t edges_before) {
+  if (!options_.radiometry.enabled || !options_.radiometry.vignetting || work_bgr.empty() ||
+      (options_.preview_every <= 0 && !live_tiles_))
+    return work_bgr;
+  if (!live_radiometry_) live_radiometry_.emplace(options_.radiometry);
+  live_radiometry_->AddFrame(id, work_bgr);
+  const auto& edges = engine_.edges();
+  for (size_t k = edges_before; k < edges.size(); ++k)
+    live_radiometry_->AddEdge(edges[k].src, edges[k].tgt, edges[k].tgt_from_src);
+  if (live_radiometry_->MaybeSolve()) {
+    const RadiometryModel& m = live_radiometry_->model();
+    spdlog::info("radiometry: live vignetting from the last frames: corner {:.3f} {:.3f} {:.3f}", m.Falloff(0, 1.0),
+                 m.Falloff(1, 1.0), m.Falloff(2, 1.0));
+  }
+  if (!live_radiometry_->model().ok) return work_bgr;
+  cv::Mat corrected = work_bgr.clone();
+  CorrectRadiometry(live_radiometry_->model(), id, work_bgr.size(), cv::Point2d(), &corrected);
+  return corrected;
+}
+
 void Mosaicker::SolveFrameRadiometry(const std::vector<int>& component) {
   radiometry_ = RadiometryModel{};
   if (!options_.radiometry.enabled || component.size() < 2) return;

@@ -302,6 +302,47 @@ RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples, co
   return m;
 }
 
+LiveRadiometry::LiveRadiometry(const RadiometryOptions& options, int window, int solve_every)
+    : options_(options), window_(static_cast<size_t>(std::max(2, window))), solve_every_(std::max(1, solve_every)) {}
+
+void LiveRadiometry::AddFrame(int id, const cv::Mat& work_bgr) {
+  if (thumbs_.size() == window_) {
+    const int oldest = thumbs_.front().id;
+    thumbs_.erase(thumbs_.begin());
+    samples_.erase(std::remove_if(samples_.begin(), samples_.end(),
+                                  [oldest](const RadiometrySample& s) { return s.a == oldest || s.b == oldest; }),
+                   samples_.end());
+  }
+  thumbs_.push_back({id, MakeThumbnail(work_bgr, options_.thumb_long_side), work_bgr.size()});
+  ++frames_since_solve_;
+}
+
+const LiveRadiometry::Thumb* LiveRadiometry::Find(int id) const {
+  for (const Thumb& t : thumbs_)
+    if (t.id == id) return &t;
+  return nullptr;
+}
+
+void LiveRadiometry::AddEdge(int a, int b, const Mat3& b_from_a) {
+  const Thumb* ta = Find(a);
+  const Thumb* tb = Find(b);
+  if (ta == nullptr || tb == nullptr) return;
+  SampleOverlap(a, b, ta->image, tb->image, ta->work_size, tb->work_size, b_from_a, options_.samples_per_edge,
+                &samples_);
+}
+
+bool LiveRadiometry::MaybeSolve() {
+  if (frames_since_solve_ < solve_every_) return false;
+  frames_since_solve_ = 0;
+  std::vector<int> frames;
+  for (const Thumb& t : thumbs_) frames.push_back(t.id);
+  RadiometryModel m = SolveRadiometry(samples_, frames, options_);
+  if (!m.ok || !m.vignetting) return false;
+  m.log_gain.clear();  // vignetting only (see the class comment)
+  model_ = std::move(m);
+  return true;
+}
+
 void CorrectRadiometry(const RadiometryModel& model, int id, cv::Size full_size, cv::Point2d origin, cv::Mat* bgr) {
   if (!model.ok || bgr->empty()) return;
   const cv::Vec3d gain = model.Gain(id);

@@ -70,6 +70,39 @@ void SampleOverlap(int a, int b, const cv::Mat& thumb_a, const cv::Mat& thumb_b,
 [[nodiscard]] RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples,
                                               const std::vector<int>& frames, const RadiometryOptions& options);
 
+// The vignetting during the flight, for the live view: the lens does not change, so a fit over the recent frames'
+// overlaps, refreshed every `solve_every` frames, removes the pattern that every frame repeats. Bounded: thumbnails of
+// the last `window` frames and the samples of their edges; each solve sees only those (never the whole flight).
+// Frame gains are not applied live (a new frame's gain is only known at the next solve; a step between frames drawn
+// with and without one would be worse than none); the end-of-flight solve does both.
+class LiveRadiometry {
+ public:
+  LiveRadiometry(const RadiometryOptions& options, int window = 48, int solve_every = 20);
+  void AddFrame(int id, const cv::Mat& work_bgr);
+  // An edge verified between two frames (b_from_a maps a's working pixels to b's); ignored when either is no
+  // longer in the window.
+  void AddEdge(int a, int b, const Mat3& b_from_a);
+  // Solves when `solve_every` frames came since the last solve; true when the model changed.
+  bool MaybeSolve();
+  // The live model: vignetting only (no gains); not ok before the first successful fit.
+  [[nodiscard]] const RadiometryModel& model() const { return model_; }
+
+ private:
+  struct Thumb {
+    int id;
+    cv::Mat image;
+    cv::Size work_size;
+  };
+  [[nodiscard]] const Thumb* Find(int id) const;
+  RadiometryOptions options_;
+  size_t window_;
+  int solve_every_;
+  int frames_since_solve_ = 0;
+  std::vector<Thumb> thumbs_;  // oldest first, at most window_
+  std::vector<RadiometrySample> samples_;
+  RadiometryModel model_;
+};
+
 // Divides the frame's gain and falloff out of `bgr`, a part of the frame's image whose pixel (0, 0) is at `origin` in
 // an image of `full_size` (any resolution of the frame: r is relative to its half-diagonal).
 void CorrectRadiometry(const RadiometryModel& model, int id, cv::Size full_size, cv::Point2d origin, cv::Mat* bgr);
