@@ -38,15 +38,21 @@ Scene MakeScene() {
   return s;
 }
 
-TEST(CompositorTest, RebuildsTheGroundFromCrops) {
-  Scene s = MakeScene();
-  ASSERT_FALSE(s.ground.empty());
+// Small tiles and blocks over the scene, every frame kept, the quick-look at full size (compared pixel for pixel).
+CompositorOptions SceneOptions() {
   CompositorOptions o;
   o.tiff_block = 128;
   o.tile_size = 256;
   o.num_bands = 4;
   o.max_covered_fraction = 1.0;
-  o.quicklook_long_side = 4096;  // quick-look at full size, so it can be compared pixel for pixel
+  o.quicklook_long_side = 4096;
+  return o;
+}
+
+TEST(CompositorTest, RebuildsTheGroundFromCrops) {
+  Scene s = MakeScene();
+  ASSERT_FALSE(s.ground.empty());
+  CompositorOptions o = SceneOptions();
   const cv::Size canvas(s.ground.cols, s.ground.rows);
   const auto r = Composite(
       s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
@@ -79,12 +85,7 @@ TEST(CompositorTest, TilesMatchAWholeCanvasBlend) {
   Scene s = MakeScene();
   // Perturb the exposure of one crop so that the blend has work to do across seams.
   s.images[1].convertTo(s.images[1], -1, 1.15, 12);
-  CompositorOptions o;
-  o.tiff_block = 128;
-  o.tile_size = 256;
-  o.num_bands = 4;
-  o.max_covered_fraction = 1.0;
-  o.quicklook_long_side = 4096;
+  CompositorOptions o = SceneOptions();
   const cv::Size canvas(s.ground.cols, s.ground.rows);
   const auto tiled = Composite(
       s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
@@ -108,12 +109,7 @@ TEST(CompositorTest, TilesMatchAWholeCanvasBlend) {
 TEST(CompositorTest, PartLoadsComposeLikeWholeFrames) {
   Scene s = MakeScene();
   s.images[1].convertTo(s.images[1], -1, 1.15, 12);
-  CompositorOptions o;
-  o.tiff_block = 128;
-  o.tile_size = 256;
-  o.num_bands = 4;
-  o.max_covered_fraction = 1.0;
-  o.quicklook_long_side = 4096;
+  CompositorOptions o = SceneOptions();
   const cv::Size canvas(s.ground.cols, s.ground.rows);
   const auto whole = Composite(
       s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
@@ -126,7 +122,8 @@ TEST(CompositorTest, PartLoadsComposeLikeWholeFrames) {
         const cv::Mat& img = s.images[static_cast<size_t>(id)];
         smaller += need.size() != img.size() ? 1 : 0;
         // Widened to the left by up to 8 px, as libjpeg widens to its MCU columns.
-        const cv::Rect part = cv::Rect(need.x - 8, need.y, need.width + 8, need.height) & cv::Rect(cv::Point(), img.size());
+        const cv::Rect part =
+            cv::Rect(need.x - 8, need.y, need.width + 8, need.height) & cv::Rect(cv::Point(), img.size());
         return FramePart{img(part).clone(), cv::Point2d(part.tl())};
       },
       o, nullptr);

@@ -156,7 +156,7 @@ TEST(RadiometryTest, LiveFitFindsTheVignettingFromRecentFrames) {
         auto& p = f.at<cv::Vec3b>(y, x);
         for (int c = 0; c < 3; ++c) p[c] = cv::saturate_cast<uchar>(p[c] * v);
       }
-    live.AddFrame(id, f);
+    live.AddFrame(id, MakeThumbnail(f, RadiometryOptions{}.thumb_long_side), f.size());
     for (int back : {1, 2, 3})  // frame id - back seen 120 * back px further along
       if (id - back >= 0) live.AddEdge(id, id - back, Translation(120.0 * back, 0));
     const bool solved = live.MaybeSolve();

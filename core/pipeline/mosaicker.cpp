@@ -247,7 +247,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
                                     static_cast<double>(prepared.work_bgr.rows) / frame.original_size.height);
   st.work_size = prepared.work_bgr.size();
   if (!StoreFrame(id, prepared, &st)) return FrameOutcome::kFailed;
-  StoreThumbnail(id, prepared.work_bgr);
+  const cv::Mat thumb = StoreThumbnail(id, prepared.work_bgr);
   stats_.Add("prepare", prepared.prepare_ms + t.ElapsedMs());
   stats_.Add("features", prepared.features_ms);
   if (prepared.decode_ms > 0) stats_.Add("decode", prepared.decode_ms);
@@ -261,7 +261,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   stats_.Add("matching", timing.matching_ms);
   stats_.Add("adjust", timing.adjust_ms);
   t.Restart();
-  const cv::Mat live_bgr = LiveViewImage(id, prepared.work_bgr, edges_before);
+  const cv::Mat live_bgr = LiveViewImage(id, prepared.work_bgr, thumb, edges_before);
   if (engine_.frame(id).failure.empty() || id == 0) UpdatePreview(id, live_bgr);
   stats_.Add("preview", t.ElapsedMs());
   t.Restart();

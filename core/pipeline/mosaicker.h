@@ -118,10 +118,11 @@ class Mosaicker {
   void UpdatePreview(int id, const cv::Mat& work_bgr);
   // Radiometry (mosaicker_radiometry.cpp): each frame's thumbnail in the session (thumbs/), the gains and vignetting
   // solved over the component's edges at the end of the flight, and report.json's "radiometry".
-  void StoreThumbnail(int id, const cv::Mat& work_bgr);
+  // Returns the thumbnail (empty when radiometry is off), which the live view reuses.
+  [[nodiscard]] cv::Mat StoreThumbnail(int id, const cv::Mat& work_bgr);
   // The frame as the live view draws it: with the vignetting fitted over the recent frames divided out, once there
   // is one (LiveRadiometry); `edges_before` = the engine's edge count before the frame was registered.
-  [[nodiscard]] cv::Mat LiveViewImage(int id, const cv::Mat& work_bgr, size_t edges_before);
+  [[nodiscard]] cv::Mat LiveViewImage(int id, const cv::Mat& work_bgr, const cv::Mat& thumb, size_t edges_before);
   void SolveFrameRadiometry(const std::vector<int>& component);
   [[nodiscard]] nlohmann::json RadiometryJson() const;
   // Where the frame's position puts it on the live georeference (mosaicker_hint.cpp); none before a fit.
@@ -207,7 +208,8 @@ class Mosaicker {
   int final_registered_ = 0;
   Solution solution_;
   RadiometryModel radiometry_;
-  std::optional<LiveRadiometry> live_radiometry_;  // while the live view (preview or tiles) is on
+  std::optional<LiveRadiometry> live_radiometry_;
+  bool thumbs_dir_made_ = false;  // while the live view (preview or tiles) is on
   double radiometry_ms_ = 0.0;
   MemoryPlan memory_plan_;
   nlohmann::json report_sections_ = nlohmann::json::object();

@@ -23,25 +23,28 @@ std::string ThumbPath(const std::string& dir, int id) {
 
 // A thumbnail per frame on disk rather than in memory: the flight's memory stays flat however long it is, and the
 // end-of-flight solve reads each back a few times (~30 KB each).
-void Mosaicker::StoreThumbnail(int id, const cv::Mat& work_bgr) {
-  if (!options_.radiometry.enabled || work_bgr.empty()) return;
+cv::Mat Mosaicker::StoreThumbnail(int id, const cv::Mat& work_bgr) {
+  if (!options_.radiometry.enabled || work_bgr.empty()) return {};
   const std::string dir = paths_.Join("thumbs");
-  std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  const cv::Mat thumb = MakeThumbnail(work_bgr, options_.radiometry.thumb_long_side);
+  if (!thumbs_dir_made_) {
+    std::error_code ec;
+    thumbs_dir_made_ = std::filesystem::create_directories(dir, ec) || std::filesystem::is_directory(dir, ec);
+  }
+  cv::Mat thumb = MakeThumbnail(work_bgr, options_.radiometry.thumb_long_side);
   try {
     if (!cv::imwrite(ThumbPath(dir, id), thumb)) spdlog::warn("radiometry: cannot write the thumbnail of frame {}", id);
   } catch (const cv::Exception& e) {
     spdlog::warn("radiometry: cannot write the thumbnail of frame {}: {}", id, e.what());
   }
+  return thumb;
 }
 
-cv::Mat Mosaicker::LiveViewImage(int id, const cv::Mat& work_bgr, size_t edges_before) {
-  if (!options_.radiometry.enabled || !options_.radiometry.vignetting || work_bgr.empty() ||
+cv::Mat Mosaicker::LiveViewImage(int id, const cv::Mat& work_bgr, const cv::Mat& thumb, size_t edges_before) {
+  if (!options_.radiometry.enabled || !options_.radiometry.vignetting || thumb.empty() ||
       (options_.preview_every <= 0 && !live_tiles_))
     return work_bgr;
   if (!live_radiometry_) live_radiometry_.emplace(options_.radiometry);
-  live_radiometry_->AddFrame(id, work_bgr);
+  live_radiometry_->AddFrame(id, thumb, work_bgr.size());
   const auto& edges = engine_.edges();
   for (size_t k = edges_before; k < edges.size(); ++k)
     live_radiometry_->AddEdge(edges[k].src, edges[k].tgt, edges[k].tgt_from_src);

@@ -305,7 +305,7 @@ RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples, co
 LiveRadiometry::LiveRadiometry(const RadiometryOptions& options, int window, int solve_every)
     : options_(options), window_(static_cast<size_t>(std::max(2, window))), solve_every_(std::max(1, solve_every)) {}
 
-void LiveRadiometry::AddFrame(int id, const cv::Mat& work_bgr) {
+void LiveRadiometry::AddFrame(int id, const cv::Mat& thumb, cv::Size work_size) {
   if (thumbs_.size() == window_) {
     const int oldest = thumbs_.front().id;
     thumbs_.erase(thumbs_.begin());
@@ -313,7 +313,7 @@ void LiveRadiometry::AddFrame(int id, const cv::Mat& work_bgr) {
                                   [oldest](const RadiometrySample& s) { return s.a == oldest || s.b == oldest; }),
                    samples_.end());
   }
-  thumbs_.push_back({id, MakeThumbnail(work_bgr, options_.thumb_long_side), work_bgr.size()});
+  thumbs_.push_back({id, thumb, work_size});
   ++frames_since_solve_;
 }
 

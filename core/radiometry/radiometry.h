@@ -78,7 +78,8 @@ void SampleOverlap(int a, int b, const cv::Mat& thumb_a, const cv::Mat& thumb_b,
 class LiveRadiometry {
  public:
   LiveRadiometry(const RadiometryOptions& options, int window = 48, int solve_every = 20);
-  void AddFrame(int id, const cv::Mat& work_bgr);
+  // `thumb`: the frame's MakeThumbnail (made once per frame by the caller), of a working image of `work_size`.
+  void AddFrame(int id, const cv::Mat& thumb, cv::Size work_size);
   // An edge verified between two frames (b_from_a maps a's working pixels to b's); ignored when either is no
   // longer in the window.
   void AddEdge(int a, int b, const Mat3& b_from_a);
