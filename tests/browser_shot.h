@@ -48,6 +48,20 @@ inline double ContentShare(const cv::Mat& shot, cv::Scalar* mean_bgr) {
   return static_cast<double>(cv::countNonZero(mask)) / static_cast<double>(mask.total());
 }
 
+// For pages fed by a running process (live view): a loaded machine can leave the first picture undrawn when the
+// virtual time runs out, so the page is shot again with a longer budget, up to three times, until the live picture
+// covers `min_share` of the view. Returns the last shot (the test still judges it).
+inline cv::Mat ScreenshotUntilDrawn(const std::string& url, const std::filesystem::path& work, double min_share,
+                                    int budget_ms = 4000) {
+  cv::Mat shot;
+  for (int attempt = 0; attempt < 3; ++attempt, budget_ms *= 2) {
+    shot = Screenshot(url, work, budget_ms);
+    cv::Scalar unused;
+    if (!shot.empty() && ContentShare(shot, &unused) > min_share) break;
+  }
+  return shot;
+}
+
 // Mean colour of an image's pixels that are opaque (BGRA) or not black (BGR).
 inline cv::Scalar ContentMean(const cv::Mat& img) {
   cv::Mat bgr, mask;

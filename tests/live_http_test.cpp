@@ -186,7 +186,7 @@ TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   // The live page in a real browser, from the server: it shows the live picture, laid on the map north-up.
   ASSERT_FALSE(test::ChromiumBinary().empty()) << "chromium missing: run scripts/setup.sh";
   const cv::Mat shot =
-      test::Screenshot("http://127.0.0.1:" + std::to_string(port) + "/", out.string() + "_browser", 4000);
+      test::ScreenshotUntilDrawn("http://127.0.0.1:" + std::to_string(port) + "/", out.string() + "_browser", 0.10);
   ASSERT_FALSE(shot.empty());
   cv::Scalar mean;
   const double share = test::ContentShare(shot, &mean);

@@ -169,7 +169,7 @@ TEST(LiveTilesE2ETest, GdalAndABrowserReadTheMapDuringTheFlightAndTheFinalTilesA
 
   // The live page in a browser, mid-flight: the map on its tiles.
   ASSERT_FALSE(test::ChromiumBinary().empty()) << "chromium missing: run scripts/setup.sh";
-  const cv::Mat shot = test::Screenshot(base + "/", out.string() + "_browser", 5000);
+  const cv::Mat shot = test::ScreenshotUntilDrawn(base + "/", out.string() + "_browser", 0.10, 5000);
   ASSERT_FALSE(shot.empty());
   cv::Scalar mean;
   const double share = test::ContentShare(shot, &mean);
