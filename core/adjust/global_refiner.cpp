@@ -70,9 +70,34 @@ Mat3 FromParams(const FrameParams& p) {
 // minus the target point. One residual block per edge, not per point: Ceres' per-block bookkeeping was most of the
 // solve's memory (1.3 kB per correspondence measured, now ~0.6). Each point keeps its own Huber loss: its residual
 // is scaled so that its squared norm is rho(s) (the same cost and gradient as a per-point HuberLoss).
+// With a LensRefine, a fifth block holds its (u1, u2, u3): each point is taken to its recorded pixel (precomputed) and
+// through the undistortion.
 struct EdgeTransferCost {
-  EdgeTransferCost(const Edge* e, std::vector<uint32_t> keep, double huber_px)
-      : edge(e), index(std::move(keep)), delta(huber_px) {}
+  EdgeTransferCost(const Edge* e, std::vector<uint32_t> keep, double huber_px, const LensRefine* lens_refine)
+      : edge(e), index(std::move(keep)), delta(huber_px), lens(lens_refine) {
+    if (lens == nullptr) return;
+    for (uint32_t k : index) {
+      recorded.push_back(lens->prepared.DistortPixel(e->src_points[k]));
+      recorded.push_back(lens->prepared.DistortPixel(e->tgt_points[k]));
+    }
+  }
+
+  // Point j's source (which = 0) or target (1) position, ideal under the block's (u1, u2) when there is a lens.
+  template <typename T>
+  void Point(T const* const* blocks, size_t j, int which, T* x, T* y) const {
+    if (lens == nullptr) {
+      const Vec2& p = which == 0 ? edge->src_points[index[j]] : edge->tgt_points[index[j]];
+      *x = T(p.x());
+      *y = T(p.y());
+      return;
+    }
+    const T* u = blocks[4];
+    const Vec2 d = recorded[2 * j + static_cast<size_t>(which)] - Vec2(lens->prepared.cx, lens->prepared.cy);
+    const double rho2 = d.squaredNorm() / (lens->prepared.focal_px * lens->prepared.focal_px);
+    const T scale = T(1.0) + rho2 * (u[0] + rho2 * (u[1] + rho2 * u[2]));
+    *x = T(lens->prepared.cx) + scale * d.x();
+    *y = T(lens->prepared.cy) + scale * d.y();
+  }
 
   template <typename T>
   bool operator()(T const* const* blocks, T* residual) const {
@@ -94,16 +119,17 @@ struct EdgeTransferCost {
     const T r20 = d * h - e * g, r21 = b * g - a * h, r22 = a * e - b * d;
     const double d2 = delta * delta;
     for (size_t j = 0; j < index.size(); ++j) {
-      const Vec2& p = edge->src_points[index[j]];
-      const Vec2& q = edge->tgt_points[index[j]];
-      const T mx = sa[0] * p.x() + sa[1] * p.y() + sa[2];
-      const T my = sa[3] * p.x() + sa[4] * p.y() + sa[5];
-      const T mw = sp[0] * p.x() + sp[1] * p.y() + T(1.0);
+      T px, py, qx, qy;
+      Point(blocks, j, 0, &px, &py);
+      Point(blocks, j, 1, &qx, &qy);
+      const T mx = sa[0] * px + sa[1] * py + sa[2];
+      const T my = sa[3] * px + sa[4] * py + sa[5];
+      const T mw = sp[0] * px + sp[1] * py + T(1.0);
       const T x = r00 * mx + r01 * my + r02 * mw;
       const T y = r10 * mx + r11 * my + r12 * mw;
       const T w = r20 * mx + r21 * my + r22 * mw;
-      T rx = x / w - q.x();
-      T ry = y / w - q.y();
+      T rx = x / w - qx;
+      T ry = y / w - qy;
       const T sq = rx * rx + ry * ry;
       if (sq > T(d2)) {  // Huber: rho(s) = 2 delta sqrt(s) - delta^2 beyond delta
         const T root = sqrt(sq);
@@ -120,6 +146,23 @@ struct EdgeTransferCost {
   const Edge* edge;
   std::vector<uint32_t> index;
   double delta;
+  const LensRefine* lens;
+  std::vector<Vec2> recorded;  // with a lens: per kept point, source then target recorded pixel
+};
+
+// The lens's undistortion towards its start, in pixels of displacement at the half-diagonal.
+struct LensPrior {
+  LensPrior(double weight, double hd_rho2, double hd_px, std::array<double, 3> start)
+      : w(weight), r2(hd_rho2), px(hd_px), u0(start) {}
+  template <typename T>
+  bool operator()(const T* u, T* residual) const {
+    residual[0] = w * px * r2 * (u[0] - u0[0]);
+    residual[1] = w * px * r2 * r2 * (u[1] - u0[1]);
+    residual[2] = w * px * r2 * r2 * r2 * (u[2] - u0[2]);
+    return true;
+  }
+  double w, r2, px;
+  std::array<double, 3> u0;
 };
 
 // Perspective row towards 0, as the denominator's change across the half-diagonal, in pixels at the half-diagonal.
@@ -166,8 +209,8 @@ class RefineProblem {
  public:
   RefineProblem(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
                 const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
-                const std::unordered_map<int, Mat3>& T)
-      : variable_(variable), anchor_(anchor), half_diagonal_(half_diagonal), options_(options) {
+                const std::unordered_map<int, Mat3>& T, LensRefine* lens)
+      : variable_(variable), anchor_(anchor), half_diagonal_(half_diagonal), options_(options), lens_(lens) {
     for (const Edge* e : edges) {
       if (T.count(e->src) == 0 || T.count(e->tgt) == 0) continue;
       const bool touches =
@@ -228,7 +271,8 @@ class RefineProblem {
       const Mat3 tgt_from_src = FromParams(params_.at(e->tgt)).inverse() * FromParams(params_.at(e->src));
       std::vector<uint32_t> good;
       for (uint32_t k : keep_[i])
-        if ((Apply(tgt_from_src, e->src_points[k]) - e->tgt_points[k]).norm() <= options_.outlier_px) good.push_back(k);
+        if ((Apply(tgt_from_src, Ideal(e->src_points[k])) - Ideal(e->tgt_points[k])).norm() <= options_.outlier_px)
+          good.push_back(k);
       const size_t bad = keep_[i].size() - good.size();
       if (bad > 0 && 2 * bad <= keep_[i].size()) {
         removed += bad;
@@ -260,17 +304,33 @@ class RefineProblem {
       FrameParams& s = params_.at(e->src);
       FrameParams& t = params_.at(e->tgt);
       auto* cost = new ceres::DynamicAutoDiffCostFunction<EdgeTransferCost, 8>(
-          new EdgeTransferCost(e, keep_[i], options_.huber_px));
+          new EdgeTransferCost(e, keep_[i], options_.huber_px, lens_));
       cost->AddParameterBlock(6);
       cost->AddParameterBlock(2);
       cost->AddParameterBlock(6);
       cost->AddParameterBlock(2);
+      std::vector<double*> blocks{s.affine.data(), s.perspective.data(), t.affine.data(), t.perspective.data()};
+      if (lens_ != nullptr) {
+        cost->AddParameterBlock(3);
+        blocks.push_back(lens_->undistortion.data());
+      }
       cost->SetNumResiduals(static_cast<int>(2 * keep_[i].size()));
-      problem->AddResidualBlock(cost, nullptr, s.affine.data(), s.perspective.data(), t.affine.data(),
-                                t.perspective.data());
+      problem->AddResidualBlock(cost, nullptr, blocks);
     }
     for (auto& [id, p] : params_) AddFramePriors(id, &p, problem);
+    if (lens_ != nullptr && problem->HasParameterBlock(lens_->undistortion.data())) AddLensPrior(problem);
   }
+
+  void AddLensPrior(ceres::Problem* problem) {
+    const PinholeCamera& c = lens_->prepared;
+    const double hd_px = 0.5 * std::hypot(c.width, c.height);
+    const double hd_rho = hd_px / c.focal_px;
+    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<LensPrior, 3, 3>(new LensPrior(
+                                  lens_->prior_weight, hd_rho * hd_rho, hd_px, lens_start_)),
+                              nullptr, lens_->undistortion.data());
+  }
+
+  Vec2 Ideal(const Vec2& p) const { return lens_ != nullptr ? lens_->Ideal(p) : p; }
 
   // Which blocks stay constant, and the nadir and rigidity priors of a frame that moves.
   void AddFramePriors(int id, FrameParams* p, ceres::Problem* problem) const {
@@ -317,6 +377,8 @@ class RefineProblem {
   const int anchor_;
   const std::unordered_map<int, double>& half_diagonal_;
   const RefineOptions& options_;
+  LensRefine* lens_;
+  std::array<double, 3> lens_start_ = lens_ != nullptr ? lens_->undistortion : std::array<double, 3>{};
   std::vector<const Edge*> used_;
   std::vector<std::vector<uint32_t>> keep_;
   // Ordered map: the parameter blocks' addresses must stay put while the problem holds them.
@@ -339,8 +401,16 @@ ceres::Solver::Options SolverOptions(const RefineOptions& options) {
 
 }  // namespace
 
+Vec2 LensRefine::Ideal(const Vec2& prepared_point) const {
+  const Vec2 c(prepared.cx, prepared.cy);
+  const Vec2 d = prepared.DistortPixel(prepared_point) - c;
+  const double rho2 = d.squaredNorm() / (prepared.focal_px * prepared.focal_px);
+  return c + (1.0 + rho2 * (undistortion[0] + rho2 * (undistortion[1] + rho2 * undistortion[2]))) * d;
+}
+
 TransferStats TransferErrors(const std::vector<const Edge*>& edges,
-                             const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout, double max_px) {
+                             const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout, double max_px,
+                             const LensRefine* lens) {
   TransferStats s;
   std::vector<double> r;
   for (const Edge* e : edges) {
@@ -351,7 +421,8 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
     const auto& src = holdout ? e->holdout_src_points : e->src_points;
     const auto& tgt = holdout ? e->holdout_tgt_points : e->tgt_points;
     for (size_t k = 0; k < src.size(); ++k) {
-      const double d = (Apply(tgt_from_src, src[k]) - tgt[k]).norm();
+      const double d = lens != nullptr ? (Apply(tgt_from_src, lens->Ideal(src[k])) - lens->Ideal(tgt[k])).norm()
+                                       : (Apply(tgt_from_src, src[k]) - tgt[k]).norm();
       if (max_px <= 0 || d <= max_px) r.push_back(d);
     }
   }
@@ -366,12 +437,12 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
 
 RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
                           const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
-                          std::unordered_map<int, Mat3>* mosaic_from_frame) {
+                          std::unordered_map<int, Mat3>* mosaic_from_frame, LensRefine* lens) {
   RefineResult result;
   StageTimer timer;
   auto& T = *mosaic_from_frame;
-  RefineProblem refine(edges, variable, anchor, half_diagonal, options, T);
-  const TransferStats before = TransferErrors(refine.used(), T);
+  RefineProblem refine(edges, variable, anchor, half_diagonal, options, T, lens);
+  const TransferStats before = TransferErrors(refine.used(), T, false, 0.0, lens);
   result.initial_rms_px = before.rms;
   result.num_residuals = before.count;
   const auto max_correspondences = static_cast<size_t>(options.max_correspondences);
@@ -399,8 +470,8 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   // Ceres only returns a step that lowered the robust cost; the plain statistics are for the report.
   std::unordered_map<int, Mat3> trial = T;
   for (const auto& [id, m] : refined) trial[id] = m;
-  const TransferStats after = TransferErrors(refine.used(), trial);
-  const TransferStats inliers = TransferErrors(refine.used(), trial, false, options.outlier_px);
+  const TransferStats after = TransferErrors(refine.used(), trial, false, 0.0, lens);
+  const TransferStats inliers = TransferErrors(refine.used(), trial, false, options.outlier_px, lens);
   for (const auto& [id, m] : refined) T[id] = m;
   result.final_all_rms_px = after.rms;
   result.final_rms_px = options.outlier_px > 0 ? inliers.rms : after.rms;

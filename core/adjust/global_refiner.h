@@ -1,9 +1,11 @@
 #pragma once
+#include <array>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
 #include <vector>
 
+#include "core/geometry/camera_model.h"
 #include "core/geometry/transform.h"
 #include "core/graph/match_graph.h"
 
@@ -57,6 +59,22 @@ struct RefineResult {
   double seconds = 0.0;
 };
 
+// Self-calibration of the lens inside the refinement. The edges' points were made ideal with `prepared`'s distortion
+// (none: the recorded pixels); each is taken back to its recorded pixel and through a radial undistortion shared by
+// every frame, x_ideal = c + (x_rec - c) (1 + u1 rho^2 + u2 rho^4 + u3 rho^6), rho = |x_rec - c| / focal_px, whose
+// (u1, u2, u3) the solve estimates with the maps. The undistortion, not the distortion, is the unknown: it is
+// closed-form per point (the inverse of a Brown k1 needs the third term: 12 k1^3 rho^7 is pixels at the corners).
+struct LensRefine {
+  PinholeCamera prepared;                        // work pixels; no tangential terms
+  std::array<double, 3> undistortion{0.0, 0.0, 0.0};  // in: start and prior mean; out: the estimate
+  // Prior towards the start, as corner pixels (the displacement each term makes at the half-diagonal) per unit
+  // weight: weak against thousands of correspondences, it keeps a flight that cannot see the lens near its start.
+  double prior_weight = 1.0;
+
+  // The point's position under the current undistortion.
+  [[nodiscard]] Vec2 Ideal(const Vec2& prepared_point) const;
+};
+
 // Nonlinear refinement of the global solution: minimises each correspondence's transfer error measured in the target
 // frame's pixels, |proj(T_tgt^-1 T_src p) - q|, with a robust loss, over the mosaic_from_frame maps of the frames in
 // `variable` (8 dof with kHomography, 6 with kAffine). Unlike the linear adjustment's residual in mosaic pixels, this
@@ -66,7 +84,7 @@ struct RefineResult {
 [[nodiscard]] RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                         int anchor, const std::unordered_map<int, double>& half_diagonal,
                                         const RefineOptions& options,
-                                        std::unordered_map<int, Mat3>* mosaic_from_frame);
+                                        std::unordered_map<int, Mat3>* mosaic_from_frame, LensRefine* lens = nullptr);
 
 struct TransferStats {
   size_t count = 0;
@@ -74,9 +92,11 @@ struct TransferStats {
   double median = 0.0;
 };
 // Transfer errors |proj(T_tgt^-1 T_src p) - q| over all correspondences of `edges` whose frames have maps (with
-// `holdout`: over the held-out points instead); with max_px > 0, only errors up to max_px count (inliers).
+// `holdout`: over the held-out points instead); with max_px > 0, only errors up to max_px count (inliers). With
+// `lens`, the points are first taken through its Ideal().
 [[nodiscard]] TransferStats TransferErrors(const std::vector<const Edge*>& edges,
                                            const std::unordered_map<int, Mat3>& mosaic_from_frame,
-                                           bool holdout = false, double max_px = 0.0);
+                                           bool holdout = false, double max_px = 0.0,
+                                           const LensRefine* lens = nullptr);
 
 }  // namespace uavm

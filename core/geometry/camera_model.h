@@ -38,7 +38,16 @@ struct PinholeCamera {
   // Radial displacement at the half-diagonal as a fraction of that radius, k1 r^2 + k2 r^4 at r = HalfDiagonalRadius():
   // how strong a lens "is at the image corner" (-0.1 = corners drawn 10 % of their radius towards the centre).
   [[nodiscard]] double RadialDistortionAtHalfDiagonal() const;
+  // The same camera on a resized pixel grid of `size` (pixel centres kept: u' = s (u + 0.5) - 0.5); the distortion
+  // acts on normalised coordinates and does not change.
+  [[nodiscard]] PinholeCamera Resized(int new_width, int new_height) const;
 };
+
+// Radial k1, k2 of the Brown model (no tangential terms) that best give the distorted normalised radius
+// `distorted_radius(r)` of ideal radius r, least squares over r in (0, max_radius]: how another model's curve (a
+// lens database's, a fitted undistortion) becomes this one.
+[[nodiscard]] LensDistortion FitRadialDistortion(double (*distorted_radius)(double r, const void* ctx), const void* ctx,
+                                                 double max_radius);
 
 // Radial brightness falloff (vignetting) V(r) = 1 + a1 r^2 + a2 r^4, r = distance from the principal point divided by
 // the half-diagonal (r = 1 at the image corners): a recorded pixel is V(r) times what an ideal lens would record.

@@ -147,6 +147,7 @@ Mosaicker::Prepared Mosaicker::Prepare(Frame frame) const {
   Prepared p = PrepareImages(std::move(frame));
   StageTimer t;
   p.features = extractor_.Extract(p.work_gray);
+  WorkLens(p.frame, p.work_gray.size()).UndistortPoints(&p.features.points);
   p.features_ms = t.ElapsedMs();
   return p;
 }
@@ -162,6 +163,7 @@ Mosaicker::Prepared Mosaicker::PrepareStored(Frame frame, int id, const std::str
   if (!feature_store_.Load(id, &p.features, &error)) {
     spdlog::warn("resume: {}; detecting features of {} again", error, stored);
     p.features = extractor_.Extract(p.work_gray);
+    WorkLens(p.frame, p.work_gray.size()).UndistortPoints(&p.features.points);
   }
   p.features_ms = t.ElapsedMs();
   return p;
@@ -179,6 +181,10 @@ Mosaicker::Prepared Mosaicker::PrepareImages(Frame frame) const {
   else
     cv::resize(frame.image, p.work_bgr, work_size, 0, 0, cv::INTER_AREA);
   cv::cvtColor(p.work_bgr, p.work_gray, cv::COLOR_BGR2GRAY);
+  // Features are found on the recorded pixels (no resampling) and their positions undistorted (Prepare); the live
+  // view, thumbnails and tiles draw the ideal image, on which the maps act.
+  const Undistorter& lens = WorkLens(frame, work_size);
+  if (lens.active()) p.work_bgr = lens.UndistortImage(p.work_bgr);
   if (frame.source_path.empty()) {
     // No file to copy into the session (camera, video, simulation): encode here, on the capture thread.
     try {
@@ -236,6 +242,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   StageTimer frame_timer;
   StageTimer t;
   const Frame& frame = prepared.frame;
+  HandEngineTheCamera(prepared.work_bgr.size());
   const int id = engine_.AddFrame(prepared.work_bgr.size());
   FrameState& st = frames_.emplace_back();
   st.id = id;

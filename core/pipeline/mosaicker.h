@@ -2,6 +2,7 @@
 #include <deque>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
@@ -11,7 +12,9 @@
 
 #include "core/frame/frame.h"
 #include "core/georef/live_georef.h"
+#include "core/lens/camera_setup.h"
 #include "core/mosaic/live_preview.h"
+#include "core/pipeline/canvas_load.h"
 #include "core/pipeline/memory_budget.h"
 #include "core/pipeline/options.h"
 #include "core/pipeline/resource_log.h"
@@ -125,6 +128,16 @@ class Mosaicker {
   [[nodiscard]] cv::Mat LiveViewImage(int id, const cv::Mat& work_bgr, const cv::Mat& thumb, size_t edges_before);
   void SolveFrameRadiometry(const std::vector<int>& component);
   [[nodiscard]] nlohmann::json RadiometryJson() const;
+  // The lens (mosaicker_lens.cpp). WorkLens: chosen on the first frame (configuration, lensfun's database, none)
+  // and the working copies' undistortion; thread-safe (the capture thread prepares). The engine gets the camera on
+  // the frame loop. FinalCamera: the calibrated one when the end of the flight accepted a calibration.
+  [[nodiscard]] const Undistorter& WorkLens(const Frame& frame, cv::Size work_size) const;
+  void HandEngineTheCamera(cv::Size work_size);
+  [[nodiscard]] PinholeCamera FinalCamera() const;  // original pixels
+  [[nodiscard]] bool WriteCameraYaml(std::string* error) const;
+  [[nodiscard]] nlohmann::json LensJson() const;
+  // Part `need` of frame `id`'s ideal (undistorted) image on the load's grid.
+  [[nodiscard]] FramePart LoadIdealPart(int id, const CanvasLoad& how, const cv::Rect& need) const;
   // Where the frame's position puts it on the live georeference (mosaicker_hint.cpp); none before a fit.
   [[nodiscard]] std::optional<PositionHint> PositionHintFor(const FrameMetadata& metadata) const;
   // The live picture's georeference (mosaicker_live.cpp): a drawn frame's point; after a live.jpg write the refit when
@@ -179,6 +192,11 @@ class Mosaicker {
 
   PipelineOptions options_;
   SessionPaths paths_;
+  mutable std::once_flag lens_once_;
+  mutable CameraChoice lens_choice_;  // written once, under lens_once_
+  mutable Undistorter work_lens_;
+  mutable cv::Size lens_original_size_;
+  bool engine_has_camera_ = false;
   SiftExtractor extractor_;
   FeatureStore feature_store_;
   EdgeStore edge_store_;

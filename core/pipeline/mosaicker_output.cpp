@@ -31,7 +31,8 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
   BridgeFrames(&placed, &canvas_from_original, &canvas);
   const std::unordered_set<int> in_map(placed.begin(), placed.end());
   if (!WriteTransformsCsv(in_map, canvas_from_original, error) || !WriteEdgeTables(in_component, error) ||
-      !WriteFramesCsv(in_map, error) || !WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error))
+      !WriteFramesCsv(in_map, error) || !WriteCameraYaml(error) ||
+      !WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error))
     return false;
   CompositeResult composite;
   if (!placed.empty() && !CompositeMosaic(placed, canvas_from_original, canvas, scale, &composite, error)) return false;
@@ -193,7 +194,7 @@ bool Mosaicker::CompositeMosaic(const std::vector<int>& component, const std::ve
   }
   auto load = [&](int id, const cv::Rect& need) {
     const CanvasLoad& how = load_of.at(id);
-    FramePart part = LoadCanvasPart(frames_[static_cast<size_t>(id)].stored_file, how, need);
+    FramePart part = LoadIdealPart(id, how, need);
     CorrectRadiometry(radiometry_, id, how.size, part.origin, &part.image);
     return part;
   };

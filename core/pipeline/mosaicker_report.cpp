@@ -131,6 +131,7 @@ bool Mosaicker::WriteReport(const std::vector<int>& component, const CompositeRe
                       {"reloads_from_memory", composite.reloads_from_memory},
                       {"image_load_ms", composite.load_ms}};
   report["radiometry"] = RadiometryJson();
+  report["lens"] = LensJson();
   report["georef"] = GeorefJson();
   report["products"] = products;
   for (const auto& [key, value] : report_sections_.items()) report[key] = value;

@@ -101,6 +101,18 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"mosaic", "build_overviews", &o.mosaic.build_overviews},
       {"mosaic", "threads", &o.mosaic.threads},
       {"mosaic", "gdal_cache_mib", &o.mosaic.gdal_cache_mib},
+      {"camera", "k1", &o.camera.k1},
+      {"camera", "k2", &o.camera.k2},
+      {"camera", "p1", &o.camera.p1},
+      {"camera", "p2", &o.camera.p2},
+      {"camera", "focal_px", &o.camera.focal_px},
+      {"camera", "database", &o.camera.database},
+      {"camera", "self_calibrate", &o.lens_calibration.enabled},
+      {"lens_calibration", "min_frames", &o.lens_calibration.min_frames},
+      {"lens_calibration", "max_correspondences", &o.lens_calibration.max_correspondences},
+      {"lens_calibration", "min_holdout_gain", &o.lens_calibration.min_holdout_gain},
+      {"lens_calibration", "max_distortion", &o.lens_calibration.max_distortion},
+      {"lens_calibration", "prior_weight", &o.lens_calibration.prior_weight},
       {"radiometry", "enabled", &o.radiometry.enabled},
       {"radiometry", "vignetting", &o.radiometry.vignetting},
       {"radiometry", "thumb_long_side", &o.radiometry.thumb_long_side},
@@ -165,7 +177,7 @@ bool PipelineOptions::Check(std::string* why) const {
   if (feature_cache_mib < 1) return Fail(why, "feature_cache_mib must be >= 1");
   if (memory_budget_mib < 0) return Fail(why, "memory_budget_mib must be >= 0 (0 = no budget)");
   if (queue_capacity < 1 || queue_capacity > 1024) return Fail(why, "queue_capacity must be in [1,1024]");
-  return features.Check(why) && mosaic.Check(why) && radiometry.Check(why);
+  return features.Check(why) && mosaic.Check(why) && radiometry.Check(why) && camera.Check(why);
 }
 
 bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error) {

@@ -7,6 +7,7 @@
 #include "core/georef/georef.h"
 #include "core/georef/products.h"
 #include "core/georef/telemetry_bridge.h"
+#include "core/lens/camera_setup.h"
 #include "core/matching/global_index.h"
 #include "core/matching/pair_matcher.h"
 #include "core/mosaic/compositor.h"
@@ -38,6 +39,9 @@ struct PipelineOptions : RegistrationOptions {
   FeatureOptions features;
   // (matching, relocalization, adjust and refine are the engine's; refine's `model` is a top-level key.)
   CompositorOptions mosaic;
+  // The lens the frames are undistorted with (configured, or looked up in lensfun's database by EXIF); the end of
+  // the flight calibrates it (camera.self_calibrate, the engine's lens_calibration).
+  CameraOptions camera;
   // Per-frame gains and the lens's vignetting, estimated from the overlaps and removed before blending.
   RadiometryOptions radiometry;
   // Georeferencing from EXIF GPS and the map products (COG, KMZ, web tiles, index.html): core/georef.

@@ -47,7 +47,8 @@ bool RegistrationOptions::Check(std::string* why) const {
     return Fail(why, "relocalization/retry settings must be >= 0");
   if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
   if (solve_window < 0) return Fail(why, "solve_window must be >= 0 (0 = whole component)");
-  return matching.Check(why) && relocalization.Check(why) && adjust.Check(why) && refine.Check(why);
+  return matching.Check(why) && relocalization.Check(why) && adjust.Check(why) && refine.Check(why) &&
+         lens_calibration.Check(why);
 }
 
 // What one frame's matching found so far: the candidates tried and the verified edges (new frame = tgt).
@@ -538,6 +539,31 @@ Solution RegistrationEngine::Finish() {
   return s;
 }
 
+bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>& edges,
+                                                 const std::unordered_set<int>& variable,
+                                                 const std::unordered_map<int, double>& half_diag,
+                                                 AdjustResult* linear, Solution* s) {
+  if (!camera_ || !options_.lens_calibration.enabled) return true;
+  const int anchor = s->component.front();
+  for (int id : s->component)
+    if (Record(id).work_size != cv::Size(camera_->width, camera_->height)) {
+      s->lens.why = "frames of different sizes: the lens is not calibrated";
+      return true;
+    }
+  s->lens = CalibrateLens(edges, variable, anchor, half_diag, options_.refine, *camera_, options_.lens_calibration,
+                          mosaic_from_work_);
+  if (!s->lens.accepted) return true;
+  // The engine owns the edges (the const view is the solve's): their points move to the calibrated ideal pixels.
+  for (const Edge* e : edges) ReprojectEdgePoints(*camera_, s->lens.distortion, const_cast<Edge*>(e));
+  *linear = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+  if (!linear->ok) {
+    s->ok = false;
+    s->failure = "final adjustment failed after the lens calibration: " + linear->failure;
+    return false;
+  }
+  return true;
+}
+
 // Re-anchors on the component's first frame (identity), solves all of it linearly, then refines: transfer errors in
 // frame pixels (no pull to shrink towards the anchor) and, with the homography model, each frame's perspective.
 void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish,
@@ -548,12 +574,13 @@ void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const
   std::unordered_set<int> variable(s->component.begin() + 1, s->component.end());
   std::unordered_map<int, double> half_diag;
   for (int id : s->component) half_diag[id] = Record(id).half_diagonal;
-  const auto r = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+  auto r = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
   if (!r.ok) {
     s->ok = false;
     s->failure = "final adjustment failed: " + r.failure;
     return;
   }
+  if (!CalibrateLensAndResolve(edges, variable, half_diag, &r, s)) return;
   s->rms_px = r.rms_px;
   s->median_px = r.median_px;
   s->adjust_ms = since_finish.ElapsedMs();

@@ -10,6 +10,7 @@
 
 #include "core/adjust/affine_adjuster.h"
 #include "core/adjust/global_refiner.h"
+#include "core/adjust/lens_calibration.h"
 #include "core/features/sift.h"
 #include "core/geometry/footprint_grid.h"
 #include "core/graph/components.h"
@@ -38,6 +39,8 @@ struct RegistrationOptions {
   GlobalIndexOptions relocalization;
   AdjustOptions adjust;
   RefineOptions refine;
+  // Self-calibration of the lens at the end of the flight (needs SetCamera()).
+  LensCalibrationOptions lens_calibration;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -107,6 +110,8 @@ struct Solution {
   TransferStats holdout_inliers;  // of those, the ones within refine.outlier_px
   double adjust_ms = 0.0;         // from the start of Finish() to the linear solution
   double refine_ms = 0.0;
+  // The lens's self-calibration; when accepted, every edge's points and the maps are in its ideal pixels.
+  LensCalibration lens;
 };
 
 // Where telemetry says a new frame is: its centre in the mosaic coordinates of the component holding frame `anchor`
@@ -143,6 +148,9 @@ class RegistrationEngine {
   // `hint`: where telemetry places it (may be null).
   [[nodiscard]] FrameOutcome Register(int id, const Features& features, RegisterTiming* timing = nullptr,
                                       const PositionHint* hint = nullptr);
+  // The camera the frames' features were made ideal with (work pixels; every frame of that size): what the end of
+  // the flight calibrates the lens from. Without one, the lens is not calibrated.
+  void SetCamera(const PinholeCamera& work_camera) { camera_ = work_camera; }
   // Frame `id` will not be registered (e.g. it could not be stored); `why` ends in the report.
   void SetFailure(int id, std::string why);
   // Final solve of the largest component; the features are not needed afterwards.
@@ -202,8 +210,15 @@ class RegistrationEngine {
   [[nodiscard]] bool IsNewGround(int id);
   void Place(int id);
   void SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish, Solution* s);
+  // After the linear solve: the lens self-calibration; when accepted, the edges' points move to its ideal pixels and
+  // the linear solve runs again on them. False when that solve fails.
+  [[nodiscard]] bool CalibrateLensAndResolve(const std::vector<const Edge*>& edges,
+                                             const std::unordered_set<int>& variable,
+                                             const std::unordered_map<int, double>& half_diag,
+                                             AdjustResult* linear, Solution* s);
 
   RegistrationOptions options_;
+  std::optional<PinholeCamera> camera_;  // SetCamera()
   FeatureProvider* features_;  // borrowed
   EdgeSpill* spill_;           // borrowed, may be null
   GlobalIndex global_index_;

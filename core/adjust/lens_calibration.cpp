@@ -1,0 +1,139 @@
+#include "core/adjust/lens_calibration.h"
+
+#include <spdlog/spdlog.h>
+
+#include <Eigen/Dense>
+#include <cmath>
+
+#include "core/util/clock.h"
+
+namespace uavm {
+
+bool LensCalibrationOptions::Check(std::string* why) const {
+  if (min_frames < 2 || max_correspondences < 100 || !(min_holdout_gain >= 0 && min_holdout_gain < 1) ||
+      !(max_distortion > 0 && max_distortion < 1) || !(prior_weight >= 0)) {
+    if (why != nullptr)
+      *why =
+          "lens_calibration: min_frames >= 2, max_correspondences >= 100, min_holdout_gain in [0,1), "
+          "max_distortion in (0,1), prior_weight >= 0";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+// r_ideal(r_distorted) of a Brown distortion (its inverse along a radius).
+double UndistortedRadius(double r, const void* ctx) {
+  return static_cast<const LensDistortion*>(ctx)->Undistort(Vec2(r, 0.0)).x();
+}
+
+// r_distorted(r_ideal) of an undistortion r_i = r_d (1 + u1 r_d^2 + u2 r_d^4 + u3 r_d^6), by Newton steps.
+double DistortedRadius(double ri, const void* ctx) {
+  const auto& u = *static_cast<const std::array<double, 3>*>(ctx);
+  double rd = ri;
+  for (int it = 0; it < 30; ++it) {
+    const double r2 = rd * rd;
+    const double f = rd * (1.0 + r2 * (u[0] + r2 * (u[1] + r2 * u[2]))) - ri;
+    const double df = 1.0 + r2 * (3.0 * u[0] + r2 * (5.0 * u[1] + 7.0 * r2 * u[2]));
+    if (!(std::abs(df) > 1e-9)) break;
+    const double step = f / df;
+    rd -= step;
+    if (std::abs(step) < 1e-14) break;
+  }
+  return rd;
+}
+
+}  // namespace
+
+std::array<double, 3> UndistortionFromDistortion(const LensDistortion& d, double max_radius) {
+  // The inverse curve r_i(r_d): r_i / r_d - 1 = u1 r^2 + u2 r^4 + u3 r^6, least squares over evenly spaced radii.
+  if (d.k1 == 0.0 && d.k2 == 0.0) return {0.0, 0.0, 0.0};
+  Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+  for (int i = 1; i <= 200; ++i) {
+    const double rd = max_radius * i / 200.0;
+    const double y = UndistortedRadius(rd, &d) / rd - 1.0;
+    const double r2 = rd * rd;
+    const Eigen::Vector3d row(r2, r2 * r2, r2 * r2 * r2);
+    ata += row * row.transpose();
+    atb += row * y;
+  }
+  const Eigen::Vector3d u = ata.ldlt().solve(atb);
+  return {u[0], u[1], u[2]};
+}
+
+LensDistortion DistortionFromUndistortion(const std::array<double, 3>& u, double max_radius) {
+  return FitRadialDistortion(&DistortedRadius, &u, max_radius);
+}
+
+void ReprojectEdgePoints(const PinholeCamera& prepared, const LensDistortion& calibrated, Edge* edge) {
+  PinholeCamera to = prepared;
+  to.distortion = calibrated;
+  for (auto* points : {&edge->src_points, &edge->tgt_points, &edge->holdout_src_points, &edge->holdout_tgt_points})
+    for (Vec2& p : *points) p = to.UndistortPixel(prepared.DistortPixel(p));
+}
+
+LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
+                              int anchor, const std::unordered_map<int, double>& half_diagonal,
+                              const RefineOptions& refine, const PinholeCamera& prepared,
+                              const LensCalibrationOptions& options, const std::unordered_map<int, Mat3>& start) {
+  LensCalibration cal;
+  StageTimer timer;
+  const LensDistortion& d0 = prepared.distortion;
+  if (d0.p1 != 0.0 || d0.p2 != 0.0) {
+    cal.why = "the configured lens has tangential terms: kept as it is";
+    return cal;
+  }
+  if (variable.size() + 1 < static_cast<size_t>(options.min_frames)) {
+    cal.why = "too few frames (" + std::to_string(variable.size() + 1) + ") to calibrate the lens";
+    return cal;
+  }
+  cal.tried = true;
+  RefineOptions subset = refine;
+  subset.max_correspondences = options.max_correspondences;
+  // Without: the prepared lens as it is.
+  std::unordered_map<int, Mat3> without = start;
+  const RefineResult r0 = RefineGlobal(edges, variable, anchor, half_diagonal, subset, &without);
+  // With: the same solve, the undistortion free.
+  const double max_radius = 1.05 * prepared.HalfDiagonalRadius();
+  LensRefine lens;
+  lens.prepared = prepared;
+  lens.undistortion = UndistortionFromDistortion(d0, max_radius);
+  lens.prior_weight = options.prior_weight;
+  std::unordered_map<int, Mat3> with = start;
+  const RefineResult r1 = RefineGlobal(edges, variable, anchor, half_diagonal, subset, &with, &lens);
+  cal.used = r1.num_used;
+  cal.seconds = timer.ElapsedMs() / 1000.0;
+  if (!r0.ok || !r1.ok) {
+    cal.why = "refinement failed: " + (r0.ok ? r1.failure : r0.failure);
+    return cal;
+  }
+  const TransferStats h0 = TransferErrors(edges, without, true);
+  const TransferStats h1 = TransferErrors(edges, with, true, 0.0, &lens);
+  cal.holdout_without_px = h0.rms;
+  cal.holdout_with_px = h1.rms;
+  cal.holdout_points = h1.count;
+  cal.distortion = DistortionFromUndistortion(lens.undistortion, max_radius);
+  PinholeCamera estimated = prepared;
+  estimated.distortion = cal.distortion;
+  cal.distortion_at_half_diagonal = estimated.RadialDistortionAtHalfDiagonal();
+  if (h1.count < 50) {
+    cal.why = "too few held-out correspondences (" + std::to_string(h1.count) + ") to judge a lens";
+  } else if (!(std::abs(cal.distortion_at_half_diagonal) <= options.max_distortion)) {
+    cal.why = "implausible distortion at the half-diagonal (" + std::to_string(cal.distortion_at_half_diagonal) + ")";
+  } else if (!(h1.rms <= (1.0 - options.min_holdout_gain) * h0.rms)) {
+    cal.why = "the flight does not determine the lens: held-out RMS " + std::to_string(h0.rms) + " -> " +
+              std::to_string(h1.rms) + " px";
+  } else {
+    cal.accepted = true;
+  }
+  spdlog::info("lens self-calibration {}: k1 {:.4f} k2 {:.4f} ({:+.3f} at the half-diagonal), held-out RMS {:.3f} -> "
+               "{:.3f} px over {} points, {:.1f} s{}{}",
+               cal.accepted ? "accepted" : "refused", cal.distortion.k1, cal.distortion.k2,
+               cal.distortion_at_half_diagonal, h0.rms, h1.rms, h1.count, cal.seconds, cal.why.empty() ? "" : ": ",
+               cal.why);
+  return cal;
+}
+
+}  // namespace uavm

@@ -1,0 +1,58 @@
+#pragma once
+// Self-calibration of the lens's radial distortion from the pose-free correspondences of a solved flight.
+#include <array>
+#include <string>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include "core/adjust/global_refiner.h"
+#include "core/geometry/camera_model.h"
+
+namespace uavm {
+
+struct LensCalibrationOptions {
+  bool enabled = true;
+  int min_frames = 6;                // fewer frames rarely see the same ground at enough different radii
+  int max_correspondences = 20000;   // a strided subset: the estimate needs spread, not every point
+  double min_holdout_gain = 0.03;    // the held-out RMS must drop by at least this share, else the lens is refused
+  double max_distortion = 0.3;       // |k1 r^2 + k2 r^4| at the half-diagonal; beyond it no camera a drone flies
+  double prior_weight = 0.05;        // LensRefine::prior_weight
+
+  [[nodiscard]] bool Check(std::string* why) const;
+};
+
+struct LensCalibration {
+  bool tried = false;
+  bool accepted = false;
+  std::string why;            // not tried or refused: why
+  LensDistortion distortion;  // the estimate (radial only), whether accepted or not
+  double distortion_at_half_diagonal = 0.0;
+  double holdout_without_px = 0.0;  // held-out RMS of the same subset's refinement with the prepared lens
+  double holdout_with_px = 0.0;     // and with the estimated one
+  size_t holdout_points = 0;
+  size_t used = 0;  // correspondences in the two solves
+  double seconds = 0.0;
+};
+
+// Refines the subset twice from `start` (the linear solution): with the points as `prepared` made them ideal, and with
+// a shared radial undistortion estimated jointly with the maps (LensRefine); the lens is accepted when the held-out
+// correspondences (which neither solve uses) agree better by min_holdout_gain and its distortion is plausible. The
+// distortion returned is Brown's (k1, k2) in `prepared`'s normalised coordinates. Tangential terms are not estimated:
+// a prepared lens with them is not calibrated again.
+[[nodiscard]] LensCalibration CalibrateLens(const std::vector<const Edge*>& edges,
+                                            const std::unordered_set<int>& variable, int anchor,
+                                            const std::unordered_map<int, double>& half_diagonal,
+                                            const RefineOptions& refine, const PinholeCamera& prepared,
+                                            const LensCalibrationOptions& options,
+                                            const std::unordered_map<int, Mat3>& start);
+
+// Moves an edge's points (kept and held out) from `prepared`'s ideal pixels to those of the same camera with
+// `calibrated` as its distortion.
+void ReprojectEdgePoints(const PinholeCamera& prepared, const LensDistortion& calibrated, Edge* edge);
+
+// The radial undistortion (u1, u2, u3) of LensRefine closest to `d`'s inverse over (0, max_radius], and back.
+[[nodiscard]] std::array<double, 3> UndistortionFromDistortion(const LensDistortion& d, double max_radius);
+[[nodiscard]] LensDistortion DistortionFromUndistortion(const std::array<double, 3>& u, double max_radius);
+
+}  // namespace uavm

@@ -1,0 +1,185 @@
+// Self-calibration of radial distortion from synthetic flights with a known lens: correspondences of a planar scene
+// made with the true maps on ideal pixels, then recorded through the lens.
+#include "core/adjust/lens_calibration.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "core/adjust/affine_adjuster.h"
+
+namespace uavm {
+namespace {
+
+constexpr int kW = 640;
+constexpr int kH = 480;
+constexpr double kFocal = 500.0;
+
+struct Flight {
+  std::vector<Mat3> mosaic_from_ideal;
+  std::vector<Edge> edges;
+};
+
+// A 5 x 4 grid of frames (150 px apart across, 120 along: ~75 % overlap), each turned a little; every pair of frames
+// closer than 260 px gets 60 matched points and 20 held-out ones, recorded through `lens` with `noise_px`.
+Flight MakeFlight(const PinholeCamera& lens, double noise_px, unsigned seed) {
+  Flight f;
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> turn(-0.15, 0.15);
+  for (int row = 0; row < 4; ++row)
+    for (int col = 0; col < 5; ++col) {
+      const double a = turn(rng);
+      Mat3 m = Mat3::Identity();
+      m << std::cos(a), -std::sin(a), 150.0 * col, std::sin(a), std::cos(a), 120.0 * row, 0, 0, 1;
+      f.mosaic_from_ideal.push_back(m);
+    }
+  std::uniform_real_distribution<double> ux(0, kW - 1), uy(0, kH - 1);
+  std::normal_distribution<double> noise(0, noise_px);
+  const auto inside = [](const Vec2& p) { return p.x() >= 0 && p.y() >= 0 && p.x() <= kW - 1 && p.y() <= kH - 1; };
+  const auto record = [&](const Vec2& ideal) -> Vec2 { return lens.DistortPixel(ideal) + Vec2(noise(rng), noise(rng)); };
+  for (int i = 0; i < 20; ++i)
+    for (int j = i + 1; j < 20; ++j) {
+      const Mat3 tgt_from_src = f.mosaic_from_ideal[j].inverse() * f.mosaic_from_ideal[i];
+      if (Apply(tgt_from_src, Vec2(kW / 2.0, kH / 2.0)).norm() > 1e9) continue;
+      if ((f.mosaic_from_ideal[i].col(2) - f.mosaic_from_ideal[j].col(2)).norm() > 260) continue;
+      Edge e;
+      e.src = i;
+      e.tgt = j;
+      for (int tries = 0; e.holdout_src_points.size() < 20 && tries < 20000; ++tries) {
+        const Vec2 p(ux(rng), uy(rng));
+        const Vec2 q = Apply(tgt_from_src, p);
+        // Recorded pixels must exist: the distorted positions inside the frame.
+        if (!inside(q) || !inside(lens.DistortPixel(p)) || !inside(lens.DistortPixel(q))) continue;
+        const bool kept = e.src_points.size() < 60;
+        (kept ? e.src_points : e.holdout_src_points).push_back(record(p));
+        (kept ? e.tgt_points : e.holdout_tgt_points).push_back(record(q));
+      }
+      e.num_inliers = static_cast<int>(e.src_points.size());
+      if (e.src_points.size() == 60) f.edges.push_back(std::move(e));
+    }
+  return f;
+}
+
+struct Solved {
+  std::vector<const Edge*> edges;
+  std::unordered_set<int> variable;
+  std::unordered_map<int, double> half_diagonal;
+  std::unordered_map<int, Mat3> linear;
+};
+
+Solved SolveLinear(const Flight& f) {
+  Solved s;
+  for (const auto& e : f.edges) s.edges.push_back(&e);
+  for (int i = 0; i < 20; ++i) {
+    s.linear[i] = i == 0 ? Mat3::Identity() : Translation(150.0 * (i % 5), 120.0 * (i / 5));
+    s.half_diagonal[i] = 0.5 * std::hypot(kW, kH);
+    if (i > 0) s.variable.insert(i);
+  }
+  EXPECT_TRUE(AdjustAffine(s.edges, s.variable, s.half_diagonal, AdjustOptions{}, &s.linear).ok);
+  return s;
+}
+
+PinholeCamera Ideal() { return PinholeCamera::Centred(kW, kH, kFocal, {}); }
+
+TEST(LensCalibrationTest, FindsABarrelLensFromTheFlightAlone) {
+  // k1 such that the corners are drawn 10 % of their radius inwards, as a small drone camera's.
+  PinholeCamera truth = Ideal();
+  const double r2 = truth.HalfDiagonalRadius() * truth.HalfDiagonalRadius();
+  truth.distortion.k1 = -0.1 / r2;
+  Flight f = MakeFlight(truth, 0.3, 1);
+  Solved s = SolveLinear(f);
+  const LensCalibration cal =
+      CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(), LensCalibrationOptions{}, s.linear);
+  ASSERT_TRUE(cal.tried);
+  EXPECT_TRUE(cal.accepted) << cal.why;
+  PinholeCamera found = Ideal();
+  found.distortion = cal.distortion;
+  std::printf("truth %.4f at the half-diagonal, found %.4f (k1 %.4f k2 %.4f); held-out %.3f -> %.3f px\n",
+              truth.RadialDistortionAtHalfDiagonal(), cal.distortion_at_half_diagonal, cal.distortion.k1,
+              cal.distortion.k2, cal.holdout_without_px, cal.holdout_with_px);
+  EXPECT_NEAR(cal.distortion_at_half_diagonal, -0.1, 0.01);
+  // The recovered lens makes the same ideal image as the true one, up to a scale (which every frame's map absorbs):
+  // within 0.5 px over the frame once that scale is fitted.
+  const Vec2 c(truth.cx, truth.cy);
+  double num = 0, den = 0;
+  for (int y = 0; y < kH; y += 40)
+    for (int x = 0; x < kW; x += 40) {
+      const Vec2 f_ = found.UndistortPixel(Vec2(x, y)) - c, t_ = truth.UndistortPixel(Vec2(x, y)) - c;
+      num += f_.dot(t_);
+      den += f_.squaredNorm();
+    }
+  const double scale = num / den;
+  double worst = 0;
+  for (int y = 0; y < kH; y += 40)
+    for (int x = 0; x < kW; x += 40)
+      worst = std::max(worst, (scale * (found.UndistortPixel(Vec2(x, y)) - c) -
+                               (truth.UndistortPixel(Vec2(x, y)) - c)).norm());
+  std::printf("ideal images agree within %.2f px after a scale of %.5f\n", worst, scale);
+  EXPECT_LT(worst, 0.5);
+  EXPECT_LT(cal.holdout_with_px, 0.3 * cal.holdout_without_px);
+  EXPECT_LT(cal.holdout_with_px, 0.75);  // the noise floor: 0.3 px on each coordinate of both points is 0.6 px
+
+  // The edges then move to the calibrated ideal pixels: a linear solve over them agrees with the truth's shape.
+  for (auto& e : f.edges) ReprojectEdgePoints(Ideal(), cal.distortion, &e);
+  std::unordered_map<int, Mat3> again = s.linear;
+  ASSERT_TRUE(AdjustAffine(s.edges, s.variable, s.half_diagonal, AdjustOptions{}, &again).ok);
+  EXPECT_LT(TransferErrors(s.edges, again, true).rms, 0.8);
+}
+
+TEST(LensCalibrationTest, AnIdealLensIsLeftAlone) {
+  Flight f = MakeFlight(Ideal(), 0.3, 2);
+  Solved s = SolveLinear(f);
+  const LensCalibration cal =
+      CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(), LensCalibrationOptions{}, s.linear);
+  ASSERT_TRUE(cal.tried);
+  EXPECT_FALSE(cal.accepted);
+  EXPECT_NE(cal.why.find("does not determine"), std::string::npos) << cal.why;
+  EXPECT_LT(std::abs(cal.distortion_at_half_diagonal), 0.01);
+}
+
+TEST(LensCalibrationTest, APreparedLensIsRefinedFromItsStart) {
+  // The points were made ideal with a database lens that is 40 % too weak: the calibration finds the rest.
+  PinholeCamera truth = Ideal();
+  const double r2 = truth.HalfDiagonalRadius() * truth.HalfDiagonalRadius();
+  truth.distortion.k1 = -0.1 / r2;
+  Flight f = MakeFlight(truth, 0.3, 3);
+  PinholeCamera prepared = Ideal();
+  prepared.distortion.k1 = 0.6 * truth.distortion.k1;
+  for (auto& e : f.edges)
+    for (auto* pts : {&e.src_points, &e.tgt_points, &e.holdout_src_points, &e.holdout_tgt_points})
+      for (Vec2& p : *pts) p = prepared.UndistortPixel(p);
+  Solved s = SolveLinear(f);
+  const LensCalibration cal =
+      CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, prepared, LensCalibrationOptions{},
+                    s.linear);
+  EXPECT_TRUE(cal.accepted) << cal.why;
+  EXPECT_NEAR(cal.distortion_at_half_diagonal, -0.1, 0.01);
+}
+
+TEST(LensCalibrationTest, TooFewFramesAreNotTried) {
+  Flight f = MakeFlight(Ideal(), 0.3, 4);
+  Solved s = SolveLinear(f);
+  LensCalibrationOptions o;
+  o.min_frames = 40;
+  const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(), o, s.linear);
+  EXPECT_FALSE(cal.tried);
+  EXPECT_NE(cal.why.find("too few frames"), std::string::npos);
+}
+
+TEST(LensCalibrationTest, UndistortionAndDistortionConvertBothWays) {
+  LensDistortion d;
+  d.k1 = -0.16;
+  d.k2 = 0.03;
+  const auto u = UndistortionFromDistortion(d, 0.85);
+  const LensDistortion back = DistortionFromUndistortion(u, 0.85);
+  for (double r = 0.05; r <= 0.85; r += 0.05) {
+    const double rd = d.Distort(Vec2(r, 0)).x();
+    const double rd2 = rd * rd;
+    EXPECT_NEAR(rd * (1 + rd2 * (u[0] + rd2 * (u[1] + rd2 * u[2]))), r, 2e-4) << r;  // the fit of the inverse
+    EXPECT_NEAR(back.Distort(Vec2(r, 0)).x(), rd, 2e-4) << r;
+  }
+}
+
+}  // namespace
+}  // namespace uavm
