@@ -13,6 +13,7 @@ PACKAGES=(
   jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
   clang-tidy  # scripts/lint.sh --function-size (a CI step)
   libgps-dev  # --telemetry gpsd:HOST:PORT (hal/telemetry/gpsd_source.cpp)
+  liblensfun-dev liblensfun-data-v1  # the camera database for lens distortion (core/lens/lens_database.cpp)
   # tests/gpsd_test.cpp: gpsfake starts its own gpsd on a free port; the system's (gpsd.socket, port 2947, started
   # by the package where systemd runs) is not used and not in the way.
   gpsd gpsd-clients
