@@ -37,7 +37,9 @@ Flight MakeFlight(const PinholeCamera& lens, double noise_px, unsigned seed) {
   std::uniform_real_distribution<double> ux(0, kW - 1), uy(0, kH - 1);
   std::normal_distribution<double> noise(0, noise_px);
   const auto inside = [](const Vec2& p) { return p.x() >= 0 && p.y() >= 0 && p.x() <= kW - 1 && p.y() <= kH - 1; };
-  const auto record = [&](const Vec2& ideal) -> Vec2 { return lens.DistortPixel(ideal) + Vec2(noise(rng), noise(rng)); };
+  const auto record = [&](const Vec2& ideal) -> Vec2 {
+    return lens.DistortPixel(ideal) + Vec2(noise(rng), noise(rng));
+  };
   for (int i = 0; i < 20; ++i)
     for (int j = i + 1; j < 20; ++j) {
       const Mat3 tgt_from_src = f.mosaic_from_ideal[j].inverse() * f.mosaic_from_ideal[i];
@@ -80,7 +82,9 @@ Solved SolveLinear(const Flight& f) {
   return s;
 }
 
-PinholeCamera Ideal() { return PinholeCamera::Centred(kW, kH, kFocal, {}); }
+PinholeCamera Ideal() {
+  return PinholeCamera::Centred(kW, kH, kFocal, {});
+}
 
 TEST(LensCalibrationTest, FindsABarrelLensFromTheFlightAlone) {
   // k1 such that the corners are drawn 10 % of their radius inwards, as a small drone camera's.
@@ -89,8 +93,8 @@ TEST(LensCalibrationTest, FindsABarrelLensFromTheFlightAlone) {
   truth.distortion.k1 = -0.1 / r2;
   Flight f = MakeFlight(truth, 0.3, 1);
   Solved s = SolveLinear(f);
-  const LensCalibration cal =
-      CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(), LensCalibrationOptions{}, s.linear);
+  const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(),
+                                            LensCalibrationOptions{}, s.linear);
   ASSERT_TRUE(cal.tried);
   EXPECT_TRUE(cal.accepted) << cal.why;
   PinholeCamera found = Ideal();
@@ -113,8 +117,8 @@ TEST(LensCalibrationTest, FindsABarrelLensFromTheFlightAlone) {
   double worst = 0;
   for (int y = 0; y < kH; y += 40)
     for (int x = 0; x < kW; x += 40)
-      worst = std::max(worst, (scale * (found.UndistortPixel(Vec2(x, y)) - c) -
-                               (truth.UndistortPixel(Vec2(x, y)) - c)).norm());
+      worst = std::max(
+          worst, (scale * (found.UndistortPixel(Vec2(x, y)) - c) - (truth.UndistortPixel(Vec2(x, y)) - c)).norm());
   std::printf("ideal images agree within %.2f px after a scale of %.5f\n", worst, scale);
   EXPECT_LT(worst, 0.5);
   EXPECT_LT(cal.holdout_with_px, 0.3 * cal.holdout_without_px);
@@ -130,8 +134,8 @@ TEST(LensCalibrationTest, FindsABarrelLensFromTheFlightAlone) {
 TEST(LensCalibrationTest, AnIdealLensIsLeftAlone) {
   Flight f = MakeFlight(Ideal(), 0.3, 2);
   Solved s = SolveLinear(f);
-  const LensCalibration cal =
-      CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(), LensCalibrationOptions{}, s.linear);
+  const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(),
+                                            LensCalibrationOptions{}, s.linear);
   ASSERT_TRUE(cal.tried);
   EXPECT_FALSE(cal.accepted);
   EXPECT_NE(cal.why.find("does not determine"), std::string::npos) << cal.why;
@@ -150,9 +154,8 @@ TEST(LensCalibrationTest, APreparedLensIsRefinedFromItsStart) {
     for (auto* pts : {&e.src_points, &e.tgt_points, &e.holdout_src_points, &e.holdout_tgt_points})
       for (Vec2& p : *pts) p = prepared.UndistortPixel(p);
   Solved s = SolveLinear(f);
-  const LensCalibration cal =
-      CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, prepared, LensCalibrationOptions{},
-                    s.linear);
+  const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, prepared,
+                                            LensCalibrationOptions{}, s.linear);
   EXPECT_TRUE(cal.accepted) << cal.why;
   EXPECT_NEAR(cal.distortion_at_half_diagonal, -0.1, 0.01);
 }
@@ -162,7 +165,8 @@ TEST(LensCalibrationTest, TooFewFramesAreNotTried) {
   Solved s = SolveLinear(f);
   LensCalibrationOptions o;
   o.min_frames = 40;
-  const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(), o, s.linear);
+  const LensCalibration cal =
+      CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(), o, s.linear);
   EXPECT_FALSE(cal.tried);
   EXPECT_NE(cal.why.find("too few frames"), std::string::npos);
 }

@@ -146,12 +146,13 @@ TEST(LensTest, TheDatabaseKnowsCaliterrasCamera) {
   std::vector<double> ratios;
   for (const double recorded_px : {300.0, 900.0, 1500.0, 2000.0, 2450.0}) {
     double lo = 0, hi = 2 * recorded_px;  // ptlens is increasing over the frame: bisect its inverse
-    for (int it = 0; it < 100; ++it) ((1500.0 * ptlens(0.5 * (lo + hi) / 1500.0) < recorded_px) ? lo : hi) = 0.5 * (lo + hi);
+    for (int it = 0; it < 100; ++it)
+      ((1500.0 * ptlens(0.5 * (lo + hi) / 1500.0) < recorded_px) ? lo : hi) = 0.5 * (lo + hi);
     const Vec2 ours = c.camera.UndistortPixel(Vec2(c.camera.cx + recorded_px, c.camera.cy));
     ratios.push_back((ours.x() - c.camera.cx) / lo);
   }
-  // Brown's (k1, k2) cannot follow PTLens' even powers exactly: within 1 % (measured 0.6 %; the self-calibration refines
-  // it). Normalised by the half-diagonal instead of half the shorter side, the same check is off by 15 %.
+  // Brown's (k1, k2) cannot follow PTLens' even powers exactly: within 1 % (measured 0.6 %; the self-calibration
+  // refines it). Normalised by the half-diagonal instead of half the shorter side, the same check is off by 15 %.
   for (double r : ratios) EXPECT_NEAR(r, ratios.front(), 0.01) << "shape differs from lensfun's PTLens model";
   EXPECT_LT(c.camera.RadialDistortionAtHalfDiagonal(), -0.1);
   // An unknown camera: none, and why.

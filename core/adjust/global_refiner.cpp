@@ -325,8 +325,8 @@ class RefineProblem {
     const PinholeCamera& c = lens_->prepared;
     const double hd_px = 0.5 * std::hypot(c.width, c.height);
     const double hd_rho = hd_px / c.focal_px;
-    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<LensPrior, 3, 3>(new LensPrior(
-                                  lens_->prior_weight, hd_rho * hd_rho, hd_px, lens_start_)),
+    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<LensPrior, 3, 3>(
+                                  new LensPrior(lens_->prior_weight, hd_rho * hd_rho, hd_px, lens_start_)),
                               nullptr, lens_->undistortion.data());
   }
 

@@ -51,7 +51,7 @@ struct RefineResult {
   size_t num_used = 0;       // of which the solver used (max_correspondences)
   int iterations = 0;
   double initial_rms_px = 0.0;  // transfer error, target-frame pixels
-  double final_rms_px = 0.0;  // over the final inliers (within outlier_px), or all when outlier_px = 0
+  double final_rms_px = 0.0;    // over the final inliers (within outlier_px), or all when outlier_px = 0
   double final_median_px = 0.0;
   size_t final_inliers = 0;
   double final_all_rms_px = 0.0;  // over every correspondence of the edges
@@ -65,7 +65,7 @@ struct RefineResult {
 // (u1, u2, u3) the solve estimates with the maps. The undistortion, not the distortion, is the unknown: it is
 // closed-form per point (the inverse of a Brown k1 needs the third term: 12 k1^3 rho^7 is pixels at the corners).
 struct LensRefine {
-  PinholeCamera prepared;                        // work pixels; no tangential terms
+  PinholeCamera prepared;                             // work pixels; no tangential terms
   std::array<double, 3> undistortion{0.0, 0.0, 0.0};  // in: start and prior mean; out: the estimate
   // Prior towards the start, as corner pixels (the displacement each term makes at the half-diagonal) per unit
   // weight: weak against thousands of correspondences, it keeps a flight that cannot see the lens near its start.
@@ -83,8 +83,8 @@ struct LensRefine {
 // other frames that edges touch but `variable` does not hold stay fixed. `half_diagonal` is per variable frame.
 [[nodiscard]] RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                         int anchor, const std::unordered_map<int, double>& half_diagonal,
-                                        const RefineOptions& options,
-                                        std::unordered_map<int, Mat3>* mosaic_from_frame, LensRefine* lens = nullptr);
+                                        const RefineOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame,
+                                        LensRefine* lens = nullptr);
 
 struct TransferStats {
   size_t count = 0;
@@ -95,8 +95,7 @@ struct TransferStats {
 // `holdout`: over the held-out points instead); with max_px > 0, only errors up to max_px count (inliers). With
 // `lens`, the points are first taken through its Ideal().
 [[nodiscard]] TransferStats TransferErrors(const std::vector<const Edge*>& edges,
-                                           const std::unordered_map<int, Mat3>& mosaic_from_frame,
-                                           bool holdout = false, double max_px = 0.0,
-                                           const LensRefine* lens = nullptr);
+                                           const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout = false,
+                                           double max_px = 0.0, const LensRefine* lens = nullptr);
 
 }  // namespace uavm

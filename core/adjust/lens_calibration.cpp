@@ -128,11 +128,11 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   } else {
     cal.accepted = true;
   }
-  spdlog::info("lens self-calibration {}: k1 {:.4f} k2 {:.4f} ({:+.3f} at the half-diagonal), held-out RMS {:.3f} -> "
-               "{:.3f} px over {} points, {:.1f} s{}{}",
-               cal.accepted ? "accepted" : "refused", cal.distortion.k1, cal.distortion.k2,
-               cal.distortion_at_half_diagonal, h0.rms, h1.rms, h1.count, cal.seconds, cal.why.empty() ? "" : ": ",
-               cal.why);
+  spdlog::info(
+      "lens self-calibration {}: k1 {:.4f} k2 {:.4f} ({:+.3f} at the half-diagonal), held-out RMS {:.3f} -> "
+      "{:.3f} px over {} points, {:.1f} s{}{}",
+      cal.accepted ? "accepted" : "refused", cal.distortion.k1, cal.distortion.k2, cal.distortion_at_half_diagonal,
+      h0.rms, h1.rms, h1.count, cal.seconds, cal.why.empty() ? "" : ": ", cal.why);
   return cal;
 }
 

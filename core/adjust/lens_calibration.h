@@ -13,11 +13,11 @@ namespace uavm {
 
 struct LensCalibrationOptions {
   bool enabled = true;
-  int min_frames = 6;                // fewer frames rarely see the same ground at enough different radii
-  int max_correspondences = 20000;   // a strided subset: the estimate needs spread, not every point
-  double min_holdout_gain = 0.03;    // the held-out RMS must drop by at least this share, else the lens is refused
-  double max_distortion = 0.3;       // |k1 r^2 + k2 r^4| at the half-diagonal; beyond it no camera a drone flies
-  double prior_weight = 0.05;        // LensRefine::prior_weight
+  int min_frames = 6;               // fewer frames rarely see the same ground at enough different radii
+  int max_correspondences = 20000;  // a strided subset: the estimate needs spread, not every point
+  double min_holdout_gain = 0.03;   // the held-out RMS must drop by at least this share, else the lens is refused
+  double max_distortion = 0.3;      // |k1 r^2 + k2 r^4| at the half-diagonal; beyond it no camera a drone flies
+  double prior_weight = 0.05;       // LensRefine::prior_weight
 
   [[nodiscard]] bool Check(std::string* why) const;
 };

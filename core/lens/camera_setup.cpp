@@ -22,8 +22,7 @@ double FocalFrom35mm(double focal_35mm, cv::Size size) {
 
 bool CameraOptions::Check(std::string* why) const {
   const bool finite = std::isfinite(k1) && std::isfinite(k2) && std::isfinite(p1) && std::isfinite(p2);
-  if (!finite || std::abs(k1) > 2 || std::abs(k2) > 2 || std::abs(p1) > 0.1 || std::abs(p2) > 0.1 ||
-      !(focal_px >= 0)) {
+  if (!finite || std::abs(k1) > 2 || std::abs(k2) > 2 || std::abs(p1) > 0.1 || std::abs(p2) > 0.1 || !(focal_px >= 0)) {
     if (why != nullptr) *why = "camera: |k1|, |k2| <= 2, |p1|, |p2| <= 0.1, focal_px >= 0 (0 = from EXIF)";
     return false;
   }

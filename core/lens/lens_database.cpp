@@ -76,7 +76,9 @@ bool SampleModifier(const lfLens* lens, double crop, double focal_mm, const Pinh
 
 }  // namespace
 
-bool LensDatabaseAvailable() { return Database() != nullptr; }
+bool LensDatabaseAvailable() {
+  return Database() != nullptr;
+}
 
 bool LookUpLensDistortion(const std::string& make, const std::string& model, double focal_mm,
                           const PinholeCamera& camera, LensDatabaseEntry* entry, std::string* why) {
@@ -108,7 +110,9 @@ bool LookUpLensDistortion(const std::string& make, const std::string& model, dou
 
 #else
 
-bool LensDatabaseAvailable() { return false; }
+bool LensDatabaseAvailable() {
+  return false;
+}
 
 bool LookUpLensDistortion(const std::string&, const std::string&, double, const PinholeCamera&, LensDatabaseEntry*,
                           std::string* why) {

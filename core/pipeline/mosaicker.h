@@ -90,9 +90,7 @@ class Mosaicker {
   // the live HTTP server; must not block.
   using PreviewListener =
       std::function<void(std::shared_ptr<const std::string> jpeg, std::shared_ptr<const nlohmann::json> georef)>;
-  void SetPreviewListener(PreviewListener listener) {
-    preview_listener_ = std::move(listener);
-  }
+  void SetPreviewListener(PreviewListener listener) { preview_listener_ = std::move(listener); }
   // The live tile pyramid's state after each batch of tiles (called on its worker thread) and the newest frames'
   // outlines as GeoJSON (frame loop, with each live.jpg); both must not block. No-op unless live_tiles.enabled.
   using TilesListener = std::function<void(std::shared_ptr<const TileSetInfo>)>;

@@ -541,8 +541,8 @@ Solution RegistrationEngine::Finish() {
 
 bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>& edges,
                                                  const std::unordered_set<int>& variable,
-                                                 const std::unordered_map<int, double>& half_diag,
-                                                 AdjustResult* linear, Solution* s) {
+                                                 const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
+                                                 Solution* s) {
   if (!camera_ || !options_.lens_calibration.enabled) return true;
   const int anchor = s->component.front();
   for (int id : s->component)

@@ -214,13 +214,13 @@ class RegistrationEngine {
   // the linear solve runs again on them. False when that solve fails.
   [[nodiscard]] bool CalibrateLensAndResolve(const std::vector<const Edge*>& edges,
                                              const std::unordered_set<int>& variable,
-                                             const std::unordered_map<int, double>& half_diag,
-                                             AdjustResult* linear, Solution* s);
+                                             const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
+                                             Solution* s);
 
   RegistrationOptions options_;
   std::optional<PinholeCamera> camera_;  // SetCamera()
-  FeatureProvider* features_;  // borrowed
-  EdgeSpill* spill_;           // borrowed, may be null
+  FeatureProvider* features_;            // borrowed
+  EdgeSpill* spill_;                     // borrowed, may be null
   GlobalIndex global_index_;
   MatchGraph graph_;
   Components components_;
