@@ -10,6 +10,7 @@
 
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/products.h"
+#include "core/sfm/session_import.h"
 #include "sfm_synthetic.h"
 
 namespace uavm::sfm {
@@ -76,6 +77,31 @@ TEST(SfmIo, ColmapRoundTrip) {
   ASSERT_TRUE(WriteColmapText(rec, dir.string(), &err));
   ASSERT_TRUE(ReadColmapText(dir.string(), &back, &err)) << err;
   EXPECT_NEAR(back.camera.k3, 0.01, 1e-15);
+  fs::remove_all(dir);
+}
+
+// The onboard session's camera.yaml reaches the ground tool (the start of its distortion); a session without one has
+// no lens, and a damaged one is an error that names the file.
+TEST(SfmIo, SessionCameraYaml) {
+  const fs::path dir = TempDir("session_lens");
+  std::ofstream(dir / "frames.csv")
+      << "index,filename,stored_file,width,height,registered\n0,a.jpg,000000_a.jpg,64,48,1\n";
+  std::ofstream(dir / "graph.csv") << "src,tgt,src_file,tgt_file,matches,inliers,used\n";
+  Session s;
+  std::string err;
+  ASSERT_TRUE(ReadSession(dir.string(), &s, &err)) << err;
+  EXPECT_FALSE(s.lens.has_value());
+  std::ofstream(dir / "camera.yaml") << "camera:\n  width: 64\n  height: 48\n  focal_px: 50\n  cx: 31.5\n  cy: 23.5\n"
+                                        "  k1: -0.12\n  k2: 0.01\n  p1: 0\n  p2: 0\nsource: self-calibrated\n";
+  ASSERT_TRUE(ReadSession(dir.string(), &s, &err)) << err;
+  ASSERT_TRUE(s.lens.has_value());
+  EXPECT_DOUBLE_EQ(s.lens->focal_px, 50.0);
+  EXPECT_DOUBLE_EQ(s.lens->k1, -0.12);
+  EXPECT_DOUBLE_EQ(s.lens->k2, 0.01);
+  EXPECT_EQ(s.lens->source, "self-calibrated");
+  std::ofstream(dir / "camera.yaml") << "camera: [1, 2\n";
+  EXPECT_FALSE(ReadSession(dir.string(), &s, &err));
+  EXPECT_NE(err.find("camera.yaml"), std::string::npos) << err;
   fs::remove_all(dir);
 }
 

@@ -358,13 +358,28 @@ GpsPositions ProjectGps(const std::vector<const SessionFrame*>& frames) {
 }
 
 // The reconstruction's images (keypoints, no poses yet) and the camera guessed from the first frame's EXIF.
+// The onboard program's lens (camera.yaml) as the start of the camera's distortion: its k's are normalised by its own
+// focal length, so they are rescaled to the guessed one (the same bending in pixels).
+void StartDistortionFrom(const std::optional<SessionLens>& lens, Camera* camera, nlohmann::json* js) {
+  (*js)["distortion_initial_from"] = "none";
+  if (!lens || (lens->k1 == 0 && lens->k2 == 0 && lens->p1 == 0 && lens->p2 == 0)) return;
+  const double s = camera->fx / lens->focal_px;
+  camera->k1 = lens->k1 * s * s;
+  camera->k2 = lens->k2 * s * s * s * s;
+  camera->p1 = lens->p1 * s;
+  camera->p2 = lens->p2 * s;
+  (*js)["distortion_initial_from"] = "camera.yaml (" + lens->source + ")";
+}
+
 IntrinsicsGuess InitImages(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
-                           const PipelineOptions& options, Reconstruction* rec, nlohmann::json* js) {
+                           const std::optional<SessionLens>& lens, const PipelineOptions& options, Reconstruction* rec,
+                           nlohmann::json* js) {
   *rec = Reconstruction{};
   const SessionFrame& f0 = *frames[0];
   IntrinsicsGuess guess = GuessIntrinsics(f0.width, f0.height, f0.focal_length_mm.value_or(0.0), options.camera_model,
                                           options.default_hfov_deg);
   rec->camera = guess.camera;
+  StartDistortionFrom(lens, &rec->camera, js);
   (*js)["intrinsics_source"] = guess.source;
   (*js)["focal_initial_px"] = rec->camera.fx;
   for (size_t i = 0; i < frames.size(); ++i) {
@@ -490,9 +505,9 @@ struct InitialModel {
 };
 
 bool InitialPoses(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
-                  const PipelineOptions& options, Reconstruction* rec, InitialModel* out, nlohmann::json* js,
-                  std::string* error) {
-  out->guess = InitImages(frames, feats, options, rec, js);
+                  const std::optional<SessionLens>& lens, const PipelineOptions& options, Reconstruction* rec,
+                  InitialModel* out, nlohmann::json* js, std::string* error) {
+  out->guess = InitImages(frames, feats, lens, options, rec, js);
   out->gps = ProjectGps(frames);
   if (!options.colmap_import_dir.empty()) {
     if (!PosesFromColmap(options.colmap_import_dir, rec, error)) return false;
@@ -833,7 +848,7 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
     js["track_conflicts_split"] = tstats.conflicts_refused;
     return true;
   }) && times.Run("initial_poses_s", [&] {
-    return InitialPoses(frames, feats, options, &rec, &init, &js, error);
+    return InitialPoses(frames, feats, sel.session.lens, options, &rec, &init, &js, error);
   }) && times.Run("bundle_s", [&] {
     return TriangulateAndAdjust(frames, feats, tracks, init, options, progress, &rec, &js, error);
   }) && times.Run("georef_s", [&] {

@@ -1,5 +1,8 @@
 #include "core/sfm/session_import.h"
 
+#include <yaml-cpp/yaml.h>
+
+#include <filesystem>
 #include <map>
 #include <sstream>
 
@@ -61,6 +64,34 @@ std::optional<double> OptNum(const std::map<std::string, std::string>& row, cons
 
 }  // namespace
 
+namespace {
+
+// camera.yaml when there is one (sessions before the lens have none: no lens, not an error).
+bool ReadLens(const std::string& path, std::optional<SessionLens>* lens, std::string* error) {
+  lens->reset();
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) return true;
+  try {
+    const YAML::Node root = YAML::LoadFile(path);
+    const YAML::Node c = root["camera"];
+    SessionLens l;
+    l.focal_px = c["focal_px"].as<double>();
+    l.k1 = c["k1"].as<double>(0.0);
+    l.k2 = c["k2"].as<double>(0.0);
+    l.p1 = c["p1"].as<double>(0.0);
+    l.p2 = c["p2"].as<double>(0.0);
+    l.source = root["source"].as<std::string>("");
+    if (!(l.focal_px > 0)) throw YAML::Exception(YAML::Mark::null_mark(), "focal_px must be > 0");
+    *lens = l;
+    return true;
+  } catch (const std::exception& e) {
+    *error = path + ": " + e.what();
+    return false;
+  }
+}
+
+}  // namespace
+
 bool ReadSession(const std::string& root, Session* session, std::string* error) {
   session->root = root;
   std::vector<std::map<std::string, std::string>> rows;
@@ -112,6 +143,7 @@ bool ReadSession(const std::string& root, Session* session, std::string* error) 
     e.used = r.count("used") && r.at("used") == "1";
     if (e.src >= 0 && e.tgt >= 0) session->edges.push_back(e);
   }
+  if (!ReadLens(root + "/camera.yaml", &session->lens, error)) return false;
   session->correspondences.clear();
   std::string ignored;
   if (ReadCsv(root + "/correspondences.csv", &rows, &ignored)) {

@@ -31,15 +31,25 @@ struct SessionCorrespondence {
   double x_src = 0, y_src = 0, x_tgt = 0, y_tgt = 0;
 };
 
+// The onboard program's lens (camera.yaml, README "Session directory"): where the bundle adjustment's distortion
+// starts. k's are normalised by focal_px (original pixels).
+struct SessionLens {
+  double focal_px = 0.0;
+  double k1 = 0.0, k2 = 0.0, p1 = 0.0, p2 = 0.0;
+  std::string source;  // configuration, database, self-calibrated, none
+};
+
 struct Session {
   std::string root;
+  std::optional<SessionLens> lens;   // none for sessions without camera.yaml
   std::vector<SessionFrame> frames;  // in frames.csv order
   std::vector<SessionEdge> edges;
   std::vector<SessionCorrespondence> correspondences;  // may be empty when the file is absent
   [[nodiscard]] const SessionFrame* Find(int index) const;
 };
 
-// Reads frames.csv, transforms.csv (via core/session), graph.csv and correspondences.csv of a session directory.
+// Reads frames.csv, transforms.csv (via core/session), graph.csv, correspondences.csv and camera.yaml of a session
+// directory.
 [[nodiscard]] bool ReadSession(const std::string& root, Session* session, std::string* error);
 
 // Splits a CSV line (no quoting: the session writer never quotes).
