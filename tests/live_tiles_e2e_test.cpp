@@ -125,11 +125,12 @@ TEST(LiveTilesE2ETest, GdalAndABrowserReadTheMapDuringTheFlightAndTheFinalTilesA
   ASSERT_GT(port, 0);
   const std::string base = "http://127.0.0.1:" + std::to_string(port);
   const std::string data = UAVM_TEST_DATA;
-  // ~1 s per frame: the 18-frame flight lasts long enough to read it in the middle.
+  // ~1.5 s per frame: the 18-frame flight lasts long enough to read it in the middle, also when the tile worker lags
+  // on a loaded machine (at 0.7 s per frame a CI run beside a build saw the flight end before 6 frames were drawn).
   const pid_t pid =
       test::Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + data + "/brighton_beach_small/images --out " +
                   out.string() + " --http 127.0.0.1:" + std::to_string(port) +
-                  " --http-linger 120 --process-delay-ms 700 --log-level warn");
+                  " --http-linger 120 --process-delay-ms 1200 --log-level warn");
   ASSERT_GT(pid, 0);
   httplib::Client client("127.0.0.1", port);
   client.set_connection_timeout(1, 0);

@@ -734,8 +734,9 @@ class MavlinkPeer {
     ::close(out[1]);
     stdin_ = in[1];
     stdout_ = out[0];
-    // Its first line: "T0 <unix ms>" once it sends (node starts slowly on the emulated CPU).
-    const std::string line = ReadLine(60'000);
+    // Its first line: "T0 <unix ms>" once it sends (node starts slowly on the emulated CPU: a CI run that shared the
+    // 2 cores with a build saw nothing within 60 s).
+    const std::string line = ReadLine(150'000);
     if (line.rfind("T0 ", 0) != 0) {
       *error = "the MAVLink peer did not start (" + line + "), see mavlink_peer.err";
       return false;
