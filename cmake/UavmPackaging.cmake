@@ -58,6 +58,9 @@ endif()
 if(UAVM_WITH_GPSD)  # --telemetry gpsd:HOST:PORT (hal/telemetry/gpsd_source.cpp) links libgps
   string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libgps28")
 endif()
+if(UAVM_WITH_LENSFUN)  # the camera database of core/lens/lens_database.cpp (the library and its data)
+  string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", liblensfun1, liblensfun-data-v1")
+endif()
 # The live view (firmware_app/live_server.cpp) and the Leaflet files each session's index.html uses.
 string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libcpp-httplib0.11, libjs-leaflet")
 # The conffiles dpkg keeps when the operator edited them.

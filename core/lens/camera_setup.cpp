@@ -123,18 +123,26 @@ cv::Rect RecordedRectFor(const PinholeCamera& camera, const cv::Rect& ideal) {
 
 cv::Mat UndistortPart(const PinholeCamera& camera, const cv::Mat& recorded, const cv::Point2d& recorded_origin,
                       const cv::Rect& ideal) {
-  cv::Mat map_x(ideal.height, ideal.width, CV_32FC1), map_y(ideal.height, ideal.width, CV_32FC1);
-  for (int y = 0; y < ideal.height; ++y) {
-    auto* mx = map_x.ptr<float>(y);
-    auto* my = map_y.ptr<float>(y);
-    for (int x = 0; x < ideal.width; ++x) {
-      const Vec2 d = camera.DistortPixel(Vec2(ideal.x + x, ideal.y + y));
-      mx[x] = static_cast<float>(d.x() - recorded_origin.x);
-      my[x] = static_cast<float>(d.y() - recorded_origin.y);
+  // Band by band: the coordinate maps of a whole 12 MP part would be ~24 MB beside the compositor's budgeted cache.
+  constexpr int kBandRows = 64;
+  cv::Mat out(ideal.size(), recorded.type());
+  cv::Mat map_x(std::min(kBandRows, ideal.height), ideal.width, CV_32FC1);
+  cv::Mat map_y(map_x.size(), CV_32FC1);
+  for (int y0 = 0; y0 < ideal.height; y0 += kBandRows) {
+    const int rows = std::min(kBandRows, ideal.height - y0);
+    for (int y = 0; y < rows; ++y) {
+      auto* mx = map_x.ptr<float>(y);
+      auto* my = map_y.ptr<float>(y);
+      for (int x = 0; x < ideal.width; ++x) {
+        const Vec2 d = camera.DistortPixel(Vec2(ideal.x + x, ideal.y + y0 + y));
+        mx[x] = static_cast<float>(d.x() - recorded_origin.x);
+        my[x] = static_cast<float>(d.y() - recorded_origin.y);
+      }
     }
+    cv::Mat band = out.rowRange(y0, y0 + rows);
+    cv::remap(recorded, band, map_x.rowRange(0, rows), map_y.rowRange(0, rows), cv::INTER_LINEAR,
+              cv::BORDER_REPLICATE);
   }
-  cv::Mat out;
-  cv::remap(recorded, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   return out;
 }
 

@@ -67,7 +67,13 @@ void Mosaicker::StartLiveTiles() {
   live_tiles_ = std::make_shared<LiveTiles>();
   engine_.TrackMoves(true);
   LiveTiles* lt = live_tiles_.get();
-  lt->pyramid = std::make_unique<LiveTilePyramid>(paths_.Join("live_tiles"), options_.live_tiles, LoadStoredFrame,
+  // Frames redrawn from frames/ (moved by a solve) are undistorted like the new ones (work_lens_ is set on the first
+  // frame's Prepare, before anything is drawn, and not written again).
+  auto read = [this](const std::string& path, cv::Size work_size, int decode_reduce) {
+    const cv::Mat recorded = LoadStoredFrame(path, work_size, decode_reduce);
+    return work_lens_.UndistortImage(recorded);  // the recorded image itself when the sizes differ or no lens
+  };
+  lt->pyramid = std::make_unique<LiveTilePyramid>(paths_.Join("live_tiles"), options_.live_tiles, read,
                                                   [lt](std::shared_ptr<const TileSetInfo> info) {
                                                     std::lock_guard lock(lt->listeners_mutex);
                                                     if (lt->tiles_listener) lt->tiles_listener(std::move(info));
