@@ -84,7 +84,9 @@ TEST(LensTest, AnIdealPartIsThatPartOfTheWholeIdealImage) {
       for (int x = part.x; x < part.br().x; x += 7) {
         const Vec2 d = c.DistortPixel(Vec2(x, y));
         const bool in_image = d.x() >= 0 && d.y() >= 0 && d.x() <= c.width - 1 && d.y() <= c.height - 1;
-        if (in_image) EXPECT_TRUE(need.contains(cv::Point(static_cast<int>(d.x()), static_cast<int>(d.y()))));
+        if (in_image) {
+          EXPECT_TRUE(need.contains(cv::Point(static_cast<int>(d.x()), static_cast<int>(d.y()))));
+        }
       }
     const cv::Mat ideal_part = UndistortPart(c, recorded(need), cv::Point2d(need.x, need.y), part);
     ASSERT_EQ(ideal_part.size(), part.size());
