@@ -23,9 +23,28 @@ struct Field {
   FieldPtr ptr;
 };
 
+// The lens's keys (core/lens, the engine's lens_calibration).
+std::vector<Field> LensFields(PipelineOptions& o) {
+  return {
+      {"camera", "k1", &o.camera.k1},
+      {"camera", "k2", &o.camera.k2},
+      {"camera", "p1", &o.camera.p1},
+      {"camera", "p2", &o.camera.p2},
+      {"camera", "focal_px", &o.camera.focal_px},
+      {"camera", "database", &o.camera.database},
+      {"camera", "self_calibrate", &o.lens_calibration.enabled},
+      {"lens_calibration", "min_frames", &o.lens_calibration.min_frames},
+      {"lens_calibration", "max_correspondences", &o.lens_calibration.max_correspondences},
+      {"lens_calibration", "min_holdout_gain", &o.lens_calibration.min_holdout_gain},
+      {"lens_calibration", "max_distortion", &o.lens_calibration.max_distortion},
+      {"lens_calibration", "prior_weight", &o.lens_calibration.prior_weight},
+  };
+}
+
 // One table drives loading, dumping and the unknown-key check, so they cannot disagree.
 std::vector<Field> Fields(PipelineOptions& o) {
-  return {
+  // Top-level keys first: the YAML writer starts a section at each new one.
+  std::vector<Field> fields = {
       {"", "work_long_side", &o.work_long_side},
       {"", "recent_candidates", &o.recent_candidates},
       {"", "overlap_candidates", &o.overlap_candidates},
@@ -101,18 +120,6 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"mosaic", "build_overviews", &o.mosaic.build_overviews},
       {"mosaic", "threads", &o.mosaic.threads},
       {"mosaic", "gdal_cache_mib", &o.mosaic.gdal_cache_mib},
-      {"camera", "k1", &o.camera.k1},
-      {"camera", "k2", &o.camera.k2},
-      {"camera", "p1", &o.camera.p1},
-      {"camera", "p2", &o.camera.p2},
-      {"camera", "focal_px", &o.camera.focal_px},
-      {"camera", "database", &o.camera.database},
-      {"camera", "self_calibrate", &o.lens_calibration.enabled},
-      {"lens_calibration", "min_frames", &o.lens_calibration.min_frames},
-      {"lens_calibration", "max_correspondences", &o.lens_calibration.max_correspondences},
-      {"lens_calibration", "min_holdout_gain", &o.lens_calibration.min_holdout_gain},
-      {"lens_calibration", "max_distortion", &o.lens_calibration.max_distortion},
-      {"lens_calibration", "prior_weight", &o.lens_calibration.prior_weight},
       {"radiometry", "enabled", &o.radiometry.enabled},
       {"radiometry", "vignetting", &o.radiometry.vignetting},
       {"radiometry", "thumb_long_side", &o.radiometry.thumb_long_side},
@@ -148,6 +155,8 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"telemetry", "max_gap_s", &o.telemetry.max_gap_s},
       {"telemetry", "exif_utc_offset_s", &o.telemetry.exif_utc_offset_s},
   };
+  for (Field& f : LensFields(o)) fields.push_back(std::move(f));
+  return fields;
 }
 
 bool Fail(std::string* why, const std::string& msg) {

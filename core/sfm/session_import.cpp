@@ -90,6 +90,25 @@ bool ReadLens(const std::string& path, std::optional<SessionLens>* lens, std::st
   }
 }
 
+// correspondences.csv when it can be read (optional: empty otherwise).
+std::vector<SessionCorrespondence> ReadCorrespondences(const std::string& path) {
+  std::vector<SessionCorrespondence> out;
+  std::vector<std::map<std::string, std::string>> rows;
+  std::string ignored;
+  if (!ReadCsv(path, &rows, &ignored)) return out;
+  for (const auto& r : rows) {
+    SessionCorrespondence c;
+    c.src = static_cast<int>(OptNum(r, "src").value_or(-1));
+    c.tgt = static_cast<int>(OptNum(r, "tgt").value_or(-1));
+    c.x_src = OptNum(r, "x_src").value_or(0);
+    c.y_src = OptNum(r, "y_src").value_or(0);
+    c.x_tgt = OptNum(r, "x_tgt").value_or(0);
+    c.y_tgt = OptNum(r, "y_tgt").value_or(0);
+    out.push_back(c);
+  }
+  return out;
+}
+
 }  // namespace
 
 bool ReadSession(const std::string& root, Session* session, std::string* error) {
@@ -144,20 +163,7 @@ bool ReadSession(const std::string& root, Session* session, std::string* error) 
     if (e.src >= 0 && e.tgt >= 0) session->edges.push_back(e);
   }
   if (!ReadLens(root + "/camera.yaml", &session->lens, error)) return false;
-  session->correspondences.clear();
-  std::string ignored;
-  if (ReadCsv(root + "/correspondences.csv", &rows, &ignored)) {
-    for (const auto& r : rows) {
-      SessionCorrespondence c;
-      c.src = static_cast<int>(OptNum(r, "src").value_or(-1));
-      c.tgt = static_cast<int>(OptNum(r, "tgt").value_or(-1));
-      c.x_src = OptNum(r, "x_src").value_or(0);
-      c.y_src = OptNum(r, "y_src").value_or(0);
-      c.x_tgt = OptNum(r, "x_tgt").value_or(0);
-      c.y_tgt = OptNum(r, "y_tgt").value_or(0);
-      session->correspondences.push_back(c);
-    }
-  }
+  session->correspondences = ReadCorrespondences(root + "/correspondences.csv");
   return true;
 }
 
