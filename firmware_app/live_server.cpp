@@ -24,7 +24,8 @@ thread_local bool t_overflow = false;
 // httplib's own ThreadPool queues without limit; this one holds at most `capacity` waiting connections.
 class BoundedPool : public httplib::TaskQueue {
  public:
-  BoundedPool(int threads, int capacity) : capacity_(static_cast<size_t>(capacity)) {
+  BoundedPool(int threads, int capacity, LiveServer::PoolGauge* gauge)
+      : capacity_(static_cast<size_t>(capacity)), gauge_(gauge) {
     for (int i = 0; i < threads; ++i) workers_.emplace_back([this] { Work(); });
   }
   ~BoundedPool() override { shutdown(); }
@@ -34,6 +35,7 @@ class BoundedPool : public httplib::TaskQueue {
       std::lock_guard<std::mutex> lock(mutex_);
       if (!stop_ && jobs_.size() < capacity_) {
         jobs_.push_back(std::move(fn));
+        ++gauge_->queued;
         cv_.notify_one();
         return;
       }
@@ -65,8 +67,11 @@ class BoundedPool : public httplib::TaskQueue {
         if (jobs_.empty()) return;
         fn = std::move(jobs_.front());
         jobs_.pop_front();
+        ++gauge_->working;  // before `queued` drops, so that the two never both miss this connection
+        --gauge_->queued;
       }
       fn();
+      --gauge_->working;
     }
   }
 
@@ -76,6 +81,7 @@ class BoundedPool : public httplib::TaskQueue {
   std::deque<std::function<void()>> jobs_;
   std::vector<std::thread> workers_;
   bool stop_ = false;
+  LiveServer::PoolGauge* gauge_;  // borrowed: the LiveServer outlives its httplib server and this pool
 };
 
 // The live page: Leaflet (served from Debian's libjs-leaflet) with the live picture, re-fetched when the status says a
@@ -237,9 +243,9 @@ poll();
 constexpr int kListenBacklog = 64;
 
 // The bounded pool, short timeouts, and the listening socket's descriptor once bound (-1 until then).
-std::shared_ptr<int> Configure(httplib::Server* s, const LiveServer::Options& o) {
+std::shared_ptr<int> Configure(httplib::Server* s, const LiveServer::Options& o, LiveServer::PoolGauge* gauge) {
   const int threads = o.threads, queue = o.queue;
-  s->new_task_queue = [threads, queue] { return new BoundedPool(threads, queue); };
+  s->new_task_queue = [threads, queue, gauge] { return new BoundedPool(threads, queue, gauge); };
   // Short timeouts and no long keep-alive: a slow or idle client must not hold one of the few workers.
   s->set_keep_alive_max_count(4);
   s->set_keep_alive_timeout(1);
@@ -289,7 +295,7 @@ bool ParseHostPort(const std::string& text, std::string* host, int* port) {
 bool LiveServer::Start(const Options& o, std::string* error) {
   server_ = std::make_unique<httplib::Server>();
   auto& s = *server_;
-  const auto listen_fd = Configure(&s, o);
+  const auto listen_fd = Configure(&s, o, &gauge_);
   const auto busy = [this](httplib::Response& res) {
     if (!t_overflow) return false;
     ++refused_;
@@ -385,6 +391,8 @@ nlohmann::json LiveServer::StatusJson() {
           {"jpeg_seq", seq},
           {"http_served", served_.load()},
           {"http_refused", refused_.load()},
+          {"http_working", gauge_.working.load()},
+          {"http_queued", gauge_.queued.load()},
           {"georef", georef ? *georef : nlohmann::json{{"georeferenced", false}, {"reason", "no picture yet"}}},
           {"tiles", TilesStatus(TileSnapshotNow().tiles.get())}};
 }

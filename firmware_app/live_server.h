@@ -73,12 +73,20 @@ class LiveServer {
 
   [[nodiscard]] long served() const { return served_.load(); }
   [[nodiscard]] long refused() const { return refused_.load(); }
+  // Connections a worker is serving now, and connections waiting for one (status.json; tests wait on them).
+  struct PoolGauge {
+    std::atomic<long> working{0};
+    std::atomic<long> queued{0};
+  };
+  [[nodiscard]] long working() const { return gauge_.working.load(); }
+  [[nodiscard]] long queued() const { return gauge_.queued.load(); }
 
  private:
   TileSnapshot TileSnapshotNow();
   nlohmann::json StatusJson();
   void ServeJpeg(httplib::Response& res);
 
+  PoolGauge gauge_;  // before server_: its pool's workers write here until they are joined
   std::unique_ptr<httplib::Server> server_;
   std::thread listener_;
   int port_ = 0;

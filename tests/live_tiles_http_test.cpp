@@ -26,8 +26,8 @@
 #include "core/tiles/tile_set.h"
 #include "firmware_app/live_server.h"
 #include "firmware_app/tile_routes.h"
-#include "tests/process_util.h"
 #include "tests/browser_shot.h"
+#include "tests/process_util.h"
 
 namespace uavm {
 namespace {
@@ -149,6 +149,14 @@ int RawStatus(int port, const std::string& request) {
 }
 
 // A client that sends half a request and stalls (its socket; -1 if it could not connect).
+// Polls `reached` for up to 10 s: the server's pool gauge moves when its threads get to it, later on a loaded machine.
+template <class Pred>
+bool WaitUntil(const Pred& reached) {
+  const auto deadline = Clock::now() + std::chrono::seconds(10);
+  while (!reached() && Clock::now() < deadline) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  return reached();
+}
+
 int StalledClient(int port) {
   const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
   sockaddr_in a{};
@@ -217,8 +225,8 @@ class LiveTilesHttpTest : public ::testing::Test {
     char win[256];
     std::snprintf(win, sizeof(win), "-projwin %.4f %.4f %.4f %.4f -projwin_srs EPSG:3857", ulx, uly, ulx + 512 * res,
                   uly - 512 * res);
-    const std::string log = test::CommandOutput(Env() + "gdal_translate -q -of PNG -outsize 512 512 " + win + " '" + source +
-                                          "' " + out.string() + " 2>&1");
+    const std::string log = test::CommandOutput(Env() + "gdal_translate -q -of PNG -outsize 512 512 " + win + " '" +
+                                                source + "' " + out.string() + " 2>&1");
     const cv::Mat img = cv::imread(out.string(), cv::IMREAD_UNCHANGED);
     ASSERT_FALSE(img.empty()) << name << ": " << log;
     ASSERT_EQ(img.channels(), 4) << name;
@@ -403,7 +411,7 @@ TEST_F(LiveTilesHttpTest, SlowClientsDoNotStopOthers) {
     slow.push_back(StalledClient(port_));
     ASSERT_GE(slow.back(), 0);
   }
-  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  ASSERT_TRUE(WaitUntil([&] { return server_.working() == 3; }));
   const auto t0 = Clock::now();
   int ok = 0;
   double worst_ms = 0;
@@ -440,12 +448,15 @@ TEST_F(LiveTilesHttpTest, FullPoolAnswers503) {
   std::string error;
   ASSERT_TRUE(server_.Start(o, &error)) << error;
   PublishGeo();
-  std::vector<int> stalled;  // one in the worker, one in the queue
-  for (int i = 0; i < 2; ++i) {
-    stalled.push_back(StalledClient(server_.port()));
-    ASSERT_GE(stalled.back(), 0);
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  }
+  // One in the worker, then one in the queue: each waited for, since on a loaded machine the second could otherwise
+  // arrive before the worker took the first and be the one refused.
+  std::vector<int> stalled;
+  stalled.push_back(StalledClient(server_.port()));
+  ASSERT_GE(stalled.back(), 0);
+  ASSERT_TRUE(WaitUntil([&] { return server_.working() == 1; }));
+  stalled.push_back(StalledClient(server_.port()));
+  ASSERT_GE(stalled.back(), 0);
+  ASSERT_TRUE(WaitUntil([&] { return server_.queued() == 1; }));
   httplib::Client c("127.0.0.1", server_.port());
   c.set_read_timeout(5, 0);
   const auto t = Clock::now();
