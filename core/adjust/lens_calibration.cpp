@@ -96,9 +96,8 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   // Without: the prepared lens as it is, on a second thread (the end of the flight has both cores to itself; the
   // two solves share nothing but the edges they read).
   std::unordered_map<int, Mat3> without = start;
-  auto r0_future = std::async(std::launch::async, [&] {
-    return RefineGlobal(edges, variable, anchor, half_diagonal, subset, &without);
-  });
+  auto r0_future = std::async(std::launch::async,
+                              [&] { return RefineGlobal(edges, variable, anchor, half_diagonal, subset, &without); });
   // With: the same solve, the undistortion free.
   const double max_radius = 1.05 * prepared.HalfDiagonalRadius();
   LensRefine lens;
@@ -111,6 +110,7 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   cal.used = r1.num_used;
   cal.seconds = timer.ElapsedMs() / 1000.0;
   if (!r0.ok || !r1.ok) {
+    cal.solve_failed = true;
     cal.why = "refinement failed: " + (r0.ok ? r1.failure : r0.failure);
     return cal;
   }

@@ -25,6 +25,8 @@ struct LensCalibrationOptions {
 struct LensCalibration {
   bool tried = false;
   bool accepted = false;
+  bool solve_failed = false;  // a refinement of the subset failed: the prepared lens is not verified either
+  bool dropped = false;       // set by the caller: the prepared lens was dropped (distortion zero), see SetCamera()
   std::string why;            // not tried or refused: why
   LensDistortion distortion;  // the estimate (radial only), whether accepted or not
   double distortion_at_half_diagonal = 0.0;

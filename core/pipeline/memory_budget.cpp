@@ -37,7 +37,8 @@ double FeatureSetMiB(int max_features) {
 }  // namespace
 
 double MemoryPlan::FlightMiB() const {
-  return baseline_mib + graph_mib + sift_mib + queue_mib + feature_cache_mib + relocalization_mib + live_tiles_mib;
+  return baseline_mib + graph_mib + sift_mib + queue_mib + feature_cache_mib + relocalization_mib + subpixel_mib +
+         live_tiles_mib;
 }
 
 double MemoryPlan::EndMiB() const {
@@ -64,14 +65,27 @@ double IndexMiB(int descriptors) {
   return descriptors * kBytesPerIndexedDescriptor / kMiB;
 }
 
+double GrayMiB(int work_width, int work_height) {
+  return static_cast<double>(work_width) * work_height / kMiB;
+}
+
+// SIFT's input: the working frame, or its half-size copy (features.half_size).
+cv::Size SiftInput(int work_width, int work_height, const FeatureOptions& f) {
+  if (!f.half_size || std::min(work_width, work_height) < 64) return {work_width, work_height};
+  return {(work_width + 1) / 2, (work_height + 1) / 2};
+}
+
 // The plan of a run without a budget: each cache as configured.
 MemoryPlan DescribeUnbudgeted(const PipelineOptions& o, int work_width, int work_height, MemoryPlan p,
                               double queue_mib) {
   p.queue_capacity = o.queue_capacity;
   p.queue_mib = queue_mib;
-  p.sift_bands = SiftBands(work_width, work_height, o.features);
-  p.sift_mib = SiftScaleSpaceMiB(work_width, work_height) / p.sift_bands;
+  const cv::Size sift = SiftInput(work_width, work_height, o.features);
+  p.sift_bands = SiftBands(sift.width, sift.height, o.features);
+  p.sift_mib = SiftScaleSpaceMiB(sift.width, sift.height) / p.sift_bands;
   p.feature_cache_mib = o.feature_cache_mib;
+  p.subpixel_frames = o.subpixel.enabled ? o.subpixel.cache_frames : 0;
+  p.subpixel_mib = p.subpixel_frames * GrayMiB(work_width, work_height);
   p.relocalization_descriptors = o.relocalization.max_descriptors;
   p.relocalization_mib = IndexMiB(o.relocalization.max_descriptors);
   p.refine_correspondences = o.refine.max_correspondences;
@@ -122,8 +136,15 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   // Candidates (K recent + M overlapping + relocalisation) need a dozen feature sets; the rest reloads from disk.
   p.feature_cache_mib =
       std::min<double>(o.feature_cache_mib, std::max(12.0 * FeatureSetMiB(o.features.max_features), 0.1 * budget));
-  const double sift_cap = avail - p.queue_mib - p.relocalization_mib - p.feature_cache_mib;
-  const double smallest_band = SiftScaleSpaceMiB(work_width, 2 * o.features.band_margin + 32);
+  // The sub-pixel refinement's images: the newest frames (candidates are mostly recent), at most 6 % of the budget.
+  if (o.subpixel.enabled) {
+    const int fit = static_cast<int>(0.06 * budget / GrayMiB(work_width, work_height));
+    p.subpixel_frames = std::clamp(fit, 2, o.subpixel.cache_frames);
+    p.subpixel_mib = p.subpixel_frames * GrayMiB(work_width, work_height);
+  }
+  const double sift_cap = avail - p.queue_mib - p.relocalization_mib - p.feature_cache_mib - p.subpixel_mib;
+  const cv::Size sift = SiftInput(work_width, work_height, o.features);
+  const double smallest_band = SiftScaleSpaceMiB(sift.width, 2 * o.features.band_margin + 32);
   if (sift_cap < smallest_band)
     return fail("memory_budget_mib " + std::to_string(o.memory_budget_mib) + " leaves " +
                 std::to_string(static_cast<int>(sift_cap)) + " MiB for feature detection on " +
@@ -133,10 +154,10 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   features.max_scale_space_mib = static_cast<int>(std::floor(sift_cap));
   if (o.features.max_scale_space_mib > 0)
     features.max_scale_space_mib = std::min(features.max_scale_space_mib, o.features.max_scale_space_mib);
-  p.sift_bands = SiftBands(work_width, work_height, features);
+  p.sift_bands = SiftBands(sift.width, sift.height, features);
   const int band_rows =
-      (work_height + p.sift_bands - 1) / p.sift_bands + (p.sift_bands > 1 ? 2 * features.band_margin : 0);
-  p.sift_mib = SiftScaleSpaceMiB(work_width, std::min(work_height, band_rows));
+      (sift.height + p.sift_bands - 1) / p.sift_bands + (p.sift_bands > 1 ? 2 * features.band_margin : 0);
+  p.sift_mib = SiftScaleSpaceMiB(sift.width, std::min(sift.height, band_rows));
 
   // End of flight: what the flight leaves, then the TIFF writer, the tile workers and frame pixels (the quick-look,
   // one load, the cache). The plan cannot know the frames' size (the compositor loads them at the canvas's scale):
@@ -164,6 +185,7 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   o.relocalization.max_descriptors = p.relocalization_descriptors;
   o.feature_cache_mib = static_cast<int>(std::floor(p.feature_cache_mib));
   o.features = features;
+  if (o.subpixel.enabled) o.subpixel.cache_frames = p.subpixel_frames;
   // image_cache_bytes stays the configured cap: the compositor measures what the flight left and fits its frame
   // pixels into the rest of the budget, so the plan's figure (which assumes kFlightResidueMiB) is only a forecast.
   o.mosaic = mosaic;

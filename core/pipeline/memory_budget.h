@@ -8,6 +8,7 @@ namespace uavm {
 // How a memory budget is spent. The flight and the end of the flight do not overlap in time, so each has the whole
 // budget minus what lives through both (the process itself, the match graph):
 //   flight: baseline + SIFT scale space + frames in the queue + feature cache + relocalisation index + graph
+//           + the sub-pixel refinement's grey images
 //   end:    baseline + graph + what the flight leaves + max(refinement solver, compositor: frame pixels (quick-look,
 //           one load, decoded-frame cache) + tile blenders + TIFF writer)
 // The compositor refits its frame pixels and workers to the real frame and canvas sizes (FitCompositorMemory).
@@ -24,6 +25,8 @@ struct MemoryPlan {
   double feature_cache_mib = 0;
   double relocalization_mib = 0;
   int relocalization_descriptors = 0;
+  double subpixel_mib = 0;  // grey working images kept for the sub-pixel refinement
+  int subpixel_frames = 0;
   double live_tiles_mib = 0;  // the live tile pyramid (flight and end: its worker lives until the final tiles)
   // End of flight.
   double refine_mib = 0;

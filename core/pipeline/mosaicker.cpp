@@ -83,9 +83,11 @@ Mosaicker::Mosaicker(const PipelineOptions& options, SessionPaths paths)
       store_edges_(OpenEdgeStore(&edge_store_, paths_.Join("edges.bin")) != nullptr
                        ? std::make_unique<StoreEdges>(&edge_store_)
                        : nullptr),
+      refiner_(options.subpixel),
       engine_(options, store_features_.get(), store_edges_.get()),
       preview_(options.preview_side),
       start_ns_(MonotonicNs()) {
+  if (options.subpixel.enabled) engine_.SetRefiner(&refiner_);
   resources_.FlightStart();
   StartLiveTiles();
 }
@@ -199,6 +201,13 @@ Mosaicker::Prepared Mosaicker::PrepareImages(Frame frame) const {
   return p;
 }
 
+cv::Mat Mosaicker::IdealGray(const Prepared& p) const {
+  if (!WorkLens(p.frame, p.work_gray.size()).active()) return p.work_gray;
+  cv::Mat gray;  // the features' coordinates are the undistorted image's
+  cv::cvtColor(p.work_bgr, gray, cv::COLOR_BGR2GRAY);
+  return gray;
+}
+
 bool Mosaicker::StoreFrame(int id, const Prepared& prepared, FrameState* st) {
   const Frame& frame = prepared.frame;
   std::string error;
@@ -264,6 +273,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   RegisterTiming timing;
   const std::optional<PositionHint> hint = PositionHintFor(st.metadata);
   const size_t edges_before = engine_.edges().size();
+  if (options_.subpixel.enabled) refiner_.Put(id, IdealGray(prepared));
   const FrameOutcome outcome = engine_.Register(id, feats, &timing, hint ? &*hint : nullptr);
   stats_.Add("matching", timing.matching_ms);
   stats_.Add("adjust", timing.adjust_ms);

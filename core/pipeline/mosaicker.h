@@ -59,6 +59,8 @@ class Mosaicker {
   };
   [[nodiscard]] Prepared Prepare(Frame frame) const;
   [[nodiscard]] Prepared PrepareImages(Frame frame) const;  // working copies, no features
+  // The working grey image the features' coordinates refer to (undistorted when a lens is corrected).
+  [[nodiscard]] cv::Mat IdealGray(const Prepared& p) const;
   // A frame of the journal being resumed: `frame` decoded from frames/, features read from features/ (computed again
   // only if their file is unreadable). AddFrame then registers it exactly as the interrupted run did.
   [[nodiscard]] Prepared PrepareStored(Frame frame, int id, const std::string& stored_name) const;
@@ -200,6 +202,7 @@ class Mosaicker {
   EdgeStore edge_store_;
   std::unique_ptr<StoreFeatures> store_features_;  // the engine's views of the two stores
   std::unique_ptr<StoreEdges> store_edges_;
+  SubpixelRefiner refiner_;  // before engine_, which borrows it
   RegistrationEngine engine_;
   SessionJournal journal_;
   size_t resumed_frames_ = 0;  // frames taken from the journal of an interrupted run

@@ -30,20 +30,22 @@ void Mosaicker::HandEngineTheCamera(cv::Size work_size) {
   if (engine_has_camera_ || work_lens_.camera().width != work_size.width ||
       work_lens_.camera().height != work_size.height)
     return;
-  engine_.SetCamera(work_lens_.camera());
+  engine_.SetCamera(work_lens_.camera(), lens_choice_.source == "configuration");
   engine_has_camera_ = true;
 }
 
 PinholeCamera Mosaicker::FinalCamera() const {
   PinholeCamera c = lens_choice_.camera;
-  if (solution_.lens.accepted) c.distortion = solution_.lens.distortion;
+  if (solution_.lens.accepted || solution_.lens.dropped) c.distortion = solution_.lens.distortion;
   return c;
 }
 
 bool Mosaicker::WriteCameraYaml(std::string* error) const {
   if (lens_original_size_.width <= 0) return true;  // no frame was prepared
   const PinholeCamera c = FinalCamera();
-  const std::string source = solution_.lens.accepted ? "self-calibrated" : lens_choice_.source;
+  const std::string source = solution_.lens.accepted  ? "self-calibrated"
+                             : solution_.lens.dropped ? "none (the " + lens_choice_.source + " lens was dropped)"
+                                                      : lens_choice_.source;
   char buf[1024];
   std::snprintf(buf, sizeof(buf),
                 "# The lens the session's frames were undistorted with: transforms.csv maps *undistorted* pixels,\n"
@@ -66,6 +68,7 @@ nlohmann::json Mosaicker::LensJson() const {
                       {"self_calibration",
                        {{"tried", cal.tried},
                         {"accepted", cal.accepted},
+                        {"prepared_lens_dropped", cal.dropped},
                         {"why", cal.why},
                         {"k1", cal.distortion.k1},
                         {"k2", cal.distortion.k2},

@@ -55,6 +55,14 @@ void Mosaicker::ReportRegistration(nlohmann::json* out) const {
   report["edges"] = engine_.edges().size();
   report["edges_added_at_end"] = rc.edges_added_at_end;
   report["feature_store"] = {{"disk_loads", feature_store_.disk_loads()}, {"evictions", feature_store_.evictions()}};
+  const SubpixelCounters& sc = refiner_.counters();
+  report["subpixel"] = {{"enabled", options_.subpixel.enabled},
+                        {"cache_frames", options_.subpixel.cache_frames},
+                        {"edges_refined", sc.edges_refined},
+                        {"edges_not_cached", sc.edges_not_cached},
+                        {"edges_kept_unrefined", sc.edges_kept_unrefined},
+                        {"points_refined", sc.points_refined},
+                        {"points_dropped", sc.points_dropped}};
 }
 
 // What the run took and what it gave up so that the memory budget held.

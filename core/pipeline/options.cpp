@@ -41,6 +41,16 @@ std::vector<Field> LensFields(PipelineOptions& o) {
   };
 }
 
+std::vector<Field> SubpixelFields(PipelineOptions& o) {
+  return {
+      {"subpixel", "enabled", &o.subpixel.enabled},
+      {"subpixel", "window", &o.subpixel.window},
+      {"subpixel", "cache_frames", &o.subpixel.cache_frames},
+      {"subpixel", "max_shift_px", &o.subpixel.max_shift_px},
+      {"subpixel", "min_kept_fraction", &o.subpixel.min_kept_fraction},
+  };
+}
+
 // One table drives loading, dumping and the unknown-key check, so they cannot disagree.
 std::vector<Field> Fields(PipelineOptions& o) {
   // Top-level keys first: the YAML writer starts a section at each new one.
@@ -156,6 +166,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"telemetry", "exif_utc_offset_s", &o.telemetry.exif_utc_offset_s},
   };
   for (Field& f : LensFields(o)) fields.push_back(std::move(f));
+  for (Field& f : SubpixelFields(o)) fields.push_back(std::move(f));
   return fields;
 }
 

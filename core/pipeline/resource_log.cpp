@@ -53,6 +53,8 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
             {"feature_cache_mib", mp.feature_cache_mib},
             {"relocalization_mib", mp.relocalization_mib},
             {"relocalization_descriptors", mp.relocalization_descriptors},
+            {"subpixel_mib", mp.subpixel_mib},
+            {"subpixel_frames", mp.subpixel_frames},
             {"live_tiles_mib", mp.live_tiles_mib},
             {"refine_mib", mp.refine_mib},
             {"refine_correspondences", mp.refine_correspondences},

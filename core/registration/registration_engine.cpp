@@ -48,7 +48,7 @@ bool RegistrationOptions::Check(std::string* why) const {
   if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
   if (solve_window < 0) return Fail(why, "solve_window must be >= 0 (0 = whole component)");
   return matching.Check(why) && relocalization.Check(why) && adjust.Check(why) && refine.Check(why) &&
-         lens_calibration.Check(why);
+         lens_calibration.Check(why) && subpixel.Check(why);
 }
 
 // What one frame's matching found so far: the candidates tried and the verified edges (new frame = tgt).
@@ -227,6 +227,14 @@ void RegistrationEngine::Place(int id) {
   footprints_.Set(id, cv::Rect2d(cv::boundingRect(Footprint(Map(id), f.work_size.width, f.work_size.height))));
 }
 
+Edge RegistrationEngine::MakeEdge(int src, int tgt, PairResult&& r) {
+  Edge e = EdgeFromPair(src, tgt, std::move(r));
+  if (refiner_ != nullptr)
+    (void)refiner_->RefinePair(src, tgt, e.tgt_from_src, {&e.src_points, &e.tgt_points},
+                               {&e.holdout_src_points, &e.holdout_tgt_points});  // false: kept as matched
+  return e;
+}
+
 bool RegistrationEngine::Acceptable(const PairResult& r) const {
   return r.ok && r.num_inliers >= options_.relative_inlier_fraction * best_inliers_;
 }
@@ -236,7 +244,7 @@ bool RegistrationEngine::TryJoin(int new_id, int other_id, const DescriptorIndex
   if (!other) return false;
   PairResult r = MatchPair(index, feats, *other, options_.matching);
   if (!Acceptable(r)) return false;
-  Edge e = EdgeFromPair(other_id, new_id, std::move(r));
+  Edge e = MakeEdge(other_id, new_id, std::move(r));
   // mosaic_from_work(other) should become T_new * new_from_other; the other component moves with it.
   const Mat3 fix = Map(new_id) * e.tgt_from_src * Map(other_id).inverse();
   AddEdge(std::move(e));
@@ -290,7 +298,7 @@ void RegistrationEngine::TryCandidate(int cand, Candidates* c) {
   // The motion changed (a turn, a gust): every point is asked, as without a prediction.
   if (predicted && !Acceptable(r)) r = MatchPair(*c->index, *c->feats, *other, options_.matching);
   if (!Acceptable(r)) return;
-  c->found.push_back(EdgeFromPair(cand, c->id, std::move(r)));
+  c->found.push_back(MakeEdge(cand, c->id, std::move(r)));
   if (!c->have_estimate) {
     SetMap(c->id, Map(cand) * c->found.back().tgt_from_src.inverse());
     c->have_estimate = true;
@@ -499,7 +507,7 @@ void RegistrationEngine::Densify() {
       guide.tgt_size = f.work_size;
       PairResult r = MatchPair(index, *mine, *other, options_.matching, &guide);
       if (!Acceptable(r)) continue;
-      AddEdge(EdgeFromPair(other_id, id, std::move(r)));
+      AddEdge(MakeEdge(other_id, id, std::move(r)));
       ++counters_.edges_added_at_end;
     }
   }
@@ -552,7 +560,17 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
     }
   s->lens = CalibrateLens(edges, variable, anchor, half_diag, options_.refine, *camera_, options_.lens_calibration,
                           mosaic_from_work_);
-  if (!s->lens.accepted) return true;
+  const bool has_radial = camera_->distortion.k1 != 0.0 || camera_->distortion.k2 != 0.0;
+  if (!s->lens.accepted && s->lens.solve_failed && !camera_verified_ && has_radial) {
+    // A database entry can be wrong for these frames (one calibrated on raw files, JPEGs the camera already corrected):
+    // when nothing confirms it, the recorded pixels are the safer model.
+    s->lens.dropped = true;
+    s->lens.distortion = LensDistortion{};
+    s->lens.distortion_at_half_diagonal = 0.0;
+    s->lens.why += "; the unverified prepared lens is dropped";
+    spdlog::warn("lens: {}", s->lens.why);
+  }
+  if (!s->lens.accepted && !s->lens.dropped) return true;
   // The engine owns the edges (the const view is the solve's): their points move to the calibrated ideal pixels.
   for (const Edge* e : edges) ReprojectEdgePoints(*camera_, s->lens.distortion, const_cast<Edge*>(e));
   *linear = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);

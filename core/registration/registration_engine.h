@@ -17,6 +17,7 @@
 #include "core/graph/match_graph.h"
 #include "core/matching/global_index.h"
 #include "core/matching/pair_matcher.h"
+#include "core/matching/subpixel_refiner.h"
 #include "core/util/clock.h"
 
 namespace uavm {
@@ -41,6 +42,8 @@ struct RegistrationOptions {
   RefineOptions refine;
   // Self-calibration of the lens at the end of the flight (needs SetCamera()).
   LensCalibrationOptions lens_calibration;
+  // Edges' points refined at the working resolution (SetRefiner; the product keeps the images).
+  SubpixelOptions subpixel;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -150,7 +153,15 @@ class RegistrationEngine {
                                       const PositionHint* hint = nullptr);
   // The camera the frames' features were made ideal with (work pixels; every frame of that size): what the end of
   // the flight calibrates the lens from. Without one, the lens is not calibrated.
-  void SetCamera(const PinholeCamera& work_camera) { camera_ = work_camera; }
+  // `verified`: the lens is the operator's (configured); a database lens is not, and is dropped (the recorded pixels
+  // used) when the end of the flight cannot solve with it and its self-calibration.
+  void SetCamera(const PinholeCamera& work_camera, bool verified) {
+    camera_ = work_camera;
+    camera_verified_ = verified;
+  }
+  // Refines every new edge's points at the working resolution where it holds both frames' images (borrowed, may be
+  // null; must outlive the engine).
+  void SetRefiner(SubpixelRefiner* refiner) { refiner_ = refiner; }
   // Frame `id` will not be registered (e.g. it could not be stored); `why` ends in the report.
   void SetFailure(int id, std::string why);
   // Final solve of the largest component; the features are not needed afterwards.
@@ -196,6 +207,8 @@ class RegistrationEngine {
   void FullSolve(int root);
   void Densify();
   [[nodiscard]] bool Acceptable(const PairResult& r) const;
+  // The edge of a verified pair, its points refined when the refiner can.
+  [[nodiscard]] Edge MakeEdge(int src, int tgt, PairResult&& r);
   void TryCandidate(int cand, Candidates* c);
   // Map(id) if the flight keeps the motion between its two previous frames; empty when they are not both placed.
   [[nodiscard]] std::optional<Mat3> PredictFromMotion(int id);
@@ -219,8 +232,10 @@ class RegistrationEngine {
 
   RegistrationOptions options_;
   std::optional<PinholeCamera> camera_;  // SetCamera()
-  FeatureProvider* features_;            // borrowed
-  EdgeSpill* spill_;                     // borrowed, may be null
+  bool camera_verified_ = false;
+  FeatureProvider* features_;           // borrowed
+  SubpixelRefiner* refiner_ = nullptr;  // borrowed, may be null
+  EdgeSpill* spill_;                    // borrowed, may be null
   GlobalIndex global_index_;
   MatchGraph graph_;
   Components components_;
