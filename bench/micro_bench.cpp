@@ -13,9 +13,9 @@
 #include <vector>
 
 #include "core/estimators/affine.h"
-#include "core/imageio/jpeg_region.h"
 #include "core/estimators/ransac.h"
 #include "core/features/sift.h"
+#include "core/imageio/jpeg_region.h"
 #include "core/matching/pair_matcher.h"
 
 namespace {

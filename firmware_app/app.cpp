@@ -287,8 +287,9 @@ class FlightStatus {
         [this](std::shared_ptr<const std::string> jpeg, std::shared_ptr<const nlohmann::json> georef) {
           live_.PublishJpeg(std::move(jpeg), std::move(georef));
         });
-    mosaicker->SetTilesListeners([this](std::shared_ptr<const TileSetInfo> t) { live_.PublishTiles(std::move(t)); },
-                                 [this](std::shared_ptr<const std::string> g) { live_.PublishFootprints(std::move(g)); });
+    mosaicker->SetTilesListeners(
+        [this](std::shared_ptr<const TileSetInfo> t) { live_.PublishTiles(std::move(t)); },
+        [this](std::shared_ptr<const std::string> g) { live_.PublishFootprints(std::move(g)); });
     tiles_source_ = mosaicker;
     run_start_ns_ = MonotonicNs();  // the run's uptime starts with the server up
     return kExitOk;

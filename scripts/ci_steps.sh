@@ -74,6 +74,7 @@ ci_tier() {
   step "sysroot" sysroot_quiet
   step "vm kernel" vm_kernel
   step "native build" bash "$ROOT/scripts/build.sh"
+  step "format" bash "$ROOT/scripts/lint.sh" --check
   step "function size" bash "$ROOT/scripts/lint.sh" --function-size
   step "native suite" native_suite
   step "fuzzing" bash "$ROOT/scripts/fuzz.sh" --runs 20000

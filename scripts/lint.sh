@@ -104,7 +104,7 @@ function_size() {
 case "${1:-}" in
   --check)
     clang-format --dry-run --Werror "${FILES[@]}"
-    exit 0
+    exit $?
     ;;
   --function-size)
     function_size

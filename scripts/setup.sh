@@ -11,7 +11,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcpp-httplib-dev libjs-leaflet chromium python3-gdal curl
   jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
-  clang-tidy  # scripts/lint.sh --function-size (a CI step)
+  clang-tidy clang-format  # scripts/lint.sh --function-size and --check (CI steps)
   libgps-dev  # --telemetry gpsd:HOST:PORT (hal/telemetry/gpsd_source.cpp)
   liblensfun-dev liblensfun-data-v1  # the camera database for lens distortion (core/lens/lens_database.cpp)
   # tests/gpsd_test.cpp: gpsfake starts its own gpsd on a free port; the system's (gpsd.socket, port 2947, started

@@ -28,7 +28,9 @@ Edge RandomEdge(int src, int tgt, size_t n, size_t n_holdout, std::mt19937* rng)
   return e;
 }
 
-fs::path TempDir() { return fs::temp_directory_path() / ("uavm_edges_" + std::to_string(::getpid())); }
+fs::path TempDir() {
+  return fs::temp_directory_path() / ("uavm_edges_" + std::to_string(::getpid()));
+}
 
 // Removed when the test process exits (ctest runs every test in a process of its own), so runs leave no files.
 struct RemoveTempDirAtExit {

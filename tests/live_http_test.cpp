@@ -23,8 +23,8 @@
 #include <thread>
 
 #include "tests/browser_shot.h"
-#include "tests/test_env.h"
 #include "tests/process_util.h"
+#include "tests/test_env.h"
 #include "tests/test_net.h"
 
 namespace uavm {
@@ -121,9 +121,10 @@ TEST(LiveHttpTest, StatusJpegAndLivePageDuringARun) {
   // Under emulation the first 8 frames (each takes longer there).
   const test::FlightForTest flight(kData + "/brighton_beach_small/images", 8, out.string() + "_in");
   // ~2.4 s per frame: the run lasts long enough to look at it.
-  const pid_t pid = test::Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + flight.string() + " --out " +
-                          out.string() + " --http 127.0.0.1:" + std::to_string(port) +
-                          " --process-delay-ms 1500 --preview-every 1 --log-level warn" + test::EmulationArgsString());
+  const pid_t pid =
+      test::Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + flight.string() + " --out " + out.string() +
+                  " --http 127.0.0.1:" + std::to_string(port) +
+                  " --process-delay-ms 1500 --preview-every 1 --log-level warn" + test::EmulationArgsString());
   ASSERT_GT(pid, 0);
   httplib::Client client("127.0.0.1", port);
   client.set_connection_timeout(1, 0);

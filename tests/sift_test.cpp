@@ -79,7 +79,8 @@ TEST(SiftTest, BandedDetectionAgreesWithTheWholeImage) {
 
 // Half-size detection maps its keypoints back to the working copy's pixel-centre convention: keypoints it shares with a
 // full-resolution detection (nearest within 1 px) sit at the same place, without an offset (a wrong centre mapping,
-// 2p instead of 2p + 0.5, shows as a 0.5 px median, and so does taking an odd side's ratio as 2); it still finds plenty.
+// 2p instead of 2p + 0.5, shows as a 0.5 px median, and so does taking an odd side's ratio as 2); it still finds
+// plenty.
 TEST(SiftTest, HalfSizePositionsAgreeWithFullResolution) {
   // An odd number of rows (1000 x 751, or 500 x 375 under emulation): the half-size copy is not exactly half.
   cv::Mat gray = WorkingGray(static_cast<int>(1000 * test::EmulationImageScale()));

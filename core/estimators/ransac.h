@@ -18,8 +18,10 @@ struct RansacOptions {
 
   [[nodiscard]] bool Check(std::string* why) const {
     const char* problem = nullptr;
-    if (!(max_error > 0)) problem = "ransac.max_error must be > 0";
-    else if (!(confidence > 0 && confidence < 1)) problem = "ransac.confidence must be in (0,1)";
+    if (!(max_error > 0))
+      problem = "ransac.max_error must be > 0";
+    else if (!(confidence > 0 && confidence < 1))
+      problem = "ransac.confidence must be in (0,1)";
     else if (min_iterations < 1 || max_iterations < min_iterations)
       problem = "ransac iterations: need 1 <= min_iterations <= max_iterations";
     if (problem && why) *why = problem;

@@ -13,8 +13,8 @@
 #include <unordered_set>
 
 #include "core/mosaic/gdal_writer.h"
-#include "core/pipeline/mosaicker.h"
 #include "core/pipeline/canvas_load.h"
+#include "core/pipeline/mosaicker.h"
 #include "core/util/clock.h"
 #include "core/util/memory.h"
 

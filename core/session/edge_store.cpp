@@ -53,7 +53,9 @@ void FreeVector(std::vector<T>* v) {
 
 }  // namespace
 
-EdgeStore::~EdgeStore() { Close(); }
+EdgeStore::~EdgeStore() {
+  Close();
+}
 
 bool EdgeStore::Open(const std::string& path, std::string* error) {
   Close();
@@ -93,8 +95,9 @@ bool EdgeStore::Append(Edge* edge, std::string* error) {
     return false;
   }
   const long offset = std::ftell(file_);
-  const bool ok = offset >= 0 && std::fwrite(&h, sizeof(h), 1, file_) == 1 &&
-                  (payload.empty() || std::fwrite(payload.data(), sizeof(float), payload.size(), file_) == payload.size());
+  const bool ok =
+      offset >= 0 && std::fwrite(&h, sizeof(h), 1, file_) == 1 &&
+      (payload.empty() || std::fwrite(payload.data(), sizeof(float), payload.size(), file_) == payload.size());
   if (!ok || std::fflush(file_) != 0) {
     *error = "write failed (disk full?): " + path_;
     return false;
@@ -111,8 +114,9 @@ bool EdgeStore::Load(Edge* edge, std::string* error) {
     return false;
   }
   RecordHeader h{};
-  if (std::fseek(file_, static_cast<long>(edge->stored_at), SEEK_SET) != 0 || std::fread(&h, sizeof(h), 1, file_) != 1 ||
-      h.magic != kMagic || h.src != edge->src || h.tgt != edge->tgt || h.n > kMaxPoints || h.n_holdout > kMaxPoints) {
+  if (std::fseek(file_, static_cast<long>(edge->stored_at), SEEK_SET) != 0 ||
+      std::fread(&h, sizeof(h), 1, file_) != 1 || h.magic != kMagic || h.src != edge->src || h.tgt != edge->tgt ||
+      h.n > kMaxPoints || h.n_holdout > kMaxPoints) {
     *error = "edges.bin: bad record at " + std::to_string(edge->stored_at);
     return false;
   }

@@ -1,8 +1,8 @@
 #pragma once
 #include <cstdio>
 #include <optional>
-#include <string_view>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/geometry/transform.h"
@@ -44,8 +44,7 @@ class AtomicFileWriter {
   bool failed_ = false;
 };
 
-inline constexpr const char* kTransformsHeader =
-    "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21,placed_by";
+inline constexpr const char* kTransformsHeader = "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21,placed_by";
 // Sessions written before the placed_by column (every registered frame was placed by images); still read.
 inline constexpr const char* kTransformsHeaderV1 = "index,filename,registered,a00,a01,a02,a10,a11,a12,h20,h21";
 

@@ -1,18 +1,15 @@
 #include "core/util/memory.h"
 
 #include <malloc.h>
-
+#include <spdlog/sinks/base_sink.h>
+#include <spdlog/spdlog.h>
 #include <sys/resource.h>
 #include <unistd.h>
 
-#include <cstdio>
-
 #include <atomic>
+#include <cstdio>
 #include <filesystem>
 #include <memory>
-
-#include <spdlog/sinks/base_sink.h>
-#include <spdlog/spdlog.h>
 
 namespace uavm {
 
@@ -66,7 +63,9 @@ HeapStats CurrentHeapStats() {
   return h;
 }
 
-void TrimHeap() { malloc_trim(0); }
+void TrimHeap() {
+  malloc_trim(0);
+}
 
 namespace {
 std::atomic<size_t> g_log_warnings{0};
@@ -85,14 +84,18 @@ class CountingSink final : public spdlog::sinks::base_sink<spdlog::details::null
 int OpenFileDescriptors() {
   std::error_code ec;
   int n = 0;
-  for (auto it = std::filesystem::directory_iterator("/proc/self/fd", ec); !ec && it != std::filesystem::directory_iterator();
-       it.increment(ec))
+  for (auto it = std::filesystem::directory_iterator("/proc/self/fd", ec);
+       !ec && it != std::filesystem::directory_iterator(); it.increment(ec))
     ++n;
   return ec ? -1 : n - 1;  // minus the directory iterator's own descriptor
 }
 
-size_t LogWarnings() { return g_log_warnings.load(); }
-size_t LogErrors() { return g_log_errors.load(); }
+size_t LogWarnings() {
+  return g_log_warnings.load();
+}
+size_t LogErrors() {
+  return g_log_errors.load();
+}
 
 void CountLogWarnings() {
   auto logger = spdlog::default_logger();

@@ -1,7 +1,5 @@
 #include "hal/replay/replay_source.h"
 
-#include <opencv2/videoio/registry.hpp>
-
 #include <jpeglib.h>
 
 #include <algorithm>
@@ -11,6 +9,7 @@
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/videoio/registry.hpp>
 #include <string_view>
 
 #include "core/imageio/jpeg_region.h"
