@@ -58,7 +58,7 @@ class SubpixelRefiner {
 
  private:
   [[nodiscard]] const cv::Mat* Find(int id) const;
-  // Tracks `from` (target coordinates of the warped source) starting at `to`; ok[i] says whether to[i] was refined.
+  // Tracks each src_pts[i], warped into the target, from tgt_pts[i]; ok[i] says whether tgt_pts[i] was refined.
   void Track(const cv::Mat& src, const cv::Mat& tgt, const Mat3& tgt_from_src, const std::vector<Vec2>& src_pts,
              std::vector<Vec2>* tgt_pts, std::vector<unsigned char>* ok) const;
 
