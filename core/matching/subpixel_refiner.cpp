@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
@@ -79,10 +80,23 @@ void SubpixelRefiner::Track(const cv::Mat& src, const cv::Mat& tgt, const Mat3& 
   cv::calcOpticalFlowPyrLK(warped, tgt(roi), from, to, status, err, cv::Size(options_.window, options_.window), 1,
                            cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01),
                            cv::OPTFLOW_USE_INITIAL_FLOW);
+  // A wrong match can settle in a local minimum near where it started: its patches still differ. Tracks whose mean
+  // difference is well above the pair's typical one are failures too.
+  std::vector<float> tracked_err;
+  for (size_t i = 0; i < err.size(); ++i)
+    if (status[i] != 0 && std::isfinite(err[i])) tracked_err.push_back(err[i]);
+  float max_err = std::numeric_limits<float>::infinity();
+  if (!tracked_err.empty()) {
+    auto mid = tracked_err.begin() + static_cast<std::ptrdiff_t>(tracked_err.size() / 2);
+    std::nth_element(tracked_err.begin(), mid, tracked_err.end());
+    max_err = 3.0f * *mid + 2.0f;
+  }
   const double max_shift2 = options_.max_shift_px * options_.max_shift_px;
   for (size_t i = 0; i < to.size(); ++i) {
     const double dx = to[i].x - start[i].x, dy = to[i].y - start[i].y;
-    if (status[i] == 0 || !std::isfinite(dx) || !std::isfinite(dy) || dx * dx + dy * dy > max_shift2) continue;
+    if (status[i] == 0 || !(err[i] <= max_err) || !std::isfinite(dx) || !std::isfinite(dy) ||
+        dx * dx + dy * dy > max_shift2)
+      continue;
     (*ok)[i] = 1;
     (*tgt_pts)[i] = Vec2(static_cast<double>(to[i].x) + roi.x, static_cast<double>(to[i].y) + roi.y);
   }
