@@ -33,6 +33,10 @@ bool BundleOptions::Check(std::string* why) const {
     *why = "bundle: loss_scale_px must be > 0";
     return false;
   }
+  if (!(control_sigma_m > 0.0) || !(control_click_px > 0.0)) {
+    *why = "bundle: control_sigma_m and control_click_px must be > 0";
+    return false;
+  }
   if (max_iterations < 1 || threads < 1) {
     *why = "bundle: max_iterations and threads must be >= 1";
     return false;
@@ -46,7 +50,7 @@ namespace {
 constexpr int kIntrinsics = 8;
 
 struct ReprojectionCost {
-  ReprojectionCost(double x, double y) : x(x), y(y) {}
+  ReprojectionCost(double x, double y, double weight = 1.0) : x(x), y(y), weight(weight) {}
   template <typename T>
   bool operator()(const T* const intr, const T* const rot, const T* const centre, const T* const point,
                   T* residual) const {
@@ -58,11 +62,11 @@ struct ReprojectionCost {
     const T radial = T(1) + r2 * (intr[3] + r2 * (intr[4] + r2 * intr[7]));
     const T xd = xn * radial + T(2) * intr[5] * xn * yn + intr[6] * (r2 + T(2) * xn * xn);
     const T yd = yn * radial + intr[5] * (r2 + T(2) * yn * yn) + T(2) * intr[6] * xn * yn;
-    residual[0] = intr[0] * xd + intr[1] - T(x);
-    residual[1] = intr[0] * yd + intr[2] - T(y);
+    residual[0] = (intr[0] * xd + intr[1] - T(x)) * T(weight);
+    residual[1] = (intr[0] * yd + intr[2] - T(y)) * T(weight);
     return true;
   }
-  double x, y;
+  double x, y, weight;
 };
 
 struct FocalPrior {
@@ -87,6 +91,30 @@ struct CentrePrior {
   Eigen::Vector3d c;
   double sxy, sz;
 };
+
+// Each control point's 3-D block, its clicks and its surveyed position; returns how many entered.
+int AddControl(const BundleOptions& options, double* intr, std::vector<std::array<double, 3>>& rot,
+               std::vector<std::array<double, 3>>& centre, std::vector<Eigen::Vector3d>* blocks,
+               ceres::Problem* problem) {
+  blocks->clear();
+  for (const auto& cp : options.control) blocks->push_back(cp.world);
+  int n = 0;
+  for (size_t k = 0; k < options.control.size(); ++k) {
+    const auto& cp = options.control[k];
+    double* X = (*blocks)[k].data();
+    for (const auto& [image, pixel] : cp.observations) {
+      const auto i = static_cast<size_t>(image);
+      problem->AddResidualBlock(new ceres::AutoDiffCostFunction<ReprojectionCost, 2, kIntrinsics, 3, 3, 3>(
+                                    new ReprojectionCost(pixel.x(), pixel.y(), 1.0 / options.control_click_px)),
+                                nullptr, intr, rot[i].data(), centre[i].data(), X);
+    }
+    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<CentrePrior, 3, 3>(
+                                  new CentrePrior(cp.world, options.control_sigma_m, options.control_sigma_m)),
+                              nullptr, X);
+    ++n;
+  }
+  return n;
+}
 
 }  // namespace
 
@@ -132,7 +160,10 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
                              nullptr, centre[i].data());
     ++n_priors;
   }
-  // Gauge: the priors, or one image and one coordinate of another.
+  std::vector<Eigen::Vector3d> control_blocks;
+  const int n_control = AddControl(options, intr, rot, centre, &control_blocks, &problem);
+  if (n_control >= 3) n_priors = std::max(n_priors, 3);  // the control points fix the gauge
+  // Gauge: the priors (or control points), or one image and one coordinate of another.
   int fixed = options.fixed_image;
   if (fixed < 0 || fixed >= static_cast<int>(n_images) || !used[static_cast<size_t>(fixed)]) {
     fixed = -1;
@@ -163,6 +194,7 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
     problem.SetManifold(centre[static_cast<size_t>(scale)].data(), new ceres::SubsetManifold(3, {axis}));
   }
   std::vector<int> held;
+  held.reserve(kIntrinsics);  // (also keeps GCC 12's -Wstringop-overflow from a false positive on the inserts)
   if (!options.refine_focal) held.push_back(0);
   if (!options.refine_principal_point) held.insert(held.end(), {1, 2});
   if (!options.refine_radial) held.insert(held.end(), {3, 4});
@@ -206,6 +238,7 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
     rec->images[i].pose.R = R;
     rec->images[i].pose.c = Eigen::Vector3d(centre[i][0], centre[i][1], centre[i][2]);
   }
+  summary->control_adjusted = control_blocks;
   summary->rms_after_px = rec->ReprojectionRms();
   summary->iterations = static_cast<int>(s.iterations.size());
   summary->seconds = s.total_time_in_seconds;

@@ -31,6 +31,15 @@ struct BundleOptions {
   std::vector<std::optional<Eigen::Vector3d>> centre_priors;
   double prior_sigma_xy_m = 2.0;
   double prior_sigma_z_m = 1.0;
+  // Ground control points, in the frame of the centres: each is a 3-D point of the adjustment tied to its surveyed
+  // position (sigma control_sigma_m per axis) and to its clicks (sigma control_click_px). Three or more fix the gauge.
+  struct Control {
+    Eigen::Vector3d world = Eigen::Vector3d::Zero();
+    std::vector<std::pair<int, Eigen::Vector2d>> observations;  // image, pixel
+  };
+  std::vector<Control> control;
+  double control_sigma_m = 0.03;
+  double control_click_px = 1.0;
   [[nodiscard]] bool Check(std::string* why) const;
 };
 
@@ -40,7 +49,8 @@ struct BundleSummary {
   int iterations = 0;
   double seconds = 0.0;
   bool converged = false;
-  std::string report;  // Ceres' one-line report
+  std::string report;                             // Ceres' one-line report
+  std::vector<Eigen::Vector3d> control_adjusted;  // per BundleOptions::control, its adjusted 3-D point
 };
 
 // Adjusts poses, points and the shared intrinsics in place (Ceres, Schur solver).

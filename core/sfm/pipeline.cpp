@@ -7,7 +7,9 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/flann.hpp>
@@ -37,6 +39,8 @@ bool PipelineOptions::Check(std::string* why) const {
   if (round_reprojection_px.empty()) return fail("round_reprojection_px needs at least one round");
   if (!(dense_image_scale > 0.0 && dense_image_scale <= 1.0)) return fail("dense_image_scale must be in (0,1]");
   if (dense_sample_step < 1 || fusion_min_pairs < 1) return fail("dense_sample_step, fusion_min_pairs >= 1");
+  if (!checkpoints.empty() && gcp_file.empty()) return fail("--checkpoints needs --gcp");
+  if (!gcp_file.empty() && !control.Check(why)) return false;
   return true;
 }
 
@@ -712,10 +716,18 @@ void Georeference(const GpsPositions& gps, Reconstruction* rec, nlohmann::json* 
                      {"z_reference", "relative altitude (take-off = 0) when in EXIF, else GPS altitude"}};
 }
 
-void SetCrs(const InitialModel& init, PipelineResult* result) {
+void SetCrs(const InitialModel& init, const GcpInput* gcp, PipelineResult* result) {
   auto& js = result->summary;
   result->offset = init.gps.origin;
-  if (init.gps.projected) {
+  if (gcp != nullptr) {
+    result->offset = gcp->offset;
+    result->crs_wkt = gcp->crs.wkt();
+    result->epsg = gcp->crs.epsg();
+    js["crs"] = gcp->crs.name();
+    js["crs_source"] =
+        gcp->crs.converted_from_geographic() ? "GCP file (geographic, projected to its UTM zone)" : "GCP file";
+    js["z_reference"] = "the GCPs' heights";
+  } else if (init.gps.projected) {
     result->crs_wkt = init.gps.crs_wkt;
     result->epsg = init.gps.epsg;
     js["crs"] = "EPSG:" + std::to_string(init.gps.epsg);
@@ -817,6 +829,38 @@ void FuseAndRasterize(const DenseCloud& dense, const PipelineOptions& options, P
   result->dense = fused.empty() ? sparse_cloud : std::move(fused);
 }
 
+// 7b. Ground control points: the georeferenced model moved onto the GCPs, adjusted with them, every point measured.
+bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialModel& init, GcpInput* gcp,
+                  const PipelineOptions& options, Reconstruction* rec, nlohmann::json* js, std::string* error) {
+  BundlePriors priors = MakeBundlePriors(frames, init, options, js);
+  ControlReport report;
+  const auto& cps = gcp->binding.points;
+  if (!AlignToControl(cps, options.control, rec, &priors.centres, &report, error)) return false;
+  BundleOptions bo;
+  bo.threads = options.threads;
+  bo.focal_prior_sigma = priors.focal_sigma;
+  bo.centre_priors = priors.centres;
+  bo.refine_k3 = options.refine_k3;
+  bo.control = ControlConstraints(cps);
+  bo.control_sigma_m = options.control.sigma_m;
+  bo.control_click_px = options.control.click_px;
+  BundleSummary bs;
+  if (!BundleAdjust(rec, bo, &bs, error)) return false;
+  MeasureControl(*rec, cps, &report);
+  nlohmann::json j = report.ToJson();
+  j["file"] = options.gcp_file;
+  j["crs"] = gcp->crs.name();
+  j["clicks_in_unused_frames"] = gcp->binding.clicks_skipped;
+  for (const auto& w : gcp->binding.warnings) j["warnings"].push_back(w);
+  j["ba_rms_px"] = bs.rms_after_px;
+  j["sigma_m"] = options.control.sigma_m;
+  j["click_sigma_px"] = options.control.click_px;
+  (*js)["gcp"] = j;
+  (*js)["ba_rms_after_px"] = rec->ReprojectionRms();
+  for (const auto& w : report.warnings) std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
+  return true;
+}
+
 }  // namespace
 
 // The stages in order; each reads the earlier ones' outputs and adds its figures to the summary.
@@ -833,9 +877,14 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
   InitialModel init;
   Reconstruction& rec = result->rec;
   DenseCloud dense;
+  std::unique_ptr<GcpInput> gcp;
   const auto& frames = sel.frames;
   const bool ok = times.Run("import_s", [&] {
-    return SelectFrames(session_dir, &sel, error);
+    if (!SelectFrames(session_dir, &sel, error)) return false;
+    if (options.gcp_file.empty()) return true;
+    gcp = std::make_unique<GcpInput>();  // read and checked before the long stages
+    return LoadGcpInput(options.gcp_file, options.checkpoints, sel.session, frames, options.gcp_max_distance_km,
+                        gcp.get(), &js, error);
   }) && times.Run("features_s", [&] {
     return ExtractFeatures(session_dir, frames, options, progress, &feats, &js, error);
   }) && times.Run("matching_s", [&] {
@@ -853,8 +902,10 @@ bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
     return TriangulateAndAdjust(frames, feats, tracks, init, options, progress, &rec, &js, error);
   }) && times.Run("georef_s", [&] {
     Georeference(init.gps, &rec, &js);
-    SetCrs(init, result);
+    SetCrs(init, gcp.get(), result);
     return true;
+  }) && times.Run("gcp_s", [&] {
+    return !gcp || AdjustToGcps(frames, init, gcp.get(), options, &rec, &js, error);
   }) && times.Run("dense_s", [&] {
     return DenseStage(session_dir, frames, rec, options, progress, &dense, &js, error);
   }) && times.Run("fusion_dsm_s", [&] {

@@ -5,6 +5,8 @@
 #include <vector>
 
 #include "core/sfm/bundle_adjuster.h"
+#include "core/sfm/control_points.h"
+#include "core/sfm/gcp_stage.h"
 #include "core/sfm/products.h"
 #include "core/sfm/reconstruction.h"
 #include "core/sfm/session_import.h"
@@ -44,6 +46,11 @@ struct PipelineOptions {
   int fusion_min_pairs = 2;             // a DSM cell's points are kept when at least this many pairs agree there
   double dsm_cell_m = 0.0;              // 0 = automatic from the dense sampling
   double fusion_tolerance_cells = 2.0;  // agreement with the cell median, in cell sizes
+  // Ground control points (core/sfm/gcp.h): non-empty = gcp_list.txt; the outputs are then in its CRS.
+  std::string gcp_file;
+  std::vector<std::string> checkpoints;  // GCP names kept out of the adjustment, reported as checks
+  ControlOptions control;
+  double gcp_max_distance_km = 5.0;  // GCPs farther than this beyond the flight's GPS positions: wrong CRS
   [[nodiscard]] bool Check(std::string* why) const;
 };
 

@@ -1,0 +1,83 @@
+#include "core/sfm/gcp_stage.h"
+
+#include <cmath>
+#include <cstdio>
+
+namespace uavm::sfm {
+
+namespace {
+
+std::string Basename(const std::string& p) {
+  const size_t s = p.find_last_of('/');
+  return s == std::string::npos ? p : p.substr(s + 1);
+}
+
+std::vector<ImageInfo> SessionImages(const Session& session, const std::vector<const SessionFrame*>& used) {
+  std::vector<ImageInfo> out;
+  for (const auto& f : session.frames) {
+    int slot = -1;
+    for (size_t i = 0; i < used.size(); ++i) {
+      if (used[i] == &f) slot = static_cast<int>(i);
+    }
+    out.push_back({Basename(f.filename), f.width, f.height, slot});
+  }
+  return out;
+}
+
+// The flight's GPS positions in the GCP CRS against the GCPs: kilometres apart means a wrong CRS.
+bool CheckNearFlight(const GcpCrs& crs, const std::vector<Eigen::Vector3d>& world, const Session& session,
+                     double max_distance_km, nlohmann::json* js, std::string* error) {
+  Eigen::Vector2d cam = Eigen::Vector2d::Zero();
+  int n = 0;
+  std::vector<Eigen::Vector2d> xy;
+  for (const auto& f : session.frames) {
+    if (!f.latitude_deg || !f.longitude_deg) continue;
+    if (const auto p = crs.FromLatLon(*f.latitude_deg, *f.longitude_deg)) {
+      xy.push_back(*p);
+      cam += *p;
+      ++n;
+    }
+  }
+  if (n == 0) return true;
+  cam /= n;
+  double extent = 0.0;
+  for (const auto& p : xy) extent = std::max(extent, (p - cam).norm());
+  Eigen::Vector2d gcp = Eigen::Vector2d::Zero();
+  for (const auto& w : world) gcp += w.head<2>();
+  gcp /= static_cast<double>(world.size());
+  const double d = (gcp - cam).norm();
+  (*js)["gcp_distance_to_flight_m"] = d;
+  if (d > extent + max_distance_km * 1000.0) {
+    char m[512];
+    std::snprintf(m, sizeof m,
+                  "the GCPs lie %.1f km from the flight's GPS positions: is the CRS on the GCP file's first line "
+                  "(%s) right, and x = easting/longitude, y = northing/latitude?",
+                  d / 1000.0, crs.name().c_str());
+    *error = m;
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+bool LoadGcpInput(const std::string& path, const std::vector<std::string>& checkpoints, const Session& session,
+                  const std::vector<const SessionFrame*>& used, double max_distance_km, GcpInput* out,
+                  nlohmann::json* js, std::string* error) {
+  if (!ReadGcpList(path, &out->list, error)) return false;
+  std::vector<Eigen::Vector3d> world;
+  for (const auto& p : out->list.points) world.push_back(p.geo);
+  if (!out->crs.Init(out->list.crs_line, &world, error)) return false;
+  if (!CheckNearFlight(out->crs, world, session, max_distance_km, js, error)) return false;
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const auto& w : world) mean += w.head<2>();
+  mean /= static_cast<double>(world.size());
+  out->offset = Eigen::Vector2d(std::round(mean.x()), std::round(mean.y()));
+  if (!BindGcps(out->list, world, out->offset, SessionImages(session, used), checkpoints, &out->binding, error)) {
+    return false;
+  }
+  for (const auto& w : out->binding.warnings) std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
+  return true;
+}
+
+}  // namespace uavm::sfm

@@ -1,0 +1,28 @@
+#pragma once
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "core/sfm/control_points.h"
+#include "core/sfm/gcp.h"
+#include "core/sfm/session_import.h"
+
+namespace uavm::sfm {
+
+// The ground tool's GCP input, read and checked before any expensive stage: the list, its CRS (the products' CRS
+// then), the local offset and the points tied to the reconstruction's images.
+struct GcpInput {
+  GcpList list;
+  GcpCrs crs;
+  Eigen::Vector2d offset = Eigen::Vector2d::Zero();  // products' x, y = local + offset, in the GCP CRS
+  GcpBinding binding;
+};
+
+// `used` are the reconstruction's frames in image-slot order. With GPS in the frames, GCPs far from the flight
+// (more than max_distance_km beyond it) are refused: the CRS line or the axis order is then wrong.
+[[nodiscard]] bool LoadGcpInput(const std::string& path, const std::vector<std::string>& checkpoints,
+                                const Session& session, const std::vector<const SessionFrame*>& used,
+                                double max_distance_km, GcpInput* out, nlohmann::json* js, std::string* error);
+
+}  // namespace uavm::sfm
