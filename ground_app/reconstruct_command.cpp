@@ -43,6 +43,13 @@ int RunReconstructCommand(int argc, char** argv) {
   app.add_option("--dsm-cell", opts.dsm_cell_m, "DSM cell size in metres (0 = automatic)");
   app.add_option("--hfov", opts.default_hfov_deg, "horizontal field of view (deg) when EXIF gives no focal length");
   app.add_flag("--refine-k3", opts.refine_k3, "also refine the radial k3 term");
+  app.add_option("--gcp", opts.gcp_file,
+                 "ground control points (OpenDroneMap gcp_list.txt); the outputs are then in their CRS")
+      ->check(CLI::ExistingFile);
+  app.add_option("--checkpoints", opts.checkpoints, "GCP names kept out of the adjustment and reported as checks")
+      ->delimiter(',');
+  app.add_option("--gcp-accuracy", opts.control.sigma_m, "GCP survey accuracy per axis, metres");
+  app.add_option("--click-accuracy", opts.control.click_px, "GCP click accuracy, pixels");
   app.add_flag("--no-dense", no_dense, "sparse only (the DSM is rasterised from the sparse points)");
   app.add_flag("--render-previews", previews, "write preview_cloud.png and preview_dsm.png");
   try {

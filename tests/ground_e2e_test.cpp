@@ -9,7 +9,9 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <nlohmann/json.hpp>
+#include <sstream>
 
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/products.h"
@@ -29,6 +31,138 @@ int RunCommand(const std::string& cmd) {
 // same stages on less work (SIFT and dense matching run ~40x slower under qemu-user).
 std::string GroundEmulationArgs() {
   return test::Emulated() ? " --max-dense-pairs 10 --dense-scale 0.5 --feature-scale 0.5 --max-features 4000" : "";
+}
+
+std::string ReadText(const fs::path& path) {
+  std::stringstream ss;
+  ss << std::ifstream(path).rdbuf();
+  return ss.str();
+}
+
+// COLMAP itself reads our model: model_analyzer's counts, and model_converter to its binary format and back.
+void CheckColmapReads(const fs::path& sparse, size_t images, size_t points, const fs::path& tmp) {
+  ASSERT_EQ(RunCommand("command -v colmap >/dev/null"), 0) << "colmap is not installed (scripts/setup.sh installs it)";
+  ASSERT_EQ(
+      RunCommand("colmap model_analyzer --path " + sparse.string() + " >" + (tmp / "analyzer.txt").string() + " 2>&1"),
+      0);
+  const std::string a = ReadText(tmp / "analyzer.txt");
+  auto figure = [&](const std::string& key) {
+    const size_t at = a.find(key + ": ");
+    return at == std::string::npos ? -1.0 : std::atof(a.c_str() + at + key.size() + 2);
+  };
+  EXPECT_EQ(figure("Registered images"), static_cast<double>(images)) << a;
+  EXPECT_EQ(figure("Points"), static_cast<double>(points)) << a;
+  EXPECT_GT(figure("Mean reprojection error"), 0.0) << a;
+  EXPECT_LT(figure("Mean reprojection error"), 1.0) << a;
+  const fs::path bin = tmp / "colmap_bin", txt = tmp / "colmap_txt";
+  fs::create_directories(bin);
+  fs::create_directories(txt);
+  ASSERT_EQ(RunCommand("colmap model_converter --input_path " + sparse.string() + " --output_path " + bin.string() +
+                       " --output_type BIN >/dev/null 2>&1 && colmap model_converter --input_path " + bin.string() +
+                       " --output_path " + txt.string() + " --output_type TXT >/dev/null 2>&1"),
+            0);
+  EXPECT_GT(fs::file_size(bin / "points3D.bin"), 1000u);
+  Reconstruction back;
+  std::string err;
+  ASSERT_TRUE(ReadColmapText(txt.string(), &back, &err)) << err;
+  EXPECT_EQ(back.images.size(), images);
+  EXPECT_EQ(back.points.size(), points);
+}
+
+// Pseudo ground control points from a finished run: well-spread sparse points seen in three or more frames, their
+// georeferenced positions re-expressed in NAD83 / UTM 15N (EPSG:26915, another CRS than the run's WGS 84 / UTM 15N) and
+// their keypoints as clicks. Their "survey" comes from the model itself, so this checks the path end to end (parsing,
+// CRS, adjustment, outputs in the GCPs' CRS), not the accuracy (tests/sfm_gcp_test.cpp does that against a truth).
+std::string WritePseudoGcps(const fs::path& out, const fs::path& path) {
+  Reconstruction rec;
+  std::string err;
+  if (!ReadColmapText((out / "sparse").string(), &rec, &err)) return err;
+  std::ifstream js_in(out / "summary.json");
+  const auto js = nlohmann::json::parse(js_in);
+  const double ox = js["coordinates"]["ply_and_colmap_offset_xy"][0],
+               oy = js["coordinates"]["ply_and_colmap_offset_xy"][1];
+  std::vector<size_t> chosen;  // farthest-point sampling in x, y among points seen three or more times
+  while (chosen.size() < 6) {
+    size_t best = rec.points.size();
+    double best_d = -1.0;
+    for (size_t k = 0; k < rec.points.size(); ++k) {
+      if (rec.points[k].track.size() < 3) continue;
+      double d = 1e30;
+      for (size_t c : chosen) d = std::min(d, (rec.points[k].X - rec.points[c].X).head<2>().norm());
+      if (d > best_d) best_d = d, best = k;
+    }
+    if (best == rec.points.size()) return "too few points seen three times";
+    chosen.push_back(best);
+  }
+  OGRSpatialReference wgs_utm, nad_utm;
+  wgs_utm.importFromEPSG(32615);
+  nad_utm.importFromEPSG(26915);
+  wgs_utm.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
+  nad_utm.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
+  std::unique_ptr<OGRCoordinateTransformation> tr(OGRCreateCoordinateTransformation(&wgs_utm, &nad_utm));
+  if (!tr) return "no transformation 32615 -> 26915";
+  std::ofstream f(path);
+  f << "EPSG:26915\n";
+  for (size_t n = 0; n < chosen.size(); ++n) {
+    const auto& p = rec.points[chosen[n]];
+    double x = p.X.x() + ox, y = p.X.y() + oy;
+    if (!tr->Transform(1, &x, &y)) return "transform failed";
+    for (const auto& o : p.track) {
+      const auto& im = rec.images[static_cast<size_t>(o.image)];
+      const auto& kp = im.keypoints[static_cast<size_t>(o.feature)];
+      char row[256];
+      std::snprintf(row, sizeof row, "%.3f %.3f %.3f %.2f %.2f %s p%zu\n", x, y, p.X.z() + 180.0, kp.x(), kp.y(),
+                    im.name.substr(7).c_str(), n);  // stored names are 000012_<original name>
+      f << row;
+    }
+  }
+  return "";
+}
+
+// The same session with the pseudo GCPs (two of them checkpoints): outputs in EPSG:26915, checkpoints on the model.
+void CheckGcpRun(const fs::path& tmp, const fs::path& session, const fs::path& first_out) {
+  const fs::path gcp = tmp / "gcp_list.txt", out = tmp / "ground_gcp";
+  ASSERT_EQ(WritePseudoGcps(first_out, gcp), "");
+  ASSERT_EQ(RunCommand(std::string(UAVM_GROUND_BIN) + " " + session.string() + " --out " + out.string() +
+                       " --no-dense --gcp " + gcp.string() + " --checkpoints p4,p5" + GroundEmulationArgs() + " 2>" +
+                       (tmp / "stderr_gcp.txt").string()),
+            0);
+  std::ifstream js_in(out / "summary.json");
+  const auto js = nlohmann::json::parse(js_in);
+  EXPECT_EQ(js["crs"].get<std::string>(), "EPSG:26915");
+  const auto& g = js["gcp"];
+  std::printf("gcp: control %s, checkpoints %s\n", g["control_rms"].dump().c_str(), g["checkpoint_rms"].dump().c_str());
+  EXPECT_EQ(g["points"].size(), 6u);
+  EXPECT_EQ(g["checkpoint_rms"]["points"].get<int>(), 2);
+  EXPECT_LT(g["checkpoint_rms"]["total_gsd"].get<double>(), 3.0);
+  EXPECT_LT(g["control_rms"]["total_gsd"].get<double>(), 3.0);
+  GDALDataset* ds = static_cast<GDALDataset*>(GDALOpen((out / "dsm.tif").c_str(), GA_ReadOnly));
+  ASSERT_NE(ds, nullptr);
+  ASSERT_NE(ds->GetSpatialRef(), nullptr);
+  EXPECT_STREQ(ds->GetSpatialRef()->GetAuthorityCode(nullptr), "26915");
+  GDALClose(ds);
+  // Bad files stop before the long stages, with their reason: an image that is not in the session, and the right
+  // coordinates under the wrong CRS (zone 33 instead of 15: thousands of kilometres from the flight's GPS).
+  std::string first_row;
+  {
+    std::ifstream in(gcp);
+    std::getline(in, first_row);
+    std::getline(in, first_row);
+  }
+  const std::string coords = first_row.substr(0, first_row.find(' ', first_row.find(' ', first_row.find(' ') + 1) + 1));
+  const std::pair<std::string, std::string> bad_files[] = {
+      {"EPSG:26915\n" + coords + " 10 10 nope.jpg a\n", "image 'nope.jpg' is not a frame of this session"},
+      {"EPSG:32633\n" + first_row + "\n",
+       "km from the flight's GPS positions: is the CRS on the GCP file's first line"},
+  };
+  for (const auto& [text, expected] : bad_files) {
+    std::ofstream(tmp / "bad_gcp.txt") << text;
+    EXPECT_NE(RunCommand(std::string(UAVM_GROUND_BIN) + " " + session.string() + " --out " + (tmp / "bad").string() +
+                         " --gcp " + (tmp / "bad_gcp.txt").string() + " 2>" + (tmp / "stderr_bad.txt").string()),
+              0);
+    const std::string bad = ReadText(tmp / "stderr_bad.txt");
+    EXPECT_NE(bad.find(expected), std::string::npos) << bad;
+  }
 }
 
 TEST(GroundE2e, BrightonBeachSmall) {
@@ -72,6 +206,7 @@ TEST(GroundE2e, BrightonBeachSmall) {
   EXPECT_EQ(rec.images.size(), static_cast<size_t>(frames));
   EXPECT_EQ(rec.points.size(), js["sparse_points"].get<size_t>());
   EXPECT_NEAR(rec.ReprojectionRms(), after, 1e-6);
+  CheckColmapReads(out / "sparse", rec.images.size(), rec.points.size(), tmp);
 
   // DSM: float32 with nodata, UTM 15N, heights of a flat beach.
   GDALAllRegister();
@@ -105,6 +240,7 @@ TEST(GroundE2e, BrightonBeachSmall) {
   std::printf("DSM heights p05 %.2f p50 %.2f p95 %.2f m (%zu cells)\n", p05, p50, p95, valid.size());
   EXPECT_LT(std::abs(p50), 15.0);
   EXPECT_LT(p95 - p05, 8.0);
+  CheckGcpRun(tmp, session, out);
   fs::remove_all(tmp);
 }
 
