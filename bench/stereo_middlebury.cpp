@@ -111,7 +111,11 @@ int main(int argc, char** argv) {
   app.add_option("--lr", base.lr_tolerance);
   app.add_option("--speckle", base.speckle_size);
   app.add_option("--median", base.median_size);
+  std::string cost = "census";
+  app.add_option("--cost", cost, "matching cost")->check(CLI::IsMember({"census", "daisy"}));
+  app.add_option("--daisy-divisor", base.daisy_divisor, "DAISY L1 distance per cost unit");
   CLI11_PARSE(app, argc, argv);
+  if (cost == "daisy") base.cost = uavm::stereo::SgmOptions::Cost::kDaisy;
 
   std::printf(
       "| pair | size | ndisp | ours bad-1 %% | ours bad-2 %% | ours ms | SGBM bad-1 %% | SGBM bad-2 %% | SGBM ms "

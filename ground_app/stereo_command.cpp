@@ -22,7 +22,7 @@ int Error(const std::string& what) {
 
 int RunStereoCommand(int argc, char** argv) {
   CLI::App app{
-      "Dense disparity of one rectified pair (semi-global matching, census cost, left-right check). Writes the LEFT "
+      "Dense disparity of one rectified pair (semi-global matching, census or DAISY cost, left-right check). Writes the LEFT "
       "image's disparity (x_left - x_right, pixels) as a float32 single-band TIFF; NaN = no disparity.",
       "uavmosaic-ground stereo"};
   std::string left_path, right_path, out_path;
@@ -37,6 +37,9 @@ int RunStereoCommand(int argc, char** argv) {
       ->check(CLI::Range(1, 1024));
   app.add_option("--min-disparity", options.min_disparity, "smallest disparity searched");
   app.add_option("--paths", options.num_paths, "SGM aggregation paths (4 or 8)")->check(CLI::IsMember({4, 8}));
+  std::string cost = "census";
+  app.add_option("--cost", cost, "matching cost: census (+ gradient) or daisy (radius 15, 3 rings, 8 x 8)")
+      ->check(CLI::IsMember({"census", "daisy"}));
   app.add_flag("--no-fill", no_fill, "leave pixels that fail the checks as NaN instead of filling them");
   app.add_option("--threads", options.threads, "worker threads (0 = all cores)")->check(CLI::NonNegativeNumber);
   try {
@@ -58,6 +61,7 @@ int RunStereoCommand(int argc, char** argv) {
     options.num_disparities = max_disparity > 0 ? max_disparity : std::min(256, (left.cols / 4 + 15) / 16 * 16);
     options.num_disparities = std::max(options.num_disparities, 2);
     options.fill_holes = !no_fill;
+    if (cost == "daisy") options.cost = stereo::SgmOptions::Cost::kDaisy;
     std::string why;
     if (!options.Check(&why)) return Error(why);
     cv::Mat disparity;

@@ -17,6 +17,7 @@ PACKAGES=(
   # tests/gpsd_test.cpp: gpsfake starts its own gpsd on a free port; the system's (gpsd.socket, port 2947, started
   # by the package where systemd runs) is not used and not in the way.
   gpsd gpsd-clients
+  python3-skimage  # tests/daisy_test.cpp: scikit-image's DAISY, the reference for core/stereo/daisy.cpp
   colmap  # the ground tool's peer: tests/ground_e2e_test.cpp has COLMAP read our model; bench/ground_vs_colmap.sh
   nodejs  # test peers (tests/telemetry/run_peer.sh: node-mavlink from the npm registry)
   "$@"

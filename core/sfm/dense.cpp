@@ -125,6 +125,7 @@ bool DenseFromReconstruction(const Reconstruction& rec, const std::vector<std::s
     po.max_depth = pc.max_depth;
     po.image_scale = options.image_scale;
     po.sample_step = options.sample_step;
+    if (options.daisy_cost) po.sgm.cost = stereo::SgmOptions::Cost::kDaisy;
     std::vector<stereo::ColoredPoint> pts;
     std::string why;
     const bool ok = stereo::DensePointsFromPair(

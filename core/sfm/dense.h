@@ -17,6 +17,7 @@ struct DenseOptions {
   double min_overlap = 0.3;
   int pairs_per_image = 2;  // the best partners of each image (two: one along the strip, often one across)
   int threads = 1;
+  bool daisy_cost = false;  // the SGM matching cost: census (default) or DAISY (core/stereo/daisy.h)
 };
 
 struct StereoPairChoice {

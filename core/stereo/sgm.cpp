@@ -163,7 +163,41 @@ __attribute__((target("avx2"))) void CostRowAvx2(const uint64_t* __restrict cl, 
 }
 #endif
 
-// Cost of row y into the pixel-major volume (stride disparities per pixel, padding = 255).
+// A disparity-major cost row (scratch) into the pixel-major volume (stride disparities per pixel, padding = 255).
+void StoreRow(const std::vector<uint8_t>& scratch, const CostParams& p, uint8_t* out) {
+  const cv::Mat t(p.num_disp, p.width, CV_8UC1, const_cast<uint8_t*>(scratch.data()));
+  cv::Mat dst(p.width, p.num_disp, CV_8UC1, out, static_cast<size_t>(p.stride));
+  cv::transpose(t, dst);
+  if (p.stride > p.num_disp) {
+    for (int x = 0; x < p.width; ++x)
+      std::memset(out + static_cast<size_t>(x) * p.stride + p.num_disp, 255,
+                  static_cast<size_t>(p.stride - p.num_disp));
+  }
+}
+
+// DAISY cost of one row, disparity-major: L1 distance of the byte descriptors / divisor, neutral outside the image.
+void DaisyCostRow(const uint8_t* dl, const uint8_t* dr, int desc_stride, int divisor, const CostParams& p,
+                  std::vector<uint8_t>* scratch, uint8_t* out) {
+  scratch->resize(static_cast<size_t>(p.num_disp) * p.width);
+  const uint8_t neutral = 32;
+  const auto stride = static_cast<size_t>(desc_stride);
+  for (int k = 0; k < p.num_disp; ++k) {
+    uint8_t* row = scratch->data() + static_cast<size_t>(k) * p.width;
+    int x_lo, x_hi;
+    ValidRange(p, k, &x_lo, &x_hi);
+    const int shift = p.min_disp + k;
+    for (int x = 0; x < x_lo; ++x) row[x] = neutral;
+    for (int x = x_lo; x < x_hi; ++x) {
+      const int d = DaisyDistance(dl + static_cast<size_t>(x) * stride, dr + static_cast<size_t>(x - shift) * stride,
+                                  desc_stride);
+      row[x] = static_cast<uint8_t>(std::min(d / divisor, 255));
+    }
+    for (int x = x_hi; x < p.width; ++x) row[x] = neutral;
+  }
+  StoreRow(*scratch, p, out);
+}
+
+// Cost of row y into the pixel-major volume.
 void CostRow(const uint64_t* cl, const uint64_t* cr, const int16_t* gl, const int16_t* gr, const CostParams& p,
              std::vector<uint8_t>* scratch, uint8_t* out) {
   scratch->resize(static_cast<size_t>(p.num_disp) * p.width);
@@ -177,14 +211,41 @@ void CostRow(const uint64_t* cl, const uint64_t* cr, const int16_t* gl, const in
 #else
   CostRowScalar(cl, cr, gl, gr, p, scratch->data());
 #endif
-  const cv::Mat t(p.num_disp, p.width, CV_8UC1, scratch->data());
-  cv::Mat dst(p.width, p.num_disp, CV_8UC1, out, static_cast<size_t>(p.stride));
-  cv::transpose(t, dst);
-  if (p.stride > p.num_disp) {
-    for (int x = 0; x < p.width; ++x)
-      std::memset(out + static_cast<size_t>(x) * p.stride + p.num_disp, 255,
-                  static_cast<size_t>(p.stride - p.num_disp));
+  StoreRow(*scratch, p, out);
+}
+
+// The whole cost volume: census + gradient, or DAISY.
+void BuildCostVolume(const cv::Mat& gl, const cv::Mat& gr, const CostParams& p, const SgmOptions& options,
+                     uint8_t* cost) {
+  if (options.cost == SgmOptions::Cost::kDaisy) {
+    DenseDaisy daisy_l(options.daisy), daisy_r(options.daisy);
+    daisy_l.Prepare(gl);
+    daisy_r.Prepare(gr);
+    const int ds = options.daisy.stride();
+    cv::parallel_for_(cv::Range(0, p.height), [&](const cv::Range& rows) {
+      std::vector<uint8_t> scratch, dl(static_cast<size_t>(p.width) * static_cast<size_t>(ds)), dr(dl.size());
+      for (int y = rows.start; y < rows.end; ++y) {
+        daisy_l.Row(y, dl.data());
+        daisy_r.Row(y, dr.data());
+        DaisyCostRow(dl.data(), dr.data(), ds, options.daisy_divisor, p, &scratch,
+                     cost + static_cast<size_t>(y) * p.width * p.stride);
+      }
+    });
+    return;
   }
+  const cv::Mat cl = Census(gl, options.census_width, options.census_height);
+  const cv::Mat cr = Census(gr, options.census_width, options.census_height);
+  cv::Mat sl, sr;
+  // Horizontal gradient /8 (Sobel sums 4 differences of 2 pixels): a few grey levels per unit.
+  cv::Sobel(gl, sl, CV_16S, 1, 0, 3, 0.125);
+  cv::Sobel(gr, sr, CV_16S, 1, 0, 3, 0.125);
+  cv::parallel_for_(cv::Range(0, p.height), [&](const cv::Range& rows) {
+    std::vector<uint8_t> scratch;
+    for (int y = rows.start; y < rows.end; ++y) {
+      CostRow(cl.ptr<uint64_t>(y), cr.ptr<uint64_t>(y), sl.ptr<int16_t>(y), sr.ptr<int16_t>(y), p, &scratch,
+              cost + static_cast<size_t>(y) * p.width * p.stride);
+    }
+  });
 }
 
 // One step along a path: L(p, d) = C(p, d) + min(L(p-r, d), L(p-r, d+-1) + P1, min L(p-r) + P2) - min L(p-r).
@@ -423,6 +484,8 @@ bool SgmOptions::Check(std::string* why) const {
   if (median_size != 0 && median_size != 3 && median_size != 5) return bad("median_size must be 0, 3 or 5");
   if (threads < 0) return bad("threads must be >= 0");
   if (max_memory_mib < 1) return bad("max_memory_mib must be >= 1");
+  if (daisy_divisor < 1) return bad("daisy_divisor must be >= 1");
+  if (cost == Cost::kDaisy && !daisy.Check(why)) return false;
   return true;
 }
 
@@ -460,15 +523,11 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
   p.stride = (options.num_disparities + 15) / 16 * 16;
   p.gradient_weight = options.gradient_weight;
 
-  const cv::Mat cl = Census(gl, options.census_width, options.census_height);
-  const cv::Mat cr = Census(gr, options.census_width, options.census_height);
-  cv::Mat sl, sr;
-  // Horizontal gradient /8 (Sobel sums 4 differences of 2 pixels): a few grey levels per unit.
-  cv::Sobel(gl, sl, CV_16S, 1, 0, 3, 0.125);
-  cv::Sobel(gr, sr, CV_16S, 1, 0, 3, 0.125);
-
   const size_t volume = static_cast<size_t>(p.width) * p.height * p.stride;
-  const double need_mib = 5.0 * static_cast<double>(volume) / (1024.0 * 1024.0);
+  double need_mib = 5.0 * static_cast<double>(volume) / (1024.0 * 1024.0);
+  if (options.cost == SgmOptions::Cost::kDaisy) {
+    need_mib += 2.0 * static_cast<double>(DenseDaisy::LayerBytes(options.daisy, p.width, p.height)) / (1024.0 * 1024.0);
+  }
   if (need_mib > options.max_memory_mib) {
     if (options.threads > 0) cv::setNumThreads(saved_threads);
     return Fail(error, "matching " + std::to_string(p.width) + "x" + std::to_string(p.height) + " pixels over " +
@@ -479,13 +538,7 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
   }
   if (cost_.size() < volume) cost_.resize(volume);
   uint8_t* cost = cost_.data();
-  cv::parallel_for_(cv::Range(0, p.height), [&](const cv::Range& rows) {
-    std::vector<uint8_t> scratch;
-    for (int y = rows.start; y < rows.end; ++y) {
-      CostRow(cl.ptr<uint64_t>(y), cr.ptr<uint64_t>(y), sl.ptr<int16_t>(y), sr.ptr<int16_t>(y), p, &scratch,
-              cost + static_cast<size_t>(y) * p.width * p.stride);
-    }
-  });
+  BuildCostVolume(gl, gr, p, options, cost);
 
   // The two sweeps are independent: one per core, each into its own sum (added during the selection).
   for (auto& sum : sum_)
