@@ -88,7 +88,7 @@ def project(intr, X):
 
 
 def similarity_rms(src, dst):
-    """RMS of dst - (s R src + t) for the least-squares similarity (Umeyama)."""
+    """RMS of dst - (s R src + t) for the least-squares similarity (Umeyama): 3-D, horizontal, vertical."""
     src, dst = np.asarray(src), np.asarray(dst)
     ms, md = src.mean(0), dst.mean(0)
     a, b = src - ms, dst - md
@@ -99,7 +99,8 @@ def similarity_rms(src, dst):
     r = u @ s_fix @ vt
     scale = np.trace(np.diag(d) @ s_fix) / (a ** 2).sum(1).mean()
     res = b - scale * (r @ a.T).T
-    return math.sqrt((res ** 2).sum(1).mean())
+    return (math.sqrt((res ** 2).sum(1).mean()), math.sqrt((res[:, :2] ** 2).sum(1).mean()),
+            math.sqrt((res[:, 2] ** 2).mean()))
 
 
 def main():
@@ -151,7 +152,7 @@ def main():
             src = [centres[k] for k in common]
             dst = [ref[k] for k in common]
             out["gps_common"] = len(common)
-            out["gps_rms_m"] = similarity_rms(src, dst)
+            out["gps_rms_m"], out["gps_rms_xy_m"], out["gps_rms_z_m"] = similarity_rms(src, dst)
             out["gps_rms_as_aligned_m"] = math.sqrt(np.mean([((a - b) ** 2).sum() for a, b in zip(src, dst)]))
     except FileNotFoundError:
         pass

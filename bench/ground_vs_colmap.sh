@@ -46,9 +46,10 @@ timed() { # timed NAME CMD...: runs CMD under /usr/bin/time -v, output to $W/NAM
 sum_wall() { local s=0 f; for f in "$@"; do s=$(awk -v a="$s" -v b="$(wall_s "$f")" 'BEGIN{printf "%.1f", a+b}'); done; echo "$s"; }
 max_peak() { local m=0 f v; for f in "$@"; do v=$(peak_mib "$f"); ((v > m)) && m=$v; done; echo "$m"; }
 
-# GPS reference of a session (name easting northing relative-altitude), from its frames.csv.
+# GPS reference of a session (name easting northing relative-altitude), from its frames.csv; names from COLUMN
+# (filename: the originals, as COLMAP names them; stored_file: uavmosaic's copies, as our model names them).
 gps_ref() {
-  "$PY" - "$1/frames.csv" <<'EOF'
+  "$PY" - "$1/frames.csv" "$2" <<'EOF'
 import csv, sys
 from osgeo import osr
 rows = [r for r in csv.DictReader(open(sys.argv[1])) if r.get("latitude_deg") and r.get("longitude_deg")]
@@ -62,7 +63,7 @@ if rows:
     for r in rows:
         x, y, _ = tr.TransformPoint(float(r["longitude_deg"]), float(r["latitude_deg"]))
         z = r.get("relative_altitude_m") or r.get("altitude_m") or "0"
-        print(r["filename"].split("/")[-1], f"{x:.3f}", f"{y:.3f}", z)
+        print(r[sys.argv[2]].split("/")[-1], f"{x:.3f}", f"{y:.3f}", z)
 EOF
 }
 
@@ -106,7 +107,8 @@ for f in $FLIGHTS; do
   timed onboard "$ONBOARD" --source "replay:$IMG" --out "$W/session" --log-level warn --no-tiff
   # shellcheck disable=SC2086
   timed ground "$GROUND" "$W/session" --out "$W/ours" --threads "$THREADS" --no-dense ${GROUND_ARGS:-}
-  gps_ref "$W/session" >"$W/gps_ref.txt"
+  gps_ref "$W/session" filename >"$W/gps_ref.txt"
+  gps_ref "$W/session" stored_file >"$W/gps_ref_stored.txt"
   echo "== $f: COLMAP" >&2
   timed colmap_features colmap feature_extractor --database_path "$W/colmap/db.db" --image_path "$IMG" \
     --ImageReader.single_camera 1 --ImageReader.camera_model OPENCV --SiftExtraction.use_gpu 0 \
@@ -117,7 +119,7 @@ for f in $FLIGHTS; do
     --output_path "$W/colmap/sparse" --Mapper.num_threads "$THREADS"
   model=$(largest_model "$W/colmap/sparse")
   aligned_txt "$model" "$W/gps_ref.txt" "$W/colmap/eval"
-  aligned_txt "$W/ours/sparse" "$W/gps_ref.txt" "$W/ours/eval"
+  aligned_txt "$W/ours/sparse" "$W/gps_ref_stored.txt" "$W/ours/eval"
   "$PY" "$SCRIPT_DIR/colmap_compare.py" "$W/colmap/eval/txt" "$W/gps_ref.txt" >"$W/colmap.json"
   "$PY" "$SCRIPT_DIR/colmap_compare.py" "$W/ours/eval/txt" "$W/gps_ref.txt" --strip-prefix >"$W/ours.json"
   n_frames=$(find "$IMG" -maxdepth 1 -type f | wc -l)
@@ -150,7 +152,9 @@ r = o['reprojection_rms_px'] / c['reprojection_rms_px']
 print(f"| reprojection RMS (px, recomputed) | {f(c['reprojection_rms_px'])} | {f(o['reprojection_rms_px'])} | {r:.2f} |")
 print(f"| reprojection mean (px) | {f(c['reprojection_mean_px'])} | {f(o['reprojection_mean_px'])} | |")
 print(f"| camera | {cam(c)} | {cam(o)} | |")
-print(f"| camera centres vs GPS, RMS after similarity (m) | {f(c.get('gps_rms_m'), 2)} | {f(o.get('gps_rms_m'), 2)} | |")
+def gps(j):
+    return f"{f(j.get('gps_rms_m'), 2)} ({f(j.get('gps_rms_xy_m'), 2)} / {f(j.get('gps_rms_z_m'), 2)})"
+print(f"| camera centres vs GPS, RMS after similarity, m: 3-D (horizontal / vertical) | {gps(c)} | {gps(o)} | |")
 print(f"| wall s | {c_wall} (features/matching/mapper {c_stages}) | {o_wall} (+ onboard {ob_wall}) | {float(o_wall) / float(c_wall):.2f} ({(float(o_wall) + float(ob_wall)) / float(c_wall):.2f} with the onboard run) |")
 print(f"| peak RSS MiB | {c_rss} | {o_rss} (onboard {ob_rss}) | |")
 print(f"\nuavmosaic-ground stages (s): " + ", ".join(f"{k} {v:.1f}" for k, v in t.items() if isinstance(v, (int, float))))

@@ -30,13 +30,18 @@ int RunReconstructCommand(int argc, char** argv) {
   app.add_option("session", session_dir, "session directory written by uavmosaic-onboard")->required();
   app.add_option("--out", out_dir, "output directory (created)")->required();
   app.add_option("--threads", opts.threads, "worker threads (features, matching, bundle adjustment)");
-  app.add_option("--feature-scale", opts.feature_scale, "SIFT resolution relative to the stored frames (1 = full)");
+  app.add_option("--feature-scale", opts.feature_scale,
+                 "SIFT resolution relative to the stored frames (1 = full; 0 = long side --feature-size, default)");
+  app.add_option("--feature-size", opts.feature_long_side_px, "long side of the SIFT images when --feature-scale is 0");
   app.add_option("--max-features", opts.max_features, "SIFT keypoints per frame");
   app.add_option("--contrast-threshold", opts.contrast_threshold, "SIFT start contrast threshold");
   app.add_option("--guided-radius", opts.guided_radius,
                  "matching window around the onboard maps' prediction, fraction of the long image side");
   app.add_option("--colmap-import", opts.colmap_import_dir, "initial poses and intrinsics from a COLMAP text model");
   app.add_option("--dense-scale", opts.dense_image_scale, "dense matching resolution relative to the frames");
+  std::string dense_cost = "census";
+  app.add_option("--dense-cost", dense_cost, "SGM matching cost: census (+ gradient) or daisy")
+      ->check(CLI::IsMember({"census", "daisy"}));
   app.add_option("--dense-step", opts.dense_sample_step, "one dense point per N x N rectified pixels");
   app.add_option("--max-dense-pairs", opts.max_dense_pairs, "stereo pairs for the dense cloud");
   app.add_option("--pairs-per-image", opts.dense_pairs_per_image, "stereo partners chosen per image");
@@ -58,6 +63,7 @@ int RunReconstructCommand(int argc, char** argv) {
     return app.exit(e) == 0 ? 0 : 2;
   }
   opts.dense = !no_dense;
+  opts.dense_daisy = dense_cost == "daisy";
   std::string error;
   if (!opts.Check(&error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());

@@ -32,7 +32,8 @@ bool PipelineOptions::Check(std::string* why) const {
     return false;
   };
   if (threads < 1) return fail("--threads must be >= 1");
-  if (!(feature_scale > 0.0 && feature_scale <= 1.0)) return fail("feature_scale must be in (0,1]");
+  if (!(feature_scale >= 0.0 && feature_scale <= 1.0)) return fail("feature_scale must be in [0,1] (0 = automatic)");
+  if (feature_scale == 0.0 && feature_long_side_px < 100) return fail("feature_long_side_px must be >= 100");
   if (max_features < 100) return fail("max_features must be >= 100");
   if (!(ratio > 0.0 && ratio < 1.0)) return fail("ratio must be in (0,1)");
   if (!(fundamental_threshold_px > 0.0)) return fail("fundamental_threshold_px must be > 0");
@@ -116,6 +117,12 @@ bool SelectFrames(const std::string& session_dir, SelectedFrames* out, std::stri
   return true;
 }
 
+double FeatureScale(const PipelineOptions& options, const SessionFrame& frame) {
+  if (options.feature_scale > 0.0) return options.feature_scale;
+  const int long_side = std::max(frame.width, frame.height);
+  return long_side > options.feature_long_side_px ? static_cast<double>(options.feature_long_side_px) / long_side : 1.0;
+}
+
 // 2. Features of one stored frame at feature_scale, keypoints in original-resolution pixels with their colours.
 bool FrameFeaturesOf(const std::string& path, const SiftExtractor& sift, double s, FrameFeatures* out) {
   const cv::Mat img = ReadFrame(path);
@@ -156,7 +163,8 @@ bool ExtractFeatures(const std::string& session_dir, const std::vector<const Ses
   const int cv_threads = cv::getNumThreads();
   cv::setNumThreads(options.threads > 1 ? 1 : cv_threads);
   ParallelFor(frames.size(), options.threads, [&](size_t i) {
-    if (!FrameFeaturesOf(session_dir + "/" + frames[i]->stored_file, sift, options.feature_scale, &(*feats)[i])) {
+    const double scale = FeatureScale(options, *frames[i]);
+    if (!FrameFeaturesOf(session_dir + "/" + frames[i]->stored_file, sift, scale, &(*feats)[i])) {
       failures[i] = "cannot read " + frames[i]->stored_file;
       return;
     }
@@ -172,6 +180,7 @@ bool ExtractFeatures(const std::string& session_dir, const std::vector<const Ses
   size_t total_kp = 0;
   for (const auto& f : *feats) total_kp += f.points.size();
   (*js)["keypoints_per_frame_mean"] = static_cast<double>(total_kp) / static_cast<double>(frames.size());
+  (*js)["feature_scale"] = FeatureScale(options, *frames[0]);
   return true;
 }
 
@@ -757,6 +766,7 @@ bool DenseStage(const std::string& session_dir, const std::vector<const SessionF
     dopt.target_baseline_ratio = options.target_baseline_ratio;
     dopt.min_overlap = options.min_pair_overlap;
     dopt.threads = options.threads;
+    dopt.daisy_cost = options.dense_daisy;
     std::vector<std::string> paths;
     for (const auto* f : frames) paths.push_back(session_dir + "/" + f->stored_file);
     if (!DenseFromReconstruction(rec, paths, dopt, progress, &out->points, &out->report, error)) return false;
