@@ -20,6 +20,39 @@
 
 namespace uavm::ground {
 
+namespace {
+
+// The reconstruction's tuning options (features, matching, dense, GCPs).
+void AddPipelineOptions(CLI::App* app, sfm::PipelineOptions* opts, std::string* dense_cost) {
+  app->add_option("--feature-scale", opts->feature_scale,
+                  "SIFT resolution relative to the stored frames (1 = full; 0 = long side --feature-size, default)");
+  app->add_option("--feature-size", opts->feature_long_side_px,
+                  "long side of the SIFT images when --feature-scale is 0");
+  app->add_option("--max-features", opts->max_features, "SIFT keypoints per frame");
+  app->add_option("--contrast-threshold", opts->contrast_threshold, "SIFT start contrast threshold");
+  app->add_option("--guided-radius", opts->guided_radius,
+                  "matching window around the onboard maps' prediction, fraction of the long image side");
+  app->add_option("--colmap-import", opts->colmap_import_dir, "initial poses and intrinsics from a COLMAP text model");
+  app->add_option("--dense-scale", opts->dense_image_scale, "dense matching resolution relative to the frames");
+  app->add_option("--dense-cost", *dense_cost, "SGM matching cost: census (+ gradient) or daisy")
+      ->check(CLI::IsMember({"census", "daisy"}));
+  app->add_option("--dense-step", opts->dense_sample_step, "one dense point per N x N rectified pixels");
+  app->add_option("--max-dense-pairs", opts->max_dense_pairs, "stereo pairs for the dense cloud");
+  app->add_option("--pairs-per-image", opts->dense_pairs_per_image, "stereo partners chosen per image");
+  app->add_option("--dsm-cell", opts->dsm_cell_m, "DSM cell size in metres (0 = automatic)");
+  app->add_option("--hfov", opts->default_hfov_deg, "horizontal field of view (deg) when EXIF gives no focal length");
+  app->add_flag("--refine-k3", opts->refine_k3, "also refine the radial k3 term");
+  app->add_option("--gcp", opts->gcp_file,
+                  "ground control points (OpenDroneMap gcp_list.txt); the outputs are then in their CRS")
+      ->check(CLI::ExistingFile);
+  app->add_option("--checkpoints", opts->checkpoints, "GCP names kept out of the adjustment and reported as checks")
+      ->delimiter(',');
+  app->add_option("--gcp-accuracy", opts->control.sigma_m, "GCP survey accuracy per axis, metres");
+  app->add_option("--click-accuracy", opts->control.click_px, "GCP click accuracy, pixels");
+}
+
+}  // namespace
+
 int RunReconstructCommand(int argc, char** argv) {
   CLI::App app{"uavmosaic-ground: sparse + dense 3-D reconstruction of a uavmosaic session directory"};
   std::string session_dir, out_dir;
@@ -27,34 +60,11 @@ int RunReconstructCommand(int argc, char** argv) {
   opts.threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   bool previews = false;
   bool no_dense = false;
+  std::string dense_cost = "census";
   app.add_option("session", session_dir, "session directory written by uavmosaic-onboard")->required();
   app.add_option("--out", out_dir, "output directory (created)")->required();
   app.add_option("--threads", opts.threads, "worker threads (features, matching, bundle adjustment)");
-  app.add_option("--feature-scale", opts.feature_scale,
-                 "SIFT resolution relative to the stored frames (1 = full; 0 = long side --feature-size, default)");
-  app.add_option("--feature-size", opts.feature_long_side_px, "long side of the SIFT images when --feature-scale is 0");
-  app.add_option("--max-features", opts.max_features, "SIFT keypoints per frame");
-  app.add_option("--contrast-threshold", opts.contrast_threshold, "SIFT start contrast threshold");
-  app.add_option("--guided-radius", opts.guided_radius,
-                 "matching window around the onboard maps' prediction, fraction of the long image side");
-  app.add_option("--colmap-import", opts.colmap_import_dir, "initial poses and intrinsics from a COLMAP text model");
-  app.add_option("--dense-scale", opts.dense_image_scale, "dense matching resolution relative to the frames");
-  std::string dense_cost = "census";
-  app.add_option("--dense-cost", dense_cost, "SGM matching cost: census (+ gradient) or daisy")
-      ->check(CLI::IsMember({"census", "daisy"}));
-  app.add_option("--dense-step", opts.dense_sample_step, "one dense point per N x N rectified pixels");
-  app.add_option("--max-dense-pairs", opts.max_dense_pairs, "stereo pairs for the dense cloud");
-  app.add_option("--pairs-per-image", opts.dense_pairs_per_image, "stereo partners chosen per image");
-  app.add_option("--dsm-cell", opts.dsm_cell_m, "DSM cell size in metres (0 = automatic)");
-  app.add_option("--hfov", opts.default_hfov_deg, "horizontal field of view (deg) when EXIF gives no focal length");
-  app.add_flag("--refine-k3", opts.refine_k3, "also refine the radial k3 term");
-  app.add_option("--gcp", opts.gcp_file,
-                 "ground control points (OpenDroneMap gcp_list.txt); the outputs are then in their CRS")
-      ->check(CLI::ExistingFile);
-  app.add_option("--checkpoints", opts.checkpoints, "GCP names kept out of the adjustment and reported as checks")
-      ->delimiter(',');
-  app.add_option("--gcp-accuracy", opts.control.sigma_m, "GCP survey accuracy per axis, metres");
-  app.add_option("--click-accuracy", opts.control.click_px, "GCP click accuracy, pixels");
+  AddPipelineOptions(&app, &opts, &dense_cost);
   app.add_flag("--no-dense", no_dense, "sparse only (the DSM is rasterised from the sparse points)");
   app.add_flag("--render-previews", previews, "write preview_cloud.png and preview_dsm.png");
   try {
