@@ -215,7 +215,10 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
   sopts.linear_solver_type = ceres::SPARSE_SCHUR;
   sopts.max_num_iterations = options.max_iterations;
   sopts.num_threads = options.threads;
-  sopts.function_tolerance = 1e-8;
+  // 1e-6 (Ceres' default), not 1e-8: with 1e-8 every round ran to its iteration cap creeping by < 0.1 % of the RMS;
+  // caliterra's adjustment took 77.7 s for 0.6294 px, now 39.2 s for 0.6300 px (brighton_beach 9.2 -> 7.4 s,
+  // 0.566 -> 0.571 px, camera centres against GPS unchanged).
+  sopts.function_tolerance = 1e-6;
   sopts.parameter_tolerance = 1e-10;
   sopts.logging_type = ceres::SILENT;
   ceres::Solver::Summary s;
