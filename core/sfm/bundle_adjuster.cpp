@@ -3,6 +3,7 @@
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
 
+#include <algorithm>
 #include <cmath>
 
 namespace uavm::sfm {
@@ -26,6 +27,24 @@ double Reconstruction::ReprojectionRms() const {
     }
   }
   return n ? std::sqrt(sum / static_cast<double>(n)) : 0.0;
+}
+
+double Reconstruction::MedianGsd() const {
+  std::vector<double> depths;
+  for (const auto& p : points) {
+    for (const auto& o : p.track) depths.push_back(images[static_cast<size_t>(o.image)].pose.ToCamera(p.X).z());
+  }
+  if (depths.empty() || camera.fx <= 0.0) return 0.0;
+  std::nth_element(depths.begin(), depths.begin() + static_cast<long>(depths.size() / 2), depths.end());
+  return depths[depths.size() / 2] / camera.fx;
+}
+
+void Reconstruction::Transform(double scale, const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation) {
+  for (auto& im : images) {
+    im.pose.c = scale * rotation * im.pose.c + translation;
+    im.pose.R = im.pose.R * rotation.transpose();
+  }
+  for (auto& p : points) p.X = scale * rotation * p.X + translation;
 }
 
 bool BundleOptions::Check(std::string* why) const {

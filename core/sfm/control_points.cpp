@@ -33,22 +33,8 @@ std::optional<Eigen::Vector3d> TriangulateClicks(const Reconstruction& rec, cons
 
 namespace {
 
-double MedianGsd(const Reconstruction& rec) {
-  std::vector<double> depths;
-  for (const auto& p : rec.points) {
-    for (const auto& o : p.track) depths.push_back(rec.images[static_cast<size_t>(o.image)].pose.ToCamera(p.X).z());
-  }
-  if (depths.empty() || rec.camera.fx <= 0.0) return 0.0;
-  std::nth_element(depths.begin(), depths.begin() + static_cast<long>(depths.size() / 2), depths.end());
-  return depths[depths.size() / 2] / rec.camera.fx;
-}
-
 void Apply(const Similarity3& s, Reconstruction* rec, std::vector<std::optional<Eigen::Vector3d>>* priors) {
-  for (auto& im : rec->images) {
-    im.pose.c = s.Apply(im.pose.c);
-    im.pose.R = im.pose.R * s.rotation.transpose();
-  }
-  for (auto& p : rec->points) p.X = s.Apply(p.X);
+  rec->Transform(s.scale, s.rotation, s.translation);
   for (auto& c : *priors) {
     if (c) c = s.Apply(*c);
   }
@@ -86,7 +72,7 @@ bool AlignToControl(const std::vector<ControlPoint>& cps, const ControlOptions& 
              " control points triangulate (3 not on one line are needed)";
     return false;
   }
-  report->gsd_m = MedianGsd(*rec) * report->alignment.scale;
+  report->gsd_m = rec->MedianGsd() * report->alignment.scale;
   const double suspicious = std::max(options.suspicious_m, options.suspicious_gsd * report->gsd_m);
   double sum = 0.0;
   for (size_t k = 0; k < src.size(); ++k) {

@@ -7,6 +7,8 @@
 #include <set>
 #include <sstream>
 
+#include "core/sfm/products.h"
+
 namespace uavm::sfm {
 
 namespace {
@@ -194,8 +196,9 @@ bool GcpCrs::Init(const std::string& crs_line, std::vector<Eigen::Vector3d>* poi
                ") is outside UTM's range: are x and y in the right order (x = longitude)?";
       return false;
     }
-    const int zone = static_cast<int>(std::floor((mean.x() + 180.0) / 6.0)) % 60 + 1;
-    const int utm_epsg = (mean.y() >= 0 ? 32600 : 32700) + zone;
+    UtmProjection zone;
+    if (!zone.Init(mean.y(), mean.x(), error)) return false;
+    const int utm_epsg = zone.epsg();
     OGRSpatialReference geo = s.srs;
     std::unique_ptr<OGRCoordinateTransformation> to_utm;
     s.srs.Clear();

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <map>
 
 namespace uavm::sfm {
 
@@ -13,13 +14,12 @@ std::string Basename(const std::string& p) {
 }
 
 std::vector<ImageInfo> SessionImages(const Session& session, const std::vector<const SessionFrame*>& used) {
+  std::map<const SessionFrame*, int> slot_of;
+  for (size_t i = 0; i < used.size(); ++i) slot_of[used[i]] = static_cast<int>(i);
   std::vector<ImageInfo> out;
   for (const auto& f : session.frames) {
-    int slot = -1;
-    for (size_t i = 0; i < used.size(); ++i) {
-      if (used[i] == &f) slot = static_cast<int>(i);
-    }
-    out.push_back({Basename(f.filename), f.width, f.height, slot});
+    const auto it = slot_of.find(&f);
+    out.push_back({Basename(f.filename), f.width, f.height, it == slot_of.end() ? -1 : it->second});
   }
   return out;
 }

@@ -708,19 +708,12 @@ void Georeference(const GpsPositions& gps, Reconstruction* rec, nlohmann::json* 
     (*js)["georef"] = {{"method", "none"}};
     return;
   }
-  const double s = fit.scale;
-  const Eigen::Matrix3d& Q = fit.rotation;
-  const Eigen::Vector3d& t = fit.translation;
-  for (auto& im : rec->images) {
-    im.pose.c = s * Q * im.pose.c + t;
-    im.pose.R = im.pose.R * Q.transpose();
-  }
-  for (auto& p : rec->points) p.X = s * Q * p.X + t;
+  rec->Transform(fit.scale, fit.rotation, fit.translation);
   double sum = 0.0;
-  for (size_t k = 0; k < src.size(); ++k) sum += (s * Q * src[k] + t - dst[k]).squaredNorm();
+  for (size_t k = 0; k < src.size(); ++k) sum += (fit.Apply(src[k]) - dst[k]).squaredNorm();
   (*js)["georef"] = {{"method", "similarity to GPS camera positions"},
                      {"cameras", src.size()},
-                     {"scale", s},
+                     {"scale", fit.scale},
                      {"rms_m", std::sqrt(sum / static_cast<double>(src.size()))},
                      {"z_reference", "relative altitude (take-off = 0) when in EXIF, else GPS altitude"}};
 }
@@ -778,13 +771,7 @@ bool DenseStage(const std::string& session_dir, const std::vector<const SessionF
 // 9. Fusion + DSM.
 // Cell size: the dense sampling distance on the ground (or 20x the sparse GSD without dense points).
 double DsmCell(const Reconstruction& rec, bool have_dense, const PipelineOptions& options, nlohmann::json* js) {
-  std::vector<double> depths;
-  for (const auto& p : rec.points) {
-    for (const auto& o : p.track) depths.push_back(rec.images[static_cast<size_t>(o.image)].pose.ToCamera(p.X).z());
-  }
-  std::nth_element(depths.begin(), depths.begin() + static_cast<long>(depths.size() / 2), depths.end());
-  const double median_depth = depths[depths.size() / 2];
-  const double gsd = median_depth / rec.camera.fx;
+  const double gsd = rec.MedianGsd();
   double cell = options.dsm_cell_m;
   if (cell <= 0.0) {
     cell = !have_dense ? 20.0 * gsd : 1.5 * gsd * options.dense_sample_step / options.dense_image_scale;

@@ -34,6 +34,10 @@ struct Reconstruction {
   [[nodiscard]] size_t NumObservations() const;
   // RMS and mean reprojection error over all observations of all points (pixels).
   [[nodiscard]] double ReprojectionRms() const;
+  // Ground sampling distance at the median depth of all observations (world units per pixel); 0 without points.
+  [[nodiscard]] double MedianGsd() const;
+  // Moves the whole model by a similarity (x -> s R x + t): camera centres, orientations and points.
+  void Transform(double scale, const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation);
 };
 
 }  // namespace uavm::sfm
