@@ -12,10 +12,11 @@ namespace uavm {
 
 bool LensCalibrationOptions::Check(std::string* why) const {
   if (min_frames < 2 || max_correspondences < 100 || !(min_holdout_gain >= 0 && min_holdout_gain < 1) ||
+      !(min_holdout_t >= 0) ||
       !(max_distortion > 0 && max_distortion < 1) || !(prior_weight >= 0)) {
     if (why != nullptr)
       *why =
-          "lens_calibration: min_frames >= 2, max_correspondences >= 100, min_holdout_gain in [0,1), "
+          "lens_calibration: min_frames >= 2, max_correspondences >= 100, min_holdout_gain in [0,1), min_holdout_t >= 0, "
           "max_distortion in (0,1), prior_weight >= 0";
     return false;
   }
@@ -66,6 +67,44 @@ std::array<double, 3> UndistortionFromDistortion(const LensDistortion& d, double
 
 LensDistortion DistortionFromUndistortion(const std::array<double, 3>& u, double max_radius) {
   return FitRadialDistortion(&DistortedRadius, &u, max_radius);
+}
+
+PairedGain HoldoutPairedGain(const std::vector<const Edge*>& edges, const std::unordered_map<int, Mat3>& without,
+                             const std::unordered_map<int, Mat3>& with, const LensRefine& lens) {
+  std::vector<double> drops;  // per edge: mean over its held-out points of e_without^2 - e_with^2
+  for (const Edge* e : edges) {
+    const auto s0 = without.find(e->src);
+    const auto t0 = without.find(e->tgt);
+    const auto s1 = with.find(e->src);
+    const auto t1 = with.find(e->tgt);
+    if (e->holdout_src_points.empty() || s0 == without.end() || t0 == without.end() || s1 == with.end() ||
+        t1 == with.end())
+      continue;
+    const Mat3 tgt_from_src0 = t0->second.inverse() * s0->second;
+    const Mat3 tgt_from_src1 = t1->second.inverse() * s1->second;
+    double sum = 0.0;
+    for (size_t k = 0; k < e->holdout_src_points.size(); ++k) {
+      const Vec2& p = e->holdout_src_points[k];
+      const Vec2& q = e->holdout_tgt_points[k];
+      sum += (Apply(tgt_from_src0, p) - q).squaredNorm() -
+             (Apply(tgt_from_src1, lens.Ideal(p)) - lens.Ideal(q)).squaredNorm();
+    }
+    drops.push_back(sum / static_cast<double>(e->holdout_src_points.size()));
+  }
+  PairedGain gain;
+  gain.edges = drops.size();
+  if (drops.size() < 3) return gain;
+  const auto n = static_cast<double>(drops.size());
+  double mean = 0.0;
+  for (double d : drops) mean += d;
+  mean /= n;
+  double var = 0.0;
+  for (double d : drops) var += (d - mean) * (d - mean);
+  var /= n - 1.0;
+  gain.mean_drop_px2 = mean;
+  const double standard_error = std::sqrt(var / n);
+  gain.t = standard_error > 0 ? mean / standard_error : (mean > 0 ? HUGE_VAL : 0.0);
+  return gain;
 }
 
 void ReprojectEdgePoints(const PinholeCamera& prepared, const LensDistortion& calibrated, Edge* edge) {
@@ -119,6 +158,9 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   cal.holdout_without_px = h0.rms;
   cal.holdout_with_px = h1.rms;
   cal.holdout_points = h1.count;
+  const PairedGain paired = HoldoutPairedGain(edges, without, with, lens);
+  cal.holdout_edges = paired.edges;
+  cal.holdout_gain_t = paired.t;
   cal.distortion = DistortionFromUndistortion(lens.undistortion, max_radius);
   PinholeCamera estimated = prepared;
   estimated.distortion = cal.distortion;
@@ -127,17 +169,18 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
     cal.why = "too few held-out correspondences (" + std::to_string(h1.count) + ") to judge a lens";
   } else if (!(std::abs(cal.distortion_at_half_diagonal) <= options.max_distortion)) {
     cal.why = "implausible distortion at the half-diagonal (" + std::to_string(cal.distortion_at_half_diagonal) + ")";
-  } else if (!(h1.rms <= (1.0 - options.min_holdout_gain) * h0.rms)) {
+  } else if (!(h1.rms < (1.0 - options.min_holdout_gain) * h0.rms) || !(paired.t >= options.min_holdout_t)) {
     cal.why = "the flight does not determine the lens: held-out RMS " + std::to_string(h0.rms) + " -> " +
-              std::to_string(h1.rms) + " px";
+              std::to_string(h1.rms) + " px, paired t " + std::to_string(paired.t) + " over " +
+              std::to_string(paired.edges) + " edges";
   } else {
     cal.accepted = true;
   }
   spdlog::info(
       "lens self-calibration {}: k1 {:.4f} k2 {:.4f} ({:+.3f} at the half-diagonal), held-out RMS {:.3f} -> "
-      "{:.3f} px over {} points, {:.1f} s{}{}",
+      "{:.3f} px over {} points (paired t {:.2f} over {} edges), {:.1f} s{}{}",
       cal.accepted ? "accepted" : "refused", cal.distortion.k1, cal.distortion.k2, cal.distortion_at_half_diagonal,
-      h0.rms, h1.rms, h1.count, cal.seconds, cal.why.empty() ? "" : ": ", cal.why);
+      h0.rms, h1.rms, h1.count, paired.t, paired.edges, cal.seconds, cal.why.empty() ? "" : ": ", cal.why);
   return cal;
 }
 

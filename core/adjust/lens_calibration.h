@@ -15,7 +15,12 @@ struct LensCalibrationOptions {
   bool enabled = true;
   int min_frames = 6;               // fewer frames rarely see the same ground at enough different radii
   int max_correspondences = 20000;  // a strided subset: the estimate needs spread, not every point
-  double min_holdout_gain = 0.03;   // the held-out RMS must drop by at least this share, else the lens is refused
+  // The lens is accepted when the held-out points agree better with it, by more than chance: the per-edge mean drop
+  // of their squared transfer error, over the edges, must be min_holdout_t standard errors above zero (edges, not
+  // points, are the samples: the points of one edge share its errors), and the held-out RMS drop at least
+  // min_holdout_gain of it.
+  double min_holdout_t = 3.0;
+  double min_holdout_gain = 0.0;
   double max_distortion = 0.3;      // |k1 r^2 + k2 r^4| at the half-diagonal; beyond it no camera a drone flies
   double prior_weight = 0.05;       // LensRefine::prior_weight
 
@@ -33,13 +38,16 @@ struct LensCalibration {
   double holdout_without_px = 0.0;  // held-out RMS of the same subset's refinement with the prepared lens
   double holdout_with_px = 0.0;     // and with the estimated one
   size_t holdout_points = 0;
+  size_t holdout_edges = 0;      // edges with held-out points in both solves: the paired test's samples
+  double holdout_gain_t = 0.0;   // the paired test's statistic (mean per-edge drop / its standard error)
   size_t used = 0;  // correspondences in the two solves
   double seconds = 0.0;
 };
 
 // Refines the subset twice from `start` (the linear solution): with the points as `prepared` made them ideal, and with
 // a shared radial undistortion estimated jointly with the maps (LensRefine); the lens is accepted when the held-out
-// correspondences (which neither solve uses) agree better by min_holdout_gain and its distortion is plausible. The
+// correspondences (which neither solve uses) agree better by more than chance (min_holdout_t, min_holdout_gain) and
+// its distortion is plausible. The
 // distortion returned is Brown's (k1, k2) in `prepared`'s normalised coordinates. Tangential terms are not estimated:
 // a prepared lens with them is not calibrated again.
 [[nodiscard]] LensCalibration CalibrateLens(const std::vector<const Edge*>& edges,
@@ -48,6 +56,17 @@ struct LensCalibration {
                                             const RefineOptions& refine, const PinholeCamera& prepared,
                                             const LensCalibrationOptions& options,
                                             const std::unordered_map<int, Mat3>& start);
+
+// The paired test of the held-out points between two solves: per edge, the mean of e_without^2 - e_with^2 over its
+// held-out points; over the edges, that mean divided by its standard error (0 with fewer than 3 edges).
+struct PairedGain {
+  size_t edges = 0;
+  double mean_drop_px2 = 0.0;
+  double t = 0.0;
+};
+[[nodiscard]] PairedGain HoldoutPairedGain(const std::vector<const Edge*>& edges,
+                                           const std::unordered_map<int, Mat3>& without,
+                                           const std::unordered_map<int, Mat3>& with, const LensRefine& lens);
 
 // Moves an edge's points (kept and held out) from `prepared`'s ideal pixels to those of the same camera with
 // `calibrated` as its distortion.

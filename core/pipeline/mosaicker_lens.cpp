@@ -76,6 +76,8 @@ nlohmann::json Mosaicker::LensJson() const {
                         {"holdout_rms_px_without", cal.holdout_without_px},
                         {"holdout_rms_px_with", cal.holdout_with_px},
                         {"holdout_points", cal.holdout_points},
+                        {"holdout_edges", cal.holdout_edges},
+                        {"holdout_gain_t", cal.holdout_gain_t},
                         {"correspondences", cal.used},
                         {"seconds", cal.seconds}}}};
   const PinholeCamera final_camera = FinalCamera();

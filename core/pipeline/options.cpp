@@ -36,6 +36,7 @@ std::vector<Field> LensFields(PipelineOptions& o) {
       {"lens_calibration", "min_frames", &o.lens_calibration.min_frames},
       {"lens_calibration", "max_correspondences", &o.lens_calibration.max_correspondences},
       {"lens_calibration", "min_holdout_gain", &o.lens_calibration.min_holdout_gain},
+      {"lens_calibration", "min_holdout_t", &o.lens_calibration.min_holdout_t},
       {"lens_calibration", "max_distortion", &o.lens_calibration.max_distortion},
       {"lens_calibration", "prior_weight", &o.lens_calibration.prior_weight},
   };
