@@ -21,8 +21,8 @@ struct LensCalibrationOptions {
   // min_holdout_gain of it.
   double min_holdout_t = 3.0;
   double min_holdout_gain = 0.0;
-  double max_distortion = 0.3;      // |k1 r^2 + k2 r^4| at the half-diagonal; beyond it no camera a drone flies
-  double prior_weight = 0.05;       // LensRefine::prior_weight
+  double max_distortion = 0.3;  // |k1 r^2 + k2 r^4| at the half-diagonal; beyond it no camera a drone flies
+  double prior_weight = 0.05;   // LensRefine::prior_weight
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -38,9 +38,9 @@ struct LensCalibration {
   double holdout_without_px = 0.0;  // held-out RMS of the same subset's refinement with the prepared lens
   double holdout_with_px = 0.0;     // and with the estimated one
   size_t holdout_points = 0;
-  size_t holdout_edges = 0;      // edges with held-out points in both solves: the paired test's samples
-  double holdout_gain_t = 0.0;   // the paired test's statistic (mean per-edge drop / its standard error)
-  size_t used = 0;  // correspondences in the two solves
+  size_t holdout_edges = 0;     // edges with held-out points in both solves: the paired test's samples
+  double holdout_gain_t = 0.0;  // the paired test's statistic (mean per-edge drop / its standard error)
+  size_t used = 0;              // correspondences in the two solves
   double seconds = 0.0;
 };
 
