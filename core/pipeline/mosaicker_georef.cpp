@@ -119,8 +119,8 @@ nlohmann::json Mosaicker::MakeProducts(const std::vector<int>& component, const 
   if (options_.write_products)
     tiles_job = std::async(std::launch::async, [&] {
       StageTimer t;
-      const bool ok = WriteTiles(tiled, paths_.Join("tiles"), georef_.ok, georef_.gsd_m, FinalTileOptions(), &tiles,
-                                 &tiles_err);
+      const bool ok =
+          WriteTiles(tiled, paths_.Join("tiles"), georef_.ok, georef_.gsd_m, FinalTileOptions(), &tiles, &tiles_err);
       tiles_ms = t.ElapsedMs();
       return ok;
     });

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include "core/buffers/mat_pool.h"
+
 namespace uavm {
 
 void ResourceLog::FlightStart() {
@@ -10,6 +12,7 @@ void ResourceLog::FlightStart() {
 
 void ResourceLog::FlightEnd() {
   flight_peak_rss_mib_ = std::max(PeakRssMiB(), HighWaterRssMiB());
+  FlushMatPool();  // the flight's pooled detector buffers: the solves start without them
   flight_end_rss_mib_ = CurrentRssMiB();
   flight_end_heap_ = CurrentHeapStats();
   fds_at_flight_end_ = OpenFileDescriptors();
@@ -23,7 +26,23 @@ void ResourceLog::SolvesEnd() {
 
 void ResourceLog::ComposeEnd() {
   compose_peak_rss_mib_ = HighWaterRssMiB();
+  FlushMatPool();  // the compositor's pooled buffers: the products phase has its own
 }
+
+namespace {
+
+nlohmann::json MatPoolJson() {
+  const MatPool* pool = InstalledMatPool();
+  if (pool == nullptr) return nullptr;
+  const MatPoolStats s = pool->Stats();
+  constexpr double kMiB = 1024.0 * 1024.0;
+  return {{"hits", s.hits},
+          {"misses", s.misses},
+          {"evictions", s.evictions},
+          {"peak_pooled_mib", static_cast<double>(s.peak_pooled_bytes) / kMiB}};
+}
+
+}  // namespace
 
 nlohmann::json ResourceLog::FdsJson() const {
   return {{"flight_start", fds_at_start_}, {"flight_end", fds_at_flight_end_}};
@@ -41,6 +60,7 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
            {{"in_use_mib", flight_end_heap_.in_use_mib},
             {"arena_mib", flight_end_heap_.arena_mib},
             {"mmapped_mib", flight_end_heap_.mmapped_mib}}},
+          {"mat_pool", MatPoolJson()},
           {"plan_flight_mib", mp.FlightMiB()},
           {"plan_end_mib", mp.EndMiB()},
           {"plan",

@@ -1,0 +1,155 @@
+#include "core/buffers/mat_pool.h"
+
+#include <algorithm>
+#include <atomic>
+
+namespace uavm {
+
+MatPool::MatPool(const MatPoolOptions& options) : options_(options) {}
+
+MatPool::~MatPool() {
+  Flush();
+}
+
+void* MatPool::Take(size_t bytes) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto slack = static_cast<size_t>(static_cast<double>(bytes) * options_.max_slack);
+  void* block = nullptr;
+  const auto it = by_capacity_.lower_bound(bytes);
+  if (it != by_capacity_.end() && it->first <= bytes + slack) {
+    block = it->second->block;
+    stats_.pooled_bytes -= it->first;
+    free_.erase(it->second);
+    by_capacity_.erase(it);
+    ++stats_.hits;
+  } else {
+    // A new mapping: pooled blocks go first while pooled + in use + it would pass the peak without the pool.
+    EvictLocked(bytes, std::max(stats_.peak_in_use_bytes, stats_.in_use_bytes + bytes));
+    ++stats_.misses;
+    block = cv::fastMalloc(bytes);
+    capacity_[block] = bytes;
+  }
+  stats_.in_use_bytes += capacity_[block];
+  stats_.peak_in_use_bytes = std::max(stats_.peak_in_use_bytes, stats_.in_use_bytes);
+  return block;
+}
+
+void MatPool::EraseLocked(FreeList::iterator it) const {
+  auto range = by_capacity_.equal_range(it->capacity);
+  for (auto i = range.first; i != range.second; ++i)
+    if (i->second == it) {
+      by_capacity_.erase(i);
+      break;
+    }
+  stats_.pooled_bytes -= it->capacity;
+  capacity_.erase(it->block);
+  cv::fastFree(it->block);
+  free_.erase(it);
+  ++stats_.evictions;
+}
+
+void MatPool::EvictLocked(size_t incoming, size_t limit) const {
+  while (!free_.empty() && stats_.pooled_bytes + stats_.in_use_bytes + incoming > limit) EraseLocked(free_.begin());
+}
+
+void MatPool::Give(void* block) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const size_t capacity = capacity_.at(block);
+  stats_.in_use_bytes -= capacity;
+  if (capacity > options_.max_pooled_bytes) {
+    capacity_.erase(block);
+    cv::fastFree(block);
+    return;
+  }
+  while (!free_.empty() && stats_.pooled_bytes + capacity > options_.max_pooled_bytes) EraseLocked(free_.begin());
+  free_.push_back({capacity, block});
+  by_capacity_.emplace(capacity, std::prev(free_.end()));
+  stats_.pooled_bytes += capacity;
+  stats_.peak_pooled_bytes = std::max(stats_.peak_pooled_bytes, stats_.pooled_bytes);
+}
+
+cv::UMatData* MatPool::allocate(int dims, const int* sizes, int type, void* data, size_t* step,
+                                cv::AccessFlag /*flags*/, cv::UMatUsageFlags /*usage*/) const {
+  size_t total = CV_ELEM_SIZE(type);
+  for (int i = dims - 1; i >= 0; --i) {
+    if (step != nullptr) {
+      if (data != nullptr && step[i] != cv::Mat::AUTO_STEP) {
+        CV_Assert(total <= step[i]);
+        total = step[i];
+      } else {
+        step[i] = total;
+      }
+    }
+    total *= static_cast<size_t>(sizes[i]);
+  }
+  auto* u = new cv::UMatData(this);
+  if (data != nullptr) {
+    u->data = u->origdata = static_cast<uchar*>(data);
+    u->flags |= cv::UMatData::USER_ALLOCATED;
+  } else if (total >= options_.min_block_bytes) {
+    u->data = u->origdata = static_cast<uchar*>(Take(total));
+  } else {
+    u->data = u->origdata = static_cast<uchar*>(cv::fastMalloc(total));
+  }
+  u->size = total;
+  return u;
+}
+
+bool MatPool::allocate(cv::UMatData* u, cv::AccessFlag /*access*/, cv::UMatUsageFlags /*usage*/) const {
+  return u != nullptr;
+}
+
+void MatPool::deallocate(cv::UMatData* u) const {
+  if (u == nullptr) return;
+  CV_Assert(u->urefcount == 0);
+  CV_Assert(u->refcount == 0);
+  if (!(u->flags & cv::UMatData::USER_ALLOCATED) && u->origdata != nullptr) {
+    bool pooled = false;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      pooled = capacity_.count(u->origdata) != 0;
+    }
+    if (pooled)
+      Give(u->origdata);
+    else
+      cv::fastFree(u->origdata);
+    u->origdata = nullptr;
+  }
+  delete u;
+}
+
+void MatPool::Flush() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  while (!free_.empty()) EraseLocked(free_.begin());
+  stats_.peak_in_use_bytes = stats_.in_use_bytes;
+}
+
+MatPoolStats MatPool::Stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return stats_;
+}
+
+namespace {
+std::atomic<MatPool*> g_pool{nullptr};
+std::mutex g_install;
+}  // namespace
+
+MatPool* InstallMatPool(const MatPoolOptions& options) {
+  std::lock_guard<std::mutex> lock(g_install);
+  if (MatPool* existing = g_pool.load()) return existing;
+  // Never destroyed: Mats alive at exit (statics, other threads' caches) still return their blocks to it.
+  auto* pool = new MatPool(options);
+  cv::Mat::setDefaultAllocator(pool);
+  g_pool.store(pool);
+  return pool;
+}
+
+MatPool* InstalledMatPool() {
+  return g_pool.load();
+}
+
+void FlushMatPool() {
+  if (MatPool* pool = g_pool.load()) pool->Flush();
+}
+
+}  // namespace uavm
