@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "core/matching/descriptor_distance.h"
 #include "core/features/sift.h"
 
 namespace uavm {
@@ -49,7 +50,7 @@ class GlobalIndex {
   // floats): no float copy, and every buffer is sized once for max_descriptors, so building the tree late in a long
   // flight does not raise the resident memory by a copy of the data.
   static constexpr int kDescriptorSize = 128;  // SIFT
-  using Tree = cvflann::Index<cvflann::L2<unsigned char>>;
+  using Tree = cvflann::Index<ByteL2>;
   cv::Mat descriptors_;  // CV_8U, max_descriptors rows allocated once; the first rows_ are in use
   int rows_ = 0;
   std::vector<int> frame_of_row_;

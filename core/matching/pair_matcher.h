@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "core/matching/descriptor_distance.h"
 #include "core/estimators/ransac.h"
 #include "core/features/sift.h"
 #include "core/geometry/transform.h"
@@ -49,7 +50,7 @@ class DescriptorIndex {
   [[nodiscard]] bool empty() const { return rows_ < 2; }
 
  private:
-  using Tree = cvflann::Index<cvflann::L2<unsigned char>>;
+  using Tree = cvflann::Index<ByteL2>;
   cv::Mat descriptors_;  // CV_8U rows owned here (the tree borrows them)
   std::unique_ptr<Tree> index_;
   int rows_ = 0;
