@@ -4,8 +4,8 @@
 #include <string>
 #include <vector>
 
-#include "core/matching/descriptor_distance.h"
 #include "core/features/sift.h"
+#include "core/matching/descriptor_distance.h"
 
 namespace uavm {
 

@@ -4,10 +4,10 @@
 #include <string>
 #include <vector>
 
-#include "core/matching/descriptor_distance.h"
 #include "core/estimators/ransac.h"
 #include "core/features/sift.h"
 #include "core/geometry/transform.h"
+#include "core/matching/descriptor_distance.h"
 
 namespace uavm {
 
