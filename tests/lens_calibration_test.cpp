@@ -86,15 +86,24 @@ PinholeCamera Ideal() {
   return PinholeCamera::Centred(kW, kH, kFocal, {});
 }
 
+// A radial lens with k1 only, moving the half-diagonal by `share` of its radius (negative: barrel).
+PinholeCamera BarrelLens(double share) {
+  PinholeCamera lens = Ideal();
+  lens.distortion.k1 = share / (lens.HalfDiagonalRadius() * lens.HalfDiagonalRadius());
+  return lens;
+}
+
+LensCalibration Calibrate(const Solved& s, const PinholeCamera& prepared,
+                          const LensCalibrationOptions& options = LensCalibrationOptions{}) {
+  return CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, prepared, options, s.linear);
+}
+
 TEST(LensCalibrationTest, FindsABarrelLensFromTheFlightAlone) {
   // k1 such that the corners are drawn 10 % of their radius inwards, as a small drone camera's.
-  PinholeCamera truth = Ideal();
-  const double r2 = truth.HalfDiagonalRadius() * truth.HalfDiagonalRadius();
-  truth.distortion.k1 = -0.1 / r2;
+  const PinholeCamera truth = BarrelLens(-0.1);
   Flight f = MakeFlight(truth, 0.3, 1);
   Solved s = SolveLinear(f);
-  const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(),
-                                            LensCalibrationOptions{}, s.linear);
+  const LensCalibration cal = Calibrate(s, Ideal());
   ASSERT_TRUE(cal.tried);
   EXPECT_TRUE(cal.accepted) << cal.why;
   PinholeCamera found = Ideal();
@@ -136,8 +145,7 @@ TEST(LensCalibrationTest, AnIdealLensIsLeftAlone) {
   for (unsigned seed : {2u, 6u, 7u, 8u, 9u}) {
     Flight f = MakeFlight(Ideal(), 0.3, seed);
     Solved s = SolveLinear(f);
-    const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(),
-                                              LensCalibrationOptions{}, s.linear);
+    const LensCalibration cal = Calibrate(s, Ideal());
     ASSERT_TRUE(cal.tried);
     EXPECT_FALSE(cal.accepted) << seed;
     EXPECT_LT(cal.holdout_gain_t, 3.0) << seed;
@@ -148,9 +156,7 @@ TEST(LensCalibrationTest, AnIdealLensIsLeftAlone) {
 
 TEST(LensCalibrationTest, APreparedLensIsRefinedFromItsStart) {
   // The points were made ideal with a database lens that is 40 % too weak: the calibration finds the rest.
-  PinholeCamera truth = Ideal();
-  const double r2 = truth.HalfDiagonalRadius() * truth.HalfDiagonalRadius();
-  truth.distortion.k1 = -0.1 / r2;
+  const PinholeCamera truth = BarrelLens(-0.1);
   Flight f = MakeFlight(truth, 0.3, 3);
   PinholeCamera prepared = Ideal();
   prepared.distortion.k1 = 0.6 * truth.distortion.k1;
@@ -158,8 +164,7 @@ TEST(LensCalibrationTest, APreparedLensIsRefinedFromItsStart) {
     for (auto* pts : {&e.src_points, &e.tgt_points, &e.holdout_src_points, &e.holdout_tgt_points})
       for (Vec2& p : *pts) p = prepared.UndistortPixel(p);
   Solved s = SolveLinear(f);
-  const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, prepared,
-                                            LensCalibrationOptions{}, s.linear);
+  const LensCalibration cal = Calibrate(s, prepared);
   EXPECT_TRUE(cal.accepted) << cal.why;
   EXPECT_NEAR(cal.distortion_at_half_diagonal, -0.1, 0.01);
 }
@@ -169,8 +174,7 @@ TEST(LensCalibrationTest, TooFewFramesAreNotTried) {
   Solved s = SolveLinear(f);
   LensCalibrationOptions o;
   o.min_frames = 40;
-  const LensCalibration cal =
-      CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(), o, s.linear);
+  const LensCalibration cal = Calibrate(s, Ideal(), o);
   EXPECT_FALSE(cal.tried);
   EXPECT_NE(cal.why.find("too few frames"), std::string::npos);
 }
@@ -211,13 +215,9 @@ TEST(LensCalibrationTest, HoldoutPairedGainIsThePerEdgeTStatistic) {
 TEST(LensCalibrationTest, AWeakButConsistentLensIsAcceptedOnEvidenceNotOnSize) {
   // 0.3 % at the half-diagonal (1.2 px at the corners of a 640 x 480 frame): the held-out RMS drops by less than the
   // 3 % a fixed threshold would ask, yet the edges agree that the lens helps.
-  PinholeCamera truth = Ideal();
-  const double r2 = truth.HalfDiagonalRadius() * truth.HalfDiagonalRadius();
-  truth.distortion.k1 = -0.003 / r2;
-  Flight f = MakeFlight(truth, 0.3, 5);
+  Flight f = MakeFlight(BarrelLens(-0.003), 0.3, 5);
   Solved s = SolveLinear(f);
-  const LensCalibration cal = CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, Ideal(),
-                                            LensCalibrationOptions{}, s.linear);
+  const LensCalibration cal = Calibrate(s, Ideal());
   std::printf("held-out %.4f -> %.4f px, paired t %.2f over %zu edges, found %.4f\n", cal.holdout_without_px,
               cal.holdout_with_px, cal.holdout_gain_t, cal.holdout_edges, cal.distortion_at_half_diagonal);
   EXPECT_TRUE(cal.accepted) << cal.why;

@@ -191,7 +191,7 @@ TEST(GcpAdjustment, CheckpointsWithinClickNoise) {
   arbitrary.scale = 0.37;
   arbitrary.rotation = Eigen::AngleAxisd(1.1, Eigen::Vector3d(0.2, -0.3, 1.0).normalized()).toRotationMatrix();
   arbitrary.translation = Eigen::Vector3d(-40.0, 700.0, 12.0);
-  rec.Transform(arbitrary.scale, arbitrary.rotation, arbitrary.translation);
+  rec.Transform(arbitrary);
 
   ControlOptions copt;
   copt.sigma_m = 0.01;

@@ -52,20 +52,23 @@ void MatPool::EvictLocked(size_t incoming, size_t limit) const {
   while (!free_.empty() && stats_.pooled_bytes + stats_.in_use_bytes + incoming > limit) EraseLocked(free_.begin());
 }
 
-void MatPool::Give(void* block) const {
+bool MatPool::Give(void* block) const {
   std::lock_guard<std::mutex> lock(mutex_);
-  const size_t capacity = capacity_.at(block);
+  const auto it = capacity_.find(block);
+  if (it == capacity_.end()) return false;  // not the pool's: a small Mat's malloc block
+  const size_t capacity = it->second;
   stats_.in_use_bytes -= capacity;
   if (capacity > options_.max_pooled_bytes) {
-    capacity_.erase(block);
+    capacity_.erase(it);
     cv::fastFree(block);
-    return;
+    return true;
   }
   while (!free_.empty() && stats_.pooled_bytes + capacity > options_.max_pooled_bytes) EraseLocked(free_.begin());
   free_.push_back({capacity, block});
   by_capacity_.emplace(capacity, std::prev(free_.end()));
   stats_.pooled_bytes += capacity;
   stats_.peak_pooled_bytes = std::max(stats_.peak_pooled_bytes, stats_.pooled_bytes);
+  return true;
 }
 
 cv::UMatData* MatPool::allocate(int dims, const int* sizes, int type, void* data, size_t* step,
@@ -104,15 +107,7 @@ void MatPool::deallocate(cv::UMatData* u) const {
   CV_Assert(u->urefcount == 0);
   CV_Assert(u->refcount == 0);
   if (!(u->flags & cv::UMatData::USER_ALLOCATED) && u->origdata != nullptr) {
-    bool pooled = false;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      pooled = capacity_.count(u->origdata) != 0;
-    }
-    if (pooled)
-      Give(u->origdata);
-    else
-      cv::fastFree(u->origdata);
+    if (!Give(u->origdata)) cv::fastFree(u->origdata);
     u->origdata = nullptr;
   }
   delete u;

@@ -59,7 +59,8 @@ class MatPool final : public cv::MatAllocator {
   using FreeList = std::list<FreeBlock>;  // least recently freed first
 
   void* Take(size_t bytes) const;
-  void Give(void* block) const;
+  // Takes back a block the pool made (false for any other block: the caller frees it).
+  [[nodiscard]] bool Give(void* block) const;
   // Frees pooled blocks, least recently freed first, until pooled + in use + `incoming` fits under `limit`.
   void EvictLocked(size_t incoming, size_t limit) const;
   void EraseLocked(FreeList::iterator it) const;

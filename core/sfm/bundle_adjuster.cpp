@@ -39,12 +39,12 @@ double Reconstruction::MedianGsd() const {
   return depths[depths.size() / 2] / camera.fx;
 }
 
-void Reconstruction::Transform(double scale, const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation) {
+void Reconstruction::Transform(const Similarity3& s) {
   for (auto& im : images) {
-    im.pose.c = scale * rotation * im.pose.c + translation;
-    im.pose.R = im.pose.R * rotation.transpose();
+    im.pose.c = s.Apply(im.pose.c);
+    im.pose.R = im.pose.R * s.rotation.transpose();
   }
-  for (auto& p : points) p.X = scale * rotation * p.X + translation;
+  for (auto& p : points) p.X = s.Apply(p.X);
 }
 
 bool BundleOptions::Check(std::string* why) const {

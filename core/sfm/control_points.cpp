@@ -34,7 +34,7 @@ std::optional<Eigen::Vector3d> TriangulateClicks(const Reconstruction& rec, cons
 namespace {
 
 void Apply(const Similarity3& s, Reconstruction* rec, std::vector<std::optional<Eigen::Vector3d>>* priors) {
-  rec->Transform(s.scale, s.rotation, s.translation);
+  rec->Transform(s);
   for (auto& c : *priors) {
     if (c) c = s.Apply(*c);
   }

@@ -708,7 +708,7 @@ void Georeference(const GpsPositions& gps, Reconstruction* rec, nlohmann::json* 
     (*js)["georef"] = {{"method", "none"}};
     return;
   }
-  rec->Transform(fit.scale, fit.rotation, fit.translation);
+  rec->Transform(fit);
   double sum = 0.0;
   for (size_t k = 0; k < src.size(); ++k) sum += (fit.Apply(src[k]) - dst[k]).squaredNorm();
   (*js)["georef"] = {{"method", "similarity to GPS camera positions"},

@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "core/geometry/similarity.h"
 #include "core/sfm/camera.h"
 #include "core/sfm/tracks.h"
 
@@ -37,7 +38,7 @@ struct Reconstruction {
   // Ground sampling distance at the median depth of all observations (world units per pixel); 0 without points.
   [[nodiscard]] double MedianGsd() const;
   // Moves the whole model by a similarity (x -> s R x + t): camera centres, orientations and points.
-  void Transform(double scale, const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation);
+  void Transform(const Similarity3& s);
 };
 
 }  // namespace uavm::sfm
