@@ -23,6 +23,7 @@
 #include "hal/replay/replay_source.h"
 #include "hal/sim/sim_source.h"
 #include "hal/telemetry/telemetry_source.h"
+#include "hal/telemetry/telemetry_watch.h"
 #include "hal/v4l2/v4l2_source.h"
 #ifdef UAVM_HAVE_LIBCAMERA
 #include "hal/libcamera/libcamera_source.h"
@@ -171,6 +172,7 @@ std::unique_ptr<hal::TelemetrySource> StartTelemetry(const RunConfig& config, bo
   hal::TelemetryOptions options;
   options.latency_ns = static_cast<int64_t>(t.latency_ms * 1e6);
   options.max_gap_ns = static_cast<int64_t>(t.max_gap_s * 1e9);
+  options.max_hold_ns = static_cast<int64_t>(t.max_hold_s * 1e9);
   options.exif_utc_offset_s = t.exif_utc_offset_s;
   std::string error;
   auto source = hal::MakeTelemetrySource(config.telemetry, options, &error);
@@ -203,6 +205,9 @@ nlohmann::json TelemetryJson(const hal::TelemetryReport& r) {
           {"bytes_skipped", r.parser.bytes_skipped + r.resync_bytes},
           {"log_truncated", r.log_truncated},
           {"log_overlaps_frames", r.log_overlaps_frames},
+          {"triggers", r.triggers},
+          {"triggers_missing", r.triggers_missing},
+          {"triggers_without_fix", r.triggers_without_fix},
           {"link_losses", r.link_losses}};
 }
 
@@ -386,6 +391,7 @@ struct CaptureOutcome {
 void CaptureFrames(const RunConfig& config, hal::FrameSource* source, hal::TelemetrySource* telemetry,
                    Mosaicker* mosaicker, const std::unordered_set<std::string>& seen, int delivered,
                    BoundedQueue<Item>* queue, CaptureOutcome* outcome) {
+  hal::TelemetryWatch telemetry_watch;
   for (;;) {
     if (config.max_frames > 0 && delivered >= config.max_frames) break;
     if (g_stop_signal != 0) break;
@@ -407,7 +413,9 @@ void CaptureFrames(const RunConfig& config, hal::FrameSource* source, hal::Telem
     if (item.status == hal::Status::kOk) {
       ++delivered;
       if (telemetry) {
-        if (const auto pose = telemetry->PoseFor(frame)) hal::ApplyPose(*pose, &frame.metadata);
+        const auto pose = telemetry->PoseFor(frame);
+        if (pose) hal::ApplyPose(*pose, &frame.metadata);
+        telemetry_watch.Saw(frame.source_name, pose.has_value(), telemetry->Report());
       }
       try {
         item.prepared = mosaicker->Prepare(std::move(frame));
@@ -473,8 +481,10 @@ int FinishFlight(hal::FrameSource* source, hal::TelemetrySource* telemetry, cons
   if (telemetry) {
     telemetry->Stop();
     const hal::TelemetryReport tr = telemetry->Report();
-    spdlog::info("telemetry: {} of {} frames placed ({} without: stale, lost or not covered)", tr.frames_placed,
-                 tr.frames_asked, tr.frames_without);
+    spdlog::log(tr.frames_without > 0 ? spdlog::level::warn : spdlog::level::info,
+                "telemetry: {} of {} frames placed ({} without: stale, lost, no fix or not covered; report.json "
+                "\"telemetry\" counts each)",
+                tr.frames_placed, tr.frames_asked, tr.frames_without);
     mosaicker->SetReportSection("telemetry", TelemetryJson(tr));
   }
   // Frames lost to a slow consumer: in this queue, and in a camera source's own capture queue.

@@ -259,16 +259,21 @@ TEST_F(MavlinkTest, ReplayedStillsTakeTheCameraTriggersInSequence) {
   for (const auto& e : expected_)
     if (e["msgid"].get<uint32_t>() == kCameraFeedback) triggers.push_back(e);
   ASSERT_EQ(triggers.size(), 8u);
+  Frame frame;
   for (size_t k = 0; k < triggers.size(); ++k) {
-    const auto pose = source->PoseFor(Frame{});
+    frame.index = k;  // the k-th file of the replay takes the k-th trigger (image numbers from the first one)
+    const auto pose = source->PoseFor(frame);
     ASSERT_TRUE(pose.has_value());
     EXPECT_NEAR(pose->lat_deg, triggers[k]["lat_deg"].get<double>(), 1e-9);
     EXPECT_NEAR(*pose->relative_alt_m, 80.25, 1e-6);
     EXPECT_NEAR(*pose->yaw_deg, 271.25, 1e-6);
   }
-  EXPECT_FALSE(source->PoseFor(Frame{}).has_value());  // a ninth frame: no trigger left
+  frame.index = triggers.size();
+  EXPECT_FALSE(source->PoseFor(frame).has_value());  // a ninth frame: no trigger left
   const TelemetryReport r = source->Report();
   EXPECT_EQ(r.match, "sequence");
+  EXPECT_EQ(r.triggers, 8u);
+  EXPECT_EQ(r.triggers_missing, 1u);
   EXPECT_EQ(r.frames_placed, 8u);
   EXPECT_EQ(r.frames_without, 1u);
 }

@@ -58,17 +58,38 @@ TEST(TelemetryTrackTest, RefusesStaleGapsTimesOutsideAndNoFix) {
   track.AddFix(Fix(5, 50.1, 8.0));  // a clock going back: refused
   track.AddFix(Fix(7, 0, 0), /*3-D fix=*/false);
   EXPECT_TRUE(track.At(kSecond / 2).has_value());
-  EXPECT_FALSE(track.At(3 * kSecond).has_value());  // between fixes 5 s apart
-  EXPECT_TRUE(track.At(7 * kSecond).has_value());   // 1 s after the last: still within max_gap
-  EXPECT_FALSE(track.At(9 * kSecond).has_value());  // 3 s after the last
+  EXPECT_FALSE(track.At(3 * kSecond).has_value());               // between fixes 5 s apart
+  EXPECT_TRUE(track.At(6 * kSecond + kSecond / 2).has_value());  // 0.5 s after the last: held
+  EXPECT_FALSE(track.At(7 * kSecond).has_value());               // the receiver said it had lost its fix
+  EXPECT_FALSE(track.At(9 * kSecond).has_value());               // 3 s after the last
   EXPECT_FALSE(track.At(-3 * kSecond).has_value());
   const TrackCounters c = track.counters();
   EXPECT_EQ(c.fixes, 3u);
   EXPECT_EQ(c.out_of_order, 1u);
   EXPECT_EQ(c.no_fix, 1u);
   EXPECT_EQ(c.stale, 1u);
-  EXPECT_EQ(c.outside, 2u);
+  EXPECT_EQ(c.outside, 3u);
   EXPECT_EQ(c.answered, 2u);
+}
+
+// Past the newest fix (a link that went quiet) the vehicle's position is carried on by the fix's ground velocity,
+// for max_hold only.
+TEST(TelemetryTrackTest, HoldsTheNewestFixBrieflyAndCarriesItOnByItsVelocity) {
+  TelemetryTrack track(16, 2 * kSecond, kSecond);
+  PositionFix f = Fix(10, 50.0, 8.0);
+  f.north_mps = 10.0;  // 10 m/s north-east-ish
+  f.east_mps = 5.0;
+  track.AddFix(f);
+  const auto p = track.At(10 * kSecond + kSecond / 2);
+  ASSERT_TRUE(p.has_value());
+  constexpr double kMetresPerDeg = 6371008.8 * M_PI / 180.0;
+  EXPECT_NEAR((p->lat_deg - 50.0) * kMetresPerDeg, 5.0, 1e-6);
+  EXPECT_NEAR((p->lon_deg - 8.0) * kMetresPerDeg * std::cos(50.0 * M_PI / 180.0), 2.5, 1e-6);
+  EXPECT_FALSE(track.At(11 * kSecond + kSecond / 10).has_value());  // 1.1 s on: past max_hold
+  TelemetryTrack no_hold(16, 2 * kSecond, 0);
+  no_hold.AddFix(f);
+  EXPECT_TRUE(no_hold.At(10 * kSecond).has_value());
+  EXPECT_FALSE(no_hold.At(10 * kSecond + kSecond / 10).has_value());
 }
 
 TEST(TelemetryTrackTest, KeepsTheNewestFixesWithinItsCapacity) {

@@ -164,6 +164,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"live_tiles", "refit_shift_m", &o.live_tiles.refit_shift_m},
       {"telemetry", "latency_ms", &o.telemetry.latency_ms},
       {"telemetry", "max_gap_s", &o.telemetry.max_gap_s},
+      {"telemetry", "max_hold_s", &o.telemetry.max_hold_s},
       {"telemetry", "exif_utc_offset_s", &o.telemetry.exif_utc_offset_s},
   };
   for (Field& f : LensFields(o)) fields.push_back(std::move(f));
@@ -189,6 +190,8 @@ bool PipelineOptions::Check(std::string* why) const {
   if (!live_tiles.Check(why)) return false;
   if (!(telemetry.max_gap_s > 0 && telemetry.max_gap_s <= 60))
     return Fail(why, "telemetry.max_gap_s must be in (0,60]");
+  if (!(telemetry.max_hold_s >= 0 && telemetry.max_hold_s <= telemetry.max_gap_s))
+    return Fail(why, "telemetry.max_hold_s must be in [0, telemetry.max_gap_s]");
   if (!(std::abs(telemetry.latency_ms) <= 10000)) return Fail(why, "telemetry.latency_ms must be within +-10000");
   if (!(std::abs(telemetry.exif_utc_offset_s) <= 14 * 3600))
     return Fail(why, "telemetry.exif_utc_offset_s must be within +-14 h");

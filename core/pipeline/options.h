@@ -56,7 +56,8 @@ struct PipelineOptions : RegistrationOptions {
   // Telemetry beside the frames (--telemetry; hal/telemetry): how its times meet the frames'.
   struct Telemetry {
     double latency_ms = 0.0;         // a camera frame is looked up at its timestamp minus this
-    double max_gap_s = 2.0;          // fixes further apart (or older) than this place no frame
+    double max_gap_s = 2.0;          // fixes further apart than this place no frame between them
+    double max_hold_s = 1.0;         // a frame after the newest fix (link lost) takes it only within this
     double exif_utc_offset_s = 0.0;  // replayed stills: EXIF local time minus UTC
   } telemetry;                       // Debian's libjs-leaflet, copied into the session
 

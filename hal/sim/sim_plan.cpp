@@ -74,6 +74,10 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"telemetry_hz", &p.telemetry_hz},
           {"attitude_noise_deg", &p.attitude_noise_deg},
           {"camera_latency_ms", &p.camera_latency_ms},
+          {"telemetry_lost_from", &p.telemetry_lost_from},
+          {"telemetry_lost_to", &p.telemetry_lost_to},
+          {"gps_no_fix_from", &p.gps_no_fix_from},
+          {"gps_no_fix_to", &p.gps_no_fix_to},
           {"mavlink_udp", &p.mavlink_udp}};
 }
 
@@ -117,6 +121,10 @@ bool SimPlan::CheckTelemetry(std::string* error) const {
   if (!(camera_latency_ms >= 0 && camera_latency_ms < 1000 * frame_interval_s))
     return Fail(error, "camera_latency_ms must be in [0, frame_interval_s)");
   if (!mavlink_udp.empty() && gps != 1) return Fail(error, "mavlink_udp needs gps: 1");
+  if (!(telemetry_lost_from >= 0 && telemetry_lost_to <= 1 && telemetry_lost_from <= telemetry_lost_to))
+    return Fail(error, "telemetry_lost_from and _to must satisfy 0 <= from <= to <= 1");
+  if (!(gps_no_fix_from >= 0 && gps_no_fix_to <= 1 && gps_no_fix_from <= gps_no_fix_to))
+    return Fail(error, "gps_no_fix_from and _to must satisfy 0 <= from <= to <= 1");
   return true;
 }
 

@@ -67,6 +67,10 @@ namespace uavm::hal {
 //   attitude_noise_deg: sigma of the Gaussian error of the reported roll and pitch [0.5]
 //   camera_latency_ms: a live frame is delivered this long after it was taken, the telemetry going on meanwhile (the
 //     mapper's telemetry.latency_ms compensates it) [0]
+//   telemetry_lost_from, telemetry_lost_to: the link is lost over this part of the flight (fractions of the time from
+//     the first frame to the last): no packet at all, camera triggers included [0, 0 = never]
+//   gps_no_fix_from, gps_no_fix_to: the receiver has no fix over this part of the flight: GPS_RAW_INT without a fix,
+//     GLOBAL_POSITION_INT and camera triggers at lat = lon = 0, as an autopilot without a position sends them [0, 0]
 //   mavlink_udp: "HOST:PORT": `--source sim:PLAN` sends the telemetry there over UDP in step with the frames, paced
 //     in real time (frames frame_interval_s apart; a consumer that falls behind holds the flight's clock), and the
 //     frames carry no GPS of their own (a companion computer's camera); "" = off [""]
@@ -117,6 +121,10 @@ struct SimPlan {
   int telemetry_hz = 10;
   double attitude_noise_deg = 0.5;
   double camera_latency_ms = 0.0;
+  double telemetry_lost_from = 0.0;
+  double telemetry_lost_to = 0.0;
+  double gps_no_fix_from = 0.0;
+  double gps_no_fix_to = 0.0;
   std::string mavlink_udp;
 
   [[nodiscard]] double Focal() const { return focal_px > 0 ? focal_px : frame_width; }

@@ -21,6 +21,15 @@ constexpr uint8_t kCompId = 1;             // MAV_COMP_ID_AUTOPILOT1
 constexpr int64_t kLateNs = 2'000'000;     // a packet later than this holds the flight's clock
 constexpr int64_t kSettleNs = 20'000'000;  // a frame comes this long after the last packet sent before it
 
+// Whether flight time t_s falls in the plan's span [from, to) of the flight (fractions of first frame -> last).
+bool InSpan(const SimSource& source, double t_s, double from, double to) {
+  if (!(to > from)) return false;
+  const size_t n = source.NumFrames();
+  const double first = source.FrameTime(0), last = source.FrameTime(n > 0 ? n - 1 : 0);
+  const double f = last > first ? (t_s - first) / (last - first) : 0.0;
+  return f >= from && f < to;
+}
+
 uint32_t BootMs(double t_s) {
   return static_cast<uint32_t>(std::llround((t_s + SimTelemetry::kBootS) * 1e3));
 }
@@ -47,10 +56,11 @@ void SimTelemetry::Add(double t_s, const mavlink::Message& m, std::vector<TimedP
 void SimTelemetry::AddFix(double t_s, std::vector<TimedPacket>* out) {
   const SimPlan& plan = source_->plan();
   const SimFix fix = source_->FixAt(t_s, static_cast<uint64_t>(slot_));
+  const bool no_fix = InSpan(*source_, t_s, plan.gps_no_fix_from, plan.gps_no_fix_to);
   mavlink::GlobalPositionInt g;
   g.time_boot_ms = BootMs(t_s);
-  g.lat_deg = fix.gps_position.lat_deg;
-  g.lon_deg = fix.gps_position.lon_deg;
+  g.lat_deg = no_fix ? 0.0 : fix.gps_position.lat_deg;
+  g.lon_deg = no_fix ? 0.0 : fix.gps_position.lon_deg;
   g.alt_msl_m = fix.altitude_m;
   g.relative_alt_m = fix.altitude_m;
   g.vx_mps = fix.north_mps;  // MAVLink's NED frame
@@ -62,7 +72,7 @@ void SimTelemetry::AddFix(double t_s, std::vector<TimedPacket>* out) {
   r.lat_deg = g.lat_deg;
   r.lon_deg = g.lon_deg;
   r.alt_msl_m = g.alt_msl_m;
-  r.fix_type = 3;
+  r.fix_type = no_fix ? 1 : 3;
   r.satellites = 14;
   r.eph = 0.9;
   if (plan.gps_noise_m > 0) r.h_acc_m = plan.gps_noise_m;
@@ -76,10 +86,12 @@ void SimTelemetry::AddFix(double t_s, std::vector<TimedPacket>* out) {
 void SimTelemetry::AddCameraFeedback(size_t frame, std::vector<TimedPacket>* out) {
   const double t_s = source_->FrameTime(frame);
   const SimFix fix = source_->FixAt(t_s, static_cast<uint64_t>(slot_));
+  const SimPlan& plan = source_->plan();
+  const bool no_fix = InSpan(*source_, t_s, plan.gps_no_fix_from, plan.gps_no_fix_to);
   mavlink::CameraFeedback c;
   c.time_usec = UnixUs(t_s);
-  c.lat_deg = fix.gps_position.lat_deg;
-  c.lon_deg = fix.gps_position.lon_deg;
+  c.lat_deg = no_fix ? 0.0 : fix.gps_position.lat_deg;
+  c.lon_deg = no_fix ? 0.0 : fix.gps_position.lon_deg;
   c.alt_msl_m = fix.altitude_m;
   c.alt_rel_m = fix.altitude_m;
   c.roll_deg = fix.roll_deg;
@@ -107,6 +119,8 @@ bool SimTelemetry::NextSlot(std::vector<TimedPacket>* out) {
     ++next_frame_;
   }
   ++slot_;
+  // A lost link: nothing of this tick reaches the ground station (the frames are still taken).
+  if (InSpan(*source_, t_s, source_->plan().telemetry_lost_from, source_->plan().telemetry_lost_to)) out->clear();
   return true;
 }
 

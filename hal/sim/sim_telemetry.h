@@ -24,6 +24,7 @@ struct TimedPacket {
 //   at 1 Hz: HEARTBEAT (an armed ArduPilot quadcopter) and SYSTEM_TIME;
 //   at each frame's instant: CAMERA_FEEDBACK with the frame's own fix (img_idx = ArduPilot's image count: 1 for the
 //     first frame of the flight), so that a replay matches frames by trigger sequence.
+// The plan's faults: over telemetry_lost_* nothing is sent; over gps_no_fix_* the fixes and triggers carry no position.
 // Positions follow SimSource::FixAt (take-off at sea level: altitude MSL = height above take-off). The stream starts
 // 1 s before the first frame and ends 1 s after the last; flight time 0 is kSimEpochUnixUs (UTC).
 class SimTelemetry {

@@ -35,7 +35,7 @@ class GpsdSource final : public TelemetrySource {
       : host_(std::move(host)),
         port_(std::to_string(port)),
         options_(options),
-        track_(TelemetryTrack::kLiveCapacity, options.max_gap_ns),
+        track_(TelemetryTrack::kLiveCapacity, options.max_gap_ns, options.max_hold_ns),
         gps_(std::make_unique<gps_data_t>()) {}
   ~GpsdSource() override { Stop(); }
 
@@ -193,6 +193,11 @@ void GpsdSource::AddReport(const gps_fix_t& fix, int64_t now_ns) {
     p.alt_msl_m = *last_alt_m_;
     p.relative_alt_m = *last_alt_m_ - *takeoff_alt_m_;
     if (std::isfinite(fix.eph)) p.h_acc_m = fix.eph * kR95ToSigma;
+    if (std::isfinite(fix.speed) && std::isfinite(fix.track)) {
+      p.north_mps = fix.speed * std::cos(fix.track * M_PI / 180.0);
+      p.east_mps = fix.speed * std::sin(fix.track * M_PI / 180.0);
+      if (std::isfinite(fix.climb)) p.up_mps = fix.climb;
+    }
   }
   track_.AddFix(p, usable);
   // Course over ground as the heading, only while moving; the track keeps a heading for max_gap after the last one.

@@ -9,6 +9,7 @@
 #include <termios.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -30,10 +31,11 @@ namespace {
 constexpr double kRadToDeg = 180.0 / M_PI;
 
 PositionFix FixOf(const mavlink::GlobalPositionInt& g, int64_t t_ns) {
-  return {t_ns, g.lat_deg, g.lon_deg, g.alt_msl_m, g.relative_alt_m, std::nullopt};
+  return {t_ns,         g.lat_deg, g.lon_deg, g.alt_msl_m, g.relative_alt_m,
+          std::nullopt, g.vx_mps,  g.vy_mps,  -g.vz_mps};  // NED
 }
 PositionFix FixOf(const mavlink::GpsRawInt& g, int64_t t_ns) {
-  return {t_ns, g.lat_deg, g.lon_deg, g.alt_msl_m, std::nullopt, g.h_acc_m};
+  return {t_ns, g.lat_deg, g.lon_deg, g.alt_msl_m, std::nullopt, g.h_acc_m, std::nullopt, std::nullopt, std::nullopt};
 }
 AttitudeSample AttitudeOf(const mavlink::Attitude& a, int64_t t_ns) {
   return {t_ns, a.roll_rad * kRadToDeg, a.pitch_rad * kRadToDeg, a.yaw_rad * kRadToDeg};
@@ -94,8 +96,47 @@ class GeoSource final : public TelemetrySource {
   TelemetryReport report_;
 };
 
-// A replayed flight's log: frames find their pose by camera trigger sequence when the log has trigger messages,
-// else by EXIF time against the log's UTC time.
+// A camera trigger in a log: CAMERA_FEEDBACK (ArduPilot) or CAMERA_IMAGE_CAPTURED (the MAVLink camera protocol).
+struct Trigger {
+  int64_t image_index = 0;
+  uint64_t time_utc_us = 0;              // 0 when the autopilot did not know the time
+  std::optional<InterpolatedPose> pose;  // none: the autopilot had no position (lat = lon = 0)
+};
+
+std::optional<InterpolatedPose> TriggerPose(double lat, double lon, double alt_msl, double alt_rel) {
+  if (lat == 0 && lon == 0) return std::nullopt;
+  InterpolatedPose t;
+  t.lat_deg = lat;
+  t.lon_deg = lon;
+  t.alt_msl_m = alt_msl;
+  t.relative_alt_m = alt_rel;
+  return t;
+}
+
+Trigger TriggerOf(const mavlink::CameraFeedback& c) {
+  Trigger t{c.image_index, c.time_usec, TriggerPose(c.lat_deg, c.lon_deg, c.alt_msl_m, c.alt_rel_m)};
+  if (t.pose) {
+    t.pose->roll_deg = c.roll_deg;
+    t.pose->pitch_deg = c.pitch_deg;
+    t.pose->yaw_deg = c.yaw_deg;
+  }
+  return t;
+}
+
+Trigger TriggerOf(const mavlink::CameraImageCaptured& c) {
+  Trigger t{c.image_index, c.time_utc_usec, TriggerPose(c.lat_deg, c.lon_deg, c.alt_msl_m, c.relative_alt_m)};
+  if (t.pose) {  // yaw of the camera's attitude quaternion (w x y z, NED)
+    const auto& q = c.q;
+    if (q[0] != 0 || q[1] != 0 || q[2] != 0 || q[3] != 0)
+      t.pose->yaw_deg =
+          std::atan2(2.0 * (q[0] * q[3] + q[1] * q[2]), 1.0 - 2.0 * (q[2] * q[2] + q[3] * q[3])) * kRadToDeg;
+  }
+  return t;
+}
+
+// A replayed flight's log: frames find their pose by camera trigger when the log has trigger messages (frame index i
+// takes the trigger numbered first + i, so a trigger lost from the log costs one frame, not a shift of all those
+// after it), else by EXIF time against the log's UTC time.
 class TlogSource final : public TelemetrySource {
  public:
   TlogSource(std::string path, const TelemetryOptions& options) : path_(std::move(path)), options_(options) {}
@@ -105,23 +146,44 @@ class TlogSource final : public TelemetrySource {
     TelemetryReport r = report_;
     r.kind = "tlog";
     r.match = triggers_.empty() ? "time" : "sequence";
+    r.triggers = triggers_.size();
     if (track_) r.track = track_->counters();
     return r;
   }
   std::string Describe() const override { return "telemetry log " + path_; }
 
  private:
+  [[nodiscard]] std::optional<InterpolatedPose> ByTrigger(const Frame& frame);
+  [[nodiscard]] std::optional<InterpolatedPose> ByTime(const Frame& frame);
+  [[nodiscard]] std::optional<int64_t> FrameUtcNs(const Frame& frame) const;
+  void WarnNotCovered(const Frame& frame, int64_t apart_ns, const char* what);
+
   std::string path_;
   TelemetryOptions options_;
   std::unique_ptr<TelemetryTrack> track_;
-  std::vector<InterpolatedPose> triggers_;  // one per camera trigger, in order
-  size_t next_trigger_ = 0;
-  bool warned_overlap_ = false;
+  std::vector<Trigger> triggers_;  // in image-index order
+  bool warned_overlap_ = false, warned_missing_ = false, warned_no_fix_ = false;
   TelemetryReport report_;
 };
 
+// The triggers of one kind (CAMERA_FEEDBACK wins when a log has both): in increasing image-index order, as a camera
+// counts its shots; a log whose indices go back (counters reset) is refused.
+bool OrderTriggers(const std::string& path, std::vector<Trigger> feedback, std::vector<Trigger> captured,
+                   std::vector<Trigger>* out, std::string* error) {
+  *out = feedback.empty() ? std::move(captured) : std::move(feedback);
+  for (size_t i = 1; i < out->size(); ++i)
+    if ((*out)[i].image_index <= (*out)[i - 1].image_index) {
+      *error = "telemetry log " + path + ": camera trigger image numbers go back (" +
+               std::to_string((*out)[i - 1].image_index) + " then " + std::to_string((*out)[i].image_index) +
+               "): a log of several flights? cut it to this one";
+      return false;
+    }
+  return true;
+}
+
 Status TlogSource::Start(std::string* error) {
   std::vector<std::pair<int64_t, mavlink::Message>> messages;
+  std::vector<Trigger> feedback, captured;
   mavlink::TlogStats stats;
   size_t fixes = 0;
   const bool ok = mavlink::ReadTlog(
@@ -131,30 +193,23 @@ Status TlogSource::Start(std::string* error) {
         if (!m) return;
         if (std::holds_alternative<mavlink::GlobalPositionInt>(*m) || std::holds_alternative<mavlink::GpsRawInt>(*m))
           ++fixes;
-        if (const auto* c = std::get_if<mavlink::CameraFeedback>(&*m)) {
-          InterpolatedPose t;
-          t.lat_deg = c->lat_deg;
-          t.lon_deg = c->lon_deg;
-          t.alt_msl_m = c->alt_msl_m;
-          t.relative_alt_m = c->alt_rel_m;
-          t.roll_deg = c->roll_deg;
-          t.pitch_deg = c->pitch_deg;
-          t.yaw_deg = c->yaw_deg;
-          triggers_.push_back(t);
+        if (const auto* c = std::get_if<mavlink::CameraFeedback>(&*m)) return feedback.push_back(TriggerOf(*c));
+        if (const auto* c = std::get_if<mavlink::CameraImageCaptured>(&*m)) {
+          if (c->capture_result == 1) captured.push_back(TriggerOf(*c));  // 0: the capture failed, no image
           return;
         }
         messages.emplace_back(static_cast<int64_t>(us) * 1000, std::move(*m));
       },
       &stats, error);
-  if (!ok) return Status::kError;
+  if (!ok || !OrderTriggers(path_, std::move(feedback), std::move(captured), &triggers_, error)) return Status::kError;
   report_.parser = stats.parser;
   report_.resync_bytes = stats.resync_bytes;
   report_.log_truncated = stats.truncated;
   if (stats.parser.crc_errors + stats.resync_bytes > 0 || stats.truncated)
-    spdlog::warn("telemetry log {}: {} bad checksums, {} bytes skipped{}", path_, stats.parser.crc_errors,
-                 stats.resync_bytes, stats.truncated ? ", cut off at the end" : "");
+    spdlog::warn("telemetry log {}: {} bad checksums, {} bytes skipped{}: the damaged packets are left out", path_,
+                 stats.parser.crc_errors, stats.resync_bytes, stats.truncated ? ", cut off at the end" : "");
   // A replay holds the log's fixes (~100 B each); live links keep a bounded window.
-  track_ = std::make_unique<TelemetryTrack>(fixes + 1, options_.max_gap_ns);
+  track_ = std::make_unique<TelemetryTrack>(fixes + 1, options_.max_gap_ns, options_.max_hold_ns);
   TrackFeeder feeder(track_.get());
   for (const auto& [t, m] : messages) feeder.Add(m, t);
   if (triggers_.empty() && track_->counters().fixes == 0) {
@@ -165,26 +220,70 @@ Status TlogSource::Start(std::string* error) {
   return Status::kOk;
 }
 
-std::optional<InterpolatedPose> TlogSource::PoseFor(const Frame& frame) {
-  ++report_.frames_asked;
-  std::optional<InterpolatedPose> pose;
-  if (!triggers_.empty()) {
-    if (next_trigger_ < triggers_.size()) pose = triggers_[next_trigger_++];
-  } else if (const auto t = ExifTimeUtcNs(frame.metadata.datetime_original)) {
-    const int64_t utc = *t - static_cast<int64_t>(std::llround(options_.exif_utc_offset_s * 1e9));
-    pose = track_->At(utc);
-    const auto [first, last] = track_->span();
-    if (!pose && (utc < first - options_.max_gap_ns || utc > last + options_.max_gap_ns)) {
-      report_.log_overlaps_frames = false;
-      if (!warned_overlap_)
-        spdlog::warn(
-            "telemetry log {} does not cover frame {} (taken {}s {} the log): another flight, or a wrong "
-            "telemetry.exif_utc_offset_s? frames go on image-only",
-            path_, frame.source_name, std::llabs(utc < first ? first - utc : utc - last) / 1000000000,
-            utc < first ? "before" : "after");
-      warned_overlap_ = true;
+std::optional<int64_t> TlogSource::FrameUtcNs(const Frame& frame) const {
+  const auto t = ExifTimeUtcNs(frame.metadata.datetime_original);
+  if (!t) return std::nullopt;
+  return *t - static_cast<int64_t>(std::llround(options_.exif_utc_offset_s * 1e9));
+}
+
+void TlogSource::WarnNotCovered(const Frame& frame, int64_t apart_ns, const char* what) {
+  report_.log_overlaps_frames = false;
+  if (!warned_overlap_)
+    spdlog::warn(
+        "telemetry log {} does not cover frame {} ({} {} s apart): another flight, or a wrong "
+        "telemetry.exif_utc_offset_s? frames keep their own GPS (EXIF), if any",
+        path_, frame.source_name, what, std::llabs(apart_ns) / 1000000000);
+  warned_overlap_ = true;
+}
+
+std::optional<InterpolatedPose> TlogSource::ByTrigger(const Frame& frame) {
+  const int64_t want = triggers_.front().image_index + static_cast<int64_t>(frame.index);
+  const auto it = std::lower_bound(triggers_.begin(), triggers_.end(), want,
+                                   [](const Trigger& t, int64_t i) { return t.image_index < i; });
+  if (it == triggers_.end() || it->image_index != want) {
+    ++report_.triggers_missing;
+    if (!warned_missing_)
+      spdlog::warn(
+          "telemetry log {}: no camera trigger numbered {} for frame {} (lost from the log, or more frames "
+          "than triggers); such frames keep their own GPS (EXIF), if any",
+          path_, want, frame.source_name);
+    warned_missing_ = true;
+    return std::nullopt;
+  }
+  // A camera's clock and the autopilot's cannot be a day apart whatever the time zone (at most 14 h): beyond that the
+  // log is of another flight.
+  constexpr int64_t kMaxZoneNs = 14LL * 3600 * 1000000000;
+  const auto frame_utc = FrameUtcNs(frame);
+  if (frame_utc && it->time_utc_us > 0) {
+    const int64_t apart = *frame_utc - static_cast<int64_t>(it->time_utc_us) * 1000;
+    if (std::llabs(apart) > kMaxZoneNs + options_.max_gap_ns) {
+      WarnNotCovered(frame, apart, "EXIF time and its camera trigger");
+      return std::nullopt;
     }
   }
+  if (!it->pose) {
+    ++report_.triggers_without_fix;
+    if (!warned_no_fix_)
+      spdlog::warn("telemetry log {}: the camera trigger of frame {} has no position (no GPS fix)", path_,
+                   frame.source_name);
+    warned_no_fix_ = true;
+  }
+  return it->pose;
+}
+
+std::optional<InterpolatedPose> TlogSource::ByTime(const Frame& frame) {
+  const auto utc = FrameUtcNs(frame);
+  if (!utc) return std::nullopt;
+  auto pose = track_->At(*utc);
+  const auto [first, last] = track_->span();
+  if (!pose && (*utc < first - options_.max_gap_ns || *utc > last + options_.max_gap_ns))
+    WarnNotCovered(frame, *utc < first ? first - *utc : *utc - last, "EXIF time and the log");
+  return pose;
+}
+
+std::optional<InterpolatedPose> TlogSource::PoseFor(const Frame& frame) {
+  ++report_.frames_asked;
+  const auto pose = triggers_.empty() ? ByTime(frame) : ByTrigger(frame);
   ++(pose ? report_.frames_placed : report_.frames_without);
   return pose;
 }
@@ -198,7 +297,7 @@ class LinkSource final : public TelemetrySource {
         target_(std::move(target)),
         port_or_baud_(port_or_baud),
         options_(options),
-        track_(TelemetryTrack::kLiveCapacity, options.max_gap_ns) {}
+        track_(TelemetryTrack::kLiveCapacity, options.max_gap_ns, options.max_hold_ns) {}
   ~LinkSource() override { Stop(); }
   Status Start(std::string* error) override;
   void Stop() override {

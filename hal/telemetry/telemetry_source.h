@@ -19,10 +19,11 @@ struct TelemetryOptions {
   // Camera frames: how much later a frame's timestamp is than the moment the telemetry describes (the camera's
   // exposure-to-delivery latency minus the link's); the frame is looked up at timestamp - latency.
   int64_t latency_ns = 0;
-  int64_t max_gap_ns = 2'000'000'000;  // fixes further apart (or older) than this do not place a frame
+  int64_t max_gap_ns = 2'000'000'000;   // fixes further apart than this do not place a frame between them
+  int64_t max_hold_ns = 1'000'000'000;  // a frame after the newest fix takes it only within this
   // Replayed stills against a log: EXIF DateTimeOriginal is the camera's local time, the log's is UTC; this is
-  // local - UTC in seconds (e.g. 3600 for CET). Ignored when the log carries camera trigger messages (matched by
-  // sequence instead).
+  // local - UTC in seconds (e.g. 3600 for CET). With camera trigger messages (frames matched by image number) it only
+  // serves to tell a log of another flight.
   double exif_utc_offset_s = 0;
 };
 
@@ -37,8 +38,11 @@ struct TelemetryReport {
   mavlink::ParserCounters parser;
   uint64_t resync_bytes = 0;
   bool log_truncated = false;
-  bool log_overlaps_frames = true;  // false: a log of another flight (times that do not meet the frames')
-  uint64_t link_losses = 0;         // live links that reconnect (gpsd): connections lost during the flight
+  bool log_overlaps_frames = true;    // false: a log of another flight (times that do not meet the frames')
+  uint64_t triggers = 0;              // camera triggers in a log (frames matched by their image number)
+  uint64_t triggers_missing = 0;      // frames whose trigger is not in the log (lost, or more frames than triggers)
+  uint64_t triggers_without_fix = 0;  // frames whose trigger has no position (the autopilot had no GPS fix)
+  uint64_t link_losses = 0;           // live links that reconnect (gpsd): connections lost during the flight
 };
 
 // Telemetry beside the frame source (an interface like FrameSource): where the vehicle was when each frame was taken.

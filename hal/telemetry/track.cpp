@@ -1,5 +1,6 @@
 #include "hal/telemetry/track.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace uavm::hal {
@@ -19,6 +20,19 @@ double LerpDeg(double a, double b, double w) {
 std::optional<double> LerpOpt(const std::optional<double>& a, const std::optional<double>& b, double w) {
   if (a && b) return Lerp(*a, *b, w);
   return a ? a : b;
+}
+
+// A held fix moved on by its ground velocity to time t (metres to degrees on the local sphere: within a second of
+// flight the approximation is far below a GPS error).
+void CarryOn(const PositionFix& f, int64_t t, InterpolatedPose* p) {
+  if (!f.north_mps || !f.east_mps) return;
+  constexpr double kMetresPerDeg = 6371008.8 * M_PI / 180.0;
+  const double dt = static_cast<double>(t - f.t_ns) * 1e-9;
+  p->lat_deg += *f.north_mps * dt / kMetresPerDeg;
+  p->lon_deg += *f.east_mps * dt / (kMetresPerDeg * std::cos(f.lat_deg * M_PI / 180.0));
+  if (!f.up_mps) return;
+  p->alt_msl_m += *f.up_mps * dt;
+  if (p->relative_alt_m) *p->relative_alt_m += *f.up_mps * dt;
 }
 
 }  // namespace
@@ -52,6 +66,7 @@ void TelemetryTrack::AddFix(const PositionFix& fix, bool has_3d_fix) {
   std::lock_guard lock(mutex_);
   if (!has_3d_fix) {
     ++counters_.no_fix;
+    last_no_fix_ns_ = std::max(last_no_fix_ns_, fix.t_ns);
     return;
   }
   if (fixes_.size > 0 && fix.t_ns < fixes_[fixes_.size - 1].t_ns) {
@@ -79,10 +94,12 @@ std::optional<InterpolatedPose> TelemetryTrack::At(int64_t t) {
   const size_t i = Before(fixes_, t);
   const PositionFix* a = i == fixes_.size ? nullptr : &fixes_[i];
   const PositionFix* b = i == fixes_.size ? &fixes_[0] : (i + 1 < fixes_.size ? &fixes_[i + 1] : nullptr);
-  // Outside the fixes: only a fix within max_gap of t may stand for it.
+  // Outside the fixes: only a fix within max_hold of t may stand for it, carried on by its velocity; never past a
+  // report that the receiver lost its fix.
   if (a == nullptr || b == nullptr) {
     const PositionFix* only = a != nullptr ? a : b;
-    if (std::llabs(only->t_ns - t) > max_gap_ns_) {
+    const bool fix_lost_since = a != nullptr && last_no_fix_ns_ > only->t_ns && last_no_fix_ns_ <= t;
+    if (std::llabs(only->t_ns - t) > std::min(max_hold_ns_, max_gap_ns_) || fix_lost_since) {
       ++counters_.outside;
       return std::nullopt;
     }
@@ -98,6 +115,7 @@ std::optional<InterpolatedPose> TelemetryTrack::At(int64_t t) {
   p.alt_msl_m = Lerp(a->alt_msl_m, b->alt_msl_m, w);
   p.relative_alt_m = LerpOpt(a->relative_alt_m, b->relative_alt_m, w);
   p.h_acc_m = LerpOpt(a->h_acc_m, b->h_acc_m, w);
+  if (a == b) CarryOn(*a, t, &p);
   const size_t k = Before(attitudes_, t);
   if (k != attitudes_.size) {
     const AttitudeSample& x = attitudes_[k];

@@ -17,6 +17,8 @@ struct PositionFix {
   double alt_msl_m = 0;
   std::optional<double> relative_alt_m;  // above take-off (GLOBAL_POSITION_INT, CAMERA_FEEDBACK)
   std::optional<double> h_acc_m;         // 1-sigma horizontal accuracy when the receiver says
+  // Velocity: carries the position on past the newest fix.
+  std::optional<double> north_mps, east_mps, up_mps;
 };
 struct AttitudeSample {
   int64_t t_ns = 0;
@@ -41,19 +43,22 @@ struct TrackCounters {
   uint64_t queries = 0;
   uint64_t answered = 0;
   uint64_t stale = 0;        // the nearest fixes were more than max_gap apart (telemetry lost)
-  uint64_t outside = 0;      // before the first fix or after the last (by more than max_gap)
+  uint64_t outside = 0;      // before the first fix or after the last (by more than max_hold)
   uint64_t overwritten = 0;  // fixes the bounded history dropped (oldest first)
 };
 
 // The recent history of the vehicle's position and attitude, bounded (the newest `capacity` of each, allocated once),
 // thread-safe: a telemetry thread adds, the frame loop asks. At(t) interpolates linearly between the fixes around t; it
-// refuses when they are more than max_gap apart or t lies outside them by more than max_gap, so stale telemetry never
+// refuses when they are more than max_gap apart or t lies outside them by more than max_hold, so stale telemetry never
 // places a frame.
 class TelemetryTrack {
  public:
   static constexpr size_t kLiveCapacity = 4096;  // ~7 min of 10 Hz fixes; a live frame is asked about within seconds
-  explicit TelemetryTrack(size_t capacity = kLiveCapacity, int64_t max_gap_ns = 2'000'000'000)
-      : max_gap_ns_(max_gap_ns), fixes_(capacity), attitudes_(capacity) {}
+  // Beyond the newest fix (or before the oldest) the nearest fix stands for t only within max_hold_ns: a moving
+  // vehicle's last known position soon says little about where it is now.
+  explicit TelemetryTrack(size_t capacity = kLiveCapacity, int64_t max_gap_ns = 2'000'000'000,
+                          int64_t max_hold_ns = 1'000'000'000)
+      : max_gap_ns_(max_gap_ns), max_hold_ns_(max_hold_ns), fixes_(capacity), attitudes_(capacity) {}
 
   void AddFix(const PositionFix& fix, bool has_3d_fix = true);
   void AddAttitude(const AttitudeSample& a);
@@ -78,6 +83,8 @@ class TelemetryTrack {
 
   mutable std::mutex mutex_;
   int64_t max_gap_ns_;
+  int64_t max_hold_ns_;
+  int64_t last_no_fix_ns_ = INT64_MIN;  // the newest report without a fix: no position is held past it
   Ring<PositionFix> fixes_;
   Ring<AttitudeSample> attitudes_;
   TrackCounters counters_;
