@@ -11,6 +11,9 @@
 #include <sstream>
 
 #include "core/session/session_dir.h"
+#include "hal/common/metadata.h"
+#include "hal/telemetry/mavlink.h"
+#include "hal/telemetry/telemetry_source.h"
 #include "tests/session_test_util.h"
 #include "tests/test_env.h"
 
@@ -128,6 +131,99 @@ TEST(OnboardE2ETest, GeoTxtTelemetryPlacesTheMapAndIsReported) {
             2);
   fs::remove_all(exif_out);
   fs::remove_all(out);
+}
+
+// A telemetry log of another flight (issue 17): positions over the same ground moved 0.001 deg north, three days after
+// the frames were taken, once as camera triggers and once as fixes matched by EXIF time. Its times cannot be the
+// frames' whatever the camera's time zone: refused with a log line and report.json's log_overlaps_frames, and every
+// frame keeps its own EXIF GPS (the map is not moved 111 m north).
+std::string TlogRecord(int64_t unix_us, const hal::mavlink::Message& m, uint8_t seq) {
+  std::string r;
+  for (int shift = 56; shift >= 0; shift -= 8) r.push_back(static_cast<char>((unix_us >> shift) & 0xFF));
+  return r + hal::mavlink::Encode(m, seq, 1, 1);
+}
+
+struct ExifFrame {
+  std::string name;
+  int64_t utc_us = 0;
+  double lat = 0, lon = 0, alt = 0;
+};
+
+std::vector<ExifFrame> ExifFrames(const fs::path& images) {
+  std::vector<ExifFrame> out;
+  for (const auto& e : fs::directory_iterator(images)) {
+    const FrameMetadata m = hal::ReadMetadata(e.path().string());
+    const auto t = hal::ExifTimeUtcNs(m.datetime_original);
+    if (!t || !m.HasGps()) continue;
+    out.push_back(
+        {e.path().filename().string(), *t / 1000, *m.latitude_deg, *m.longitude_deg, m.altitude_m.value_or(0.0)});
+  }
+  std::sort(out.begin(), out.end(), [](const ExifFrame& a, const ExifFrame& b) { return a.name < b.name; });
+  return out;
+}
+
+TEST(OnboardE2ETest, ATelemetryLogOfAnotherFlightIsRefused) {
+  const test::FlightForTest flight(kData + "/brighton_beach_small/images", 6, TempDir("other_in"));
+  const std::vector<ExifFrame> frames = ExifFrames(flight.path());
+  ASSERT_EQ(static_cast<int>(frames.size()), flight.frames());
+  constexpr int64_t kDaysLaterUs = 3LL * 86400 * 1000000;
+  std::string triggers_log, fixes_log;
+  uint8_t seq = 0;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const ExifFrame& f = frames[i];
+    hal::mavlink::CameraFeedback c;
+    c.time_usec = static_cast<uint64_t>(f.utc_us + kDaysLaterUs);
+    c.lat_deg = f.lat + 0.001;
+    c.lon_deg = f.lon;
+    c.alt_msl_m = f.alt;
+    c.image_index = static_cast<uint16_t>(i + 1);
+    triggers_log += TlogRecord(f.utc_us + kDaysLaterUs, c, seq++);
+    for (const int64_t dt_us : {-500000, 0, 500000}) {
+      hal::mavlink::GlobalPositionInt g;
+      g.lat_deg = f.lat + 0.001;
+      g.lon_deg = f.lon;
+      g.alt_msl_m = f.alt;
+      g.relative_alt_m = 60;
+      fixes_log += TlogRecord(f.utc_us + kDaysLaterUs + dt_us, g, seq++);
+    }
+  }
+  for (const auto& [kind, log] : {std::pair{"triggers", triggers_log}, std::pair{"fixes", fixes_log}}) {
+    SCOPED_TRACE(kind);
+    const fs::path out = TempDir(std::string("other_") + kind);
+    const fs::path tlog = fs::path(out.string() + ".tlog"), run_log = fs::path(out.string() + ".log");
+    std::ofstream(tlog, std::ios::binary) << log;
+    ASSERT_EQ(RunOnboard("--source replay:" + flight.string() + " --out " + out.string() +
+                         " --telemetry tlog:" + tlog.string() + " > " + run_log.string() + " 2>&1"),
+              0);
+    std::string text, err;
+    ASSERT_TRUE(ReadTextFile(run_log.string(), &text, &err)) << err;
+    EXPECT_NE(text.find("does not cover frame"), std::string::npos) << text;
+    const auto report = ReadJson(out / "report.json");
+    EXPECT_EQ(report["telemetry"]["match"], std::string(kind) == "triggers" ? "sequence" : "time");
+    EXPECT_FALSE(report["telemetry"]["log_overlaps_frames"].get<bool>());
+    EXPECT_EQ(report["telemetry"]["frames_placed"].get<int>(), 0);
+    ASSERT_TRUE(report["georef"]["georeferenced"].get<bool>());
+    EXPECT_LT(report["georef"]["rms_m"].get<double>(), 10.0);
+    // frames.csv: each frame's own EXIF position.
+    std::ifstream frames_csv(out / "frames.csv");
+    std::string line;
+    std::getline(frames_csv, line);  // index,filename,stored_file,width,height,timestamp_ns,registered,lat,lon,alt
+    int rows = 0;
+    while (std::getline(frames_csv, line)) {
+      std::vector<std::string> cells;
+      std::stringstream row(line);
+      for (std::string cell; std::getline(row, cell, ',');) cells.push_back(cell);
+      const auto it =
+          std::find_if(frames.begin(), frames.end(), [&](const ExifFrame& f) { return f.name == cells[1]; });
+      ASSERT_NE(it, frames.end());
+      EXPECT_NEAR(std::stod(cells[7]), it->lat, 1e-7) << cells[1];
+      ++rows;
+    }
+    EXPECT_EQ(rows, flight.frames());
+    fs::remove_all(out);
+    fs::remove(tlog);
+    fs::remove(run_log);
+  }
 }
 
 // Bridging on a real flight (issue 17): two mid-strip frames of caliterra_small turned into calm water (EXIF GPS

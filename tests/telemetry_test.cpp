@@ -54,14 +54,15 @@ TEST(TelemetryTrackTest, RefusesStaleGapsTimesOutsideAndNoFix) {
   TelemetryTrack track(16, 2 * kSecond);
   track.AddFix(Fix(0, 50.0, 8.0));
   track.AddFix(Fix(1, 50.0, 8.0));
-  track.AddFix(Fix(6, 50.1, 8.0));  // telemetry was lost for 5 s
-  track.AddFix(Fix(5, 50.1, 8.0));  // a clock going back: refused
+  track.AddFix(Fix(6, 50.1, 8.0));                               // telemetry was lost for 5 s
+  track.AddFix(Fix(5, 50.1, 8.0));                               // a clock going back: refused
+  EXPECT_TRUE(track.At(6 * kSecond + kSecond / 2).has_value());  // 0.5 s after the last: held
   track.AddFix(Fix(7, 0, 0), /*3-D fix=*/false);
   EXPECT_TRUE(track.At(kSecond / 2).has_value());
-  EXPECT_FALSE(track.At(3 * kSecond).has_value());               // between fixes 5 s apart
-  EXPECT_TRUE(track.At(6 * kSecond + kSecond / 2).has_value());  // 0.5 s after the last: held
-  EXPECT_FALSE(track.At(7 * kSecond).has_value());               // the receiver said it had lost its fix
-  EXPECT_FALSE(track.At(9 * kSecond).has_value());               // 3 s after the last
+  EXPECT_FALSE(track.At(3 * kSecond).has_value());  // between fixes 5 s apart
+  // The receiver has said since that it lost its fix: the last position is no longer held.
+  EXPECT_FALSE(track.At(6 * kSecond + kSecond / 2).has_value());
+  EXPECT_FALSE(track.At(9 * kSecond).has_value());  // 3 s after the last
   EXPECT_FALSE(track.At(-3 * kSecond).has_value());
   const TrackCounters c = track.counters();
   EXPECT_EQ(c.fixes, 3u);

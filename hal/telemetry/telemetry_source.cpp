@@ -205,9 +205,10 @@ Status TlogSource::Start(std::string* error) {
   report_.parser = stats.parser;
   report_.resync_bytes = stats.resync_bytes;
   report_.log_truncated = stats.truncated;
-  if (stats.parser.crc_errors + stats.resync_bytes > 0 || stats.truncated)
-    spdlog::warn("telemetry log {}: {} bad checksums, {} bytes skipped{}: the damaged packets are left out", path_,
-                 stats.parser.crc_errors, stats.resync_bytes, stats.truncated ? ", cut off at the end" : "");
+  if (stats.parser.crc_errors + stats.resync_bytes > 0)
+    spdlog::warn("telemetry log {}: {} bad checksums, {} bytes skipped: the damaged packets are left out", path_,
+                 stats.parser.crc_errors, stats.resync_bytes);
+  if (stats.truncated) spdlog::warn("telemetry log {} is cut off at the end (a packet half written)", path_);
   // A replay holds the log's fixes (~100 B each); live links keep a bounded window.
   track_ = std::make_unique<TelemetryTrack>(fixes + 1, options_.max_gap_ns, options_.max_hold_ns);
   TrackFeeder feeder(track_.get());

@@ -66,7 +66,7 @@ void TelemetryTrack::AddFix(const PositionFix& fix, bool has_3d_fix) {
   std::lock_guard lock(mutex_);
   if (!has_3d_fix) {
     ++counters_.no_fix;
-    last_no_fix_ns_ = std::max(last_no_fix_ns_, fix.t_ns);
+    if (fixes_.size == 0 || fix.t_ns >= fixes_[fixes_.size - 1].t_ns) fix_lost_after_newest_ = true;
     return;
   }
   if (fixes_.size > 0 && fix.t_ns < fixes_[fixes_.size - 1].t_ns) {
@@ -74,6 +74,7 @@ void TelemetryTrack::AddFix(const PositionFix& fix, bool has_3d_fix) {
     return;
   }
   fixes_.Push(fix, &counters_.overwritten);
+  fix_lost_after_newest_ = false;
   ++counters_.fixes;
 }
 
@@ -98,7 +99,7 @@ std::optional<InterpolatedPose> TelemetryTrack::At(int64_t t) {
   // report that the receiver lost its fix.
   if (a == nullptr || b == nullptr) {
     const PositionFix* only = a != nullptr ? a : b;
-    const bool fix_lost_since = a != nullptr && last_no_fix_ns_ > only->t_ns && last_no_fix_ns_ <= t;
+    const bool fix_lost_since = a != nullptr && fix_lost_after_newest_;
     if (std::llabs(only->t_ns - t) > std::min(max_hold_ns_, max_gap_ns_) || fix_lost_since) {
       ++counters_.outside;
       return std::nullopt;

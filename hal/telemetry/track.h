@@ -84,7 +84,7 @@ class TelemetryTrack {
   mutable std::mutex mutex_;
   int64_t max_gap_ns_;
   int64_t max_hold_ns_;
-  int64_t last_no_fix_ns_ = INT64_MIN;  // the newest report without a fix: no position is held past it
+  bool fix_lost_after_newest_ = false;  // a report without a fix came after the newest fix: nothing is held past it
   Ring<PositionFix> fixes_;
   Ring<AttitudeSample> attitudes_;
   TrackCounters counters_;
