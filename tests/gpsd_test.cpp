@@ -22,6 +22,7 @@
 #include "core/util/clock.h"
 #include "hal/telemetry/gpsd_source.h"
 #include "hal/telemetry/telemetry_source.h"
+#include "tests/gpsfake_test_util.h"
 #include "tests/test_net.h"
 
 namespace uavm::hal {
@@ -29,6 +30,9 @@ namespace {
 
 namespace fs = std::filesystem;
 using std::chrono::milliseconds;
+using test::GpsFake;
+using test::NmeaAngle;
+using test::Sentence;
 
 // The flight in the log: kLeadIn epochs (1 s apart in NMEA time) standing at step 0, then steps 1..kSteps along a
 // straight line; steps kNoFixFirst..kNoFixLast have no fix (GGA quality 0, RMC status V).
@@ -45,24 +49,6 @@ double StepLat() {
 }
 double StepLon() {
   return kSpeedMps * std::sin(kCourseDeg * M_PI / 180) / (kMetresPerDegLat * std::cos(kLat0 * M_PI / 180));
-}
-
-// "$BODY*CS": the checksum is the XOR of the characters between '$' and '*'.
-std::string Sentence(const std::string& body) {
-  unsigned cs = 0;
-  for (const char c : body) cs ^= static_cast<unsigned char>(c);
-  char tail[8];
-  std::snprintf(tail, sizeof(tail), "*%02X\r\n", cs);
-  return "$" + body + tail;
-}
-
-// ddmm.mmmmm,H (or dddmm.mmmmm,H for longitude).
-std::string NmeaAngle(double deg, int deg_digits, char pos, char neg) {
-  const double a = std::abs(deg);
-  const int whole = static_cast<int>(a);
-  char buf[32];
-  std::snprintf(buf, sizeof(buf), "%0*d%08.5f,%c", deg_digits, whole, (a - whole) * 60.0, deg < 0 ? neg : pos);
-  return buf;
 }
 
 // One epoch: GGA then RMC at NMEA time 12:00:00 + `second`, at step `step` (moving or not).
@@ -99,32 +85,6 @@ OnLine Project(const InterpolatedPose& p) {
   const double along = (dy * sy + dx * sx) / (sy * sy + sx * sx);
   return {along, std::hypot(dy - along * sy, dx - along * sx)};
 }
-
-// gpsfake in a process group of its own, so that killing the group takes its gpsd too.
-class GpsFake {
- public:
-  GpsFake(const fs::path& log, int port, const fs::path& out) {
-    pid_ = fork();
-    if (pid_ != 0) return;
-    setpgid(0, 0);
-    const std::string p = std::to_string(port);
-    if (!freopen(out.c_str(), "w", stdout) || !freopen(out.c_str(), "a", stderr)) _exit(126);
-    execlp("gpsfake", "gpsfake", "-q", "-1", "-c", "0.1", "-P", p.c_str(), log.c_str(), static_cast<char*>(nullptr));
-    _exit(127);
-  }
-  ~GpsFake() { Kill(); }
-  void Kill() {
-    if (pid_ <= 0) return;
-    kill(-pid_, SIGKILL);
-    kill(pid_, SIGKILL);  // in case it died before setpgid
-    waitpid(pid_, nullptr, 0);
-    pid_ = -1;
-  }
-  [[nodiscard]] bool running() const { return pid_ > 0; }
-
- private:
-  pid_t pid_ = -1;
-};
 
 struct Sample {
   int64_t t_ns = 0;

@@ -78,6 +78,8 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"telemetry_lost_to", &p.telemetry_lost_to},
           {"gps_no_fix_from", &p.gps_no_fix_from},
           {"gps_no_fix_to", &p.gps_no_fix_to},
+          {"live_camera", &p.live_camera},
+          {"start_unix_s", &p.start_unix_s},
           {"mavlink_udp", &p.mavlink_udp}};
 }
 
@@ -121,6 +123,8 @@ bool SimPlan::CheckTelemetry(std::string* error) const {
   if (!(camera_latency_ms >= 0 && camera_latency_ms < 1000 * frame_interval_s))
     return Fail(error, "camera_latency_ms must be in [0, frame_interval_s)");
   if (!mavlink_udp.empty() && gps != 1) return Fail(error, "mavlink_udp needs gps: 1");
+  if (live_camera != 0 && live_camera != 1) return Fail(error, "live_camera must be 0 or 1");
+  if (!(start_unix_s >= 0)) return Fail(error, "start_unix_s must be >= 0");
   if (!(telemetry_lost_from >= 0 && telemetry_lost_to <= 1 && telemetry_lost_from <= telemetry_lost_to))
     return Fail(error, "telemetry_lost_from and _to must satisfy 0 <= from <= to <= 1");
   if (!(gps_no_fix_from >= 0 && gps_no_fix_to <= 1 && gps_no_fix_from <= gps_no_fix_to))

@@ -71,6 +71,10 @@ namespace uavm::hal {
 //     the first frame to the last): no packet at all, camera triggers included [0, 0 = never]
 //   gps_no_fix_from, gps_no_fix_to: the receiver has no fix over this part of the flight: GPS_RAW_INT without a fix,
 //     GLOBAL_POSITION_INT and camera triggers at lat = lon = 0, as an autopilot without a position sends them [0, 0]
+//   live_camera: 1 = `--source sim:PLAN` behaves as a companion computer's camera: frames come frame_interval_s
+//     apart in real time and carry no GPS of their own (their position comes from --telemetry, e.g. gpsd) [0]
+//   start_unix_s: live_camera's first frame is taken at this wall-clock time (UNIX seconds; it waits), so that another
+//     program can play telemetry in step with the frames; 0 = at once [0]
 //   mavlink_udp: "HOST:PORT": `--source sim:PLAN` sends the telemetry there over UDP in step with the frames, paced
 //     in real time (frames frame_interval_s apart; a consumer that falls behind holds the flight's clock), and the
 //     frames carry no GPS of their own (a companion computer's camera); "" = off [""]
@@ -125,6 +129,8 @@ struct SimPlan {
   double telemetry_lost_to = 0.0;
   double gps_no_fix_from = 0.0;
   double gps_no_fix_to = 0.0;
+  int live_camera = 0;
+  double start_unix_s = 0.0;
   std::string mavlink_udp;
 
   [[nodiscard]] double Focal() const { return focal_px > 0 ? focal_px : frame_width; }

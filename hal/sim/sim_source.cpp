@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -9,6 +10,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
+#include <thread>
 
 #include "core/geometry/transform.h"
 #include "core/util/clock.h"
@@ -326,12 +328,13 @@ Status SimSource::Next(Frame* frame, std::string* error) {
   *frame = Frame{};
   frame->index = next_;
   // Live telemetry: the frame comes when the stream has reached its delivery, stamped on the stream's clock.
-  frame->timestamp_ns = link_ ? link_->DeliverFrame(next_) : MonotonicNs();
+  frame->timestamp_ns = link_ ? link_->DeliverFrame(next_) : LiveCameraTime(next_);
   frame->source_name = FrameName(next_);
   frame->original_size = image.size();
   frame->image = std::move(image);
   frame->decode_scale = 1.0;
-  if (plan_.gps != 0 && !link_) {  // as a camera's EXIF GPS would carry it; live, the position comes over the link
+  // As a camera's EXIF GPS would carry it; live, the position comes from the telemetry.
+  if (plan_.gps != 0 && !link_ && !(plan_.live_camera != 0 && options_.live_link)) {
     frame->metadata.latitude_deg = truth_.gps_position.lat_deg;
     frame->metadata.longitude_deg = truth_.gps_position.lon_deg;
     frame->metadata.relative_altitude_m = truth_.gps_altitude_m;
@@ -339,6 +342,22 @@ Status SimSource::Next(Frame* frame, std::string* error) {
   }
   ++next_;
   return Status::kOk;
+}
+
+int64_t SimSource::LiveCameraTime(size_t i) {
+  if (plan_.live_camera == 0 || !options_.live_link) return MonotonicNs();
+  if (i == 0 || live_start_ns_ == 0) {
+    live_start_ns_ = MonotonicNs() - std::llround(FrameTime(i) * 1e9);
+    if (plan_.start_unix_s > 0) {  // the wall clock's moment on the monotonic clock
+      const double until_s = plan_.start_unix_s -
+                             std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+      live_start_ns_ = MonotonicNs() + std::llround(until_s * 1e9);
+    }
+  }
+  const int64_t due = live_start_ns_ + std::llround(FrameTime(i) * 1e9);
+  const int64_t wait = due - MonotonicNs();
+  if (wait > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(wait));
+  return due;
 }
 
 void SimSource::Close() {

@@ -14,7 +14,8 @@ struct SimOptions {
   std::string plan_yaml;    // inline plan text (tests)
   std::string canvas_path;  // overrides the plan's `canvas` key
   int max_frames = 0;       // 0 = the whole flight
-  bool live_link = true;    // the plan's mavlink_udp stream (uavmosaic-sim writes a .tlog instead: off)
+  // The plan's live behaviour, mavlink_udp and live_camera (uavmosaic-sim writes a .tlog and geo.txt instead: off).
+  bool live_link = true;
 };
 
 // Ground truth of one emitted frame (original-resolution frame pixels, pixel centres).
@@ -79,6 +80,8 @@ class SimSource final : public FrameSource {
   // are exactly that frame's (SimTruth, geo.txt). Plan gps: 1.
   [[nodiscard]] SimFix FixAt(double t_s, uint64_t draw) const;
   [[nodiscard]] double FrameTime(size_t i) const { return static_cast<double>(i) * plan_.frame_interval_s; }
+  // live_camera: waits for frame i's moment (frame_interval_s apart from the first frame's) and returns it; else now.
+  [[nodiscard]] int64_t LiveCameraTime(size_t i);
 
  private:
   void PrepareLens();
@@ -100,6 +103,7 @@ class SimSource final : public FrameSource {
   SimTruth truth_;
   std::vector<uchar> encoded_;
   std::unique_ptr<SimUdpLink> link_;  // the plan's mavlink_udp
+  int64_t live_start_ns_ = 0;         // live_camera: monotonic time of the first frame
 };
 
 }  // namespace uavm::hal
