@@ -343,6 +343,52 @@ TEST_F(MavlinkTest, LiveUdpLinkPlacesFramesAndLosingItIsCounted) {
   source->Stop();
 }
 
+// A log of the MAVLink camera protocol (CAMERA_IMAGE_CAPTURED, no CAMERA_FEEDBACK): frames take the capture of their
+// image number; a failed capture (capture_result 0) and a capture without a position (lat = lon = 0) place nothing,
+// and the frames after them keep their own captures. The yaw comes from the camera's attitude quaternion.
+TEST(MavlinkTriggers, ImageCapturedMatchesByImageNumber) {
+  const fs::path path = fs::temp_directory_path() / ("uavm_captured_" + std::to_string(getpid()) + ".tlog");
+  std::string log;
+  const double yaw = 30.0 * M_PI / 180.0;  // about NED down: q = (cos(yaw/2), 0, 0, sin(yaw/2))
+  uint8_t seq = 0;
+  for (int32_t i = 1; i <= 6; ++i) {
+    CameraImageCaptured c;
+    c.time_utc_usec = 1700000000000000ULL + static_cast<uint64_t>(i) * 2000000ULL;
+    c.lat_deg = i == 4 ? 0.0 : 46.0 + i * 1e-4;
+    c.lon_deg = i == 4 ? 0.0 : 7.0;
+    c.relative_alt_m = 60;
+    c.q = {static_cast<float>(std::cos(yaw / 2)), 0.f, 0.f, static_cast<float>(std::sin(yaw / 2))};
+    c.image_index = 100 + i;            // the camera had counted 100 images before this flight
+    c.capture_result = i == 2 ? 0 : 1;  // image 102 failed: no file, no trigger
+    const uint64_t us = c.time_utc_usec;
+    for (int shift = 56; shift >= 0; shift -= 8) log.push_back(static_cast<char>((us >> shift) & 0xFF));
+    log += Encode(c, seq++, 1, 100);
+  }
+  std::ofstream(path, std::ios::binary) << log;
+  std::string error;
+  auto source = MakeTelemetrySource("tlog:" + path.string(), {}, &error);
+  ASSERT_NE(source, nullptr) << error;
+  ASSERT_EQ(source->Start(&error), Status::kOk) << error;
+  Frame frame;
+  std::vector<bool> placed;
+  for (uint64_t i = 0; i < 6; ++i) {
+    frame.index = i;  // image 101 + i
+    const auto pose = source->PoseFor(frame);
+    placed.push_back(pose.has_value());
+    if (!pose) continue;
+    EXPECT_NEAR(pose->lat_deg, 46.0 + static_cast<double>(i + 1) * 1e-4, 1e-7) << "frame " << i;
+    ASSERT_TRUE(pose->yaw_deg.has_value());
+    EXPECT_NEAR(*pose->yaw_deg, 30.0, 1e-4);
+  }
+  EXPECT_EQ(placed, (std::vector<bool>{true, false, true, false, true, true}));
+  const TelemetryReport r = source->Report();
+  EXPECT_EQ(r.match, "sequence");
+  EXPECT_EQ(r.triggers, 5u);
+  EXPECT_EQ(r.triggers_missing, 1u);
+  EXPECT_EQ(r.triggers_without_fix, 1u);
+  fs::remove(path);
+}
+
 TEST(MavlinkFraming, SignedPacketsAreAcceptedAndUnknownFlagsDropped) {
   std::string frame = Encode(Statustext{6, "mapper: 12 frames"}, 3, 1, 191);
   // Sign it: incompatibility flag 0x01 (in the CRC), 13 signature bytes after the CRC (not checked here).
