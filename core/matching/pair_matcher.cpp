@@ -21,6 +21,7 @@ bool MatchOptions::Check(std::string* why) const {
   };
   if (!(ratio > 0.0 && ratio <= 1.0)) return fail("matching.ratio must be in (0,1]");
   if (flann_trees < 1 || flann_checks < 1) return fail("matching.flann_trees and flann_checks must be >= 1");
+  if (flann_leaf_size < 1 || flann_leaf_size > 64) return fail("matching.flann_leaf_size must be in [1, 64]");
   if (min_inliers < 6) return fail("matching.min_inliers must be >= 6");
   if (!(max_scale_change > 1.0)) return fail("matching.max_scale_change must be > 1");
   if (!(max_anisotropy > 0.0)) return fail("matching.max_anisotropy must be > 0");
@@ -51,7 +52,10 @@ DescriptorIndex::DescriptorIndex(const Features& features, const MatchOptions& o
   if (!descriptors_.isContinuous() || descriptors_.data == features.descriptors.data) {
     descriptors_ = descriptors_.clone();
   }
-  if (rows_ >= 2) {
+  if (rows_ >= 2 && options.flann_leaf_size > 1) {
+    forest_ = std::make_unique<KdForest>(descriptors_,
+                                         KdForest::Options{options.flann_trees, options.flann_leaf_size, 0x5eed});
+  } else if (rows_ >= 2) {
     const cvflann::Matrix<unsigned char> rows(descriptors_.ptr<unsigned char>(), static_cast<size_t>(rows_),
                                               static_cast<size_t>(descriptors_.cols));
     index_ = std::make_unique<Tree>(rows, cvflann::KDTreeIndexParams(options.flann_trees));
@@ -61,16 +65,28 @@ DescriptorIndex::DescriptorIndex(const Features& features, const MatchOptions& o
 
 std::vector<cv::DMatch> DescriptorIndex::Match(const cv::Mat& query_descriptors) const {
   std::vector<cv::DMatch> out;
-  if (!index_ || query_descriptors.rows < 1 || query_descriptors.cols != descriptors_.cols) return out;
+  if ((!index_ && !forest_) || query_descriptors.rows < 1 || query_descriptors.cols != descriptors_.cols) return out;
   cv::Mat query = QuantizeDescriptors(query_descriptors);
   if (!query.isContinuous()) query = query.clone();
   cv::Mat indices(query.rows, 2, CV_32S);
   cv::Mat dists(query.rows, 2, CV_32F);
-  cvflann::Matrix<unsigned char> query_rows(query.ptr<unsigned char>(), static_cast<size_t>(query.rows),
-                                            static_cast<size_t>(query.cols));
-  cvflann::Matrix<int> index_rows(indices.ptr<int>(), static_cast<size_t>(query.rows), 2);
-  cvflann::Matrix<float> dist_rows(dists.ptr<float>(), static_cast<size_t>(query.rows), 2);
-  index_->knnSearch(query_rows, index_rows, dist_rows, 2, cvflann::SearchParams(options_.flann_checks));
+  if (forest_) {
+    for (int q = 0; q < query.rows; ++q) {
+      int idx[2];
+      uint32_t d[2];
+      forest_->Nearest2(query.ptr<uint8_t>(q), options_.flann_checks, idx, d);
+      for (int k = 0; k < 2; ++k) {
+        indices.at<int>(q, k) = idx[k];
+        dists.at<float>(q, k) = static_cast<float>(d[k]);  // exact: below 2^24
+      }
+    }
+  } else {
+    cvflann::Matrix<unsigned char> query_rows(query.ptr<unsigned char>(), static_cast<size_t>(query.rows),
+                                              static_cast<size_t>(query.cols));
+    cvflann::Matrix<int> index_rows(indices.ptr<int>(), static_cast<size_t>(query.rows), 2);
+    cvflann::Matrix<float> dist_rows(dists.ptr<float>(), static_cast<size_t>(query.rows), 2);
+    index_->knnSearch(query_rows, index_rows, dist_rows, 2, cvflann::SearchParams(options_.flann_checks));
+  }
   const float ratio_sq = static_cast<float>(options_.ratio * options_.ratio);  // squared distances
   std::unordered_map<int, size_t> best_for_train;
   for (int q = 0; q < query.rows; ++q) {

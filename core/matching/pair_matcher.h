@@ -8,13 +8,18 @@
 #include "core/features/sift.h"
 #include "core/geometry/transform.h"
 #include "core/matching/descriptor_distance.h"
+#include "core/matching/kd_forest.h"
 
 namespace uavm {
 
 struct MatchOptions {
   double ratio = 0.8;  // Lowe's ratio test (RootSIFT distances)
   int flann_trees = 4;
-  int flann_checks = 32;
+  // Points compared per query at most (beyond the first leaf of each tree).
+  int flann_checks = 64;
+  // Points per kd-tree leaf (core/matching/kd_forest.h); 1 = cvflann's KDTreeIndex (one point per leaf, 32 checks
+  // was its setting).
+  int flann_leaf_size = 4;
   RansacOptions ransac;
   // A verified pair becomes a graph edge only with at least this many inliers (the seed method's relative 5 %
   // threshold is applied on top, in the graph).
@@ -53,6 +58,7 @@ class DescriptorIndex {
   using Tree = cvflann::Index<ByteL2>;
   cv::Mat descriptors_;  // CV_8U rows owned here (the tree borrows them)
   std::unique_ptr<Tree> index_;
+  std::unique_ptr<KdForest> forest_;  // instead of index_ with flann_leaf_size > 1
   int rows_ = 0;
   MatchOptions options_;
 };

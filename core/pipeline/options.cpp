@@ -91,6 +91,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"matching", "ratio", &o.matching.ratio},
       {"matching", "flann_trees", &o.matching.flann_trees},
       {"matching", "flann_checks", &o.matching.flann_checks},
+      {"matching", "flann_leaf_size", &o.matching.flann_leaf_size},
       {"matching", "min_inliers", &o.matching.min_inliers},
       {"matching", "max_scale_change", &o.matching.max_scale_change},
       {"matching", "max_anisotropy", &o.matching.max_anisotropy},
