@@ -16,6 +16,7 @@
 #include "core/estimators/ransac.h"
 #include "core/features/sift.h"
 #include "core/imageio/jpeg_region.h"
+#include "core/imageio/png_writer.h"
 #include "core/matching/pair_matcher.h"
 
 namespace {
@@ -90,32 +91,41 @@ BENCHMARK(BM_SiftExtract)
     ->MeasureProcessCPUTime()
     ->UseRealTime();
 
+// Arg (and the second Arg of BM_MatchPair): kd-tree leaf size, 1 = cvflann's KDTreeIndex at its former 32 checks,
+// 4 = the bucketed kd-forest (core/matching/kd_forest.h) at the default 64.
+uavm::MatchOptions TreeOptions(int64_t leaf_size) {
+  uavm::MatchOptions options;
+  options.flann_leaf_size = static_cast<int>(leaf_size);
+  if (leaf_size == 1) options.flann_checks = 32;
+  return options;
+}
+
 void BM_IndexBuild(benchmark::State& state) {
   if (!Ready(state)) return;
-  const uavm::MatchOptions options;
+  const uavm::MatchOptions options = TreeOptions(state.range(0));
   for (auto _ : state) {
     uavm::DescriptorIndex index(Frames().features[0], options);
     benchmark::DoNotOptimize(index.empty());
   }
 }
-BENCHMARK(BM_IndexBuild)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_IndexBuild)->Arg(1)->Arg(4)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 void BM_IndexQuery(benchmark::State& state) {
   if (!Ready(state)) return;
-  const uavm::MatchOptions options;
+  const uavm::MatchOptions options = TreeOptions(state.range(0));
   const uavm::DescriptorIndex index(Frames().features[0], options);
   size_t n = 0;
   for (auto _ : state) n = index.Match(Frames().features[1].descriptors).size();
   state.counters["matches"] = static_cast<double>(n);
 }
-BENCHMARK(BM_IndexQuery)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_IndexQuery)->Arg(1)->Arg(4)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // Arg: 0 = all points queried; 1 = guided by the relative transform (predicted-inside points, at most
 // max_guided_queries of them); 2 = guided without the cap.
 void BM_MatchPair(benchmark::State& state) {
   if (!Ready(state)) return;
   const Pair& p = Frames();
-  uavm::MatchOptions options;
+  uavm::MatchOptions options = TreeOptions(state.range(1));
   if (state.range(0) == 2) options.max_guided_queries = 0;
   const uavm::DescriptorIndex index(p.features[0], options);
   const uavm::PairResult unguided = uavm::MatchPair(index, p.features[0], p.features[1], options);
@@ -133,7 +143,14 @@ void BM_MatchPair(benchmark::State& state) {
   state.counters["matches"] = queries_matched;
   state.counters["inliers"] = inliers;
 }
-BENCHMARK(BM_MatchPair)->Arg(0)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_MatchPair)
+    ->Args({0, 1})
+    ->Args({0, 4})
+    ->Args({1, 1})
+    ->Args({1, 4})
+    ->Args({2, 4})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // RANSAC<AffineEstimator> alone on the pair's putative matches (their inlier share as it comes).
 void BM_RansacAffine(benchmark::State& state) {
@@ -213,6 +230,19 @@ void BM_TilePngEncode(benchmark::State& state) {
   state.counters["kib"] = static_cast<double>(png.size()) / 1024.0;
 }
 BENCHMARK(BM_TilePngEncode)->Arg(1)->Arg(3)->Arg(6)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The same tile through the products' encoder (core/imageio/png_writer.h); Arg: libdeflate level.
+void BM_TilePngLibdeflate(benchmark::State& state) {
+  if (!Ready(state)) return;
+  cv::Mat bgr = cv::imread(Frames().jpeg_path, cv::IMREAD_COLOR)(cv::Rect(100, 100, 256, 256));
+  cv::Mat tile;
+  cv::cvtColor(bgr, tile, cv::COLOR_BGR2BGRA);
+  uavm::PngWriter writer(static_cast<int>(state.range(0)));
+  std::vector<uint8_t> png;
+  for (auto _ : state) benchmark::DoNotOptimize(writer.Encode(tile, &png));
+  state.counters["kib"] = static_cast<double>(png.size()) / 1024.0;
+}
+BENCHMARK(BM_TilePngLibdeflate)->Arg(1)->Arg(3)->Arg(6)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 
