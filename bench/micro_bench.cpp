@@ -92,11 +92,11 @@ BENCHMARK(BM_SiftExtract)
     ->UseRealTime();
 
 // Arg (and the second Arg of BM_MatchPair): kd-tree leaf size, 1 = cvflann's KDTreeIndex at its former 32 checks,
-// 4 = the bucketed kd-forest (core/matching/kd_forest.h) at the default 64.
+// 4 = the bucketed kd-forest (core/matching/kd_forest.h) at 64.
 uavm::MatchOptions TreeOptions(int64_t leaf_size) {
   uavm::MatchOptions options;
   options.flann_leaf_size = static_cast<int>(leaf_size);
-  if (leaf_size == 1) options.flann_checks = 32;
+  options.flann_checks = leaf_size == 1 ? 32 : 64;
   return options;
 }
 
