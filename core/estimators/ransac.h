@@ -51,6 +51,15 @@ class RANSAC {
   explicit RANSAC(const RansacOptions& options) : options_(options) {}
 
   [[nodiscard]] Report Estimate(const std::vector<X>& x, const std::vector<Y>& y) const {
+    return Estimate(x, y, [](const Model&) { return true; });
+  }
+
+  // Only models for which is_valid(model) holds compete (minimal samples and refits alike): the best *valid*
+  // consensus is returned, not the best consensus that a later check would throw away. Where two structures have
+  // similar support (a tilted pair whose near and far ground fit different affines), the implausible one must not
+  // hide the other.
+  template <typename IsValid>
+  [[nodiscard]] Report Estimate(const std::vector<X>& x, const std::vector<Y>& y, const IsValid& is_valid) const {
     Report report;
     const size_t n = x.size();
     constexpr int kMin = Estimator::kMinNumSamples;
@@ -76,7 +85,7 @@ class RANSAC {
         ys[k] = y[idx[k]];
       }
       Model model;
-      if (!Estimator::Fit(xs, ys, &model)) continue;
+      if (!Estimator::Fit(xs, ys, &model) || !is_valid(model)) continue;
       const size_t count = CountInliers(x, y, model, max_sq);
       if (count > best_count) {
         best_count = count;
@@ -107,7 +116,7 @@ class RANSAC {
         }
       }
       Model refined;
-      if (!Estimator::Fit(xi, yi, &refined)) break;
+      if (!Estimator::Fit(xi, yi, &refined) || !is_valid(refined)) break;
       const size_t count = CountInliers(x, y, refined, max_sq);
       if (static_cast<double>(count) < 0.95 * static_cast<double>(best_count)) break;
       best = refined;

@@ -161,6 +161,12 @@ void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int
   *tgt = std::move(t);
 }
 
+bool PlausibleRelative(const Mat3& tgt_from_src, const MatchOptions& options) {
+  const LinearPart lin = Decompose(tgt_from_src);
+  return lin.det > 0 && lin.scale <= options.max_scale_change && lin.scale >= 1.0 / options.max_scale_change &&
+         lin.anisotropy <= options.max_anisotropy;
+}
+
 PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, const Features& src,
                      const MatchOptions& options, const MatchGuide* guide) {
   PairResult result;
@@ -216,16 +222,16 @@ PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, cons
     ys.emplace_back(b.x, b.y);
   }
   RANSAC<AffineEstimator> ransac(options.ransac);
-  const auto report = ransac.Estimate(xs, ys);
+  const auto report = ransac.Estimate(xs, ys, [&options](const Mat3& m) { return PlausibleRelative(m, options); });
   result.num_inliers = static_cast<int>(report.num_inliers);
   if (!report.success || result.num_inliers < options.min_inliers) {
     result.failure = "too few RANSAC inliers";
     return result;
   }
-  const LinearPart lin = Decompose(report.model);
-  if (lin.det <= 0 || lin.scale > options.max_scale_change || lin.scale < 1.0 / options.max_scale_change ||
-      lin.anisotropy > options.max_anisotropy) {
-    result.failure = "implausible relative affine";
+  if (!PlausibleRelative(report.model, options)) {
+    const LinearPart lin = Decompose(report.model);
+    result.failure = "implausible relative affine (det " + std::to_string(lin.det) + ", scale " +
+                     std::to_string(lin.scale) + ", anisotropy " + std::to_string(lin.anisotropy) + ")";
     return result;
   }
   std::vector<Vec2> in_src;

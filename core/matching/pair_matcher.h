@@ -16,13 +16,11 @@ struct MatchOptions {
   double ratio = 0.8;  // Lowe's ratio test (RootSIFT distances)
   int flann_trees = 4;
   // Points compared per query at most (beyond the first leaf of each tree).
-  int flann_checks = 32;
-  // Points per kd-tree leaf: 1 = cvflann's KDTreeIndex (one point per leaf); more = the bucketed kd-forest of
-  // core/matching/kd_forest.h (4 with flann_checks 64: matching ~40 % cheaper, errors within 2 % on the simulated
-  // flights). Not the default yet: on caliterra_small with two frames turned to water it let the flight split in two
-  // (OnboardE2ETest.FramesOverWaterAreBridgedByTheirGps), although that pair matches as well with it (342 inliers
-  // against cvflann's 307); the cause is not found.
-  int flann_leaf_size = 1;
+  int flann_checks = 64;
+  // Points per kd-tree leaf: more than 1 = the bucketed kd-forest of core/matching/kd_forest.h (4 with 64 checks:
+  // matching ~40 % cheaper than cvflann, errors within 2 % on the simulated flights); 1 = cvflann's KDTreeIndex (one
+  // point per leaf; 32 checks was its setting).
+  int flann_leaf_size = 4;
   RansacOptions ransac;
   // A verified pair becomes a graph edge only with at least this many inliers (the seed method's relative 5 %
   // threshold is applied on top, in the graph).
@@ -86,6 +84,10 @@ struct MatchGuide {
   cv::Size tgt_size;
   double margin = 0.15;
 };
+
+// A relative affine two frames of one flight can have: no mirror, no scale jump beyond max_scale_change, no shear
+// beyond max_anisotropy. RANSAC only lets such models compete.
+[[nodiscard]] bool PlausibleRelative(const Mat3& tgt_from_src, const MatchOptions& options);
 
 // Matches `src` against the indexed target and verifies with RANSAC affine.
 [[nodiscard]] PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, const Features& src,

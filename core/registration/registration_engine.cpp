@@ -297,7 +297,12 @@ void RegistrationEngine::TryCandidate(int cand, Candidates* c) {
   PairResult r = MatchPair(*c->index, *c->feats, *other, options_.matching, guided || predicted ? &guide : nullptr);
   // The motion changed (a turn, a gust): every point is asked, as without a prediction.
   if (predicted && !Acceptable(r)) r = MatchPair(*c->index, *c->feats, *other, options_.matching);
-  if (!Acceptable(r)) return;
+  if (!Acceptable(r)) {
+    spdlog::debug("frame {} against {}: {} matches, {} inliers (needs {:.0f}){}{}", c->id, cand, r.num_matches,
+                  r.num_inliers, options_.relative_inlier_fraction * best_inliers_, r.failure.empty() ? "" : ": ",
+                  r.failure);
+    return;
+  }
   c->found.push_back(MakeEdge(cand, c->id, std::move(r)));
   if (!c->have_estimate) {
     SetMap(c->id, Map(cand) * c->found.back().tgt_from_src.inverse());
