@@ -386,11 +386,12 @@ struct CaptureOutcome {
   std::string source_error;
 };
 
-// The capture thread: frames from the source, their features computed here (overlapping the previous frame's
-// matching), into the queue until the source ends, max_frames, a stop signal or a closed queue.
-void CaptureFrames(const RunConfig& config, hal::FrameSource* source, hal::TelemetrySource* telemetry,
-                   Mosaicker* mosaicker, const std::unordered_set<std::string>& seen, int delivered,
-                   BoundedQueue<Item>* queue, CaptureOutcome* outcome) {
+// The load thread: frames from the source (decoded) and their working copies, into `loaded` until the source ends,
+// max_frames, a stop signal or a closed queue. A stage of its own, so that the next frame's decode runs while this
+// one's SIFT does (SIFT keeps about 1.6 of two cores busy; the decode and resize fill the rest).
+void LoadFrames(const RunConfig& config, hal::FrameSource* source, hal::TelemetrySource* telemetry,
+                const Mosaicker* mosaicker, const std::unordered_set<std::string>& seen, int delivered,
+                BoundedQueue<Item>* loaded, CaptureOutcome* outcome) {
   hal::TelemetryWatch telemetry_watch;
   for (;;) {
     if (config.max_frames > 0 && delivered >= config.max_frames) break;
@@ -418,7 +419,7 @@ void CaptureFrames(const RunConfig& config, hal::FrameSource* source, hal::Telem
         telemetry_watch.Saw(frame.source_name, pose.has_value(), telemetry->Report());
       }
       try {
-        item.prepared = mosaicker->Prepare(std::move(frame));
+        item.prepared = mosaicker->PrepareImages(std::move(frame));
         item.prepared.decode_ms = decode_ms;
       } catch (const std::exception& e) {
         // An input OpenCV cannot process (e.g. a degenerate size) is skipped like a corrupt file, never fatal.
@@ -426,7 +427,27 @@ void CaptureFrames(const RunConfig& config, hal::FrameSource* source, hal::Telem
         item.message = std::string("cannot process frame: ") + e.what();
       }
     }
-    if (!queue->Push(std::move(item))) break;
+    if (!loaded->Push(std::move(item))) break;
+  }
+  loaded->Close();
+}
+
+// The detect thread: each loaded frame's features (overlapping the previous frame's matching), into the flight
+// queue. When the flight loop closes that queue (storage failed), `loaded` is closed too and the load thread stops.
+void DetectFrames(const Mosaicker* mosaicker, BoundedQueue<Item>* loaded, BoundedQueue<Item>* queue) {
+  while (auto item = loaded->Pop()) {
+    if (item->status == hal::Status::kOk) {
+      try {
+        mosaicker->DetectFeatures(&item->prepared);
+      } catch (const std::exception& e) {
+        item->status = hal::Status::kSkipped;
+        item->message = std::string("cannot process frame: ") + e.what();
+      }
+    }
+    if (!queue->Push(std::move(*item))) {
+      loaded->Close();
+      break;
+    }
   }
   queue->Close();
 }
@@ -542,11 +563,17 @@ int Run(const RunConfig& config) {
   BoundedQueue<Item> queue(static_cast<size_t>(pipeline.queue_capacity), source->IsReplay()
                                                                              ? BoundedQueue<Item>::Policy::kBlock
                                                                              : BoundedQueue<Item>::Policy::kDropOldest);
+  // One frame between loading and detection: the decode of the next frame overlaps this one's SIFT. The loader waits
+  // for detection (a camera's own queue drops its oldest frames meanwhile, as before: no CPU is spent on frames that
+  // would be dropped here).
+  BoundedQueue<Item> loaded(1, BoundedQueue<Item>::Policy::kBlock);
   CaptureOutcome capture_outcome;
-  std::thread capture(CaptureFrames, std::cref(config), source.get(), telemetry.get(), &mosaicker, std::cref(seen),
-                      static_cast<int>(journal.frames.size()), &queue, &capture_outcome);
+  std::thread load(LoadFrames, std::cref(config), source.get(), telemetry.get(), &mosaicker, std::cref(seen),
+                   static_cast<int>(journal.frames.size()), &loaded, &capture_outcome);
+  std::thread detect(DetectFrames, &mosaicker, &loaded, &queue);
   const bool storage_stopped = !RegisterFrames(config, &queue, &mosaicker, &notifier, &status, telemetry.get());
-  capture.join();
+  detect.join();
+  load.join();
   const int rc = FinishFlight(source.get(), telemetry.get(), queue, capture_outcome, storage_stopped, &mosaicker,
                               &notifier, &status);
   status.Linger(config.http_linger_s);

@@ -35,13 +35,15 @@ void AddLiveViewOptions(CLI::App* cli, uavm::app::RunConfig* config, bool* no_li
 int main(int argc, char** argv) {
   using namespace uavm;
   // Resident memory must follow what the program holds: two malloc arenas (what glibc would grow to per core is
-  // not needed by two working threads), and buffers of 256 KiB or more always mmapped, so that a freed detector
-  // pyramid, tile or solver matrix leaves the RSS instead of fragmenting a heap that only grows. Measured on a
-  // 700-frame simulated flight: with a 1 MiB threshold the heap held 96 MiB for 46 MiB in use; 256 KiB gives 25 MiB
-  // less RSS at the end of the flight for 8 % more time (64 KiB: 50 MiB less, 20 % more time).
+  // not needed by two working threads), and buffers of 4 MiB or more always mmapped, so that a freed detector
+  // pyramid, tile or solver matrix of that size leaves the RSS instead of fragmenting a heap that only grows; the
+  // heap's free pages go back every trim_heap_every frames. Smaller buffers reuse heap pages: mapped afresh, every
+  // one of them faulted in and zeroed its pages on each use (256 KiB was the threshold until 2026-11-26: caliterra
+  // 12 MP spent ~9 s of its ~40 s of CPU in the kernel; 4 MiB: ~3.5 s, 19.9 s wall instead of 24-27, the same phase
+  // peaks within the budget; 16 MiB was faster still but passed the 256 MiB budget).
   mallopt(M_ARENA_MAX, 2);
-  if (std::getenv("MALLOC_MMAP_THRESHOLD_") == nullptr) mallopt(M_MMAP_THRESHOLD, 256 << 10);  // glibc's env wins
-  // Image buffers of 1 MiB and more are pooled instead (core/buffers/mat_pool.h): a phase's scale spaces and blend
+  if (std::getenv("MALLOC_MMAP_THRESHOLD_") == nullptr) mallopt(M_MMAP_THRESHOLD, 4 << 20);  // glibc's env wins
+  // Image buffers of 1 MiB and more are pooled besides (core/buffers/mat_pool.h): a phase's scale spaces and blend
   // pyramids reuse their pages rather than fault in and zero fresh ones every frame and tile.
   InstallMatPool();
   app::RunConfig config;

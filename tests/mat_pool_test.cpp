@@ -6,7 +6,10 @@
 
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <cstdio>
+#include <fstream>
 #include <random>
+#include <string>
 #include <thread>
 
 namespace uavm {
@@ -35,6 +38,39 @@ TEST(MatPoolTest, AFreedBlockServesTheNextRequestOfAboutItsSize) {
   EXPECT_EQ(pool.Stats().hits, 1u);
   EXPECT_EQ(pool.Stats().pooled_bytes, 0u);
   EXPECT_EQ(pool.Stats().in_use_bytes, 4 * kMiB);  // the block keeps its capacity
+}
+
+// Where the kernel offers transparent huge pages on request, a block's whole 2 MiB pages are huge: /proc/self/smaps
+// shows the mapping holding the touched block with AnonHugePages. Alignment is asserted everywhere.
+TEST(MatPoolTest, LargeBlocksAreAlignedForHugePages) {
+  MatPool pool(MatPoolOptions{});
+  cv::Mat m = Make(pool, 5);
+  m.setTo(1);  // touch every page
+  const auto address = reinterpret_cast<uintptr_t>(m.data);
+  EXPECT_EQ(address % (2 * kMiB), 0u);
+  cv::Mat small = Make(pool, 1.5);  // below one huge page: an ordinary block
+  EXPECT_NE(small.data, nullptr);
+  std::ifstream thp("/sys/kernel/mm/transparent_hugepage/enabled");
+  std::string mode;
+  std::getline(thp, mode);
+  if (mode.find("[madvise]") == std::string::npos && mode.find("[always]") == std::string::npos)
+    GTEST_SKIP() << "this kernel gives no transparent huge pages on request (" << mode << ")";
+  std::ifstream smaps("/proc/self/smaps");
+  std::string line;
+  bool inside = false;
+  long huge_kb = -1;
+  while (std::getline(smaps, line)) {
+    uintptr_t lo = 0;
+    uintptr_t hi = 0;
+    if (std::sscanf(line.c_str(), "%lx-%lx ", &lo, &hi) == 2) {  // a mapping's first line; field lines are "Name: n"
+      inside = lo <= address && address < hi;
+    } else if (inside && line.rfind("AnonHugePages:", 0) == 0) {
+      huge_kb = std::stol(line.substr(14));
+      break;
+    }
+  }
+  ASSERT_GE(huge_kb, 0) << "the block's mapping is not in /proc/self/smaps";
+  EXPECT_GE(huge_kb, 2048) << "a touched 5 MiB block aligned to 2 MiB holds no huge page";
 }
 
 TEST(MatPoolTest, ABlockMuchLargerThanTheRequestIsNotUsed) {

@@ -107,8 +107,9 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   p.baseline_mib = kBaselineMiB;
   p.graph_mib = kGraphMiB;
   const double frame_mib = QueuedFrameMiB(work_width, work_height, o.features.max_features);
-  // A frame being captured and one being registered are in flight besides the queue.
-  const auto queue_mib = [&](int capacity) { return (capacity + 2) * frame_mib; };
+  // Besides the queue, frames in flight: one being loaded, one waiting for detection, one being detected and one
+  // being registered.
+  const auto queue_mib = [&](int capacity) { return (capacity + 4) * frame_mib; };
 
   if (o.memory_budget_mib <= 0) {  // no budget: describe the configuration as it is
     *plan = DescribeUnbudgeted(o, work_width, work_height, p, queue_mib(o.queue_capacity));

@@ -147,11 +147,15 @@ void Mosaicker::UpdatePreview(int id, const cv::Mat& work_bgr) {
 
 Mosaicker::Prepared Mosaicker::Prepare(Frame frame) const {
   Prepared p = PrepareImages(std::move(frame));
-  StageTimer t;
-  p.features = extractor_.Extract(p.work_gray);
-  WorkLens(p.frame, p.work_gray.size()).UndistortPoints(&p.features.points);
-  p.features_ms = t.ElapsedMs();
+  DetectFeatures(&p);
   return p;
+}
+
+void Mosaicker::DetectFeatures(Prepared* p) const {
+  StageTimer t;
+  p->features = extractor_.Extract(p->work_gray);
+  WorkLens(p->frame, p->work_gray.size()).UndistortPoints(&p->features.points);
+  p->features_ms = t.ElapsedMs();
 }
 
 Mosaicker::Prepared Mosaicker::PrepareStored(Frame frame, int id, const std::string& stored_name) const {

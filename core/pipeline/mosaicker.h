@@ -44,7 +44,7 @@ class Mosaicker {
   ~Mosaicker();
 
   // A frame made ready for registration: working copy and features. Prepare() touches no Mosaicker state, so the
-  // capture thread runs it while the previous frame is being matched (two cores, two stages).
+  // load and detect threads run it while the previous frame is being matched (PrepareImages, then DetectFeatures).
   struct Prepared {
     Frame frame;
     cv::Mat work_bgr;
@@ -57,8 +57,10 @@ class Mosaicker {
     bool resumed = false;     // already in the session (frames/, features/, journal): registered again, not stored
     std::string stored_name;  // its file in frames/ when resumed
   };
-  [[nodiscard]] Prepared Prepare(Frame frame) const;
+  [[nodiscard]] Prepared Prepare(Frame frame) const;       // PrepareImages, then DetectFeatures
   [[nodiscard]] Prepared PrepareImages(Frame frame) const;  // working copies, no features
+  // The features of a frame PrepareImages made (a stage of its own: the next frame's decode overlaps this one's SIFT).
+  void DetectFeatures(Prepared* p) const;
   // The working grey image the features' coordinates refer to (undistorted when a lens is corrected).
   [[nodiscard]] cv::Mat IdealGray(const Prepared& p) const;
   // A frame of the journal being resumed: `frame` decoded from frames/, features read from features/ (computed again
