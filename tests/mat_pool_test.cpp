@@ -4,10 +4,10 @@
 
 #include <gtest/gtest.h>
 
-#include <opencv2/features2d.hpp>
-#include <opencv2/imgproc.hpp>
 #include <cstdio>
 #include <fstream>
+#include <opencv2/features2d.hpp>
+#include <opencv2/imgproc.hpp>
 #include <random>
 #include <string>
 #include <thread>

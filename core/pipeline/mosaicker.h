@@ -57,7 +57,7 @@ class Mosaicker {
     bool resumed = false;     // already in the session (frames/, features/, journal): registered again, not stored
     std::string stored_name;  // its file in frames/ when resumed
   };
-  [[nodiscard]] Prepared Prepare(Frame frame) const;       // PrepareImages, then DetectFeatures
+  [[nodiscard]] Prepared Prepare(Frame frame) const;        // PrepareImages, then DetectFeatures
   [[nodiscard]] Prepared PrepareImages(Frame frame) const;  // working copies, no features
   // The features of a frame PrepareImages made (a stage of its own: the next frame's decode overlaps this one's SIFT).
   void DetectFeatures(Prepared* p) const;
