@@ -386,6 +386,12 @@ struct CaptureOutcome {
   std::string source_error;
 };
 
+// An input OpenCV cannot process (e.g. a degenerate size) is skipped like a corrupt file, never fatal.
+void MarkUnprocessable(const std::exception& e, Item* item) {
+  item->status = hal::Status::kSkipped;
+  item->message = std::string("cannot process frame: ") + e.what();
+}
+
 // The load thread: frames from the source (decoded) and their working copies, into `loaded` until the source ends,
 // max_frames, a stop signal or a closed queue. A stage of its own, so that the next frame's decode runs while this
 // one's SIFT does (SIFT keeps about 1.6 of two cores busy; the decode and resize fill the rest).
@@ -422,9 +428,7 @@ void LoadFrames(const RunConfig& config, hal::FrameSource* source, hal::Telemetr
         item.prepared = mosaicker->PrepareImages(std::move(frame));
         item.prepared.decode_ms = decode_ms;
       } catch (const std::exception& e) {
-        // An input OpenCV cannot process (e.g. a degenerate size) is skipped like a corrupt file, never fatal.
-        item.status = hal::Status::kSkipped;
-        item.message = std::string("cannot process frame: ") + e.what();
+        MarkUnprocessable(e, &item);
       }
     }
     if (!loaded->Push(std::move(item))) break;
@@ -440,8 +444,7 @@ void DetectFrames(const Mosaicker* mosaicker, BoundedQueue<Item>* loaded, Bounde
       try {
         mosaicker->DetectFeatures(&item->prepared);
       } catch (const std::exception& e) {
-        item->status = hal::Status::kSkipped;
-        item->message = std::string("cannot process frame: ") + e.what();
+        MarkUnprocessable(e, &*item);
       }
     }
     if (!queue->Push(std::move(*item))) {

@@ -225,15 +225,10 @@ PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, cons
   const auto report = ransac.Estimate(xs, ys, [&options](const Mat3& m) { return PlausibleRelative(m, options); });
   result.num_inliers = static_cast<int>(report.num_inliers);
   if (!report.success || result.num_inliers < options.min_inliers) {
-    result.failure = "too few RANSAC inliers";
+    result.failure = "too few RANSAC inliers (of a plausible relative affine)";
     return result;
   }
-  if (!PlausibleRelative(report.model, options)) {
-    const LinearPart lin = Decompose(report.model);
-    result.failure = "implausible relative affine (det " + std::to_string(lin.det) + ", scale " +
-                     std::to_string(lin.scale) + ", anisotropy " + std::to_string(lin.anisotropy) + ")";
-    return result;
-  }
+  // RANSAC let only plausible models compete: report.model is one (PlausibleRelative).
   std::vector<Vec2> in_src;
   std::vector<Vec2> in_tgt;
   for (size_t i = 0; i < xs.size(); ++i) {
