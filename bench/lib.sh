@@ -121,3 +121,58 @@ run_stitcher() {
     fi
   fi
 }
+
+# run_phased PREFIX CMD...: runs CMD (stdout/stderr to PREFIX.{stdout,stderr}) and samples it from outside every
+# 50 ms: VmRSS and RssAnon from /proc/PID/status, and the phase the program is in from the name of its memory
+# watch's thread ("mem:<phase>" in /proc/PID/task/*/comm, see core/util/memory_watch.h). Writes PREFIX.phases.tsv
+# (phase, peak VmRSS kB, peak RssAnon kB, samples, first and last sample's second) in the order the phases ran.
+# Sets W_RC, W_WALL_S, W_PEAK_KB (largest VmRSS or VmHWM sampled), W_PEAK_ANON_KB.
+run_phased() {
+  local prefix=$1
+  shift
+  local t0 pid key val _rest rss anon hwm state phase comm f now
+  declare -A P_RSS=() P_ANON=() P_N=() P_FIRST=() P_LAST=()
+  local order=()
+  W_RC=0 W_PEAK_KB=0 W_PEAK_ANON_KB=0
+  t0=$(now_us)
+  "$@" >"$prefix.stdout" 2>"$prefix.stderr" &
+  pid=$!
+  phase=start
+  while :; do
+    rss=0 anon=0 hwm=0 state=""
+    {
+      while read -r key val _rest; do
+        case $key in
+          State:) state=$val ;;
+          VmRSS:) rss=$val ;;
+          RssAnon:) anon=$val ;;
+          VmHWM:) hwm=$val ;;
+        esac
+      done <"/proc/$pid/status"
+    } 2>/dev/null || break
+    [[ -z $state || $state == Z* ]] && break
+    for f in /proc/"$pid"/task/*/comm; do
+      read -r comm <"$f" 2>/dev/null || continue
+      if [[ $comm == mem:* ]]; then phase=${comm#mem:}; break; fi
+    done
+    now=$(($(now_us) - t0))
+    if [[ -z ${P_N[$phase]:-} ]]; then
+      order+=("$phase") P_RSS[$phase]=0 P_ANON[$phase]=0 P_N[$phase]=0 P_FIRST[$phase]=$now
+    fi
+    ((rss > P_RSS[$phase])) && P_RSS[$phase]=$rss
+    ((anon > P_ANON[$phase])) && P_ANON[$phase]=$anon
+    P_N[$phase]=$((P_N[$phase] + 1)) P_LAST[$phase]=$now
+    ((rss > W_PEAK_KB)) && W_PEAK_KB=$rss
+    ((hwm > W_PEAK_KB)) && W_PEAK_KB=$hwm
+    ((anon > W_PEAK_ANON_KB)) && W_PEAK_ANON_KB=$anon
+    sleep 0.05
+  done
+  { wait "$pid"; } 2>/dev/null || W_RC=$?
+  W_WALL_S=$(awk -v d=$(($(now_us) - t0)) 'BEGIN { printf "%.2f", d / 1e6 }')
+  : >"$prefix.phases.tsv"
+  for phase in "${order[@]}"; do
+    printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$phase" "${P_RSS[$phase]}" "${P_ANON[$phase]}" "${P_N[$phase]}" \
+      "$(awk -v t="${P_FIRST[$phase]}" 'BEGIN { printf "%.2f", t / 1e6 }')" \
+      "$(awk -v t="${P_LAST[$phase]}" 'BEGIN { printf "%.2f", t / 1e6 }')" >>"$prefix.phases.tsv"
+  done
+}

@@ -307,6 +307,7 @@ class FlightStatus {
     status_.fps = status_.uptime_s > 0 ? status_.frames_in / status_.uptime_s : 0.0;
     status_.median_frame_ms = mosaicker_.stage_stats().Get("frame_total").median;
     status_.rss_mib = CurrentRssMiB();
+    status_.peak_rss_mib = PeakRssMiB();
     status_.last_error = line_.last_error();
     if (serving_) live_.PublishStatus(status_, wait);
   }
@@ -481,7 +482,7 @@ bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, Mosaicke
       queue->Close();
       return false;
     }
-    notifier->Progress(static_cast<int>(mosaicker->frames_in()), registered_live, CurrentRssMiB());
+    notifier->Progress(static_cast<int>(mosaicker->frames_in()), registered_live, CurrentRssMiB(), PeakRssMiB());
     status->FrameDone(registered_live, queue->dropped());
     // Test hook (--process-delay-ms): a slow consumer, so that a live camera's drop-oldest queue is exercised.
     if (config.process_delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(config.process_delay_ms));
@@ -536,8 +537,12 @@ int FinishFlight(hal::FrameSource* source, hal::TelemetrySource* telemetry, cons
     spdlog::error("cannot write the session (output not writable or disk full): {}", error);
     return kExitOutputError;
   }
+  // The peak over every phase (the kernel's high-water mark is never reset): what an outside tool reads too.
+  const double peak = PeakRssMiB();
   spdlog::info("done: {}/{} registered, residual RMS {:.2f} px, peak RSS {:.0f} MiB", mosaicker->registered_count(),
-               mosaicker->frames_in(), mosaicker->residual_rms_px(), PeakRssMiB());
+               mosaicker->frames_in(), mosaicker->residual_rms_px(), peak);
+  notifier->Status(fmt::format("done: {}/{} registered, peak RSS {:.0f} MiB", mosaicker->registered_count(),
+                               mosaicker->frames_in(), peak));
   if (storage_stopped) return kExitOutputError;
   if (mosaicker->registered_count() == 0) return kExitNothingRegistered;
   return capture.source_failed ? kExitSourceError : kExitOk;

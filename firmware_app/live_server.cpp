@@ -207,7 +207,7 @@ function show(st) {
   var g = st.georef || {};
   document.getElementById('s').textContent = st.state + ' | frames ' + st.frames_in + ' | registered ' +
     st.registered + ' | dropped ' + st.dropped + ' | ' + st.fps.toFixed(1) + ' fps | RSS ' +
-    st.rss_mib.toFixed(0) + '/' + st.budget_mib.toFixed(0) + ' MiB' +
+    st.rss_mib.toFixed(0) + '/' + st.budget_mib.toFixed(0) + ' MiB (peak ' + st.peak_rss_mib.toFixed(0) + ')' +
     (g.georeferenced ? ' | ' + g.crs + ', RMS ' + g.rms_m.toFixed(1) + ' m over ' + g.frames_used + ' frames'
                      : ' | not georeferenced' + (g.reason ? ': ' + g.reason : '')) +
     (st.tiles ? ' | tiles z' + st.tiles.min_zoom + '-' + st.tiles.max_zoom + ', ' + st.tiles.frames + ' frames' +
@@ -385,6 +385,7 @@ nlohmann::json LiveServer::StatusJson() {
           {"fps", st.fps},
           {"median_frame_ms", st.median_frame_ms},
           {"rss_mib", st.rss_mib},
+          {"peak_rss_mib", st.peak_rss_mib},
           {"budget_mib", st.budget_mib},
           {"last_error", st.last_error},
           {"uptime_s", st.uptime_s},

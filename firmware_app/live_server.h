@@ -26,6 +26,7 @@ struct LiveStatus {
   double fps = 0;
   double median_frame_ms = 0;
   double rss_mib = 0;
+  double peak_rss_mib = 0;  // over every phase so far (VmHWM, never reset)
   double budget_mib = 0;
   std::string last_error;
   double uptime_s = 0;

@@ -23,13 +23,14 @@ void ServiceNotifier::Ready(const std::string& status) {
   // replay could otherwise end without one frame count in `systemctl status`).
 }
 
-void ServiceNotifier::Progress(int frames, int registered, double rss_mib) {
+void ServiceNotifier::Progress(int frames, int registered, double rss_mib, double peak_rss_mib) {
   if (!under_systemd_) return;
   const auto now = std::chrono::steady_clock::now();
   const int64_t min_gap_us = watchdog_us_ > 0 ? std::min<int64_t>(watchdog_us_ / 2, 1000000) : 1000000;
   if (now - last_progress_ < std::chrono::microseconds(min_gap_us)) return;
   last_progress_ = now;
-  const std::string status = fmt::format("{} frames, {} registered, RSS {:.0f} MiB", frames, registered, rss_mib);
+  const std::string status = fmt::format("{} frames, {} registered, RSS {:.0f} MiB (peak {:.0f})", frames, registered,
+                                         rss_mib, peak_rss_mib);
   sd_notifyf(0, "%sSTATUS=%s", watchdog_us_ > 0 ? "WATCHDOG=1\n" : "", status.c_str());
 }
 

@@ -19,7 +19,7 @@ class ServiceNotifier {
 
   void Ready(const std::string& status);
   // From the frame loop: a WATCHDOG=1 and a STATUS= line, at most every half watchdog interval (or every second).
-  void Progress(int frames, int registered, double rss_mib);
+  void Progress(int frames, int registered, double rss_mib, double peak_rss_mib);
   void Status(const std::string& status);
   void Stopping(const std::string& status);
   // One WATCHDOG=1 now (from the heartbeat thread as well: sd_notify is thread-safe).

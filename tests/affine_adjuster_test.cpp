@@ -132,5 +132,55 @@ TEST(AffineAdjusterTest, LocalUpdateMovesOnlyTheVariableFrame) {
   EXPECT_LT(MaxCornerError(T[4], scene.truth[4]), 1e-12);
 }
 
+// Beyond direct_max_frames the normal equations are solved by conjugate gradients instead of a factorisation (bounded
+// memory at the end of a long flight): the same problem must give the same maps, whichever way it is solved. A long
+// loop (a poorly conditioned chain) with cross edges between neighbours' neighbours, and a fixed frame besides the
+// reference (the right-hand side of a fixed side).
+TEST(AffineAdjusterTest, ConjugateGradientsGiveTheFactorisationsSolution) {
+  LoopScene scene = MakeLoop(300, 0.5, 23);
+  for (int i = 0; i + 2 < 300; i += 3) {
+    Edge e = scene.edges[static_cast<size_t>(i)];
+    const Edge& next = scene.edges[static_cast<size_t>(i + 1)];
+    e.tgt = i + 2;
+    for (Vec2& q : e.tgt_points) q = Apply(next.tgt_from_src, q);
+    e.tgt_from_src = next.tgt_from_src * e.tgt_from_src;
+    scene.edges.push_back(e);
+  }
+  std::vector<const Edge*> edges;
+  for (const auto& e : scene.edges) edges.push_back(&e);
+  std::unordered_set<int> variable;
+  std::unordered_map<int, double> half_diag;
+  for (int i = 1; i < 300; ++i)
+    if (i != 150) variable.insert(i);
+  for (int i = 0; i < 300; ++i) half_diag[i] = 0.5 * std::hypot(kW, kH);
+  auto start = scene.chained;
+  start[150] = scene.truth[150];
+  AdjustOptions direct;
+  direct.direct_max_frames = 1000;
+  AdjustOptions iterative;
+  iterative.direct_max_frames = 10;
+  auto T_direct = start;
+  auto T_iterative = start;
+  const AdjustResult rd = AdjustAffine(edges, variable, half_diag, direct, &T_direct);
+  const AdjustResult ri = AdjustAffine(edges, variable, half_diag, iterative, &T_iterative);
+  ASSERT_TRUE(rd.ok) << rd.failure;
+  ASSERT_TRUE(ri.ok) << ri.failure;
+  EXPECT_FALSE(rd.iterative);
+  EXPECT_TRUE(ri.iterative);
+  EXPECT_GT(ri.iterative_steps, 10);
+  double worst = 0;
+  for (int id : variable) worst = std::max(worst, MaxCornerError(T_direct.at(id), T_iterative.at(id)));
+  EXPECT_LT(worst, 1e-4);  // pixels at the frame corners
+  EXPECT_NEAR(rd.rms_px, ri.rms_px, 1e-6);
+  // Both moved the chained start (drift of several pixels) onto the loop.
+  EXPECT_GT(MaxCornerError(start.at(299), T_iterative.at(299)), 1.0);
+  // Too few steps allowed: a failure that says so, not a half-solved map.
+  iterative.max_iterative_steps = 2;
+  auto T_short = start;
+  const AdjustResult rs = AdjustAffine(edges, variable, half_diag, iterative, &T_short);
+  EXPECT_FALSE(rs.ok);
+  EXPECT_NE(rs.failure.find("did not converge"), std::string::npos) << rs.failure;
+}
+
 }  // namespace
 }  // namespace uavm

@@ -8,8 +8,12 @@
 namespace uavm {
 
 bool AdjustOptions::Check(std::string* why) const {
-  if (!(rigidity_weight >= 0) || !(relative_linear_weight >= 0) || !(huber_px > 0) || robust_iterations < 0) {
-    if (why != nullptr) *why = "adjust: weights must be >= 0, huber_px > 0, robust_iterations >= 0";
+  if (!(rigidity_weight >= 0) || !(relative_linear_weight >= 0) || !(huber_px > 0) || robust_iterations < 0 ||
+      direct_max_frames < 0 || !(iterative_tolerance > 0 && iterative_tolerance < 1) || max_iterative_steps < 1) {
+    if (why != nullptr)
+      *why =
+          "adjust: weights must be >= 0, huber_px > 0, robust_iterations >= 0, direct_max_frames >= 0, "
+          "iterative_tolerance in (0, 1), max_iterative_steps >= 1";
     return false;
   }
   return true;
@@ -19,165 +23,243 @@ namespace {
 
 // Parameter layout of one frame: a00 a01 a02 a10 a11 a12.
 constexpr int kDof = 6;
+using Block = Eigen::Matrix<double, kDof, kDof>;
+using Vec6 = Eigen::Matrix<double, kDof, 1>;
 
-struct RowBuilder {
-  std::vector<Eigen::Triplet<double>> triplets;
-  std::vector<double> rhs;
-  int rows = 0;
+using ColumnOf = std::unordered_map<int, int>;  // frame id -> variable index (column / kDof)
 
-  int NewRow(double b) {
-    rhs.push_back(b);
-    return rows++;
-  }
-  void Add(int row, int col, double v) {
-    if (v != 0.0) triplets.emplace_back(row, col, v);
+// The normal equations in blocks: a 6x6 block on the diagonal per variable frame, one off-diagonal block per edge
+// between two variable frames (an edge's correspondence and relative-linear terms couple only its two frames). Its
+// memory is ~300 bytes per edge and per frame, whatever the points: the Jacobian, with a row per point, is never built.
+struct BlockSystem {
+  std::vector<Block, Eigen::aligned_allocator<Block>> diagonal;
+  std::vector<Vec6, Eigen::aligned_allocator<Vec6>> rhs;
+  std::vector<std::pair<int, int>> pairs;  // (row frame, column frame) of each off-diagonal block: x_row, x_col
+  std::vector<Block, Eigen::aligned_allocator<Block>> off_diagonal;
+
+  explicit BlockSystem(size_t frames) : diagonal(frames, Block::Zero()), rhs(frames, Vec6::Zero()) {}
+
+  // y = N x, with N the symmetric matrix of the blocks.
+  void Multiply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
+    y->setZero(x.size());
+    for (size_t i = 0; i < diagonal.size(); ++i)
+      y->segment<kDof>(static_cast<long>(i) * kDof).noalias() += diagonal[i] * x.segment<kDof>(static_cast<long>(i) * kDof);
+    for (size_t k = 0; k < pairs.size(); ++k) {
+      const long a = static_cast<long>(pairs[k].first) * kDof;
+      const long b = static_cast<long>(pairs[k].second) * kDof;
+      y->segment<kDof>(a).noalias() += off_diagonal[k] * x.segment<kDof>(b);
+      y->segment<kDof>(b).noalias() += off_diagonal[k].transpose() * x.segment<kDof>(a);
+    }
   }
 };
-
-using ColumnOf = std::unordered_map<int, int>;  // frame id -> first column
-
-// Correspondence rows T_src p - T_tgt q = 0 go straight into the normal equations: per edge, the weighted sums S_pp,
-// S_pq, S_qq of the homogeneous points give its 6x6 block (the same for both coordinate rows), so the Jacobian with
-// one row per point is never built. `weights` null: all 1 (the first pass).
-void AddCorrespondences(const std::vector<const Edge*>& used, const ColumnOf& column,
-                        const std::unordered_map<int, Mat3>& T, const std::vector<float>* weights,
-                        std::vector<Eigen::Triplet<double>>* normal, Eigen::VectorXd* Atb) {
-  size_t corr_index = 0;
-  for (const Edge* e : used) {
-    Eigen::Matrix3d Spp = Eigen::Matrix3d::Zero();
-    Eigen::Matrix3d Spq = Eigen::Matrix3d::Zero();
-    Eigen::Matrix3d Sqq = Eigen::Matrix3d::Zero();
-    for (size_t k = 0; k < e->src_points.size(); ++k, ++corr_index) {
-      const double w = weights == nullptr ? 1.0 : static_cast<double>((*weights)[corr_index]);
-      const Eigen::Vector3d p(e->src_points[k].x(), e->src_points[k].y(), 1.0);
-      const Eigen::Vector3d q(e->tgt_points[k].x(), e->tgt_points[k].y(), 1.0);
-      const double w2 = w * w;
-      Spp.noalias() += w2 * p * p.transpose();
-      Spq.noalias() += w2 * p * q.transpose();
-      Sqq.noalias() += w2 * q * q.transpose();
-    }
-    const auto cs = column.find(e->src);
-    const auto ct = column.find(e->tgt);
-    const Mat3& Ts = T.at(e->src);
-    const Mat3& Tt = T.at(e->tgt);
-    for (int r = 0; r < 2; ++r) {
-      const int s0 = cs != column.end() ? cs->second + 3 * r : -1;
-      const int t0 = ct != column.end() ? ct->second + 3 * r : -1;
-      for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 3; ++j) {
-          if (s0 >= 0) normal->emplace_back(s0 + i, s0 + j, Spp(i, j));
-          if (t0 >= 0) normal->emplace_back(t0 + i, t0 + j, Sqq(i, j));
-          if (s0 >= 0 && t0 >= 0) {
-            normal->emplace_back(s0 + i, t0 + j, -Spq(i, j));
-            normal->emplace_back(t0 + j, s0 + i, -Spq(i, j));
-          }
-        }
-      // A fixed side moves to the right-hand side.
-      if (s0 < 0 && t0 >= 0) {
-        const Eigen::Vector3d alpha = Ts.row(r).transpose();
-        Atb->segment<3>(t0) += Spq.transpose() * alpha;
-      } else if (t0 < 0 && s0 >= 0) {
-        const Eigen::Vector3d beta = Tt.row(r).transpose();
-        Atb->segment<3>(s0) += Spq * beta;
-      }
-    }
-  }
-}
 
 double HalfDiagonal(const std::unordered_map<int, double>& half_diagonal, int id) {
   const auto hd = half_diagonal.find(id);
   return hd != half_diagonal.end() ? hd->second : 1.0;
 }
 
-// Rigidity: a00 - a11 = 0 and a01 + a10 = 0, in pixels at the frame's half-diagonal.
-void AddRigidityRows(const ColumnOf& column, const std::unordered_map<int, double>& half_diagonal,
-                     const AdjustOptions& options, RowBuilder* rb) {
-  for (const auto& [id, col] : column) {
-    const double scale = options.rigidity_weight * HalfDiagonal(half_diagonal, id);
-    if (scale <= 0) continue;
-    int row = rb->NewRow(0.0);
-    rb->Add(row, col + 0, scale);
-    rb->Add(row, col + 4, -scale);
-    row = rb->NewRow(0.0);
-    rb->Add(row, col + 1, scale);
-    rb->Add(row, col + 3, scale);
-  }
+int VariableIndex(const ColumnOf& column, int id) {
+  const auto it = column.find(id);
+  return it != column.end() ? it->second : -1;
 }
 
-// Relative linear part: L_src - L_tgt * R = 0 with R the edge's measured linear part.
-void AddRelativeLinearRows(const std::vector<const Edge*>& used, const ColumnOf& column,
-                           const std::unordered_map<int, Mat3>& T, const std::unordered_map<int, double>& half_diagonal,
-                           const AdjustOptions& options, RowBuilder* rb) {
-  for (const Edge* e : used) {
-    const auto cs = column.find(e->src);
-    const auto ct = column.find(e->tgt);
-    const double scale =
-        options.relative_linear_weight * HalfDiagonal(half_diagonal, cs != column.end() ? e->src : e->tgt);
-    const Mat3& Ts = T.at(e->src);
-    const Mat3& Tt = T.at(e->tgt);
-    for (int r = 0; r < 2; ++r) {
+// Correspondence rows T_src p - T_tgt q = 0: per edge, the weighted sums S_pp, S_pq, S_qq of the homogeneous points
+// give its blocks (the same for both coordinate rows). A fixed side moves to the right-hand side.
+// Relative linear part: L_src - L_tgt * R = 0 with R the edge's measured linear part, as rows of the same edge.
+void AddEdge(const Edge& e, const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
+             const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
+             const float* weights, BlockSystem* sys) {
+  Eigen::Matrix3d Spp = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d Spq = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d Sqq = Eigen::Matrix3d::Zero();
+  for (size_t k = 0; k < e.src_points.size(); ++k) {
+    const double w = weights == nullptr ? 1.0 : static_cast<double>(weights[k]);
+    const Eigen::Vector3d p(e.src_points[k].x(), e.src_points[k].y(), 1.0);
+    const Eigen::Vector3d q(e.tgt_points[k].x(), e.tgt_points[k].y(), 1.0);
+    const double w2 = w * w;
+    Spp.noalias() += w2 * p * p.transpose();
+    Spq.noalias() += w2 * p * q.transpose();
+    Sqq.noalias() += w2 * q * q.transpose();
+  }
+  const int s = VariableIndex(column, e.src);
+  const int t = VariableIndex(column, e.tgt);
+  const Mat3& Ts = T.at(e.src);
+  const Mat3& Tt = T.at(e.tgt);
+  Block ss = Block::Zero(), tt = Block::Zero(), st = Block::Zero();
+  Vec6 bs = Vec6::Zero(), bt = Vec6::Zero();
+  for (int r = 0; r < 2; ++r) {
+    ss.block<3, 3>(3 * r, 3 * r) = Spp;
+    tt.block<3, 3>(3 * r, 3 * r) = Sqq;
+    st.block<3, 3>(3 * r, 3 * r) = -Spq;
+    if (s < 0) bt.segment<3>(3 * r) += Spq.transpose() * Ts.row(r).transpose();
+    if (t < 0) bs.segment<3>(3 * r) += Spq * Tt.row(r).transpose();
+  }
+  if (options.relative_linear_weight > 0) {
+    // Row (r, c): scale * (a_s(r, c) - sum_k R(k, c) a_t(r, k)) = 0.
+    const double scale = options.relative_linear_weight * HalfDiagonal(half_diagonal, s >= 0 ? e.src : e.tgt);
+    for (int r = 0; r < 2; ++r)
       for (int c = 0; c < 2; ++c) {
+        Vec6 js = Vec6::Zero(), jt = Vec6::Zero();
+        js(3 * r + c) = scale;
+        for (int k = 0; k < 2; ++k) jt(3 * r + k) = -scale * e.tgt_from_src(k, c);
+        // The fixed side's value moves to the right-hand side: b = -(J_fixed x_fixed).
         double b = 0.0;
-        const int row = rb->NewRow(0.0);
-        if (cs != column.end())
-          rb->Add(row, cs->second + 3 * r + c, scale);
-        else
-          b -= scale * Ts(r, c);
-        for (int k = 0; k < 2; ++k) {
-          const double coeff = -scale * e->tgt_from_src(k, c);
-          if (ct != column.end())
-            rb->Add(row, ct->second + 3 * r + k, coeff);
-          else
-            b -= coeff * Tt(r, k);
-        }
-        rb->rhs[static_cast<size_t>(row)] = b;
+        if (s < 0) b -= scale * Ts(r, c);
+        if (t < 0)
+          for (int k = 0; k < 2; ++k) b -= jt(3 * r + k) * Tt(r, k);
+        ss += js * js.transpose();
+        tt += jt * jt.transpose();
+        st += js * jt.transpose();
+        bs += js * b;
+        bt += jt * b;
       }
-    }
+  }
+  if (s >= 0) {
+    sys->diagonal[static_cast<size_t>(s)] += ss;
+    sys->rhs[static_cast<size_t>(s)] += bs;
+  }
+  if (t >= 0) {
+    sys->diagonal[static_cast<size_t>(t)] += tt;
+    sys->rhs[static_cast<size_t>(t)] += bt;
+  }
+  if (s >= 0 && t >= 0) {
+    sys->pairs.emplace_back(s, t);
+    sys->off_diagonal.push_back(st);
   }
 }
 
-// A faint pull to the current value keeps frames without constraints solvable (gauge of a detached frame).
-void AddDampingRows(const ColumnOf& column, const std::unordered_map<int, Mat3>& T, RowBuilder* rb) {
+// Rigidity (a00 - a11 = 0 and a01 + a10 = 0, in pixels at the frame's half-diagonal) and a faint pull to the current
+// value, which keeps frames without constraints solvable (the gauge of a detached frame).
+void AddFramePriors(const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
+                    const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
+                    BlockSystem* sys) {
   constexpr double kDamping = 1e-6;
-  for (const auto& [id, col] : column) {
+  for (const auto& [id, index] : column) {
+    Block& d = sys->diagonal[static_cast<size_t>(index)];
+    Vec6& b = sys->rhs[static_cast<size_t>(index)];
+    const double scale = options.rigidity_weight * HalfDiagonal(half_diagonal, id);
+    if (scale > 0) {
+      Vec6 j1 = Vec6::Zero(), j2 = Vec6::Zero();
+      j1(0) = scale;
+      j1(4) = -scale;
+      j2(1) = scale;
+      j2(3) = scale;
+      d += j1 * j1.transpose() + j2 * j2.transpose();
+    }
     const Mat3& t = T.at(id);
     for (int r = 0; r < 2; ++r)
       for (int c = 0; c < 3; ++c) {
-        const int row = rb->NewRow(kDamping * t(r, c));
-        rb->Add(row, col + 3 * r + c, kDamping);
+        d(3 * r + c, 3 * r + c) += kDamping * kDamping;
+        b(3 * r + c) += kDamping * kDamping * t(r, c);
       }
   }
 }
 
-// One weighted least-squares pass: the correspondence blocks plus the prior rows, solved for every variable frame.
-// Empty on success, else why.
-std::string SolvePass(const std::vector<const Edge*>& used, const ColumnOf& column, int num_cols,
-                      const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
-                      const std::vector<float>* weights, std::unordered_map<int, Mat3>* mosaic_from_frame) {
-  auto& T = *mosaic_from_frame;
-  std::vector<Eigen::Triplet<double>> normal;
-  Eigen::VectorXd Atb = Eigen::VectorXd::Zero(num_cols);
-  AddCorrespondences(used, column, T, weights, &normal, &Atb);
-  RowBuilder rb;
-  AddRigidityRows(column, half_diagonal, options, &rb);
-  if (options.relative_linear_weight > 0) AddRelativeLinearRows(used, column, T, half_diagonal, options, &rb);
-  AddDampingRows(column, T, &rb);
-  Eigen::SparseMatrix<double> A(rb.rows, num_cols);
-  A.setFromTriplets(rb.triplets.begin(), rb.triplets.end());
-  const Eigen::Map<const Eigen::VectorXd> b(rb.rhs.data(), rb.rows);
-  Eigen::SparseMatrix<double> AtA(num_cols, num_cols);
-  AtA.setFromTriplets(normal.begin(), normal.end());
-  normal = {};
-  AtA += Eigen::SparseMatrix<double>(A.transpose() * A);
-  Atb += A.transpose() * b;
-  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(AtA);
+// Direct: the blocks as one sparse matrix, factored (sparse LDLT). Its fill grows faster than the frames.
+std::string SolveDirect(const BlockSystem& sys, Eigen::VectorXd* x) {
+  const long n = static_cast<long>(sys.diagonal.size()) * kDof;
+  std::vector<Eigen::Triplet<double>> triplets;
+  triplets.reserve((sys.diagonal.size() + 2 * sys.pairs.size()) * kDof * kDof);
+  const auto add = [&](long r0, long c0, const Block& b, bool transpose) {
+    for (int i = 0; i < kDof; ++i)
+      for (int j = 0; j < kDof; ++j)
+        if (const double v = transpose ? b(j, i) : b(i, j); v != 0.0) triplets.emplace_back(r0 + i, c0 + j, v);
+  };
+  for (size_t i = 0; i < sys.diagonal.size(); ++i)
+    add(static_cast<long>(i) * kDof, static_cast<long>(i) * kDof, sys.diagonal[i], false);
+  for (size_t k = 0; k < sys.pairs.size(); ++k) {
+    const long a = static_cast<long>(sys.pairs[k].first) * kDof;
+    const long b = static_cast<long>(sys.pairs[k].second) * kDof;
+    add(a, b, sys.off_diagonal[k], false);
+    add(b, a, sys.off_diagonal[k], true);
+  }
+  Eigen::SparseMatrix<double> N(n, n);
+  N.setFromTriplets(triplets.begin(), triplets.end());
+  triplets = {};
+  Eigen::VectorXd rhs(n);
+  for (size_t i = 0; i < sys.rhs.size(); ++i) rhs.segment<kDof>(static_cast<long>(i) * kDof) = sys.rhs[i];
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(N);
   if (solver.info() != Eigen::Success) return "normal equations are singular";
-  const Eigen::VectorXd x = solver.solve(Atb);
-  if (solver.info() != Eigen::Success || !x.allFinite()) return "solve failed";
-  for (const auto& [id, col] : column) {
+  *x = solver.solve(rhs);
+  if (solver.info() != Eigen::Success || !x->allFinite()) return "solve failed";
+  return {};
+}
+
+// Iterative: conjugate gradients preconditioned by the inverse diagonal blocks, from `x` (the current maps, already
+// close). Memory is the blocks and five vectors: it grows with the frames and edges by a few hundred bytes each,
+// never with a factor's fill.
+std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options, Eigen::VectorXd* x, int* iterations) {
+  const size_t frames = sys.diagonal.size();
+  const long n = static_cast<long>(frames) * kDof;
+  std::vector<Block, Eigen::aligned_allocator<Block>> inverse(frames);
+  for (size_t i = 0; i < frames; ++i) {
+    const Eigen::LDLT<Block> ldlt(sys.diagonal[i]);
+    if (ldlt.info() != Eigen::Success) return "normal equations are singular";
+    inverse[i] = ldlt.solve(Block::Identity());
+  }
+  const auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd* z) {
+    z->resize(n);
+    for (size_t i = 0; i < frames; ++i)
+      z->segment<kDof>(static_cast<long>(i) * kDof).noalias() = inverse[i] * r.segment<kDof>(static_cast<long>(i) * kDof);
+  };
+  Eigen::VectorXd b(n);
+  for (size_t i = 0; i < frames; ++i) b.segment<kDof>(static_cast<long>(i) * kDof) = sys.rhs[i];
+  Eigen::VectorXd r, z, p, q;
+  sys.Multiply(*x, &q);
+  r = b - q;
+  precondition(r, &z);
+  p = z;
+  double rz = r.dot(z);
+  const double stop = options.iterative_tolerance * options.iterative_tolerance * b.squaredNorm();
+  *iterations = 0;
+  while (r.squaredNorm() > stop && *iterations < options.max_iterative_steps) {
+    sys.Multiply(p, &q);
+    const double pq = p.dot(q);
+    if (!(pq > 0)) return "normal equations are not positive definite";
+    const double alpha = rz / pq;
+    *x += alpha * p;
+    r -= alpha * q;
+    precondition(r, &z);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+    ++*iterations;
+  }
+  if (!x->allFinite()) return "solve failed";
+  if (r.squaredNorm() > stop)
+    return "conjugate gradients did not converge in " + std::to_string(options.max_iterative_steps) + " steps";
+  return {};
+}
+
+// One weighted least-squares pass over every variable frame. Empty on success, else why.
+std::string SolvePass(const std::vector<const Edge*>& used, const ColumnOf& column,
+                      const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
+                      const std::vector<float>* weights, std::unordered_map<int, Mat3>* mosaic_from_frame,
+                      AdjustResult* result) {
+  auto& T = *mosaic_from_frame;
+  BlockSystem sys(column.size());
+  sys.pairs.reserve(used.size());
+  sys.off_diagonal.reserve(used.size());
+  size_t corr_index = 0;
+  for (const Edge* e : used) {
+    AddEdge(*e, column, T, half_diagonal, options, weights == nullptr ? nullptr : weights->data() + corr_index, &sys);
+    corr_index += e->src_points.size();
+  }
+  AddFramePriors(column, T, half_diagonal, options, &sys);
+  Eigen::VectorXd x(static_cast<long>(column.size()) * kDof);
+  for (const auto& [id, index] : column)
+    for (int r = 0; r < 2; ++r)
+      for (int c = 0; c < 3; ++c) x(index * kDof + 3 * r + c) = T.at(id)(r, c);
+  const bool direct = static_cast<int>(column.size()) <= options.direct_max_frames;
+  int steps = 0;
+  const std::string failure = direct ? SolveDirect(sys, &x) : SolveIterative(sys, options, &x, &steps);
+  if (!failure.empty()) return failure;
+  result->iterative = !direct;
+  result->iterative_steps += steps;
+  for (const auto& [id, index] : column) {
     Mat3& t = T[id];
     for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 3; ++c) t(r, c) = x(col + 3 * r + c);
+      for (int c = 0; c < 3; ++c) t(r, c) = x(index * kDof + 3 * r + c);
     t.row(2) << 0, 0, 1;
   }
   return {};
@@ -213,7 +295,7 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
       result.failure = "variable frame without initial transform";
       return result;
     }
-    column.emplace(id, static_cast<int>(column.size()) * kDof);
+    column.emplace(id, static_cast<int>(column.size()));
   }
   result.num_variables = variable_ids.size();
   if (variable_ids.empty()) {
@@ -226,10 +308,10 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
     if (column.count(e->src) == 0 && column.count(e->tgt) == 0) continue;
     used.push_back(e);
   }
-  const int num_cols = static_cast<int>(column.size()) * kDof;
   std::vector<float> weights;  // IRLS, from the previous pass
   for (int iteration = 0; iteration <= options.robust_iterations; ++iteration) {
-    result.failure = SolvePass(used, column, num_cols, half_diagonal, options, iteration == 0 ? nullptr : &weights, &T);
+    result.failure =
+        SolvePass(used, column, half_diagonal, options, iteration == 0 ? nullptr : &weights, &T, &result);
     if (!result.failure.empty()) return result;
     HuberWeights(used, T, options.huber_px, &weights);
   }

@@ -18,6 +18,12 @@ struct AdjustOptions {
   double relative_linear_weight = 0.02;
   double huber_px = 2.0;
   int robust_iterations = 2;
+  // Up to this many variable frames the normal equations are factored (sparse LDLT); beyond, they are solved by
+  // block-preconditioned conjugate gradients, whose memory grows with the frames and edges only (a few hundred bytes
+  // each), not with a factor's fill: the end of a long flight stays within its memory plan.
+  int direct_max_frames = 1000;
+  double iterative_tolerance = 1e-13;  // relative residual |N x - b| / |b| at which the iteration stops
+  int max_iterative_steps = 20000;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -27,7 +33,9 @@ struct AdjustResult {
   std::string failure;
   size_t num_variables = 0;
   size_t num_residuals = 0;
-  double rms_px = 0.0;  // correspondence residuals, mosaic pixels
+  bool iterative = false;   // solved by conjugate gradients (more frames than direct_max_frames)
+  int iterative_steps = 0;  // over every robust pass
+  double rms_px = 0.0;      // correspondence residuals, mosaic pixels
   double median_px = 0.0;
 };
 

@@ -31,11 +31,12 @@ bool ParseMotionModel(const std::string& text, MotionModel* model) {
 
 bool RefineOptions::Check(std::string* why) const {
   if (!(huber_px > 0) || !(nadir_weight >= 0) || !(rigidity_weight >= 0) || max_iterations < 1 || !(max_seconds >= 0) ||
-      threads < 1 || threads > 64 || !(max_perspective_ratio > 1) || max_correspondences < 100 || !(outlier_px >= 0)) {
+      threads < 1 || threads > 64 || !(max_perspective_ratio > 1) || max_correspondences < 100 || !(outlier_px >= 0) ||
+      direct_max_frames < 0) {
     if (why != nullptr)
       *why =
           "refine: huber_px > 0, weights >= 0, max_iterations >= 1, max_seconds >= 0, threads in [1,64], "
-          "max_perspective_ratio > 1, max_correspondences >= 100, outlier_px >= 0";
+          "max_perspective_ratio > 1, max_correspondences >= 100, outlier_px >= 0, direct_max_frames >= 0";
     return false;
   }
   return true;
@@ -387,9 +388,16 @@ class RefineProblem {
   std::unordered_map<int, Eigen::AlignedBox2d> extent_;
 };
 
-ceres::Solver::Options SolverOptions(const RefineOptions& options) {
+ceres::Solver::Options SolverOptions(const RefineOptions& options, size_t variable_frames) {
   ceres::Solver::Options solver_options;
-  solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  // A factorisation's fill grows faster than the frames; conjugate gradients on the normal equations (preconditioned
+  // by each frame's block) need the Jacobian only, whose memory the correspondence cap bounds.
+  if (variable_frames <= static_cast<size_t>(options.direct_max_frames)) {
+    solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  } else {
+    solver_options.linear_solver_type = ceres::CGNR;
+    solver_options.preconditioner_type = ceres::JACOBI;
+  }
   solver_options.max_num_iterations = options.max_iterations;
   solver_options.num_threads = options.threads;
   solver_options.function_tolerance = 1e-9;
@@ -454,7 +462,7 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
     return result;
   }
   result.num_variables = refine.NumVariables();
-  const ceres::Solver::Options solver_options = SolverOptions(options);
+  const ceres::Solver::Options solver_options = SolverOptions(options, result.num_variables);
   result.failure = refine.Solve(solver_options, &result.iterations, /*log=*/true);
   if (!result.failure.empty()) return result;
   if (options.outlier_px > 0) {

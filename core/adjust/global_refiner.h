@@ -39,6 +39,9 @@ struct RefineOptions {
   int max_correspondences = 100000;
   double max_seconds = 0.0;  // 0 = no time limit
   int threads = 1;
+  // Up to this many frames the solver factors its normal equations; beyond, it solves them by conjugate gradients
+  // (block-Jacobi preconditioned): memory bounded by the correspondences, not by a factor's fill.
+  int direct_max_frames = 1000;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };

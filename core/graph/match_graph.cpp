@@ -81,6 +81,31 @@ std::vector<std::vector<int>> MatchGraph::ComponentsBySize(double relative, int 
   return out;
 }
 
+namespace {
+
+size_t ThinPair(std::vector<Vec2>* a, std::vector<Vec2>* b, size_t keep) {
+  const size_t n = a->size();
+  if (n <= keep) return 0;
+  std::vector<Vec2> ta, tb;
+  ta.reserve(keep);
+  tb.reserve(keep);
+  for (size_t k = 0; k < keep; ++k) {
+    const size_t i = k * n / keep;  // evenly spread over the whole list
+    ta.push_back((*a)[i]);
+    tb.push_back((*b)[i]);
+  }
+  a->swap(ta);
+  b->swap(tb);
+  return n - keep;
+}
+
+}  // namespace
+
+size_t ThinPoints(Edge* edge, size_t max_points, size_t max_holdout) {
+  return ThinPair(&edge->src_points, &edge->tgt_points, max_points) +
+         ThinPair(&edge->holdout_src_points, &edge->holdout_tgt_points, max_holdout);
+}
+
 void RoundToFloat(Edge* edge) {
   for (auto* v : {&edge->src_points, &edge->tgt_points, &edge->holdout_src_points, &edge->holdout_tgt_points})
     for (auto& p : *v) p = Vec2(static_cast<float>(p.x()), static_cast<float>(p.y()));

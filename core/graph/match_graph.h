@@ -29,6 +29,10 @@ struct Edge {
 // the same solution as one that never left memory.
 void RoundToFloat(Edge* edge);
 
+// Keeps at most `max_points` of the edge's points and `max_holdout` of its held-out points, evenly strided (the points
+// are grid-spread, so a stride keeps their spread); frees what it drops. Returns the points dropped.
+size_t ThinPoints(Edge* edge, size_t max_points, size_t max_holdout);
+
 class UnionFind {
  public:
   int Add();  // returns the new element's id (ids are dense, 0..n-1)

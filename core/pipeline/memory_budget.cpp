@@ -21,6 +21,8 @@ constexpr double kBytesPerIndexedDescriptor = 128 + 512 + 160;
 constexpr double kFlightResidueMiB = 20.0;
 // Ceres per correspondence: residual block, cost functor, Jacobian blocks and their compressed-row copy.
 constexpr double kBytesPerSolverCorrespondence = 1100;
+// An edge's point pair held by the end's solves (two double 2-vectors), with its share of held-out pairs (a quarter).
+constexpr double kBytesPerEndPoint = 32 * 1.25;
 // The compositor's largest fixed buffer besides its workers: the BGRA quick-look (2000 px long side, square canvas).
 double QuicklookMiB(const CompositorOptions& m) {
   return 4.0 * m.quicklook_long_side * m.quicklook_long_side / kMiB;
@@ -43,7 +45,7 @@ double MemoryPlan::FlightMiB() const {
 
 double MemoryPlan::EndMiB() const {
   return baseline_mib + graph_mib + residue_mib + live_tiles_mib +
-         std::max(refine_mib, image_cache_mib + blend_mib + gdal_cache_mib);
+         std::max(end_points_mib + refine_mib, image_cache_mib + blend_mib + gdal_cache_mib);
 }
 
 double LiveTilesMiB(const LiveTileOptions& o, int work_width, int work_height) {
@@ -90,6 +92,8 @@ MemoryPlan DescribeUnbudgeted(const PipelineOptions& o, int work_width, int work
   p.relocalization_mib = IndexMiB(o.relocalization.max_descriptors);
   p.refine_correspondences = o.refine.max_correspondences;
   p.refine_mib = o.refine.max_correspondences * kBytesPerSolverCorrespondence / kMiB;
+  p.end_correspondences = o.end_correspondences;
+  p.end_points_mib = o.end_correspondences * kBytesPerEndPoint / kMiB;
   p.live_tiles_mib = LiveTilesMiB(o.live_tiles, work_width, work_height);
   p.image_cache_mib = static_cast<double>(o.mosaic.image_cache_bytes) / kMiB;
   p.blend_mib = BlendMiB(o.mosaic);
@@ -181,6 +185,10 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
       std::min(o.refine.max_correspondences,
                std::max(1000, static_cast<int>(0.8 * (avail - p.residue_mib) * kMiB / kBytesPerSolverCorrespondence)));
   p.refine_mib = p.refine_correspondences * kBytesPerSolverCorrespondence / kMiB;
+  // The edges' points at the end: 4 % of the budget (~260 000 at 256 MiB: every point of a ~1000-frame flight).
+  p.end_correspondences = std::min(o.end_correspondences > 0 ? o.end_correspondences : INT32_MAX,
+                                   static_cast<int>(0.04 * budget * kMiB / kBytesPerEndPoint));
+  p.end_points_mib = p.end_correspondences * kBytesPerEndPoint / kMiB;
 
   o.queue_capacity = p.queue_capacity;
   o.relocalization.max_descriptors = p.relocalization_descriptors;
@@ -191,6 +199,7 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   // pixels into the rest of the budget, so the plan's figure (which assumes kFlightResidueMiB) is only a forecast.
   o.mosaic = mosaic;
   o.refine.max_correspondences = p.refine_correspondences;
+  o.end_correspondences = p.end_correspondences;
   *plan = p;
   return true;
 }

@@ -31,6 +31,8 @@ struct MemoryPlan {
   // End of flight.
   double refine_mib = 0;
   int refine_correspondences = 0;
+  double end_points_mib = 0;  // the edges' points the end's solves hold (a share of each edge's beyond the cap)
+  int end_correspondences = 0;
   double residue_mib = 0;      // resident after the flight beyond baseline and graph (heap the flight leaves)
   double image_cache_mib = 0;  // all frame pixels of the compositor
   double blend_mib = 0;

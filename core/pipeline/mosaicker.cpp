@@ -300,7 +300,7 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
 bool Mosaicker::Finish(std::string* error) {
   resources_.FlightEnd();
   StopLiveTilesForFinalTiles();
-  solution_ = engine_.Finish();
+  solution_ = engine_.Finish([this](const std::string& phase) { resources_.EnterPhase(phase); });
   if (!solution_.ok) {
     *error = solution_.failure;
     return false;
@@ -312,8 +312,8 @@ bool Mosaicker::Finish(std::string* error) {
   final_registered_ = static_cast<int>(solution_.component.size());
   spdlog::info("registered {}/{} frames, residual RMS {:.3f} px (median {:.3f}) at working resolution",
                final_registered_, frames_.size(), solution_.rms_px, solution_.median_px);
+  resources_.EnterPhase("radiometry");
   SolveFrameRadiometry(solution_.component);
-  resources_.SolvesEnd();
   if (!WriteOutputs(solution_.component, error)) return false;
   std::string journal_error;
   if (journal_.is_open() && !journal_.AddFinished(&journal_error)) spdlog::warn("{}", journal_error);

@@ -21,6 +21,7 @@
 namespace uavm {
 
 bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* error) {
+  resources_.EnterPhase("outputs");
   const std::unordered_set<int> in_component(component.begin(), component.end());
   std::vector<Mat3> canvas_from_original(frames_.size(), Mat3::Identity());
   cv::Size canvas(0, 0);
@@ -35,7 +36,9 @@ bool Mosaicker::WriteOutputs(const std::vector<int>& component, std::string* err
       !WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error))
     return false;
   CompositeResult composite;
+  resources_.EnterPhase("compose");
   if (!placed.empty() && !CompositeMosaic(placed, canvas_from_original, canvas, scale, &composite, error)) return false;
+  resources_.EnterPhase("products");
   nlohmann::json products = MakeProducts(placed, canvas_from_original, options_.write_tiff && !placed.empty());
   std::string err;
   if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err))
@@ -124,10 +127,12 @@ bool Mosaicker::WriteEdgeTables(const std::unordered_set<int>& in_component, std
               << frames_[static_cast<size_t>(e.tgt)].name << ',' << e.num_matches << ',' << e.num_inliers << ','
               << (used ? 1 : 0) << '\n';
     std::string load_error;
+    const bool was_resident = e.points_resident;
     if (!edge_store_.Load(&e, &load_error)) {
       spdlog::warn("correspondences.csv: edge {}-{} left out ({})", e.src, e.tgt, load_error);
       continue;
     }
+    if (!was_resident && used) engine_.AsSolved(&e);  // the pixels the final solves used (a calibrated lens)
     const Mat3 src_orig = frames_[static_cast<size_t>(e.src)].work_from_original.inverse();
     const Mat3 tgt_orig = frames_[static_cast<size_t>(e.tgt)].work_from_original.inverse();
     char line[160];

@@ -81,6 +81,8 @@ nlohmann::json Mosaicker::ReportMemory(const CompositeResult& composite) const {
       {"edges_to_disk", rc.edges_released},
       {"edge_mib_to_disk", static_cast<double>(rc.edge_bytes_released) / (1 << 20)},
       {"edges_reloaded_in_flight", rc.edges_reloaded},
+      {"end_points_left_on_disk", rc.end_points_thinned},
+      {"end_points_per_edge", rc.end_points_per_edge},
       {"edges_bin_mib", static_cast<double>(edge_store_.bytes_written()) / (1 << 20)},
       {"frame_redecodes", std::max(0, composite.image_loads - composite.frames_used)},
       {"refine_correspondences_skipped", refine.num_residuals - std::min(refine.num_residuals, refine.num_used)},
@@ -110,7 +112,7 @@ bool Mosaicker::WriteReport(const std::vector<int>& component, const CompositeRe
   report["open_fds"] = resources_.FdsJson();
   report["log"] = {{"warnings", LogWarnings()}, {"errors", LogErrors()}};
   report["journal_syncs"] = journal_.syncs();
-  report["peak_rss_mib"] = PeakRssMiB();
+  report["peak_rss_mib"] = resources_.PeakRssMiB();  // every phase's: the high-water mark is never reset
   report["reference_frame"] = component.empty() ? -1 : component.front();
   ReportRegistration(&report);
   report["memory"] = ReportMemory(composite);

@@ -8,24 +8,17 @@ namespace uavm {
 
 void ResourceLog::FlightStart() {
   fds_at_start_ = OpenFileDescriptors();
+  watch_.Enter("flight");
 }
 
 void ResourceLog::FlightEnd() {
-  flight_peak_rss_mib_ = std::max(PeakRssMiB(), HighWaterRssMiB());
   FlushMatPool();  // the flight's pooled detector buffers: the solves start without them
   flight_end_rss_mib_ = CurrentRssMiB();
   flight_end_heap_ = CurrentHeapStats();
   fds_at_flight_end_ = OpenFileDescriptors();
-  ResetPeakRss();
-}
-
-void ResourceLog::SolvesEnd() {
-  solve_peak_rss_mib_ = HighWaterRssMiB();
-  ResetPeakRss();
 }
 
 void ResourceLog::ComposeEnd() {
-  compose_peak_rss_mib_ = HighWaterRssMiB();
   FlushMatPool();  // the compositor's pooled buffers: the products phase has its own
 }
 
@@ -49,12 +42,24 @@ nlohmann::json ResourceLog::FdsJson() const {
 }
 
 nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
+  nlohmann::json phases = nlohmann::json::array();
+  nlohmann::json phase_peak = nlohmann::json::object();
+  double end_peak = 0;
+  for (const PhaseMemory& p : watch_.Phases()) {
+    phases.push_back({{"phase", p.name},
+                      {"peak_rss_mib", p.peak_rss_mib},
+                      {"peak_anon_mib", p.peak_anon_mib},
+                      {"seconds", p.seconds}});
+    phase_peak[p.name] = p.peak_rss_mib;
+    if (p.name != "flight") end_peak = std::max(end_peak, p.peak_rss_mib);
+  }
   return {{"budget_mib", mp.budget_mib},
-          {"peak_rss_mib", std::max({PeakRssMiB(), flight_peak_rss_mib_, solve_peak_rss_mib_, compose_peak_rss_mib_})},
-          // Each phase's own peak (the kernel's high-water mark is reset between phases).
-          {"phase_peak_rss_mib",
-           {{"flight", flight_peak_rss_mib_}, {"solve", solve_peak_rss_mib_}, {"compose", compose_peak_rss_mib_}}},
-          {"flight_peak_rss_mib", flight_peak_rss_mib_},
+          // The run's peak over every phase: VmHWM, never reset (what ru_maxrss and /usr/bin/time read as well).
+          {"peak_rss_mib", watch_.PeakRssMiB()},
+          // Each phase's own peak, sampled (see MemoryWatch), in the order the phases ran.
+          {"phases", phases},
+          {"phase_peak_rss_mib", phase_peak},
+          {"end_peak_rss_mib", end_peak},
           {"flight_end_rss_mib", flight_end_rss_mib_},
           {"flight_end_heap",
            {{"in_use_mib", flight_end_heap_.in_use_mib},
@@ -78,6 +83,8 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
             {"live_tiles_mib", mp.live_tiles_mib},
             {"refine_mib", mp.refine_mib},
             {"refine_correspondences", mp.refine_correspondences},
+            {"end_points_mib", mp.end_points_mib},
+            {"end_correspondences", mp.end_correspondences},
             {"residue_mib", mp.residue_mib},
             {"image_cache_mib", mp.image_cache_mib},
             {"blend_mib", mp.blend_mib},

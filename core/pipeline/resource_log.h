@@ -3,18 +3,23 @@
 
 #include "core/pipeline/memory_budget.h"
 #include "core/util/memory.h"
+#include "core/util/memory_watch.h"
 
 namespace uavm {
 
 // The process's resources at the phases of a run (flight, end-of-flight solves, composing), for report.json: a long
-// flight must neither leak descriptors nor outgrow its memory plan. Each phase's peak is the kernel's high-water mark,
-// reset between phases.
+// flight must neither leak descriptors nor outgrow its memory plan. Each phase's peak is sampled by a MemoryWatch;
+// the kernel's high-water mark is never reset, so the run's peak is the same figure for it and for an outside tool.
 class ResourceLog {
  public:
   void FlightStart();
-  void FlightEnd();   // after the last frame
-  void SolvesEnd();   // after the final solve
+  void FlightEnd();  // after the last frame
+  // The end of the flight's steps, in order (the engine's solves, radiometry, outputs, compositing, products).
+  void EnterPhase(const std::string& name) { watch_.Enter(name); }
   void ComposeEnd();  // after the mosaic is written
+  // The run's peak RSS over every phase so far, MiB.
+  [[nodiscard]] double PeakRssMiB() const { return watch_.PeakRssMiB(); }
+  [[nodiscard]] std::vector<PhaseMemory> Phases() const { return watch_.Phases(); }
   // report.json "memory" (with the plan it was sized by) and "open_fds".
   [[nodiscard]] nlohmann::json MemoryJson(const MemoryPlan& plan) const;
   [[nodiscard]] nlohmann::json FdsJson() const;
@@ -22,11 +27,9 @@ class ResourceLog {
  private:
   int fds_at_start_ = -1;
   int fds_at_flight_end_ = -1;
-  double flight_peak_rss_mib_ = 0.0;   // peak RSS when the last frame was registered
-  double flight_end_rss_mib_ = 0.0;    // RSS then
-  double solve_peak_rss_mib_ = 0.0;    // peak of the end-of-flight solves (from flight end)
-  double compose_peak_rss_mib_ = 0.0;  // peak of writing the session files and the mosaic (from the solves' end)
+  double flight_end_rss_mib_ = 0.0;  // RSS when the last frame was registered
   HeapStats flight_end_heap_;
+  MemoryWatch watch_;
 };
 
 }  // namespace uavm

@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include "core/util/clock.h"
+#include "core/util/memory.h"
 
 namespace uavm {
 
@@ -47,6 +48,8 @@ bool RegistrationOptions::Check(std::string* why) const {
     return Fail(why, "relocalization/retry settings must be >= 0");
   if (full_solve_every < 1) return Fail(why, "full_solve_every must be >= 1");
   if (solve_window < 0) return Fail(why, "solve_window must be >= 0 (0 = whole component)");
+  if (end_correspondences < 0 || min_end_points < 3)
+    return Fail(why, "end_correspondences must be >= 0 (0 = every point), min_end_points >= 3");
   return matching.Check(why) && relocalization.Check(why) && adjust.Check(why) && refine.Check(why) &&
          lens_calibration.Check(why) && subpixel.Check(why);
 }
@@ -146,17 +149,25 @@ void RegistrationEngine::ReleaseColdEdges() {
   }
 }
 
-bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges) {
+bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points,
+                                        size_t max_holdout) {
   for (const Edge* e : edges) {
-    if (e->points_resident) continue;
-    // Without a spill no edge was ever released.
-    if (spill_ == nullptr) return false;
     // The list borrows the graph's edges read-only; the graph (this object's) owns them mutably.
     Edge& edge = const_cast<Edge&>(*e);
-    std::string error;
-    if (!spill_->Load(&edge, &error)) {
-      spdlog::error("{}", error);
-      return false;
+    if (!edge.points_resident) {
+      // Without a spill no edge was ever released.
+      if (spill_ == nullptr) return false;
+      std::string error;
+      if (!spill_->Load(&edge, &error)) {
+        spdlog::error("{}", error);
+        return false;
+      }
+    }
+    // Thinned only where the spill keeps every point: a writer reads them back from it (ReleaseAllEdges).
+    if (max_points > 0 && spill_ != nullptr && edge.stored_at >= 0) {
+      const size_t dropped = ThinPoints(&edge, max_points, max_holdout);
+      counters_.end_points_thinned += dropped;
+      if (dropped > 0) thinned_ = true;
     }
   }
   return true;
@@ -518,8 +529,40 @@ void RegistrationEngine::Densify() {
   }
 }
 
-Solution RegistrationEngine::Finish() {
+Solution RegistrationEngine::Finish(const PhaseListener& enter_phase) {
+  enter_phase_ = enter_phase;
+  Solution s = FinishSolve();
+  enter_phase_ = nullptr;
+  // Thinned edges go back to edges.bin: whoever reads an edge after this gets all of its points (AsSolved).
+  if (thinned_) ReleaseAllEdges();
+  return s;
+}
+
+void RegistrationEngine::ReleaseAllEdges() {
+  if (spill_ == nullptr) return;
+  for (Edge& e : graph_.mutable_edges()) spill_->Release(&e);
+  TrimHeap();  // the compositor gets the pages back
+}
+
+void RegistrationEngine::AsSolved(Edge* edge) const {
+  if (solved_lens_ && camera_) ReprojectEdgePoints(*camera_, *solved_lens_, edge);
+}
+
+// Each edge's share of the end's correspondences: all of them up to end_correspondences in total, then an even share
+// of it (never below min_end_points): the solves' memory stops growing with the flight there.
+std::pair<size_t, size_t> RegistrationEngine::EndPointsPerEdge(const std::vector<const Edge*>& edges) const {
+  if (options_.end_correspondences <= 0 || edges.empty()) return {0, 0};
+  size_t points = 0;
+  for (const Edge* e : edges) points += static_cast<size_t>(e->num_inliers);
+  const auto cap = static_cast<size_t>(options_.end_correspondences);
+  if (points <= cap) return {0, 0};
+  const size_t per_edge = std::max(static_cast<size_t>(options_.min_end_points), cap / edges.size());
+  return {per_edge, std::max<size_t>(2, per_edge / 4)};
+}
+
+Solution RegistrationEngine::FinishSolve() {
   StageTimer t;
+  EnterPhase("end_match");
   Densify();
   // Nothing after this point matches features: their memory goes to the solves (and the caller's compositor).
   global_index_.Release();
@@ -536,8 +579,12 @@ Solution RegistrationEngine::Finish() {
   std::vector<const Edge*> edges;
   for (const auto& e : graph_.edges())
     if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 && EdgeCounts(e)) edges.push_back(&e);
-  // The final solves use every edge: the points given back during the flight come back from the spill.
-  if (!LoadEdgePoints(edges)) spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
+  // The final solves use every edge: the points given back during the flight come back from the spill (an even share
+  // of each edge's when all of them would outgrow end_correspondences).
+  EnterPhase("end_load");
+  const auto [max_points, max_holdout] = EndPointsPerEdge(edges);
+  counters_.end_points_per_edge = max_points;
+  if (!LoadEdgePoints(edges, max_points, max_holdout)) spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
   s.ok = true;
   if (s.component.size() >= 2) {
     SolveFinal(edges, t, &s);
@@ -563,6 +610,7 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
       s->lens.why = "frames of different sizes: the lens is not calibrated";
       return true;
     }
+  EnterPhase("lens");
   s->lens = CalibrateLens(edges, variable, anchor, half_diag, options_.refine, *camera_, options_.lens_calibration,
                           mosaic_from_work_);
   const bool has_radial = camera_->distortion.k1 != 0.0 || camera_->distortion.k2 != 0.0;
@@ -578,6 +626,7 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
   if (!s->lens.accepted && !s->lens.dropped) return true;
   // The engine owns the edges (the const view is the solve's): their points move to the calibrated ideal pixels.
   for (const Edge* e : edges) ReprojectEdgePoints(*camera_, s->lens.distortion, const_cast<Edge*>(e));
+  solved_lens_ = s->lens.distortion;
   *linear = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
   if (!linear->ok) {
     s->ok = false;
@@ -597,18 +646,22 @@ void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const
   std::unordered_set<int> variable(s->component.begin() + 1, s->component.end());
   std::unordered_map<int, double> half_diag;
   for (int id : s->component) half_diag[id] = Record(id).half_diagonal;
+  EnterPhase("adjust");
   auto r = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
   if (!r.ok) {
     s->ok = false;
     s->failure = "final adjustment failed: " + r.failure;
     return;
   }
+  spdlog::info("final linear adjustment: {} frames, {} edges, {}", variable.size() + 1, edges.size(),
+               r.iterative ? fmt::format("conjugate gradients ({} steps)", r.iterative_steps) : "factored");
   if (!CalibrateLensAndResolve(edges, variable, half_diag, &r, s)) return;
   s->rms_px = r.rms_px;
   s->median_px = r.median_px;
   s->adjust_ms = since_finish.ElapsedMs();
   s->holdout_linear = TransferErrors(edges, mosaic_from_work_, true);
   StageTimer refine_timer;
+  EnterPhase("refine");
   RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
   s->model = options_.refine.model;
   if (!rr.ok && options_.refine.model == MotionModel::kHomography) {

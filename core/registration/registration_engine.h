@@ -1,4 +1,5 @@
 #pragma once
+#include <functional>
 #include <deque>
 #include <memory>
 #include <optional>
@@ -36,6 +37,11 @@ struct RegistrationOptions {
   int retry_max_attempts = 60;
   int full_solve_every = 10;  // full adjustment every max(N, size/20) registered frames, and on a merge
   int solve_window = 300;     // frames those solves move (the newest); 0 = the whole component
+  // Points the end-of-flight solves hold (each edge's inliers; held-out points besides, a quarter of it): beyond it,
+  // every edge keeps an evenly strided share (at least min_end_points), the rest stays in edges.bin. Set from the
+  // memory budget; 0 = every point.
+  int end_correspondences = 0;
+  int min_end_points = 12;
   MatchOptions matching;
   GlobalIndexOptions relocalization;
   AdjustOptions adjust;
@@ -92,6 +98,8 @@ struct RegistrationCounters {
   size_t edges_released = 0;      // edges whose points were given to the spill during the flight
   size_t edge_bytes_released = 0;
   size_t edges_reloaded = 0;  // points taken back during the flight (a solve needed a cold edge)
+  size_t end_points_thinned = 0;  // points the end-of-flight solves left in edges.bin (end_correspondences)
+  size_t end_points_per_edge = 0;  // at most, then; 0 = all
   int relocalization_thinnings = 0;
   int joined_where_telemetry_placed = 0;  // frames whose first match came from a PositionHint's candidates
 };
@@ -164,8 +172,10 @@ class RegistrationEngine {
   void SetRefiner(SubpixelRefiner* refiner) { refiner_ = refiner; }
   // Frame `id` will not be registered (e.g. it could not be stored); `why` ends in the report.
   void SetFailure(int id, std::string why);
-  // Final solve of the largest component; the features are not needed afterwards.
-  [[nodiscard]] Solution Finish();
+  // Final solve of the largest component; the features are not needed afterwards. `enter_phase` (may be empty) hears
+  // each of its steps begin ("end_match", "end_load", "adjust", "lens", "refine"), e.g. for a MemoryWatch.
+  using PhaseListener = std::function<void(const std::string&)>;
+  [[nodiscard]] Solution Finish(const PhaseListener& enter_phase = {});
 
   [[nodiscard]] int frames() const { return static_cast<int>(frames_.size()); }
   [[nodiscard]] const FrameRecord& frame(int id) const { return frames_.at(static_cast<size_t>(id)); }
@@ -182,8 +192,11 @@ class RegistrationEngine {
   void TrackMoves(bool on) { track_moves_ = on; }
   [[nodiscard]] std::vector<int> TakeMoved() { return std::exchange(moved_, {}); }
   [[nodiscard]] const std::deque<Edge>& edges() const { return graph_.edges(); }
-  // For writers after Finish(): they load an edge's points through the spill and give them back.
+  // For writers after Finish(): they load an edge's points through the spill, AsSolved(), and give them back.
   [[nodiscard]] std::deque<Edge>& mutable_edges() { return graph_.mutable_edges(); }
+  // An edge read back from the spill after Finish(), in the pixels of the final solution (the self-calibrated lens's
+  // ideal pixels when it was accepted or the prepared lens dropped; else as stored).
+  void AsSolved(Edge* edge) const;
   // Whether an edge is one of the final solution's (both frames in `component`, inliers above both thresholds).
   [[nodiscard]] bool EdgeCounts(const Edge& e) const {
     return graph_.EdgeCounts(e, options_.relative_inlier_fraction, options_.matching.min_inliers);
@@ -202,7 +215,10 @@ class RegistrationEngine {
   [[nodiscard]] std::vector<const Edge*> EdgesTouching(const std::unordered_set<int>& ids, int root);
   void AddEdge(Edge edge);
   void ReleaseColdEdges();
-  bool LoadEdgePoints(const std::vector<const Edge*>& edges);
+  bool LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points = 0, size_t max_holdout = 0);
+  // Gives every edge's points back to the spill (after the final solves; writers reload them one by one).
+  void ReleaseAllEdges();
+  [[nodiscard]] std::pair<size_t, size_t> EndPointsPerEdge(const std::vector<const Edge*>& edges) const;
   void MergeInto(int keep_root, int other_root, const Mat3& other_fix);
   void FullSolve(int root);
   void Densify();
@@ -222,7 +238,11 @@ class RegistrationEngine {
   void Bridge(int new_id, const DescriptorIndex& index, const Features& feats);
   [[nodiscard]] bool IsNewGround(int id);
   void Place(int id);
+  [[nodiscard]] Solution FinishSolve();
   void SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish, Solution* s);
+  void EnterPhase(const char* name) const {
+    if (enter_phase_) enter_phase_(name);
+  }
   // After the linear solve: the lens self-calibration; when accepted, the edges' points move to its ideal pixels and
   // the linear solve runs again on them. False when that solve fails.
   [[nodiscard]] bool CalibrateLensAndResolve(const std::vector<const Edge*>& edges,
@@ -250,6 +270,9 @@ class RegistrationEngine {
   int best_inliers_ = 0;
   int registered_since_full_ = 0;
   size_t release_cursor_ = 0;  // edges before it have been considered by ReleaseColdEdges
+  PhaseListener enter_phase_;  // during Finish() only
+  bool thinned_ = false;       // the end's solves held a share of some edges' points (end_correspondences)
+  std::optional<LensDistortion> solved_lens_;  // the lens the final solves moved the edges' points to
 };
 
 }  // namespace uavm

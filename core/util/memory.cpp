@@ -35,13 +35,6 @@ double HighWaterRssMiB() {
   return mib;
 }
 
-bool ResetPeakRss() {
-  FILE* f = std::fopen("/proc/self/clear_refs", "w");
-  if (f == nullptr) return false;
-  const bool ok = std::fputs("5", f) >= 0;
-  return (std::fclose(f) == 0) && ok;
-}
-
 double CurrentRssMiB() {
   FILE* f = std::fopen("/proc/self/statm", "r");
   if (f == nullptr) return 0.0;

@@ -3,13 +3,12 @@
 
 namespace uavm {
 
-// Peak resident set size of this process in MiB (getrusage ru_maxrss).
+// Peak resident set size of this process in MiB (getrusage ru_maxrss). Nothing in the program resets the kernel's
+// high-water mark (/proc/self/clear_refs), so this is the run's peak over every phase, as an outside tool sees it;
+// per-phase peaks come from a MemoryWatch.
 [[nodiscard]] double PeakRssMiB();
-// Peak RSS since the last ResetPeakRss() (VmHWM of /proc/self/status), MiB; 0 when unavailable.
+// The same high-water mark from /proc/self/status (VmHWM), MiB; 0 when unavailable.
 [[nodiscard]] double HighWaterRssMiB();
-// Starts a new high-water mark (writes 5 to /proc/self/clear_refs), so that each phase of a run reports its own
-// peak. False when the kernel does not allow it (then HighWaterRssMiB() keeps the run's peak).
-bool ResetPeakRss();
 // Current resident set size in MiB (/proc/self/statm); 0 when unavailable.
 [[nodiscard]] double CurrentRssMiB();
 
