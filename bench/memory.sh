@@ -1,18 +1,23 @@
 #!/usr/bin/env bash
 # memory.sh DATA_DIR [OUT_DIR]
 #
-# Fixed memory, measured: uavmosaic-onboard under its default memory budget (256 MiB) on
+# Fixed memory, measured from outside the process: uavmosaic-onboard under its default memory budget (256 MiB), its
+# VmRSS and RssAnon sampled every 50 ms from /proc/PID/status and attributed to the phase the program is in (the name
+# of its memory watch's thread, "mem:<phase>": bench/lib.sh run_phased), on
 #   - the same simulated flight (bench/plans/sim_memory.yaml over DATA_DIR/caliterra/images/IMG_9360.jpg, rendered
-#     by the sim: source, nothing on disk) cut at 200 and at 2000 frames: peak RSS must stay flat
-#     (RSS(2000) <= 1.1 x RSS(200)) and both within the budget;
+#     by the sim: source, nothing on disk) cut at 200, 2000 and 5000 frames: every phase's peak within the budget and
+#     flat (phase peak at N frames <= 1.1 x the same phase's peak at 200 frames); the end of the flight's wall time
+#     against the flight's duration at 1 frame/s;
 #   - the full-resolution real flights (12 MP caliterra, brighton_beach): within the budget;
 #   - flights of other frame sizes and aspects made from those (scaled to cover, centre-cropped, EXIF kept, by
 #     uavm-reframe into a temporary folder): within the budget too, since it must hold for any frame size.
+# Phases: flight; end solves (end_match end_load adjust lens refine radiometry); compose (outputs compose products).
+# The program's own figures (report.json peak_rss_mib and memory.phases) are printed beside the outside sample.
 # One markdown table (OUT_DIR/table.md and $RESULTS_DIR/memory-<date>-<hostname>.md).
 #
 # Environment:
 #   BUDGET_MIB        memory budget passed to the program (default 256)
-#   LONG_FRAMES       frames of the long run (default 2000); SHORT_FRAMES (default 200); SIM=0 skips both
+#   SIM_FRAMES        frames of the simulated runs (default "200 2000 5000"; the first is the reference; "" = none)
 #   FLIGHTS_REAL      real flights (default "caliterra brighton_beach"; "" = none)
 #   FLIGHTS_SIZES     resized flights NAME:SOURCE_FLIGHT:WIDTHxHEIGHT:FRAMES (default 12 MP 3:2 4272x2848 and 4:3
 #                     3240x2430 from caliterra, 16:9 3840x2160 from brighton_beach; "" = none)
@@ -24,7 +29,7 @@ export LC_ALL=C
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 if [[ $# -lt 1 || $# -gt 2 || $1 == -h || $1 == --help ]]; then
-  sed -n '2,21p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,26p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 # shellcheck source=bench/lib.sh
@@ -37,8 +42,7 @@ OUT_DIR=${2:-$RESULTS_DIR/run-memory-$STAMP}
 BUILD=${UAVM_BUILD_DIR:-$REPO/build}
 OURS_BIN=$BUILD/firmware_app/uavmosaic-onboard
 BUDGET_MIB=${BUDGET_MIB:-256}
-LONG_FRAMES=${LONG_FRAMES:-2000}
-SHORT_FRAMES=${SHORT_FRAMES:-200}
+SIM_FRAMES=${SIM_FRAMES-200 2000 5000}
 FLIGHTS_REAL=${FLIGHTS_REAL-caliterra brighton_beach}
 FLIGHTS_SIZES=${FLIGHTS_SIZES-cal_4272x2848:caliterra:4272x2848:40 cal_3240x2430:caliterra:3240x2430:40 bb_3840x2160:brighton_beach:3840x2160:18}
 REFRAME_BIN=$BUILD/bench/uavm-reframe
@@ -52,8 +56,18 @@ PLAN=$OUT_DIR/sim_memory.yaml
 { echo "canvas: $DATA_DIR/caliterra/images/IMG_9360.jpg"; cat "$SCRIPT_DIR/plans/sim_memory.yaml"; } >"$PLAN"
 
 ROWS=()
-declare -A PEAK
-# run NAME SOURCE [extra args]: one onboard run under the watchdog; a table row from report.json.
+PHASE_ROWS=()
+declare -A GROUP_PEAK GROUP_ANON
+# group PHASE: the phase's group in the table.
+group() {
+  case $1 in
+    start | flight) echo flight ;;
+    end_match | end_load | adjust | lens | refine | radiometry) echo solves ;;
+    *) echo compose ;;
+  esac
+}
+# run NAME SOURCE [extra args]: one onboard run sampled by run_phased; a table row from report.json and a row per
+# phase group from the outside samples.
 run() {
   local name=$1 source=$2
   shift 2
@@ -61,29 +75,37 @@ run() {
   rm -rf "$dir"
   log "$name: $source $*"
   # shellcheck disable=SC2086 # EXTRA_ARGS is a list of words
-  run_watched "$dir" 0 0 "$OURS_BIN" --source "$source" --out "$dir" --memory-budget "$BUDGET_MIB" "$@" ${EXTRA_ARGS:-}
-  local peak report=$dir/report.json
-  peak=$(peak_mib)
-  PEAK[$name]=$W_PEAK_KB
+  run_phased "$dir" "$OURS_BIN" --source "$source" --out "$dir" --memory-budget "$BUDGET_MIB" "$@" ${EXTRA_ARGS:-}
+  local report=$dir/report.json phase rss anon _n first last g end_start=""
+  for g in flight solves compose; do GROUP_PEAK[$name.$g]=0 GROUP_ANON[$name.$g]=0; done
+  while IFS=$'\t' read -r phase rss anon _n first last; do
+    g=$(group "$phase")
+    ((rss > GROUP_PEAK[$name.$g])) && GROUP_PEAK[$name.$g]=$rss
+    ((anon > GROUP_ANON[$name.$g])) && GROUP_ANON[$name.$g]=$anon
+    [[ $g != flight && -z $end_start ]] && end_start=$first
+    PHASE_ROWS+=("| $name | $phase | $(fmt "$rss" 0 1024) | $(fmt "$anon" 0 1024) | $(jq -r --arg p "$phase" \
+      '[.memory.phases[]? | select(.phase == $p) | .peak_rss_mib | floor] | first // "—"' "$report" 2>/dev/null) | \
+$(awk -v a="$first" -v b="$last" 'BEGIN { printf "%.1f", b - a }') |")
+  done <"$dir.phases.tsv"
+  END_S[$name]=$(awk -v a="${end_start:-$W_WALL_S}" -v w="$W_WALL_S" 'BEGIN { printf "%.1f", w - a }')
   if ((W_RC != 0)) || [[ ! -s $report ]]; then
-    ROWS+=("| $name | failed (exit $W_RC) | | | | | | | | | | |")
+    ROWS+=("| $name | failed (exit $W_RC) | | | | | | | | | |")
     return 0
   fi
-  ROWS+=("$(jq -r --arg name "$name" --arg peak "$peak" --arg wall "$(fmt "$W_WALL_S" 1)" '
-    "| \($name) | \(.frames_in) | \(.registered) | \($wall) | \($peak) | " +
-    "\(.memory.phase_peak_rss_mib.flight | floor) / \(.memory.phase_peak_rss_mib.solve | floor) / " +
-    "\(.memory.phase_peak_rss_mib.compose | floor) | \(.memory.plan.sift_bands) / \(.memory.plan.queue_capacity) / " +
-    "\(.memory.plan.feature_cache_mib | floor) / \(.memory.plan.relocalization_descriptors) / " +
-    "\(.memory.plan.image_cache_mib | floor) / \(.memory.plan.tile_size) | " +
-    "\(.memory.spilled.feature_sets_reloaded) / \(.memory.spilled.relocalization_thinnings) / " +
-    "\(.memory.spilled.frame_redecodes) / \(.memory.spilled.refine_correspondences_skipped) | " +
-    "\(.open_fds.flight_start) / \(.open_fds.flight_end) | \(.log.warnings) / \(.log.errors) | " +
-    "\(.holdout_rms_px * 1000 | round / 1000) |"' "$report" || echo "| $name | report unreadable |")")
+  ROWS+=("$(jq -r --arg name "$name" --arg peak "$(fmt "$W_PEAK_KB" 0 1024)" --arg anon "$(fmt "$W_PEAK_ANON_KB" 0 1024)" \
+    --arg wall "$(fmt "$W_WALL_S" 1)" --arg end "${END_S[$name]}" \
+    --arg groups "$(fmt "${GROUP_PEAK[$name.flight]}" 0 1024) / $(fmt "${GROUP_PEAK[$name.solves]}" 0 1024) / $(fmt "${GROUP_PEAK[$name.compose]}" 0 1024)" '
+    "| \($name) | \(.frames_in) | \(.registered) | \($wall) | \($end) | \($peak) / \($anon) | \(.peak_rss_mib | floor) | " +
+    "\($groups) | \(.memory.plan.end_correspondences) / \(.memory.spilled.end_points_per_edge) / " +
+    "\(.memory.plan.refine_correspondences) | \(.open_fds.flight_start) / \(.open_fds.flight_end) | " +
+    "\(.log.warnings) / \(.log.errors) | \(.holdout_rms_px * 1000 | round / 1000) |"' "$report" || echo "| $name | report unreadable |")")
 }
-if [[ ${SIM:-1} != 0 ]]; then
-  run "sim_$SHORT_FRAMES" "sim:$PLAN" --max-frames "$SHORT_FRAMES" --no-tiff
-  run "sim_$LONG_FRAMES" "sim:$PLAN" --max-frames "$LONG_FRAMES" --no-tiff
-fi
+declare -A END_S
+SIM_NAMES=()
+for n in $SIM_FRAMES; do
+  run "sim_$n" "sim:$PLAN" --max-frames "$n" --no-tiff
+  SIM_NAMES+=("sim_$n")
+done
 for f in $FLIGHTS_REAL; do
   run "$f" "replay:$DATA_DIR/$f/images"
 done
@@ -103,19 +125,42 @@ if [[ -n $FLIGHTS_SIZES ]]; then
   done
 fi
 
-short_kb=${PEAK[sim_$SHORT_FRAMES]:-0}
-long_kb=${PEAK[sim_$LONG_FRAMES]:-0}
-ratio="—"
-((short_kb > 0)) && ratio=$(awk -v a="$long_kb" -v b="$short_kb" 'BEGIN { printf "%.3f", a / b }')
+# Phase groups of each simulated run against the first (the reference length).
+RATIO_ROWS=()
+if ((${#SIM_NAMES[@]} > 1)); then
+  ref=${SIM_NAMES[0]}
+  for name in "${SIM_NAMES[@]:1}"; do
+    cells=""
+    for g in flight solves compose; do
+      cells+=" $(awk -v a="${GROUP_PEAK[$name.$g]}" -v b="${GROUP_PEAK[$ref.$g]}" 'BEGIN { if (b > 0) printf "%.3f", a / b; else printf "—" }') /"
+      cells+=" $(awk -v a="${GROUP_ANON[$name.$g]}" -v b="${GROUP_ANON[$ref.$g]}" 'BEGIN { if (b > 0) printf "%.3f", a / b; else printf "—" }') |"
+    done
+    frames=${name#sim_}
+    RATIO_ROWS+=("| $name / $ref |$cells ${END_S[$name]} s = $(awk -v e="${END_S[$name]}" -v f="$frames" 'BEGIN { printf "%.1f", 100 * e / f }') % of a $frames s flight |")
+  done
+fi
 {
   echo "Memory benchmark, $(date '+%Y-%m-%d %H:%M:%S %z'), nproc $(nproc), CPU: $(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -n 1), budget $BUDGET_MIB MiB"
   echo
-  echo "| run | frames | registered | wall s | peak RSS MiB | phase peaks MiB: flight / end solves / compositing | plan: detector bands / queue / feature cache MiB / relocalisation descriptors / image cache MiB / tile | spilled: feature reloads / index thinnings / frame re-decodes / solver points skipped | open fds: flight start / end | log warnings / errors | held-out RMS px |"
-  echo "|---|---:|---:|---:|---:|---|---|---|---|---|---:|"
+  echo "| run | frames | registered | wall s | end of flight s | peak MiB outside: VmRSS / RssAnon | peak MiB report.json | phase group peaks MiB outside: flight / end solves / compose | end points cap / per edge / refine correspondences | open fds: flight start / end | log warnings / errors | held-out RMS px |"
+  echo "|---|---:|---:|---:|---:|---|---:|---|---|---|---|---:|"
   printf '%s\n' "${ROWS[@]}"
   echo
-  echo "RSS(${LONG_FRAMES}) / RSS(${SHORT_FRAMES}) = $ratio (target <= 1.1); budget $BUDGET_MIB MiB."
-  echo "peak RSS: max VmHWM polled every 0.2 s, outside the process; phase peaks: the program's own high-water mark, reset between phases. The 2000-frame run is also the soak: open file descriptors and log warnings must not grow with the flight. sim runs: --no-tiff (the mosaic of a sim flight is not the point here); real runs write mosaic.tif. NAME_WxH runs: the real flight scaled to cover WxH and centre-cropped (FLIGHTS_SIZES)."
+  if ((${#RATIO_ROWS[@]} > 0)); then
+    echo "Each phase group's peak against the same group at ${SIM_NAMES[0]#sim_} frames (target <= 1.1), VmRSS / RssAnon; the end of the flight's wall time:"
+    echo
+    echo "| runs | flight | end solves | compose | end of flight |"
+    echo "|---|---|---|---|---|"
+    printf '%s\n' "${RATIO_ROWS[@]}"
+    echo
+  fi
+  echo "Every phase (outside: max VmRSS / RssAnon sampled every 50 ms; inside: report.json memory.phases, the program's MemoryWatch):"
+  echo
+  echo "| run | phase | VmRSS MiB outside | RssAnon MiB outside | VmRSS MiB inside | s |"
+  echo "|---|---|---:|---:|---:|---:|"
+  printf '%s\n' "${PHASE_ROWS[@]}"
+  echo
+  echo "sim runs: --no-tiff (the mosaic of a sim flight is not the point here); real runs write mosaic.tif. NAME_WxH runs: the real flight scaled to cover WxH and centre-cropped (FLIGHTS_SIZES). The longest sim run is also the soak: open file descriptors and log warnings must not grow with the flight."
 } >"$OUT_DIR/table.md"
 cp "$OUT_DIR/table.md" "$RESULTS_DIR/memory-$STAMP-$(hostname).md"
 cat "$OUT_DIR/table.md"

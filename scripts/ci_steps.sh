@@ -86,7 +86,13 @@ ci_tier() {
 
 # The full tier's additions (scripts/test_full.sh): the rest of the suite under qemu-aarch64, the whole suite under
 # ASan + UBSan, and a longer fuzzing run.
+# The memory test's long flight at the length: 5000 frames under a hard cgroup limit of the budget + 16 MiB.
+long_flight_memory() {
+  UAVM_MEMORY_TEST_FRAMES=5000 "$BUILD_DIR/tests/memory_limit_test" --gtest_filter='*LongSimulatedFlight*'
+}
+
 full_extras() {
+  step "long flight memory" long_flight_memory
   step "aarch64 suite, e2e" bash "$ROOT/scripts/test_aarch64.sh" suite rest
   step "asan build" bash "$ROOT/scripts/test_asan.sh" build
   step "asan suite" bash "$ROOT/scripts/test_asan.sh" suite

@@ -295,3 +295,48 @@ TEST(GlobalRefiner, FixedFramesStayAndOptionsAreChecked) {
 
 }  // namespace
 }  // namespace uavm
+
+namespace uavm {
+namespace {
+
+// A set of frames larger than max_frames_per_solve is refined in overlapping windows (bounded memory at the end of a
+// long flight): on a tilted, noisy flight the windows come within 4 % of the transfer error of one solve
+// over every frame and well below the affine start; a failing window leaves every map as it was. What the windows do
+// not recover is the weakly determined part of the tilts (a 1 degree tilt moves a frame's corners by a pixel): their
+// error against the truth stays above the one solve's (measured here: 0.55 px against 0.18, from 1.56).
+TEST(GlobalRefiner, WindowsOfFramesReachTheWholeSolvesError) {
+  const Scene s = MakeScene(1.0, 0.3, 5);
+  const auto start = AffineStart(s);
+  RefineOptions o;
+  o.model = MotionModel::kHomography;
+  auto whole = start;
+  const RefineResult rw =
+      RefineBounded(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &whole);
+  ASSERT_TRUE(rw.ok) << rw.failure;
+  o.max_frames_per_solve = 16;
+  auto windows = start;
+  const RefineResult r =
+      RefineBounded(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &windows);
+  ASSERT_TRUE(r.ok) << r.failure;
+  const auto [start_rms, start_max] = ModelFreeError(s, start);
+  const auto [whole_rms, whole_max] = ModelFreeError(s, whole);
+  const auto [rms, max] = ModelFreeError(s, windows);
+  std::cerr << "model-free error RMS px: affine start " << start_rms << ", one solve " << whole_rms << ", windows "
+            << rms << "; transfer RMS whole " << rw.final_all_rms_px << ", windows " << r.final_all_rms_px << "\n";
+  EXPECT_LT(r.final_all_rms_px, 1.04 * rw.final_all_rms_px);
+  EXPECT_LT(rms, 0.5 * start_rms);
+  EXPECT_EQ(r.num_variables, s.truth.size() - 1);
+  EXPECT_GT(r.num_used, rw.num_used);  // the windows overlap: frames in two of them are solved twice
+  EXPECT_NEAR(r.initial_rms_px, rw.initial_rms_px, 1e-9);
+  EXPECT_LT(r.final_all_rms_px, 0.6 * r.initial_rms_px);
+  // A window that fails (a perspective beyond what is allowed) leaves every map at its start.
+  o.max_perspective_ratio = 1.0000001;
+  auto failed = start;
+  const RefineResult rf =
+      RefineBounded(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &failed);
+  EXPECT_FALSE(rf.ok);
+  for (const auto& [id, m] : failed) EXPECT_TRUE(m.isApprox(start.at(id), 1e-15)) << id;
+}
+
+}  // namespace
+}  // namespace uavm

@@ -4,6 +4,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -136,6 +138,56 @@ TEST(MemoryLimitTest, RealFlightFinishesUnderAHardLimitJustAboveItsBudget) {
   // The process's own peak stays within the budget; the cgroup's peak also counts the page cache of written files.
   EXPECT_LE(report["memory"]["peak_rss_mib"].get<double>(), kBudgetMiB + (test::Emulated() ? kEmulatorMiB : 0));
   EXPECT_GT(cgroup.PeakBytes(), 0);
+  fs::remove_all(out);
+}
+
+// A long simulated flight under a hard limit of its budget + 16 MiB: the end of the flight (solves, lens, refinement,
+// radiometry, compositing) must stay within the budget however many frames came before it. The CI tier flies 1200
+// small frames (past where the end's solves outgrew the budget before they were bounded: a factored solve over all
+// frames, every point of every edge held); the full tier sets UAVM_MEMORY_TEST_FRAMES=5000.
+TEST(MemoryLimitTest, LongSimulatedFlightEndsUnderAHardLimitJustAboveItsBudget) {
+#ifdef UAVM_SANITIZED
+  GTEST_SKIP() << "sanitizer build: ASan's shadow memory and quarantine are not the program's memory";
+#endif
+  if (test::Emulated()) GTEST_SKIP() << "a flight of a thousand frames: native only";
+  const char* env = std::getenv("UAVM_MEMORY_TEST_FRAMES");
+  const int frames = env != nullptr && std::atoi(env) > 0 ? std::atoi(env) : 1200;
+  constexpr int kBudgetMiB = 256;
+  const std::string name = "uavm_memory_long_" + std::to_string(::getpid());
+  MemoryCgroup cgroup(name, int64_t{kBudgetMiB + 16} << 20);
+  if (!cgroup.ok()) GTEST_SKIP() << "cannot run under a memory cgroup here: " << cgroup.why();
+  const fs::path out = fs::temp_directory_path() / ("uavm_memlong_" + std::to_string(::getpid()));
+  fs::remove_all(out);
+  fs::create_directories(out);
+  // Small frames over the bundled 1000x750 photograph enlarged 3x (gsd 1/3), flown in passes shifted by half a
+  // spacing: every frame overlaps frames of earlier passes, as in a long survey.
+  const fs::path plan = out / "plan.yaml";
+  std::ofstream(plan) << "canvas: \"" << kData << "/caliterra_small/images/IMG_9360.jpg\"\n"
+                      << "frame_width: 320\nframe_height: 240\ngsd: 0.3333\nforward_overlap: 0.75\n"
+                         "side_overlap: 0.4\npasses: 40\npass_shift: 0.5\nnoise_sigma: 1.0\nseed: 5\n";
+  const fs::path session = out / "session";
+  const std::vector<std::string> args = {"--source",        "sim:" + plan.string(),     "--out",       session.string(),
+                                         "--memory-budget", std::to_string(kBudgetMiB), "--max-frames",
+                                         std::to_string(frames), "--no-tiff", "--log-level", "warn"};
+  const int status = RunInCgroup(cgroup, args);
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0)
+                                 << " (an OOM kill is SIGKILL)";
+  ASSERT_EQ(WEXITSTATUS(status), 0);
+  std::ifstream in(session / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  EXPECT_EQ(report["frames_in"].get<int>(), frames);
+  EXPECT_GE(report["registered"].get<int>(), frames * 95 / 100);
+  // The report's peak is every phase's (the high-water mark is never reset) and within the budget; each phase it
+  // lists is too.
+  const double peak = report["peak_rss_mib"].get<double>();
+  EXPECT_LE(peak, kBudgetMiB);
+  double phases_peak = 0;
+  for (const auto& p : report["memory"]["phases"]) {
+    EXPECT_LE(p["peak_rss_mib"].get<double>(), kBudgetMiB) << p["phase"];
+    phases_peak = std::max(phases_peak, p["peak_rss_mib"].get<double>());
+  }
+  EXPECT_NEAR(phases_peak, peak, 5.0);
+  EXPECT_GT(report["memory"]["phase_peak_rss_mib"]["refine"].get<double>(), 0);
   fs::remove_all(out);
 }
 

@@ -32,11 +32,11 @@ bool ParseMotionModel(const std::string& text, MotionModel* model) {
 bool RefineOptions::Check(std::string* why) const {
   if (!(huber_px > 0) || !(nadir_weight >= 0) || !(rigidity_weight >= 0) || max_iterations < 1 || !(max_seconds >= 0) ||
       threads < 1 || threads > 64 || !(max_perspective_ratio > 1) || max_correspondences < 100 || !(outlier_px >= 0) ||
-      direct_max_frames < 0) {
+      max_frames_per_solve < 2) {
     if (why != nullptr)
       *why =
           "refine: huber_px > 0, weights >= 0, max_iterations >= 1, max_seconds >= 0, threads in [1,64], "
-          "max_perspective_ratio > 1, max_correspondences >= 100, outlier_px >= 0, direct_max_frames >= 0";
+          "max_perspective_ratio > 1, max_correspondences >= 100, outlier_px >= 0, max_frames_per_solve >= 2";
     return false;
   }
   return true;
@@ -388,16 +388,9 @@ class RefineProblem {
   std::unordered_map<int, Eigen::AlignedBox2d> extent_;
 };
 
-ceres::Solver::Options SolverOptions(const RefineOptions& options, size_t variable_frames) {
+ceres::Solver::Options SolverOptions(const RefineOptions& options) {
   ceres::Solver::Options solver_options;
-  // A factorisation's fill grows faster than the frames; conjugate gradients on the normal equations (preconditioned
-  // by each frame's block) need the Jacobian only, whose memory the correspondence cap bounds.
-  if (variable_frames <= static_cast<size_t>(options.direct_max_frames)) {
-    solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  } else {
-    solver_options.linear_solver_type = ceres::CGNR;
-    solver_options.preconditioner_type = ceres::JACOBI;
-  }
+  solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
   solver_options.max_num_iterations = options.max_iterations;
   solver_options.num_threads = options.threads;
   solver_options.function_tolerance = 1e-9;
@@ -462,7 +455,7 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
     return result;
   }
   result.num_variables = refine.NumVariables();
-  const ceres::Solver::Options solver_options = SolverOptions(options, result.num_variables);
+  const ceres::Solver::Options solver_options = SolverOptions(options);
   result.failure = refine.Solve(solver_options, &result.iterations, /*log=*/true);
   if (!result.failure.empty()) return result;
   if (options.outlier_px > 0) {
@@ -488,6 +481,62 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   result.seconds = timer.ElapsedMs() / 1000.0;
   result.ok = true;
   return result;
+}
+
+RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
+                           const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
+                           std::unordered_map<int, Mat3>* mosaic_from_frame) {
+  const auto window = static_cast<size_t>(options.max_frames_per_solve);
+  if (variable.size() <= window)
+    return RefineGlobal(edges, variable, anchor, half_diagonal, options, mosaic_from_frame);
+  StageTimer timer;
+  auto& T = *mosaic_from_frame;
+  const std::unordered_map<int, Mat3> before = T;
+  std::vector<int> ids(variable.begin(), variable.end());
+  std::sort(ids.begin(), ids.end());
+  RefineResult total;
+  const TransferStats initial = TransferErrors(edges, T);
+  total.initial_rms_px = initial.rms;
+  total.num_residuals = initial.count;
+  const size_t step = std::max<size_t>(1, window - window / 4);
+  std::vector<std::pair<size_t, size_t>> windows;
+  for (size_t start = 0; start < ids.size(); start += step) {
+    windows.emplace_back(start, std::min(ids.size(), start + window));
+    if (windows.back().second == ids.size()) break;
+  }
+  // Sweeps forward and back (block Gauss-Seidel): what one window changes reaches the others on the next sweep.
+  std::vector<std::pair<size_t, size_t>> order = windows;
+  for (int sweep = 1; sweep < options.window_sweeps; ++sweep)
+    if (sweep % 2 == 1)
+      order.insert(order.end(), windows.rbegin() + 1, windows.rend());
+    else
+      order.insert(order.end(), windows.begin() + 1, windows.end());
+  for (const auto& [start, end] : order) {
+    const std::unordered_set<int> moving(ids.begin() + static_cast<long>(start), ids.begin() + static_cast<long>(end));
+    std::vector<const Edge*> touching;
+    for (const Edge* e : edges)
+      if (moving.count(e->src) != 0 || moving.count(e->tgt) != 0) touching.push_back(e);
+    const RefineResult r = RefineGlobal(touching, moving, start == 0 ? anchor : -1, half_diagonal, options, &T);
+    if (!r.ok) {
+      T = before;
+      total.failure = r.failure;
+      return total;
+    }
+    total.num_variables += r.num_variables;
+    total.num_used += r.num_used;
+    total.iterations += r.iterations;
+    total.outliers += r.outliers;
+  }
+  const TransferStats after = TransferErrors(edges, T);
+  const TransferStats inliers = TransferErrors(edges, T, false, options.outlier_px);
+  total.final_all_rms_px = after.rms;
+  total.final_rms_px = options.outlier_px > 0 ? inliers.rms : after.rms;
+  total.final_median_px = options.outlier_px > 0 ? inliers.median : after.median;
+  total.final_inliers = options.outlier_px > 0 ? inliers.count : after.count;
+  total.num_variables = variable.size();
+  total.seconds = timer.ElapsedMs() / 1000.0;
+  total.ok = true;
+  return total;
 }
 
 }  // namespace uavm

@@ -39,9 +39,10 @@ struct RefineOptions {
   int max_correspondences = 100000;
   double max_seconds = 0.0;  // 0 = no time limit
   int threads = 1;
-  // Up to this many frames the solver factors its normal equations; beyond, it solves them by conjugate gradients
-  // (block-Jacobi preconditioned): memory bounded by the correspondences, not by a factor's fill.
-  int direct_max_frames = 1000;
+  // Frames one solve moves at most (RefineBounded): a larger set is refined in overlapping windows of consecutive
+  // frames, so that the factorisation's memory (which grows faster than the frames) has a fixed bound.
+  int max_frames_per_solve = 600;
+  int window_sweeps = 3;  // passes over the windows, alternately forward and back
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -88,6 +89,15 @@ struct LensRefine {
                                         int anchor, const std::unordered_map<int, double>& half_diagonal,
                                         const RefineOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame,
                                         LensRefine* lens = nullptr);
+
+// RefineGlobal over at most options.max_frames_per_solve variable frames at a time: all of them at once when they are
+// that few; else windows of that many consecutive frames (ids ascending), each overlapping the previous by a quarter,
+// solved in flight order with every other frame fixed at its current map (the anchor is the gauge of the first). On a
+// window's failure the maps are left as they were. The result sums the windows' figures; its RMS figures are over
+// every edge.
+[[nodiscard]] RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
+                                         int anchor, const std::unordered_map<int, double>& half_diagonal,
+                                         const RefineOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame);
 
 struct TransferStats {
   size_t count = 0;

@@ -117,7 +117,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"adjust", "direct_max_frames", &o.adjust.direct_max_frames},
       {"adjust", "max_iterative_steps", &o.adjust.max_iterative_steps},
       {"refine", "huber_px", &o.refine.huber_px},
-      {"refine", "direct_max_frames", &o.refine.direct_max_frames},
+      {"refine", "max_frames_per_solve", &o.refine.max_frames_per_solve},
       {"refine", "nadir_weight", &o.refine.nadir_weight},
       {"refine", "rigidity_weight", &o.refine.rigidity_weight},
       {"refine", "max_perspective_ratio", &o.refine.max_perspective_ratio},

@@ -2,6 +2,7 @@
 
 #include <Eigen/Sparse>
 #include <algorithm>
+#include <unordered_map>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
@@ -72,20 +73,50 @@ bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unor
                    bool fit_falloff, double prior, const std::vector<double>& weight, Eigen::VectorXd* x) {
   const int n = static_cast<int>(index.size());
   const auto unknowns = static_cast<int>(x->size());
-  std::vector<Eigen::Triplet<double>> t;
+  // The normal equations summed as they are made: a diagonal, one entry per pair of frames, and the falloff's rows
+  // (dense). Their memory grows with the frames and pairs, not with the samples (a triplet per term would take
+  // ~250 bytes per sample).
+  Eigen::VectorXd diagonal = Eigen::VectorXd::Zero(unknowns);
+  Eigen::MatrixXd falloff_rows = Eigen::MatrixXd::Zero(unknowns - n, unknowns);  // rows n.. (0 or 2 of them)
+  std::unordered_map<uint64_t, double> pair_sum;  // key: lower index << 32 | higher index
   Eigen::VectorXd rhs = Eigen::VectorXd::Zero(unknowns);
-  for (int i = 0; i < n; ++i) t.emplace_back(i, i, prior);
-  for (int i = n; i < unknowns; ++i) t.emplace_back(i, i, 1e-6 * static_cast<double>(samples.size()));
+  for (int i = 0; i < n; ++i) diagonal[i] = prior;
+  for (int i = n; i < unknowns; ++i) diagonal[i] = 1e-6 * static_cast<double>(samples.size());
   for (size_t k = 0; k < samples.size(); ++k) {
     const SampleRow row = RowOf(samples[k], index, fit_falloff, n);
     const double d = double(samples[k].log_a[channel] - samples[k].log_b[channel]);
     for (const auto& [i, vi] : row) {
       if (i < 0) continue;
       rhs[i] += weight[k] * vi * d;
-      for (const auto& [j, vj] : row)
-        if (j >= 0) t.emplace_back(i, j, weight[k] * vi * vj);
+      for (const auto& [j, vj] : row) {
+        if (j < 0) continue;
+        const double v = weight[k] * vi * vj;
+        if (i == j) {
+          diagonal[i] += v;
+        } else if (i >= n) {
+          falloff_rows(i - n, j) += v;
+        } else if (j < n && i < j) {
+          pair_sum[(static_cast<uint64_t>(i) << 32) | static_cast<uint32_t>(j)] += v;
+        }
+      }
     }
   }
+  std::vector<Eigen::Triplet<double>> t;
+  t.reserve(static_cast<size_t>(unknowns) + 2 * pair_sum.size() + 2 * static_cast<size_t>(falloff_rows.size()));
+  for (int i = 0; i < unknowns; ++i) t.emplace_back(i, i, diagonal[i]);
+  for (const auto& [key, v] : pair_sum) {
+    const auto i = static_cast<int>(key >> 32);
+    const auto j = static_cast<int>(key & 0xffffffffu);
+    t.emplace_back(i, j, v);
+    t.emplace_back(j, i, v);
+  }
+  for (int r = 0; r < unknowns - n; ++r)
+    for (int j = 0; j < unknowns; ++j) {
+      if (j == n + r || falloff_rows(r, j) == 0.0) continue;
+      t.emplace_back(n + r, j, falloff_rows(r, j));
+      if (j < n) t.emplace_back(j, n + r, falloff_rows(r, j));  // the gain rows' falloff columns
+    }
+  pair_sum = {};
   Eigen::SparseMatrix<double> normal(unknowns, unknowns);
   normal.setFromTriplets(t.begin(), t.end());
   const Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(normal);

@@ -611,8 +611,26 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
       return true;
     }
   EnterPhase("lens");
-  s->lens = CalibrateLens(edges, variable, anchor, half_diag, options_.refine, *camera_, options_.lens_calibration,
-                          mosaic_from_work_);
+  // The lens is one for the whole flight: a long flight calibrates it on a window of consecutive frames in its middle
+  // (refine.max_frames_per_solve of them, with the edges between them), so the solves' memory has a fixed bound.
+  std::unordered_set<int> lens_variable = variable;
+  std::vector<const Edge*> lens_edges = edges;
+  int lens_anchor = anchor;
+  const auto window = static_cast<size_t>(options_.refine.max_frames_per_solve);
+  if (variable.size() > window) {
+    const size_t first = (s->component.size() - window) / 2;
+    lens_variable = std::unordered_set<int>(s->component.begin() + static_cast<long>(first),
+                                            s->component.begin() + static_cast<long>(first + window));
+    lens_anchor = s->component[first];
+    lens_variable.erase(lens_anchor);
+    lens_edges.clear();
+    for (const Edge* e : edges)
+      if ((lens_variable.count(e->src) != 0 || e->src == lens_anchor) &&
+          (lens_variable.count(e->tgt) != 0 || e->tgt == lens_anchor))
+        lens_edges.push_back(e);
+  }
+  s->lens = CalibrateLens(lens_edges, lens_variable, lens_anchor, half_diag, options_.refine, *camera_,
+                          options_.lens_calibration, mosaic_from_work_);
   const bool has_radial = camera_->distortion.k1 != 0.0 || camera_->distortion.k2 != 0.0;
   if (!s->lens.accepted && s->lens.solve_failed && !camera_verified_ && has_radial) {
     // A database entry can be wrong for these frames (one calibrated on raw files, JPEGs the camera already corrected):
@@ -662,13 +680,13 @@ void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const
   s->holdout_linear = TransferErrors(edges, mosaic_from_work_, true);
   StageTimer refine_timer;
   EnterPhase("refine");
-  RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
+  RefineResult rr = RefineBounded(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
   s->model = options_.refine.model;
   if (!rr.ok && options_.refine.model == MotionModel::kHomography) {
     spdlog::warn("homography refinement refused ({}); refining affine maps instead", rr.failure);
     RefineOptions affine = options_.refine;
     affine.model = MotionModel::kAffine;
-    rr = RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
+    rr = RefineBounded(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
     s->model = MotionModel::kAffine;
   }
   s->refine = rr;
