@@ -41,7 +41,7 @@ struct RefineOptions {
   int threads = 1;
   // Frames one solve moves at most (RefineBounded): a larger set is refined in overlapping windows of consecutive
   // frames, so that the factorisation's memory (which grows faster than the frames) has a fixed bound.
-  int max_frames_per_solve = 600;
+  int max_frames_per_solve = 400;
   int window_sweeps = 3;  // passes over the windows, alternately forward and back
 
   [[nodiscard]] bool Check(std::string* why) const;

@@ -533,8 +533,11 @@ CompositorMemory PlanMemory(const std::vector<CompositeInput>& used, const std::
   const size_t blend_bytes = static_cast<size_t>(options.BlendMiBPerWorker() * kMiB);
   size_t pixel_bytes = options.image_cache_bytes;
   if (options.memory_budget_mib > 0) {
+    // What the plan does not itemise: the inputs' records and geometry (a few hundred bytes each), the selection's
+    // work, allocator slack. Measured: a 5000-frame flight peaked 3.5 MiB above the itemised figure without it.
+    const double unplanned_mib = 6.0 + static_cast<double>(used.size()) * 1024.0 / kMiB;
     const double left = options.memory_budget_mib - resident_mib - (with_tiff ? options.WriterMiB() : 0.0) -
-                        options.threads * options.BlendMiBPerWorker();
+                        options.threads * options.BlendMiBPerWorker() - unplanned_mib;
     pixel_bytes = std::min(pixel_bytes, static_cast<size_t>(std::max(0.0, left) * kMiB));
   }
   // Parallel loads only when they take little from the cache: with large parts a load in flight per worker would

@@ -11,8 +11,10 @@ constexpr double kMiB = 1024.0 * 1024.0;
 // Measured on x86-64 Debian 12 (bench/memory.sh): the onboard program with its libraries loaded and its threads
 // started, before the first frame.
 constexpr double kBaselineMiB = 72.0;
-// Match graph (edges with their correspondences, ~10 KiB per frame) and per-frame state for a 2000-frame flight.
-constexpr double kGraphMiB = 20.0;
+// Per-frame state that lives through the flight and its end (edge records without their points, frame records,
+// maps, footprints, index entries) with the heap it fragments: the resident set at the flight's end grew by 6.2 KiB per
+// frame from 200 to 5000 frames (bench/memory.sh, sim_memory.yaml). Reserved for max_flight_frames.
+constexpr double kGraphBytesPerFrame = 6.5 * 1024;
 // Relocalisation index per descriptor: 8-bit copy, float copy for FLANN, 4 kd-trees.
 constexpr double kBytesPerIndexedDescriptor = 128 + 512 + 160;
 // What the flight leaves resident beyond the baseline and the graph when it ends (arena pages malloc_trim cannot
@@ -40,7 +42,7 @@ double FeatureSetMiB(int max_features) {
 
 double MemoryPlan::FlightMiB() const {
   return baseline_mib + graph_mib + sift_mib + queue_mib + feature_cache_mib + relocalization_mib + subpixel_mib +
-         live_tiles_mib;
+         live_tiles_mib + slack_mib;
 }
 
 double MemoryPlan::EndMiB() const {
@@ -109,7 +111,10 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   MemoryPlan p;
   p.budget_mib = o.memory_budget_mib;
   p.baseline_mib = kBaselineMiB;
-  p.graph_mib = kGraphMiB;
+  // At most 15 % of the budget (6000 frames at 256 MiB): a small budget covers a shorter flight (frames_reserved).
+  p.graph_mib = std::min(std::max(0, o.max_flight_frames) * kGraphBytesPerFrame / kMiB,
+                         o.memory_budget_mib > 0 ? 0.15 * o.memory_budget_mib : HUGE_VAL);
+  p.frames_reserved = static_cast<int>(p.graph_mib * kMiB / kGraphBytesPerFrame);
   const double frame_mib = QueuedFrameMiB(work_width, work_height, o.features.max_features);
   // Besides the queue, frames in flight: one being loaded, one waiting for detection, one being detected and one
   // being registered.
@@ -147,7 +152,11 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
     p.subpixel_frames = std::clamp(fit, 2, o.subpixel.cache_frames);
     p.subpixel_mib = p.subpixel_frames * GrayMiB(work_width, work_height);
   }
-  const double sift_cap = avail - p.queue_mib - p.relocalization_mib - p.feature_cache_mib - p.subpixel_mib;
+  // What the flight holds beyond the itemised figures (working copies, the live view, threads' buffers, allocator
+  // slack): 4 % of the budget. Without it a 5000-frame flight peaked 10 MiB above the budget.
+  p.slack_mib = 0.04 * budget;
+  const double sift_cap =
+      avail - p.queue_mib - p.relocalization_mib - p.feature_cache_mib - p.subpixel_mib - p.slack_mib;
   const cv::Size sift = SiftInput(work_width, work_height, o.features);
   const double smallest_band = SiftScaleSpaceMiB(sift.width, 2 * o.features.band_margin + 32);
   if (sift_cap < smallest_band)

@@ -16,7 +16,8 @@ namespace uavm {
 struct MemoryPlan {
   double budget_mib = 0;
   double baseline_mib = 0;  // code, shared libraries, thread stacks, allocator slack
-  double graph_mib = 0;     // match graph and per-frame state, reserved for the configured flight length
+  double graph_mib = 0;     // match graph and per-frame state, reserved for max_flight_frames
+  int frames_reserved = 0;  // the flight length graph_mib covers (max_flight_frames, or fewer on a small budget)
   // Flight.
   double sift_mib = 0;  // per band
   int sift_bands = 1;
@@ -27,6 +28,7 @@ struct MemoryPlan {
   int relocalization_descriptors = 0;
   double subpixel_mib = 0;  // grey working images kept for the sub-pixel refinement
   int subpixel_frames = 0;
+  double slack_mib = 0;       // what the flight holds beyond the items above (working copies, threads, allocator)
   double live_tiles_mib = 0;  // the live tile pyramid (flight and end: its worker lives until the final tiles)
   // End of flight.
   double refine_mib = 0;

@@ -257,6 +257,11 @@ FrameOutcome Mosaicker::AddFrame(Prepared prepared) {
   const Frame& frame = prepared.frame;
   HandEngineTheCamera(prepared.work_bgr.size());
   const int id = engine_.AddFrame(prepared.work_bgr.size());
+  if (memory_plan_.frames_reserved > 0 && id == memory_plan_.frames_reserved)
+    spdlog::warn(
+        "the flight is longer than the {} frames the memory plan reserved per-frame state for (max_flight_frames, "
+        "at most 15 % of the budget): each further frame takes ~6.5 KiB beyond the plan",
+        memory_plan_.frames_reserved);
   FrameState& st = frames_.emplace_back();
   st.id = id;
   st.name = frame.source_name;

@@ -76,7 +76,9 @@ void Mosaicker::SolveFrameRadiometry(const std::vector<int>& component) {
   std::vector<const Edge*> edges;
   for (const Edge& e : engine_.edges())
     if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0) edges.push_back(&e);
-  const int per_edge = std::clamp(options_.radiometry.max_samples / std::max<int>(1, static_cast<int>(edges.size())), 8,
+  // A long flight samples fewer points per edge (4 at least: the solve's memory grows with the frames and pairs, the
+  // samples' with their count).
+  const int per_edge = std::clamp(options_.radiometry.max_samples / std::max<int>(1, static_cast<int>(edges.size())), 4,
                                   options_.radiometry.samples_per_edge);
   std::vector<RadiometrySample> samples;
   samples.reserve(edges.size() * static_cast<size_t>(per_edge));

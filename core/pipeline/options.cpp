@@ -76,6 +76,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"", "mosaic_scale", &o.mosaic_scale},
       {"", "max_canvas_side", &o.max_canvas_side},
       {"", "memory_budget_mib", &o.memory_budget_mib},
+      {"", "max_flight_frames", &o.max_flight_frames},
       {"", "feature_cache_mib", &o.feature_cache_mib},
       {"", "queue_capacity", &o.queue_capacity},
       {"", "write_tiff", &o.write_tiff},
@@ -205,6 +206,7 @@ bool PipelineOptions::Check(std::string* why) const {
   if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");
   if (feature_cache_mib < 1) return Fail(why, "feature_cache_mib must be >= 1");
   if (memory_budget_mib < 0) return Fail(why, "memory_budget_mib must be >= 0 (0 = no budget)");
+  if (max_flight_frames < 0) return Fail(why, "max_flight_frames must be >= 0");
   if (queue_capacity < 1 || queue_capacity > 1024) return Fail(why, "queue_capacity must be in [1,1024]");
   return features.Check(why) && mosaic.Check(why) && radiometry.Check(why) && camera.Check(why);
 }

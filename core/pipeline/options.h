@@ -32,6 +32,9 @@ struct PipelineOptions : RegistrationOptions {
   // Memory budget of the whole program, MiB: caches, pools and the feature detector's bands are sized to fit it
   // (core/pipeline/memory_budget.h); 0 = no budget, every cache takes its own setting.
   int memory_budget_mib = 256;
+  // Frames whose per-frame state (graph edges, records, maps, footprints) the memory plan reserves room for: the
+  // flight's caches are sized after it, so a flight up to this long stays within the budget (1 h 40 min at 1 frame/s).
+  int max_flight_frames = 6000;
   int feature_cache_mib = 192;
   int queue_capacity = 4;
   bool write_tiff = true;

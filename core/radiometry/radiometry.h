@@ -17,7 +17,7 @@ struct RadiometryOptions {
   bool vignetting = true;     // estimate the falloff (else gains only)
   int thumb_long_side = 128;  // per-frame thumbnail the overlaps are sampled on (low frequencies only)
   int samples_per_edge = 64;  // grid points sampled in each pair's overlap (bounded statistics per edge)
-  // All samples of the end-of-flight solve: a long flight samples fewer points per edge (8 at least) so that the
+  // All samples of the end-of-flight solve: a long flight samples fewer points per edge (4 at least) so that the
   // solve's memory stays bounded (~0.3 KB per sample while it runs).
   int max_samples = 50000;
   // Pulls each log gain towards 0 (the mean exposure), as a share of an average frame's samples: fixes the gauge of
