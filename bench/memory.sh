@@ -93,9 +93,9 @@ $(awk -v a="$first" -v b="$last" 'BEGIN { printf "%.1f", b - a }') |")
     return 0
   fi
   ROWS+=("$(jq -r --arg name "$name" --arg peak "$(fmt "$W_PEAK_KB" 0 1024)" --arg anon "$(fmt "$W_PEAK_ANON_KB" 0 1024)" \
-    --arg wall "$(fmt "$W_WALL_S" 1)" --arg end "${END_S[$name]}" \
+    --arg wall "$(fmt "$W_WALL_S" 1)" --arg endt "${END_S[$name]}" \
     --arg groups "$(fmt "${GROUP_PEAK[$name.flight]}" 0 1024) / $(fmt "${GROUP_PEAK[$name.solves]}" 0 1024) / $(fmt "${GROUP_PEAK[$name.compose]}" 0 1024)" '
-    "| \($name) | \(.frames_in) | \(.registered) | \($wall) | \($end) | \($peak) / \($anon) | \(.peak_rss_mib | floor) | " +
+    "| \($name) | \(.frames_in) | \(.registered) | \($wall) | \($endt) | \($peak) / \($anon) | \(.peak_rss_mib | floor) | " +
     "\($groups) | \(.memory.plan.end_correspondences) / \(.memory.spilled.end_points_per_edge) / " +
     "\(.memory.plan.refine_correspondences) | \(.open_fds.flight_start) / \(.open_fds.flight_end) | " +
     "\(.log.warnings) / \(.log.errors) | \(.holdout_rms_px * 1000 | round / 1000) |"' "$report" || echo "| $name | report unreadable |")")

@@ -29,8 +29,8 @@ void ServiceNotifier::Progress(int frames, int registered, double rss_mib, doubl
   const int64_t min_gap_us = watchdog_us_ > 0 ? std::min<int64_t>(watchdog_us_ / 2, 1000000) : 1000000;
   if (now - last_progress_ < std::chrono::microseconds(min_gap_us)) return;
   last_progress_ = now;
-  const std::string status = fmt::format("{} frames, {} registered, RSS {:.0f} MiB (peak {:.0f})", frames, registered,
-                                         rss_mib, peak_rss_mib);
+  const std::string status =
+      fmt::format("{} frames, {} registered, RSS {:.0f} MiB (peak {:.0f})", frames, registered, rss_mib, peak_rss_mib);
   sd_notifyf(0, "%sSTATUS=%s", watchdog_us_ > 0 ? "WATCHDOG=1\n" : "", status.c_str());
 }
 

@@ -166,9 +166,17 @@ TEST(MemoryLimitTest, LongSimulatedFlightEndsUnderAHardLimitJustAboveItsBudget) 
                       << "frame_width: 320\nframe_height: 240\ngsd: 0.3333\nforward_overlap: 0.75\n"
                          "side_overlap: 0.4\npasses: 40\npass_shift: 0.5\nnoise_sigma: 1.0\nseed: 5\n";
   const fs::path session = out / "session";
-  const std::vector<std::string> args = {"--source",        "sim:" + plan.string(),     "--out",       session.string(),
-                                         "--memory-budget", std::to_string(kBudgetMiB), "--max-frames",
-                                         std::to_string(frames), "--no-tiff", "--log-level", "warn"};
+  const std::vector<std::string> args = {"--source",
+                                         "sim:" + plan.string(),
+                                         "--out",
+                                         session.string(),
+                                         "--memory-budget",
+                                         std::to_string(kBudgetMiB),
+                                         "--max-frames",
+                                         std::to_string(frames),
+                                         "--no-tiff",
+                                         "--log-level",
+                                         "warn"};
   const int status = RunInCgroup(cgroup, args);
   ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0)
                                  << " (an OOM kill is SIGKILL)";

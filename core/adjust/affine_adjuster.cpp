@@ -43,7 +43,8 @@ struct BlockSystem {
   void Multiply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
     y->setZero(x.size());
     for (size_t i = 0; i < diagonal.size(); ++i)
-      y->segment<kDof>(static_cast<long>(i) * kDof).noalias() += diagonal[i] * x.segment<kDof>(static_cast<long>(i) * kDof);
+      y->segment<kDof>(static_cast<long>(i) * kDof).noalias() +=
+          diagonal[i] * x.segment<kDof>(static_cast<long>(i) * kDof);
     for (size_t k = 0; k < pairs.size(); ++k) {
       const long a = static_cast<long>(pairs[k].first) * kDof;
       const long b = static_cast<long>(pairs[k].second) * kDof;
@@ -67,8 +68,8 @@ int VariableIndex(const ColumnOf& column, int id) {
 // give its blocks (the same for both coordinate rows). A fixed side moves to the right-hand side.
 // Relative linear part: L_src - L_tgt * R = 0 with R the edge's measured linear part, as rows of the same edge.
 void AddEdge(const Edge& e, const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
-             const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
-             const float* weights, BlockSystem* sys) {
+             const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options, const float* weights,
+             BlockSystem* sys) {
   Eigen::Matrix3d Spp = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d Spq = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d Sqq = Eigen::Matrix3d::Zero();
@@ -200,7 +201,8 @@ std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options,
   const auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd* z) {
     z->resize(n);
     for (size_t i = 0; i < frames; ++i)
-      z->segment<kDof>(static_cast<long>(i) * kDof).noalias() = inverse[i] * r.segment<kDof>(static_cast<long>(i) * kDof);
+      z->segment<kDof>(static_cast<long>(i) * kDof).noalias() =
+          inverse[i] * r.segment<kDof>(static_cast<long>(i) * kDof);
   };
   Eigen::VectorXd b(n);
   for (size_t i = 0; i < frames; ++i) b.segment<kDof>(static_cast<long>(i) * kDof) = sys.rhs[i];
@@ -310,8 +312,7 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
   }
   std::vector<float> weights;  // IRLS, from the previous pass
   for (int iteration = 0; iteration <= options.robust_iterations; ++iteration) {
-    result.failure =
-        SolvePass(used, column, half_diagonal, options, iteration == 0 ? nullptr : &weights, &T, &result);
+    result.failure = SolvePass(used, column, half_diagonal, options, iteration == 0 ? nullptr : &weights, &T, &result);
     if (!result.failure.empty()) return result;
     HuberWeights(used, T, options.huber_px, &weights);
   }

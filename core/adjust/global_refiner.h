@@ -97,7 +97,8 @@ struct LensRefine {
 // every edge.
 [[nodiscard]] RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                          int anchor, const std::unordered_map<int, double>& half_diagonal,
-                                         const RefineOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame);
+                                         const RefineOptions& options,
+                                         std::unordered_map<int, Mat3>* mosaic_from_frame);
 
 struct TransferStats {
   size_t count = 0;

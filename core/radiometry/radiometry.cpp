@@ -2,9 +2,9 @@
 
 #include <Eigen/Sparse>
 #include <algorithm>
-#include <unordered_map>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <unordered_map>
 
 namespace uavm {
 

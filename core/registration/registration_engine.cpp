@@ -149,8 +149,7 @@ void RegistrationEngine::ReleaseColdEdges() {
   }
 }
 
-bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points,
-                                        size_t max_holdout) {
+bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points, size_t max_holdout) {
   for (const Edge* e : edges) {
     // The list borrows the graph's edges read-only; the graph (this object's) owns them mutably.
     Edge& edge = const_cast<Edge&>(*e);
@@ -584,7 +583,8 @@ Solution RegistrationEngine::FinishSolve() {
   EnterPhase("end_load");
   const auto [max_points, max_holdout] = EndPointsPerEdge(edges);
   counters_.end_points_per_edge = max_points;
-  if (!LoadEdgePoints(edges, max_points, max_holdout)) spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
+  if (!LoadEdgePoints(edges, max_points, max_holdout))
+    spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
   s.ok = true;
   if (s.component.size() >= 2) {
     SolveFinal(edges, t, &s);

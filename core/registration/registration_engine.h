@@ -1,6 +1,6 @@
 #pragma once
-#include <functional>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -97,8 +97,8 @@ struct RegistrationCounters {
   size_t frames_not_indexed = 0;  // registered over ground the index already has
   size_t edges_released = 0;      // edges whose points were given to the spill during the flight
   size_t edge_bytes_released = 0;
-  size_t edges_reloaded = 0;  // points taken back during the flight (a solve needed a cold edge)
-  size_t end_points_thinned = 0;  // points the end-of-flight solves left in edges.bin (end_correspondences)
+  size_t edges_reloaded = 0;       // points taken back during the flight (a solve needed a cold edge)
+  size_t end_points_thinned = 0;   // points the end-of-flight solves left in edges.bin (end_correspondences)
   size_t end_points_per_edge = 0;  // at most, then; 0 = all
   int relocalization_thinnings = 0;
   int joined_where_telemetry_placed = 0;  // frames whose first match came from a PositionHint's candidates
