@@ -483,6 +483,53 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   return result;
 }
 
+namespace {
+
+// Position of cell (x, y) along a Hilbert curve over a side x side grid (side a power of two): cells close on the
+// curve are close on the grid, so consecutive runs of it are compact blocks.
+int64_t HilbertIndex(int64_t side, int64_t x, int64_t y) {
+  int64_t d = 0;
+  for (int64_t s = side / 2; s > 0; s /= 2) {
+    const int64_t rx = (x & s) > 0 ? 1 : 0;
+    const int64_t ry = (y & s) > 0 ? 1 : 0;
+    d += s * s * ((3 * rx) ^ ry);
+    if (ry == 0) {  // rotate the quadrant
+      if (rx == 1) {
+        x = side - 1 - x;
+        y = side - 1 - y;
+      }
+      std::swap(x, y);
+    }
+  }
+  return d;
+}
+
+// The variable frames in the order of their positions along a Hilbert curve over the mosaic: a window of consecutive
+// ones is a compact block of ground (every pass over it), not a strip of one pass pinned by the passes around it.
+std::vector<int> AlongTheGround(const std::unordered_set<int>& variable,
+                                const std::unordered_map<int, Mat3>& mosaic_from_frame) {
+  std::vector<std::pair<int, Vec2>> at;
+  Eigen::AlignedBox2d box;
+  for (int id : variable) {
+    const Vec2 p = Apply(mosaic_from_frame.at(id), Vec2(0, 0));
+    at.emplace_back(id, p);
+    box.extend(p);
+  }
+  constexpr int64_t kSide = 1 << 16;
+  const Vec2 size = box.sizes().cwiseMax(Vec2(1e-9, 1e-9));
+  std::vector<std::pair<int64_t, int>> order;
+  for (const auto& [id, p] : at) {
+    const Vec2 u = (p - box.min()).cwiseQuotient(size) * static_cast<double>(kSide - 1);
+    order.emplace_back(HilbertIndex(kSide, static_cast<int64_t>(u.x()), static_cast<int64_t>(u.y())), id);
+  }
+  std::sort(order.begin(), order.end());
+  std::vector<int> ids;
+  for (const auto& o : order) ids.push_back(o.second);
+  return ids;
+}
+
+}  // namespace
+
 RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
                            const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
                            std::unordered_map<int, Mat3>* mosaic_from_frame) {
@@ -492,12 +539,26 @@ RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::uno
   StageTimer timer;
   auto& T = *mosaic_from_frame;
   const std::unordered_map<int, Mat3> before = T;
-  std::vector<int> ids(variable.begin(), variable.end());
-  std::sort(ids.begin(), ids.end());
+  const std::vector<int> ids = AlongTheGround(variable, T);
   RefineResult total;
   const TransferStats initial = TransferErrors(edges, T);
   total.initial_rms_px = initial.rms;
   total.num_residuals = initial.count;
+  // The linear solution is shrunk towards its anchor (it gains by shrinking with noisy points), nearly uniformly: a
+  // mode no window can undo, since every window but the anchor's is pinned by frames shrunk alike. One solve moves
+  // the anchor alone onto its neighbours, then the whole mosaic is re-expressed so that the anchor is where it was.
+  if (anchor >= 0 && T.count(anchor) != 0) {
+    std::vector<const Edge*> at_anchor;
+    for (const Edge* e : edges)
+      if (e->src == anchor || e->tgt == anchor) at_anchor.push_back(e);
+    const Mat3 anchor_before = T.at(anchor);
+    const RefineResult ra = RefineGlobal(at_anchor, {anchor}, -1, half_diagonal, options, &T);
+    if (ra.ok) {
+      const Mat3 regauge = anchor_before * T.at(anchor).inverse();
+      for (auto& [id, m] : T) m = regauge * m;
+      T[anchor] = anchor_before;
+    }
+  }
   const size_t step = std::max<size_t>(1, window - window / 4);
   std::vector<std::pair<size_t, size_t>> windows;
   for (size_t start = 0; start < ids.size(); start += step) {
@@ -516,7 +577,10 @@ RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::uno
     std::vector<const Edge*> touching;
     for (const Edge* e : edges)
       if (moving.count(e->src) != 0 || moving.count(e->tgt) != 0) touching.push_back(e);
-    const RefineResult r = RefineGlobal(touching, moving, start == 0 ? anchor : -1, half_diagonal, options, &T);
+    const bool has_anchor = anchor >= 0 && std::any_of(touching.begin(), touching.end(), [&](const Edge* e) {
+      return e->src == anchor || e->tgt == anchor;
+    });
+    const RefineResult r = RefineGlobal(touching, moving, has_anchor ? anchor : -1, half_diagonal, options, &T);
     if (!r.ok) {
       T = before;
       total.failure = r.failure;

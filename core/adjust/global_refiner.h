@@ -41,8 +41,8 @@ struct RefineOptions {
   int threads = 1;
   // Frames one solve moves at most (RefineBounded): a larger set is refined in overlapping windows of consecutive
   // frames, so that the factorisation's memory (which grows faster than the frames) has a fixed bound.
-  int max_frames_per_solve = 400;
-  int window_sweeps = 3;  // passes over the windows, alternately forward and back
+  int max_frames_per_solve = 600;
+  int window_sweeps = 2;  // passes over the windows, alternately forward and back
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -91,10 +91,10 @@ struct LensRefine {
                                         LensRefine* lens = nullptr);
 
 // RefineGlobal over at most options.max_frames_per_solve variable frames at a time: all of them at once when they are
-// that few; else windows of that many consecutive frames (ids ascending), each overlapping the previous by a quarter,
-// solved in flight order with every other frame fixed at its current map (the anchor is the gauge of the first). On a
-// window's failure the maps are left as they were. The result sums the windows' figures; its RMS figures are over
-// every edge.
+// that few; else windows of that many frames consecutive along a Hilbert curve over their mosaic positions (compact
+// blocks of ground), each overlapping the previous by a quarter, swept forward and back (window_sweeps) with every
+// other frame fixed at its current map (the anchor keeps its affine part in the windows next to it). On a window's
+// failure the maps are left as they were. The result sums the windows' figures; its RMS figures are over every edge.
 [[nodiscard]] RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                          int anchor, const std::unordered_map<int, double>& half_diagonal,
                                          const RefineOptions& options,

@@ -22,9 +22,9 @@ namespace uavm {
 struct PipelineOptions : RegistrationOptions {
   int work_long_side = 1000;   // working resolution for features and registration (never upscaled)
   int journal_sync_every = 1;  // accepted frames between fdatasyncs of journal.jsonl (a power cut loses fewer)
-  // Frames between returns of free heap pages to the kernel (malloc_trim); 0 = never. Every 5 rather than 20: peak
-  // RSS of a 2000-frame flight 222 instead of 229 MiB (200 frames: 205 either way), no measurable time cost.
-  int trim_heap_every = 5;
+  // Frames between returns of free heap pages to the kernel (malloc_trim); 0 = never. Every frame: the resident set
+  // between frames of a 2000-frame flight 219 MiB instead of 236 every 5 frames (bench/memory.sh's flight), for ~1 ms.
+  int trim_heap_every = 1;
   int preview_every = 5;  // live.jpg every N frames; 0 = off
   int preview_side = 1024;
   double mosaic_scale = 0.5;    // mosaic.tif GSD relative to the reference frame's original resolution
