@@ -77,6 +77,7 @@ ci_tier() {
   step "format" bash "$ROOT/scripts/lint.sh" --check
   step "function size" bash "$ROOT/scripts/lint.sh" --function-size
   step "native suite" native_suite
+  step "accuracy gate" bash "$ROOT/scripts/accuracy_gate.sh"
   step "fuzzing" bash "$ROOT/scripts/fuzz.sh" --runs 20000
   step "aarch64 build" bash "$ROOT/scripts/test_aarch64.sh" build
   step "aarch64 package" bash "$ROOT/scripts/test_aarch64.sh" package

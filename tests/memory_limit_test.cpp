@@ -159,12 +159,13 @@ TEST(MemoryLimitTest, LongSimulatedFlightEndsUnderAHardLimitJustAboveItsBudget) 
   const fs::path out = fs::temp_directory_path() / ("uavm_memlong_" + std::to_string(::getpid()));
   fs::remove_all(out);
   fs::create_directories(out);
-  // Small frames over the bundled 1000x750 photograph enlarged 3x (gsd 1/3), flown in passes shifted by half a
-  // spacing: every frame overlaps frames of earlier passes, as in a long survey.
+  // Small frames over the bundled 1000x750 photograph enlarged 2x (gsd 1/2), flown in passes (~190 frames each) shifted
+  // by half a spacing: every frame overlaps frames of earlier passes, as in a long survey.
   const fs::path plan = out / "plan.yaml";
   std::ofstream(plan) << "canvas: \"" << kData << "/caliterra_small/images/IMG_9360.jpg\"\n"
-                      << "frame_width: 320\nframe_height: 240\ngsd: 0.3333\nforward_overlap: 0.75\n"
-                         "side_overlap: 0.4\npasses: 40\npass_shift: 0.5\nnoise_sigma: 1.0\nseed: 5\n";
+                      << "frame_width: 320\nframe_height: 240\ngsd: 0.5\nforward_overlap: 0.75\n"
+                         "side_overlap: 0.4\npasses: "
+                      << frames / 150 + 1 << "\npass_shift: 0.5\nnoise_sigma: 1.0\nseed: 5\n";
   const fs::path session = out / "session";
   const std::vector<std::string> args = {"--source",
                                          "sim:" + plan.string(),
