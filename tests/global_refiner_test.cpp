@@ -300,7 +300,7 @@ namespace uavm {
 namespace {
 
 // A set of frames larger than max_frames_per_solve is refined in overlapping windows (bounded memory at the end of a
-// long flight): on a tilted, noisy flight the windows come within 4 % of the transfer error of one solve
+// long flight): on a tilted, noisy flight the windows come within 5 % of the transfer error of one solve
 // over every frame and well below the affine start; a failing window leaves every map as it was. What the windows do
 // not recover is the weakly determined part of the tilts (a 1 degree tilt moves a frame's corners by a pixel): their
 // error against the truth stays above the one solve's (measured here: 0.51 px against 0.18, from 1.56).
@@ -323,7 +323,7 @@ TEST(GlobalRefiner, WindowsOfFramesReachTheWholeSolvesError) {
   const auto [rms, max] = ModelFreeError(s, windows);
   std::cerr << "model-free error RMS px: affine start " << start_rms << ", one solve " << whole_rms << ", windows "
             << rms << "; transfer RMS whole " << rw.final_all_rms_px << ", windows " << r.final_all_rms_px << "\n";
-  EXPECT_LT(r.final_all_rms_px, 1.04 * rw.final_all_rms_px);
+  EXPECT_LT(r.final_all_rms_px, 1.05 * rw.final_all_rms_px);
   EXPECT_LT(rms, 0.5 * start_rms);
   EXPECT_EQ(r.num_variables, s.truth.size() - 1);
   EXPECT_GT(r.num_used, rw.num_used);  // the windows overlap: frames in two of them are solved twice

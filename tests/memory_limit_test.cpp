@@ -143,7 +143,7 @@ TEST(MemoryLimitTest, RealFlightFinishesUnderAHardLimitJustAboveItsBudget) {
 
 // A long simulated flight under a hard limit of its budget + 16 MiB: the end of the flight (solves, lens, refinement,
 // radiometry, compositing) must stay within the budget however many frames came before it. The CI tier flies 1200
-// small frames (past where the end's solves outgrew the budget before they were bounded: a factored solve over all
+// small frames (past where the end's solves outgrew the budget before they were bounded: factored solves over all
 // frames, every point of every edge held); the full tier sets UAVM_MEMORY_TEST_FRAMES=5000.
 TEST(MemoryLimitTest, LongSimulatedFlightEndsUnderAHardLimitJustAboveItsBudget) {
 #ifdef UAVM_SANITIZED
@@ -152,7 +152,10 @@ TEST(MemoryLimitTest, LongSimulatedFlightEndsUnderAHardLimitJustAboveItsBudget) 
   if (test::Emulated()) GTEST_SKIP() << "a flight of a thousand frames: native only";
   const char* env = std::getenv("UAVM_MEMORY_TEST_FRAMES");
   const int frames = env != nullptr && std::atoi(env) > 0 ? std::atoi(env) : 1200;
-  constexpr int kBudgetMiB = 256;
+  // The CI flight at 192 MiB: before the end of the flight was bounded, its end peaked at 216 MiB (the lens
+  // self-calibration factored over every frame at once), beyond the budget. The full tier's 5000 frames at the
+  // default budget (256 MiB), as a user flies.
+  const int kBudgetMiB = frames >= 5000 ? 256 : 192;
   const std::string name = "uavm_memory_long_" + std::to_string(::getpid());
   MemoryCgroup cgroup(name, int64_t{kBudgetMiB + 16} << 20);
   if (!cgroup.ok()) GTEST_SKIP() << "cannot run under a memory cgroup here: " << cgroup.why();

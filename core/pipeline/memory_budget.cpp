@@ -152,13 +152,14 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
     p.subpixel_frames = std::clamp(fit, 2, o.subpixel.cache_frames);
     p.subpixel_mib = p.subpixel_frames * GrayMiB(work_width, work_height);
   }
-  // What the flight holds beyond the itemised figures (working copies, the live view, threads' buffers, allocator
-  // slack): 4 % of the budget. Without it a 5000-frame flight peaked 10 MiB above the budget.
-  p.slack_mib = 0.04 * budget;
-  const double sift_cap =
-      avail - p.queue_mib - p.relocalization_mib - p.feature_cache_mib - p.subpixel_mib - p.slack_mib;
   const cv::Size sift = SiftInput(work_width, work_height, o.features);
   const double smallest_band = SiftScaleSpaceMiB(sift.width, 2 * o.features.band_margin + 32);
+  // What the flight holds beyond the itemised figures (working copies, the live view, threads' buffers, allocator
+  // slack): 4 % of the budget, as far as the detector keeps a band. Without it a 5000-frame flight peaked 10 MiB above
+  // the budget.
+  double sift_cap = avail - p.queue_mib - p.relocalization_mib - p.feature_cache_mib - p.subpixel_mib;
+  p.slack_mib = std::clamp(sift_cap - smallest_band, 0.0, 0.04 * budget);
+  sift_cap -= p.slack_mib;
   if (sift_cap < smallest_band)
     return fail("memory_budget_mib " + std::to_string(o.memory_budget_mib) + " leaves " +
                 std::to_string(static_cast<int>(sift_cap)) + " MiB for feature detection on " +
