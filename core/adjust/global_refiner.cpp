@@ -578,8 +578,8 @@ RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::uno
     for (const Edge* e : edges)
       if (moving.count(e->src) != 0 || moving.count(e->tgt) != 0) touching.push_back(e);
     const bool has_anchor = anchor >= 0 && std::any_of(touching.begin(), touching.end(), [&](const Edge* e) {
-      return e->src == anchor || e->tgt == anchor;
-    });
+                              return e->src == anchor || e->tgt == anchor;
+                            });
     const RefineResult r = RefineGlobal(touching, moving, has_anchor ? anchor : -1, half_diagonal, options, &T);
     if (!r.ok) {
       T = before;
