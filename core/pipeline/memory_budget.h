@@ -28,7 +28,6 @@ struct MemoryPlan {
   int relocalization_descriptors = 0;
   double subpixel_mib = 0;  // grey working images kept for the sub-pixel refinement
   int subpixel_frames = 0;
-  double slack_mib = 0;       // what the flight holds beyond the items above (working copies, threads, allocator)
   double live_tiles_mib = 0;  // the live tile pyramid (flight and end: its worker lives until the final tiles)
   // End of flight.
   double refine_mib = 0;

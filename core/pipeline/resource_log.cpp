@@ -73,7 +73,6 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
             {"graph_mib", mp.graph_mib},
             {"frames_reserved", mp.frames_reserved},
             {"sift_mib", mp.sift_mib},
-            {"slack_mib", mp.slack_mib},
             {"sift_bands", mp.sift_bands},
             {"queue_mib", mp.queue_mib},
             {"queue_capacity", mp.queue_capacity},
