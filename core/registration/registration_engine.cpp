@@ -599,37 +599,44 @@ Solution RegistrationEngine::FinishSolve() {
   return s;
 }
 
+namespace {
+
+struct LensWindow {
+  std::vector<const Edge*> edges;
+  std::unordered_set<int> variable;
+  int anchor = -1;
+};
+
+// The lens is one for the whole flight: a long flight calibrates it on `window` consecutive frames in its middle (its
+// first the anchor) with the edges between them, so the solves' memory has a fixed bound; a shorter one on all of it.
+LensWindow MiddleWindow(const std::vector<int>& component, const std::vector<const Edge*>& edges, size_t window) {
+  LensWindow w;
+  const bool whole = component.size() <= window + 1;  // the anchor and at most `window` variable frames
+  const size_t first = whole ? 0 : (component.size() - window) / 2;
+  const size_t end = whole ? component.size() : first + window;
+  w.anchor = component[first];
+  w.variable.insert(component.begin() + static_cast<long>(first) + 1, component.begin() + static_cast<long>(end));
+  const auto inside = [&](int id) { return id == w.anchor || w.variable.count(id) != 0; };
+  for (const Edge* e : edges)
+    if (inside(e->src) && inside(e->tgt)) w.edges.push_back(e);
+  return w;
+}
+
+}  // namespace
+
 bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>& edges,
                                                  const std::unordered_set<int>& variable,
                                                  const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
                                                  Solution* s) {
   if (!camera_ || !options_.lens_calibration.enabled) return true;
-  const int anchor = s->component.front();
   for (int id : s->component)
     if (Record(id).work_size != cv::Size(camera_->width, camera_->height)) {
       s->lens.why = "frames of different sizes: the lens is not calibrated";
       return true;
     }
   EnterPhase("lens");
-  // The lens is one for the whole flight: a long flight calibrates it on a window of consecutive frames in its middle
-  // (refine.max_frames_per_solve of them, with the edges between them), so the solves' memory has a fixed bound.
-  std::unordered_set<int> lens_variable = variable;
-  std::vector<const Edge*> lens_edges = edges;
-  int lens_anchor = anchor;
-  const auto window = static_cast<size_t>(options_.refine.max_frames_per_solve);
-  if (variable.size() > window) {
-    const size_t first = (s->component.size() - window) / 2;
-    lens_variable = std::unordered_set<int>(s->component.begin() + static_cast<long>(first),
-                                            s->component.begin() + static_cast<long>(first + window));
-    lens_anchor = s->component[first];
-    lens_variable.erase(lens_anchor);
-    lens_edges.clear();
-    for (const Edge* e : edges)
-      if ((lens_variable.count(e->src) != 0 || e->src == lens_anchor) &&
-          (lens_variable.count(e->tgt) != 0 || e->tgt == lens_anchor))
-        lens_edges.push_back(e);
-  }
-  s->lens = CalibrateLens(lens_edges, lens_variable, lens_anchor, half_diag, options_.refine, *camera_,
+  const LensWindow w = MiddleWindow(s->component, edges, static_cast<size_t>(options_.refine.max_frames_per_solve));
+  s->lens = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, *camera_,
                           options_.lens_calibration, mosaic_from_work_);
   const bool has_radial = camera_->distortion.k1 != 0.0 || camera_->distortion.k2 != 0.0;
   if (!s->lens.accepted && s->lens.solve_failed && !camera_verified_ && has_radial) {

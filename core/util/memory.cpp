@@ -19,20 +19,26 @@ double PeakRssMiB() {
   return static_cast<double>(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
 }
 
-double HighWaterRssMiB() {
+RssSample SampleRss() {
+  RssSample s;
   FILE* f = std::fopen("/proc/self/status", "r");
-  if (f == nullptr) return 0.0;
+  if (f == nullptr) return s;
   char line[256];
-  double mib = 0.0;
   while (std::fgets(line, sizeof(line), f) != nullptr) {
     long kib = 0;
-    if (std::sscanf(line, "VmHWM: %ld kB", &kib) == 1) {
-      mib = static_cast<double>(kib) / 1024.0;
-      break;
-    }
+    if (std::sscanf(line, "VmRSS: %ld kB", &kib) == 1)
+      s.rss_mib = static_cast<double>(kib) / 1024.0;
+    else if (std::sscanf(line, "RssAnon: %ld kB", &kib) == 1)
+      s.anon_mib = static_cast<double>(kib) / 1024.0;
+    else if (std::sscanf(line, "VmHWM: %ld kB", &kib) == 1)
+      s.hwm_mib = static_cast<double>(kib) / 1024.0;
   }
   std::fclose(f);
-  return mib;
+  return s;
+}
+
+double HighWaterRssMiB() {
+  return SampleRss().hwm_mib;
 }
 
 double CurrentRssMiB() {

@@ -9,6 +9,13 @@ namespace uavm {
 [[nodiscard]] double PeakRssMiB();
 // The same high-water mark from /proc/self/status (VmHWM), MiB; 0 when unavailable.
 [[nodiscard]] double HighWaterRssMiB();
+// VmRSS, RssAnon and VmHWM of this process in MiB, one read of /proc/self/status (0 where it does not give them).
+struct RssSample {
+  double rss_mib = 0;
+  double anon_mib = 0;
+  double hwm_mib = 0;
+};
+[[nodiscard]] RssSample SampleRss();
 // Current resident set size in MiB (/proc/self/statm); 0 when unavailable.
 [[nodiscard]] double CurrentRssMiB();
 

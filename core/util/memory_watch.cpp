@@ -10,24 +10,6 @@
 
 namespace uavm {
 
-RssSample SampleRss() {
-  RssSample s;
-  FILE* f = std::fopen("/proc/self/status", "r");
-  if (f == nullptr) return s;
-  char line[256];
-  while (std::fgets(line, sizeof(line), f) != nullptr) {
-    long kib = 0;
-    if (std::sscanf(line, "VmRSS: %ld kB", &kib) == 1)
-      s.rss_mib = static_cast<double>(kib) / 1024.0;
-    else if (std::sscanf(line, "RssAnon: %ld kB", &kib) == 1)
-      s.anon_mib = static_cast<double>(kib) / 1024.0;
-    else if (std::sscanf(line, "VmHWM: %ld kB", &kib) == 1)
-      s.hwm_mib = static_cast<double>(kib) / 1024.0;
-  }
-  std::fclose(f);
-  return s;
-}
-
 namespace {
 double NowS() {
   return static_cast<double>(MonotonicNs()) * 1e-9;

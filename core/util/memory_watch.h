@@ -6,6 +6,8 @@
 #include <thread>
 #include <vector>
 
+#include "core/util/memory.h"
+
 namespace uavm {
 
 // One phase of a run as seen from the process's resident memory: the largest VmRSS and RssAnon sampled while it ran.
@@ -55,13 +57,5 @@ class MemoryWatch {
   std::atomic<bool> renamed_{false};
   std::thread thread_;  // last: started when everything it reads exists
 };
-
-// VmRSS, RssAnon and VmHWM of this process in MiB (0 where /proc does not give them).
-struct RssSample {
-  double rss_mib = 0;
-  double anon_mib = 0;
-  double hwm_mib = 0;
-};
-[[nodiscard]] RssSample SampleRss();
 
 }  // namespace uavm
