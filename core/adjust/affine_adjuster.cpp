@@ -1,9 +1,14 @@
 #include "core/adjust/affine_adjuster.h"
 
+#include <Eigen/Core>
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <cmath>
+#include <string>
+#include <unordered_map>
+#include <utility>
+#include <vector>
 
 namespace uavm {
 

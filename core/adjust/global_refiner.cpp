@@ -530,6 +530,28 @@ std::vector<int> AlongTheGround(const std::unordered_set<int>& variable,
 
 }  // namespace
 
+namespace {
+
+// The linear solution is shrunk towards its anchor (it gains by shrinking with noisy points), nearly uniformly: a
+// mode no window can undo, since every window but the anchor's is pinned by frames shrunk alike. One solve moves the
+// anchor alone onto its neighbours, then the whole mosaic is re-expressed so that the anchor is where it was.
+void ReexpressFromAnchor(const std::vector<const Edge*>& edges, int anchor,
+                         const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
+                         std::unordered_map<int, Mat3>* mosaic_from_frame) {
+  auto& T = *mosaic_from_frame;
+  if (anchor < 0 || T.count(anchor) == 0) return;
+  std::vector<const Edge*> at_anchor;
+  for (const Edge* e : edges)
+    if (e->src == anchor || e->tgt == anchor) at_anchor.push_back(e);
+  const Mat3 anchor_before = T.at(anchor);
+  if (!RefineGlobal(at_anchor, {anchor}, -1, half_diagonal, options, &T).ok) return;
+  const Mat3 regauge = anchor_before * T.at(anchor).inverse();
+  for (auto& [id, m] : T) m = regauge * m;
+  T[anchor] = anchor_before;
+}
+
+}  // namespace
+
 RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
                            const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
                            std::unordered_map<int, Mat3>* mosaic_from_frame) {
@@ -544,21 +566,7 @@ RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::uno
   const TransferStats initial = TransferErrors(edges, T);
   total.initial_rms_px = initial.rms;
   total.num_residuals = initial.count;
-  // The linear solution is shrunk towards its anchor (it gains by shrinking with noisy points), nearly uniformly: a
-  // mode no window can undo, since every window but the anchor's is pinned by frames shrunk alike. One solve moves
-  // the anchor alone onto its neighbours, then the whole mosaic is re-expressed so that the anchor is where it was.
-  if (anchor >= 0 && T.count(anchor) != 0) {
-    std::vector<const Edge*> at_anchor;
-    for (const Edge* e : edges)
-      if (e->src == anchor || e->tgt == anchor) at_anchor.push_back(e);
-    const Mat3 anchor_before = T.at(anchor);
-    const RefineResult ra = RefineGlobal(at_anchor, {anchor}, -1, half_diagonal, options, &T);
-    if (ra.ok) {
-      const Mat3 regauge = anchor_before * T.at(anchor).inverse();
-      for (auto& [id, m] : T) m = regauge * m;
-      T[anchor] = anchor_before;
-    }
-  }
+  ReexpressFromAnchor(edges, anchor, half_diagonal, options, &T);
   const size_t step = std::max<size_t>(1, window - window / 4);
   std::vector<std::pair<size_t, size_t>> windows;
   for (size_t start = 0; start < ids.size(); start += step) {

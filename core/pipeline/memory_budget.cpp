@@ -65,6 +65,14 @@ double QueuedFrameMiB(int work_width, int work_height, int max_features) {
 
 namespace {
 
+// The per-frame state's line: max_flight_frames of it, at most 15 % of the budget (a small budget covers a shorter
+// flight: frames_reserved).
+void ReserveFrameState(const PipelineOptions& o, MemoryPlan* p) {
+  p->graph_mib = std::min(std::max(0, o.max_flight_frames) * kGraphBytesPerFrame / kMiB,
+                          o.memory_budget_mib > 0 ? 0.15 * o.memory_budget_mib : HUGE_VAL);
+  p->frames_reserved = static_cast<int>(p->graph_mib * kMiB / kGraphBytesPerFrame);
+}
+
 double IndexMiB(int descriptors) {
   return descriptors * kBytesPerIndexedDescriptor / kMiB;
 }
@@ -111,10 +119,7 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   MemoryPlan p;
   p.budget_mib = o.memory_budget_mib;
   p.baseline_mib = kBaselineMiB;
-  // At most 15 % of the budget: a small budget covers a shorter flight (frames_reserved).
-  p.graph_mib = std::min(std::max(0, o.max_flight_frames) * kGraphBytesPerFrame / kMiB,
-                         o.memory_budget_mib > 0 ? 0.15 * o.memory_budget_mib : HUGE_VAL);
-  p.frames_reserved = static_cast<int>(p.graph_mib * kMiB / kGraphBytesPerFrame);
+  ReserveFrameState(o, &p);
   const double frame_mib = QueuedFrameMiB(work_width, work_height, o.features.max_features);
   // Besides the queue, frames in flight: one being loaded, one waiting for detection, one being detected and one
   // being registered.

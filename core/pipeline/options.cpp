@@ -42,6 +42,28 @@ std::vector<Field> LensFields(PipelineOptions& o) {
   };
 }
 
+// The end-of-flight solves' keys (the engine's adjust and refine).
+std::vector<Field> SolveFields(PipelineOptions& o) {
+  return {
+      {"adjust", "rigidity_weight", &o.adjust.rigidity_weight},
+      {"adjust", "relative_linear_weight", &o.adjust.relative_linear_weight},
+      {"adjust", "huber_px", &o.adjust.huber_px},
+      {"adjust", "robust_iterations", &o.adjust.robust_iterations},
+      {"adjust", "direct_max_frames", &o.adjust.direct_max_frames},
+      {"adjust", "max_iterative_steps", &o.adjust.max_iterative_steps},
+      {"refine", "huber_px", &o.refine.huber_px},
+      {"refine", "max_frames_per_solve", &o.refine.max_frames_per_solve},
+      {"refine", "nadir_weight", &o.refine.nadir_weight},
+      {"refine", "rigidity_weight", &o.refine.rigidity_weight},
+      {"refine", "max_perspective_ratio", &o.refine.max_perspective_ratio},
+      {"refine", "outlier_px", &o.refine.outlier_px},
+      {"refine", "max_iterations", &o.refine.max_iterations},
+      {"refine", "max_correspondences", &o.refine.max_correspondences},
+      {"refine", "max_seconds", &o.refine.max_seconds},
+      {"refine", "threads", &o.refine.threads},
+  };
+}
+
 std::vector<Field> SubpixelFields(PipelineOptions& o) {
   return {
       {"subpixel", "enabled", &o.subpixel.enabled},
@@ -111,22 +133,6 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"relocalization", "ratio", &o.relocalization.ratio},
       {"relocalization", "rebuild_every_frames", &o.relocalization.rebuild_every_frames},
       {"relocalization", "keyframe_spacing", &o.relocalization.keyframe_spacing},
-      {"adjust", "rigidity_weight", &o.adjust.rigidity_weight},
-      {"adjust", "relative_linear_weight", &o.adjust.relative_linear_weight},
-      {"adjust", "huber_px", &o.adjust.huber_px},
-      {"adjust", "robust_iterations", &o.adjust.robust_iterations},
-      {"adjust", "direct_max_frames", &o.adjust.direct_max_frames},
-      {"adjust", "max_iterative_steps", &o.adjust.max_iterative_steps},
-      {"refine", "huber_px", &o.refine.huber_px},
-      {"refine", "max_frames_per_solve", &o.refine.max_frames_per_solve},
-      {"refine", "nadir_weight", &o.refine.nadir_weight},
-      {"refine", "rigidity_weight", &o.refine.rigidity_weight},
-      {"refine", "max_perspective_ratio", &o.refine.max_perspective_ratio},
-      {"refine", "outlier_px", &o.refine.outlier_px},
-      {"refine", "max_iterations", &o.refine.max_iterations},
-      {"refine", "max_correspondences", &o.refine.max_correspondences},
-      {"refine", "max_seconds", &o.refine.max_seconds},
-      {"refine", "threads", &o.refine.threads},
       {"mosaic", "tile_size", &o.mosaic.tile_size},
       {"mosaic", "tiff_block", &o.mosaic.tiff_block},
       {"mosaic", "num_bands", &o.mosaic.num_bands},
@@ -173,6 +179,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"telemetry", "max_hold_s", &o.telemetry.max_hold_s},
       {"telemetry", "exif_utc_offset_s", &o.telemetry.exif_utc_offset_s},
   };
+  for (Field& f : SolveFields(o)) fields.push_back(std::move(f));
   for (Field& f : LensFields(o)) fields.push_back(std::move(f));
   for (Field& f : SubpixelFields(o)) fields.push_back(std::move(f));
   return fields;

@@ -67,6 +67,31 @@ SampleRow RowOf(const RadiometrySample& s, const std::unordered_map<int, int>& i
   return row;
 }
 
+// The summed normal equations as triplets (both halves of the symmetric matrix); `pair_sum` is freed.
+std::vector<Eigen::Triplet<double>> NormalTriplets(const Eigen::VectorXd& diagonal, const Eigen::MatrixXd& falloff_rows,
+                                                   std::unordered_map<uint64_t, double>* pair_sum_in) {
+  auto& pair_sum = *pair_sum_in;
+  const auto unknowns = static_cast<int>(diagonal.size());
+  const int n = unknowns - static_cast<int>(falloff_rows.rows());
+  std::vector<Eigen::Triplet<double>> t;
+  t.reserve(static_cast<size_t>(unknowns) + 2 * pair_sum.size() + 2 * static_cast<size_t>(falloff_rows.size()));
+  for (int i = 0; i < unknowns; ++i) t.emplace_back(i, i, diagonal[i]);
+  for (const auto& [key, v] : pair_sum) {
+    const auto i = static_cast<int>(key >> 32);
+    const auto j = static_cast<int>(key & 0xffffffffu);
+    t.emplace_back(i, j, v);
+    t.emplace_back(j, i, v);
+  }
+  for (int r = 0; r < unknowns - n; ++r)
+    for (int j = 0; j < unknowns; ++j) {
+      if (j == n + r || falloff_rows(r, j) == 0.0) continue;
+      t.emplace_back(n + r, j, falloff_rows(r, j));
+      if (j < n) t.emplace_back(j, n + r, falloff_rows(r, j));  // the gain rows' falloff columns
+    }
+  pair_sum = {};
+  return t;
+}
+
 // One weighted least-squares step: the normal equations with the gain prior (and a whisper of ridge on the falloff,
 // which keeps the system definite when radii barely differ). False when the factorisation fails.
 bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
@@ -101,22 +126,7 @@ bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unor
       }
     }
   }
-  std::vector<Eigen::Triplet<double>> t;
-  t.reserve(static_cast<size_t>(unknowns) + 2 * pair_sum.size() + 2 * static_cast<size_t>(falloff_rows.size()));
-  for (int i = 0; i < unknowns; ++i) t.emplace_back(i, i, diagonal[i]);
-  for (const auto& [key, v] : pair_sum) {
-    const auto i = static_cast<int>(key >> 32);
-    const auto j = static_cast<int>(key & 0xffffffffu);
-    t.emplace_back(i, j, v);
-    t.emplace_back(j, i, v);
-  }
-  for (int r = 0; r < unknowns - n; ++r)
-    for (int j = 0; j < unknowns; ++j) {
-      if (j == n + r || falloff_rows(r, j) == 0.0) continue;
-      t.emplace_back(n + r, j, falloff_rows(r, j));
-      if (j < n) t.emplace_back(j, n + r, falloff_rows(r, j));  // the gain rows' falloff columns
-    }
-  pair_sum = {};
+  const std::vector<Eigen::Triplet<double>> t = NormalTriplets(diagonal, falloff_rows, &pair_sum);
   Eigen::SparseMatrix<double> normal(unknowns, unknowns);
   normal.setFromTriplets(t.begin(), t.end());
   const Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(normal);
