@@ -299,41 +299,43 @@ TEST(GlobalRefiner, FixedFramesStayAndOptionsAreChecked) {
 namespace uavm {
 namespace {
 
-// A set of frames larger than max_frames_per_solve is refined in overlapping windows (bounded memory at the end of a
-// long flight): on a tilted, noisy flight the windows come within 5 % of the transfer error of one solve
-// over every frame and well below the affine start; a failing window leaves every map as it was. What the windows do
-// not recover is the weakly determined part of the tilts (a 1 degree tilt moves a frame's corners by a pixel): their
-// error against the truth stays above the one solve's (measured here: 0.51 px against 0.18, from 1.56).
-TEST(GlobalRefiner, WindowsOfFramesReachTheWholeSolvesError) {
+// A set of frames larger than max_frames_per_solve is solved by conjugate gradients (bounded memory at the end of a
+// long flight, no factorisation): on a tilted, noisy flight it reaches the factorisation's solution, against the
+// truth as well as in transfer error. (Windows of frames solved in turn with the others fixed, tried before, fitted the
+// transfers within 4 % but left 0.5-0.8 px against the truth where one solve had 0.18: the tilts are a soft mode of
+// the problem that block sweeps relax only slowly.)
+TEST(GlobalRefiner, ConjugateGradientsReachTheFactorisationsSolution) {
   const Scene s = MakeScene(1.0, 0.3, 5);
   const auto start = AffineStart(s);
   RefineOptions o;
   o.model = MotionModel::kHomography;
-  auto whole = start;
-  const RefineResult rw =
-      RefineBounded(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &whole);
-  ASSERT_TRUE(rw.ok) << rw.failure;
+  auto direct = start;
+  const RefineResult rd =
+      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &direct);
+  ASSERT_TRUE(rd.ok) << rd.failure;
+  EXPECT_FALSE(rd.iterative);
   o.max_frames_per_solve = 16;
-  auto windows = start;
+  auto iterative = start;
   const RefineResult r =
-      RefineBounded(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &windows);
+      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &iterative);
   ASSERT_TRUE(r.ok) << r.failure;
+  EXPECT_TRUE(r.iterative);
   const auto [start_rms, start_max] = ModelFreeError(s, start);
-  const auto [whole_rms, whole_max] = ModelFreeError(s, whole);
-  const auto [rms, max] = ModelFreeError(s, windows);
-  std::cerr << "model-free error RMS px: affine start " << start_rms << ", one solve " << whole_rms << ", windows "
-            << rms << "; transfer RMS whole " << rw.final_all_rms_px << ", windows " << r.final_all_rms_px << "\n";
-  EXPECT_LT(r.final_all_rms_px, 1.05 * rw.final_all_rms_px);
-  EXPECT_LT(rms, 0.5 * start_rms);
+  const auto [direct_rms, direct_max] = ModelFreeError(s, direct);
+  const auto [rms, max] = ModelFreeError(s, iterative);
+  std::cerr << "model-free error RMS px: affine start " << start_rms << ", factored " << direct_rms
+            << ", conjugate gradients " << rms << "; transfer RMS " << rd.final_all_rms_px << ", " << r.final_all_rms_px
+            << "\n";
+  EXPECT_LT(r.final_all_rms_px, 1.01 * rd.final_all_rms_px);
+  EXPECT_LT(rms, 1.05 * direct_rms);
+  EXPECT_LT(rms, 0.2 * start_rms);
   EXPECT_EQ(r.num_variables, s.truth.size() - 1);
-  EXPECT_GT(r.num_used, rw.num_used);  // the windows overlap: frames in two of them are solved twice
-  EXPECT_NEAR(r.initial_rms_px, rw.initial_rms_px, 1e-9);
-  EXPECT_LT(r.final_all_rms_px, 0.6 * r.initial_rms_px);
-  // A window that fails (a perspective beyond what is allowed) leaves every map at its start.
+  EXPECT_NEAR(r.initial_rms_px, rd.initial_rms_px, 1e-9);
+  // A solve that fails (a perspective beyond what is allowed) leaves every map at its start.
   o.max_perspective_ratio = 1.0000001;
   auto failed = start;
   const RefineResult rf =
-      RefineBounded(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &failed);
+      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &failed);
   EXPECT_FALSE(rf.ok);
   for (const auto& [id, m] : failed) EXPECT_TRUE(m.isApprox(start.at(id), 1e-15)) << id;
 }

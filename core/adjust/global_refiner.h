@@ -39,10 +39,11 @@ struct RefineOptions {
   int max_correspondences = 100000;
   double max_seconds = 0.0;  // 0 = no time limit
   int threads = 1;
-  // Frames one solve moves at most (RefineBounded): a larger set is refined in overlapping windows of consecutive
-  // frames, so that the factorisation's memory (which grows faster than the frames) has a fixed bound.
+  // Variable frames up to which the solve factors its normal equations (sparse Cholesky, whose fill-in grows faster
+  // than the frames); a larger set is solved by conjugate gradients (memory linear in the correspondences) with at
+  // most max_linear_iterations steps per Levenberg-Marquardt iteration.
   int max_frames_per_solve = 600;
-  int window_sweeps = 2;  // passes over the windows, alternately forward and back
+  int max_linear_iterations = 150;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -61,6 +62,7 @@ struct RefineResult {
   double final_all_rms_px = 0.0;  // over every correspondence of the edges
   size_t outliers = 0;            // correspondences removed by the outlier pass
   double seconds = 0.0;
+  bool iterative = false;  // conjugate gradients (more than max_frames_per_solve variable frames)
 };
 
 // Self-calibration of the lens inside the refinement. The edges' points were made ideal with `prepared`'s distortion
@@ -85,20 +87,13 @@ struct LensRefine {
 // error does not change when all maps are scaled together, so the solution has no pull to shrink the mosaic towards
 // its anchor. `anchor` (may be -1) keeps its affine part fixed — the gauge — while its perspective row stays free;
 // other frames that edges touch but `variable` does not hold stay fixed. `half_diagonal` is per variable frame.
+// Memory: at most options.max_correspondences points; beyond max_frames_per_solve variable frames no factorisation
+// (conjugate gradients preconditioned by a spanning tree of the edges, factored without fill-in), so what the solve
+// holds grows with the points, which are capped, and only linearly with the frames.
 [[nodiscard]] RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                         int anchor, const std::unordered_map<int, double>& half_diagonal,
                                         const RefineOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame,
                                         LensRefine* lens = nullptr);
-
-// RefineGlobal over at most options.max_frames_per_solve variable frames at a time: all of them at once when they are
-// that few; else windows of that many frames consecutive along a Hilbert curve over their mosaic positions (compact
-// blocks of ground), each overlapping the previous by a quarter, swept forward and back (window_sweeps) with every
-// other frame fixed at its current map (the anchor keeps its affine part in the windows next to it). On a window's
-// failure the maps are left as they were. The result sums the windows' figures; its RMS figures are over every edge.
-[[nodiscard]] RefineResult RefineBounded(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
-                                         int anchor, const std::unordered_map<int, double>& half_diagonal,
-                                         const RefineOptions& options,
-                                         std::unordered_map<int, Mat3>* mosaic_from_frame);
 
 struct TransferStats {
   size_t count = 0;

@@ -53,6 +53,7 @@ std::vector<Field> SolveFields(PipelineOptions& o) {
       {"adjust", "max_iterative_steps", &o.adjust.max_iterative_steps},
       {"refine", "huber_px", &o.refine.huber_px},
       {"refine", "max_frames_per_solve", &o.refine.max_frames_per_solve},
+      {"refine", "max_linear_iterations", &o.refine.max_linear_iterations},
       {"refine", "nadir_weight", &o.refine.nadir_weight},
       {"refine", "rigidity_weight", &o.refine.rigidity_weight},
       {"refine", "max_perspective_ratio", &o.refine.max_perspective_ratio},

@@ -687,13 +687,13 @@ void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const
   s->holdout_linear = TransferErrors(edges, mosaic_from_work_, true);
   StageTimer refine_timer;
   EnterPhase("refine");
-  RefineResult rr = RefineBounded(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
+  RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
   s->model = options_.refine.model;
   if (!rr.ok && options_.refine.model == MotionModel::kHomography) {
     spdlog::warn("homography refinement refused ({}); refining affine maps instead", rr.failure);
     RefineOptions affine = options_.refine;
     affine.model = MotionModel::kAffine;
-    rr = RefineBounded(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
+    rr = RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
     s->model = MotionModel::kAffine;
   }
   s->refine = rr;
