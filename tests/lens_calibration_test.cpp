@@ -22,8 +22,10 @@ struct Flight {
 };
 
 // A 5 x 4 grid of frames (150 px apart across, 120 along: ~75 % overlap), each turned a little; every pair of frames
-// closer than 260 px gets 60 matched points and 20 held-out ones, recorded through `lens` with `noise_px`.
-Flight MakeFlight(const PinholeCamera& lens, double noise_px, unsigned seed) {
+// closer than 260 px gets 60 matched points and 20 held-out ones, recorded through `lens` with `noise_px` (frames 10
+// to 19, the second half, through `second_half_lens` when there is one).
+Flight MakeFlight(const PinholeCamera& lens, double noise_px, unsigned seed,
+                  const PinholeCamera* second_half_lens = nullptr) {
   Flight f;
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> turn(-0.15, 0.15);
@@ -37,8 +39,11 @@ Flight MakeFlight(const PinholeCamera& lens, double noise_px, unsigned seed) {
   std::uniform_real_distribution<double> ux(0, kW - 1), uy(0, kH - 1);
   std::normal_distribution<double> noise(0, noise_px);
   const auto inside = [](const Vec2& p) { return p.x() >= 0 && p.y() >= 0 && p.x() <= kW - 1 && p.y() <= kH - 1; };
-  const auto record = [&](const Vec2& ideal) -> Vec2 {
-    return lens.DistortPixel(ideal) + Vec2(noise(rng), noise(rng));
+  const auto lens_of = [&](int frame) -> const PinholeCamera& {
+    return second_half_lens != nullptr && frame >= 10 ? *second_half_lens : lens;
+  };
+  const auto record = [&](int frame, const Vec2& ideal) -> Vec2 {
+    return lens_of(frame).DistortPixel(ideal) + Vec2(noise(rng), noise(rng));
   };
   for (int i = 0; i < 20; ++i)
     for (int j = i + 1; j < 20; ++j) {
@@ -52,10 +57,10 @@ Flight MakeFlight(const PinholeCamera& lens, double noise_px, unsigned seed) {
         const Vec2 p(ux(rng), uy(rng));
         const Vec2 q = Apply(tgt_from_src, p);
         // Recorded pixels must exist: the distorted positions inside the frame.
-        if (!inside(q) || !inside(lens.DistortPixel(p)) || !inside(lens.DistortPixel(q))) continue;
+        if (!inside(q) || !inside(lens_of(i).DistortPixel(p)) || !inside(lens_of(j).DistortPixel(q))) continue;
         const bool kept = e.src_points.size() < 60;
-        (kept ? e.src_points : e.holdout_src_points).push_back(record(p));
-        (kept ? e.tgt_points : e.holdout_tgt_points).push_back(record(q));
+        (kept ? e.src_points : e.holdout_src_points).push_back(record(i, p));
+        (kept ? e.tgt_points : e.holdout_tgt_points).push_back(record(j, q));
       }
       e.num_inliers = static_cast<int>(e.src_points.size());
       if (e.src_points.size() == 60) f.edges.push_back(std::move(e));
@@ -224,6 +229,45 @@ TEST(LensCalibrationTest, AWeakButConsistentLensIsAcceptedOnEvidenceNotOnSize) {
   EXPECT_GT(cal.holdout_gain_t, 3.0);
   EXPECT_GT(cal.holdout_with_px, 0.97 * cal.holdout_without_px);
   EXPECT_NEAR(cal.distortion_at_half_diagonal, -0.003, 0.0015);
+}
+
+// What a lens absorbs that is not the lens (tilts, relief, a rolling shutter) changes along the flight; a lens does
+// not. Here the first half of the flight is recorded through a barrel of 1 % at the half-diagonal and the second half
+// through none: one shared lens fits the held-out points better (the paired test alone would take it), but the halves,
+// estimated alone, disagree, and it is refused. Each half's own lens is what it was recorded with.
+TEST(LensCalibrationTest, ALensTheHalvesOfTheFlightDisagreeOnIsRefused) {
+  const PinholeCamera none = Ideal();
+  Flight f = MakeFlight(BarrelLens(-0.01), 0.3, 7, &none);
+  Solved s = SolveLinear(f);
+  const LensCalibration cal = Calibrate(s, Ideal());
+  ASSERT_TRUE(cal.tried);
+  EXPECT_FALSE(cal.accepted);
+  EXPECT_NE(cal.why.find("halves"), std::string::npos) << cal.why;
+  EXPECT_GT(cal.holdout_gain_t, 3.0);  // what the paired test alone would have accepted
+  EXPECT_NEAR(cal.half_a_at_half_diagonal, -0.01, 0.002);
+  EXPECT_NEAR(cal.half_b_at_half_diagonal, 0.0, 0.002);
+  // The same flight with one lens throughout: the halves agree and it is accepted.
+  Flight one = MakeFlight(BarrelLens(-0.01), 0.3, 7);
+  Solved s1 = SolveLinear(one);
+  const LensCalibration cal1 = Calibrate(s1, Ideal());
+  EXPECT_TRUE(cal1.accepted) << cal1.why;
+  EXPECT_NEAR(cal1.half_a_at_half_diagonal, cal1.half_b_at_half_diagonal, 0.002);
+  // With the check off, the paired test alone accepts the first flight's lens.
+  LensCalibrationOptions off;
+  off.max_halves_disagreement = 0;
+  EXPECT_TRUE(Calibrate(s, Ideal(), off).accepted);
+}
+
+// A lens that moves the half-diagonal by less than min_effect_px is no lens, however significant.
+TEST(LensCalibrationTest, ALensTooSmallToMatterIsRefused) {
+  Flight f = MakeFlight(BarrelLens(-0.003), 0.3, 5);
+  Solved s = SolveLinear(f);
+  LensCalibrationOptions strict;
+  strict.min_effect_px = 2.0;  // the lens moves the half-diagonal by ~1 px
+  const LensCalibration cal = Calibrate(s, Ideal(), strict);
+  EXPECT_FALSE(cal.accepted);
+  EXPECT_NE(cal.why.find("too small to matter"), std::string::npos) << cal.why;
+  EXPECT_TRUE(Calibrate(s, Ideal()).accepted);  // the default floor, a quarter pixel, lets it through
 }
 
 TEST(LensCalibrationTest, UndistortionAndDistortionConvertBothWays) {

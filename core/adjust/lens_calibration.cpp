@@ -3,8 +3,10 @@
 #include <spdlog/spdlog.h>
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <cmath>
 #include <future>
+#include <tuple>
 
 #include "core/util/clock.h"
 
@@ -12,12 +14,12 @@ namespace uavm {
 
 bool LensCalibrationOptions::Check(std::string* why) const {
   if (min_frames < 2 || max_correspondences < 100 || !(min_holdout_gain >= 0 && min_holdout_gain < 1) ||
-      !(min_holdout_t >= 0) || !(max_distortion > 0 && max_distortion < 1) || !(prior_weight >= 0)) {
+      !(min_holdout_t >= 0) || !(max_distortion > 0 && max_distortion < 1) || !(prior_weight >= 0) ||
+      !(min_effect_px >= 0) || !(max_halves_disagreement >= 0)) {
     if (why != nullptr)
       *why =
           "lens_calibration: min_frames >= 2, max_correspondences >= 100, min_holdout_gain in [0,1), min_holdout_t >= "
-          "0, "
-          "max_distortion in (0,1), prior_weight >= 0";
+          "0, max_distortion in (0,1), prior_weight >= 0, min_effect_px >= 0, max_halves_disagreement >= 0";
     return false;
   }
   return true;
@@ -114,6 +116,52 @@ void ReprojectEdgePoints(const PinholeCamera& prepared, const LensDistortion& ca
     for (Vec2& p : *points) p = to.UndistortPixel(prepared.DistortPixel(p));
 }
 
+namespace {
+
+// The lens estimated on the frames of one half alone (their edges among themselves; the half's first frame, or the
+// anchor when it is there, holds the gauge): its distortion at the half-diagonal, NaN when the solve failed or the
+// half is too small.
+double LensOfHalf(const std::vector<const Edge*>& edges, const std::vector<int>& half, int anchor,
+                  const std::unordered_map<int, double>& half_diagonal, const RefineOptions& subset,
+                  const PinholeCamera& prepared, const LensRefine& start_lens,
+                  const std::unordered_map<int, Mat3>& start) {
+  const std::unordered_set<int> members(half.begin(), half.end());
+  const int gauge = members.count(anchor) != 0 ? anchor : half.front();
+  std::unordered_set<int> variable = members;
+  variable.erase(gauge);
+  std::vector<const Edge*> inside;
+  for (const Edge* e : edges)
+    if (members.count(e->src) != 0 && members.count(e->tgt) != 0) inside.push_back(e);
+  if (variable.size() < 2 || inside.size() < 3) return std::nan("");
+  LensRefine lens = start_lens;
+  std::unordered_map<int, Mat3> maps;
+  for (int id : half) maps[id] = start.at(id);
+  if (!RefineGlobal(inside, variable, gauge, half_diagonal, subset, &maps, &lens).ok) return std::nan("");
+  PinholeCamera estimated = prepared;
+  estimated.distortion = DistortionFromUndistortion(lens.undistortion, 1.05 * prepared.HalfDiagonalRadius());
+  return estimated.RadialDistortionAtHalfDiagonal();
+}
+
+// Both halves' lenses, each on its own thread.
+std::pair<double, double> LensOfHalves(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
+                                       int anchor, const std::unordered_map<int, double>& half_diagonal,
+                                       const RefineOptions& subset, const PinholeCamera& prepared,
+                                       const LensRefine& start_lens, const std::unordered_map<int, Mat3>& start) {
+  std::vector<int> frames(variable.begin(), variable.end());
+  if (anchor >= 0) frames.push_back(anchor);
+  std::sort(frames.begin(), frames.end());
+  const auto middle = frames.begin() + static_cast<long>(frames.size() / 2);
+  const std::vector<int> lower(frames.begin(), middle);
+  const std::vector<int> upper(middle, frames.end());
+  auto a = std::async(std::launch::async, [&] {
+    return LensOfHalf(edges, lower, anchor, half_diagonal, subset, prepared, start_lens, start);
+  });
+  const double b = LensOfHalf(edges, upper, anchor, half_diagonal, subset, prepared, start_lens, start);
+  return {a.get(), b};
+}
+
+}  // namespace
+
 LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                               int anchor, const std::unordered_map<int, double>& half_diagonal,
                               const RefineOptions& refine, const PinholeCamera& prepared,
@@ -143,6 +191,7 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   lens.prepared = prepared;
   lens.undistortion = UndistortionFromDistortion(d0, max_radius);
   lens.prior_weight = options.prior_weight;
+  const LensRefine start_lens = lens;
   std::unordered_map<int, Mat3> with = start;
   const RefineResult r1 = RefineGlobal(edges, variable, anchor, half_diagonal, subset, &with, &lens);
   const RefineResult r0 = r0_future.get();
@@ -165,6 +214,8 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   PinholeCamera estimated = prepared;
   estimated.distortion = cal.distortion;
   cal.distortion_at_half_diagonal = estimated.RadialDistortionAtHalfDiagonal();
+  const double effect_px =
+      std::abs(cal.distortion_at_half_diagonal) * 0.5 * std::hypot(prepared.width, prepared.height);
   if (h1.count < 50) {
     cal.why = "too few held-out correspondences (" + std::to_string(h1.count) + ") to judge a lens";
   } else if (!(std::abs(cal.distortion_at_half_diagonal) <= options.max_distortion)) {
@@ -173,14 +224,27 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
     cal.why = "the flight does not determine the lens: held-out RMS " + std::to_string(h0.rms) + " -> " +
               std::to_string(h1.rms) + " px, paired t " + std::to_string(paired.t) + " over " +
               std::to_string(paired.edges) + " edges";
+  } else if (!(effect_px >= options.min_effect_px)) {
+    cal.why = "too small to matter: " + std::to_string(effect_px) + " px at the half-diagonal";
+  } else if (options.max_halves_disagreement > 0) {
+    std::tie(cal.half_a_at_half_diagonal, cal.half_b_at_half_diagonal) =
+        LensOfHalves(edges, variable, anchor, half_diagonal, subset, prepared, start_lens, start);
+    const double disagreement = std::abs(cal.half_a_at_half_diagonal - cal.half_b_at_half_diagonal);
+    if (!(disagreement <= options.max_halves_disagreement * std::abs(cal.distortion_at_half_diagonal)))
+      cal.why = "the halves of the flight disagree: " + std::to_string(cal.half_a_at_half_diagonal) + " and " +
+                std::to_string(cal.half_b_at_half_diagonal) + " at the half-diagonal";
+    else
+      cal.accepted = true;
   } else {
     cal.accepted = true;
   }
+  cal.seconds = timer.ElapsedMs() / 1000.0;
   spdlog::info(
-      "lens self-calibration {}: k1 {:.4f} k2 {:.4f} ({:+.3f} at the half-diagonal), held-out RMS {:.3f} -> "
-      "{:.3f} px over {} points (paired t {:.2f} over {} edges), {:.1f} s{}{}",
+      "lens self-calibration {}: k1 {:.4f} k2 {:.4f} ({:+.4f} at the half-diagonal; halves {:+.4f} {:+.4f}), "
+      "held-out RMS {:.3f} -> {:.3f} px over {} points (paired t {:.2f} over {} edges), {:.1f} s{}{}",
       cal.accepted ? "accepted" : "refused", cal.distortion.k1, cal.distortion.k2, cal.distortion_at_half_diagonal,
-      h0.rms, h1.rms, h1.count, paired.t, paired.edges, cal.seconds, cal.why.empty() ? "" : ": ", cal.why);
+      cal.half_a_at_half_diagonal, cal.half_b_at_half_diagonal, h0.rms, h1.rms, h1.count, paired.t, paired.edges,
+      cal.seconds, cal.why.empty() ? "" : ": ", cal.why);
   return cal;
 }
 

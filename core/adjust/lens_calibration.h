@@ -1,6 +1,7 @@
 #pragma once
 // Self-calibration of the lens's radial distortion from the pose-free correspondences of a solved flight.
 #include <array>
+#include <cmath>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -22,7 +23,14 @@ struct LensCalibrationOptions {
   double min_holdout_t = 3.0;
   double min_holdout_gain = 0.0;
   double max_distortion = 0.3;  // |k1 r^2 + k2 r^4| at the half-diagonal; beyond it no camera a drone flies
-  double prior_weight = 0.05;   // LensRefine::prior_weight
+  // A lens must matter: it moves the half-diagonal by at least this many working pixels (a lens of 0.0 % is no lens,
+  // however many edges make it "significant").
+  double min_effect_px = 0.25;
+  // One lens for the whole flight: estimated again on each half of the frames (lower and upper ids: different strips,
+  // different times), the two must agree, |d_a - d_b| <= max_halves_disagreement x |d| at the half-diagonal. Model
+  // error a lens absorbs (tilts, relief, a rolling shutter) changes along the flight; a lens does not. 0 = off.
+  double max_halves_disagreement = 1.0;
+  double prior_weight = 0.05;  // LensRefine::prior_weight
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -40,7 +48,10 @@ struct LensCalibration {
   size_t holdout_points = 0;
   size_t holdout_edges = 0;     // edges with held-out points in both solves: the paired test's samples
   double holdout_gain_t = 0.0;  // the paired test's statistic (mean per-edge drop / its standard error)
-  size_t used = 0;              // correspondences in the two solves
+  // The lens estimated on each half of the frames alone (distortion at the half-diagonal; NaN: not estimated).
+  double half_a_at_half_diagonal = std::nan("");
+  double half_b_at_half_diagonal = std::nan("");
+  size_t used = 0;  // correspondences in the two solves
   double seconds = 0.0;
 };
 

@@ -39,6 +39,8 @@ std::vector<Field> LensFields(PipelineOptions& o) {
       {"lens_calibration", "min_holdout_t", &o.lens_calibration.min_holdout_t},
       {"lens_calibration", "max_distortion", &o.lens_calibration.max_distortion},
       {"lens_calibration", "prior_weight", &o.lens_calibration.prior_weight},
+      {"lens_calibration", "min_effect_px", &o.lens_calibration.min_effect_px},
+      {"lens_calibration", "max_halves_disagreement", &o.lens_calibration.max_halves_disagreement},
   };
 }
 
