@@ -206,6 +206,11 @@ TEST(SimOnboardE2ETest, OneDegreeTiltWithTheHomographyModelGoesBelowTheAffineFlo
   int projective = 0;
   for (const auto& r : rows) projective += IsAffine(r.mosaic_from_frame, 1e-12) ? 0 : 1;
   EXPECT_GT(projective, 2 * kFrames / 3);  // the session carries the perspective rows (h20, h21)
+  // Affine maps were refined too (refine.choose_model) and lost on the held-out correspondences.
+  ASSERT_TRUE(ReadTextFile((run.dir / "session/report.json").string(), &text, &err)) << err;
+  const auto report = nlohmann::json::parse(text);
+  EXPECT_EQ(report["model"], "homography");
+  EXPECT_GT(report["refine"]["holdout_other_model_rms_px"].get<double>(), report["holdout_rms_px"].get<double>());
   fs::remove_all(run.dir);
 }
 

@@ -32,12 +32,12 @@ bool ParseMotionModel(const std::string& text, MotionModel* model) {
 bool RefineOptions::Check(std::string* why) const {
   if (!(huber_px > 0) || !(nadir_weight >= 0) || !(rigidity_weight >= 0) || max_iterations < 1 || !(max_seconds >= 0) ||
       threads < 1 || threads > 64 || !(max_perspective_ratio > 1) || max_correspondences < 100 || !(outlier_px >= 0) ||
-      max_frames_per_solve < 2 || max_linear_iterations < 1) {
+      max_frames_per_solve < 2 || max_linear_iterations < 1 || !(homography_min_gain >= 0 && homography_min_gain < 1)) {
     if (why != nullptr)
       *why =
           "refine: huber_px > 0, weights >= 0, max_iterations >= 1, max_seconds >= 0, threads in [1,64], "
           "max_perspective_ratio > 1, max_correspondences >= 100, outlier_px >= 0, max_frames_per_solve >= 2, "
-          "max_linear_iterations >= 1";
+          "max_linear_iterations >= 1, homography_min_gain in [0,1)";
     return false;
   }
   return true;

@@ -15,11 +15,12 @@ namespace uavm {
 bool LensCalibrationOptions::Check(std::string* why) const {
   if (min_frames < 2 || max_correspondences < 100 || !(min_holdout_gain >= 0 && min_holdout_gain < 1) ||
       !(min_holdout_t >= 0) || !(max_distortion > 0 && max_distortion < 1) || !(prior_weight >= 0) ||
-      !(min_effect_px >= 0) || !(max_halves_disagreement >= 0)) {
+      !(min_effect_px >= 0) || !(max_halves_disagreement >= 0) || !(halves_below_gain >= 0 && halves_below_gain < 1)) {
     if (why != nullptr)
       *why =
           "lens_calibration: min_frames >= 2, max_correspondences >= 100, min_holdout_gain in [0,1), min_holdout_t >= "
-          "0, max_distortion in (0,1), prior_weight >= 0, min_effect_px >= 0, max_halves_disagreement >= 0";
+          "0, max_distortion in (0,1), prior_weight >= 0, min_effect_px >= 0, max_halves_disagreement >= 0, "
+          "halves_below_gain in [0,1)";
     return false;
   }
   return true;
@@ -226,7 +227,7 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
               std::to_string(paired.edges) + " edges";
   } else if (!(effect_px >= options.min_effect_px)) {
     cal.why = "too small to matter: " + std::to_string(effect_px) + " px at the half-diagonal";
-  } else if (options.max_halves_disagreement > 0) {
+  } else if (options.max_halves_disagreement > 0 && h1.rms > (1.0 - options.halves_below_gain) * h0.rms) {
     std::tie(cal.half_a_at_half_diagonal, cal.half_b_at_half_diagonal) =
         LensOfHalves(edges, variable, anchor, half_diagonal, subset, prepared, start_lens, start);
     const double disagreement = std::abs(cal.half_a_at_half_diagonal - cal.half_b_at_half_diagonal);

@@ -45,6 +45,7 @@ void Mosaicker::ReportRegistration(nlohmann::json* out) const {
                       {"outliers_removed", solution_.refine.outliers},
                       {"solver_correspondences", solution_.refine.num_used},
                       {"holdout_linear_rms_px", solution_.holdout_linear.rms},
+                      {"holdout_other_model_rms_px", solution_.holdout_other_model_rms},
                       {"correspondences", solution_.refine.num_residuals},
                       {"seconds", solution_.refine.seconds}};
   const RegistrationCounters rc = engine_.counters();

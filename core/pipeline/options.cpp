@@ -41,6 +41,7 @@ std::vector<Field> LensFields(PipelineOptions& o) {
       {"lens_calibration", "prior_weight", &o.lens_calibration.prior_weight},
       {"lens_calibration", "min_effect_px", &o.lens_calibration.min_effect_px},
       {"lens_calibration", "max_halves_disagreement", &o.lens_calibration.max_halves_disagreement},
+      {"lens_calibration", "halves_below_gain", &o.lens_calibration.halves_below_gain},
   };
 }
 
@@ -56,6 +57,8 @@ std::vector<Field> SolveFields(PipelineOptions& o) {
       {"refine", "huber_px", &o.refine.huber_px},
       {"refine", "max_frames_per_solve", &o.refine.max_frames_per_solve},
       {"refine", "max_linear_iterations", &o.refine.max_linear_iterations},
+      {"refine", "choose_model", &o.refine.choose_model},
+      {"refine", "homography_min_gain", &o.refine.homography_min_gain},
       {"refine", "nadir_weight", &o.refine.nadir_weight},
       {"refine", "rigidity_weight", &o.refine.rigidity_weight},
       {"refine", "max_perspective_ratio", &o.refine.max_perspective_ratio},

@@ -661,6 +661,43 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
   return true;
 }
 
+// The refinement with the configured model; with the homography model, affine maps too when choose_model is set
+// (the homographies are kept only when they fit the held-out points better by homography_min_gain) or when the
+// homographies are refused.
+RefineResult RegistrationEngine::RefineAndChooseModel(const std::vector<const Edge*>& edges,
+                                                      const std::unordered_set<int>& variable, int anchor,
+                                                      const std::unordered_map<int, double>& half_diag, Solution* s) {
+  RefineOptions affine = options_.refine;
+  affine.model = MotionModel::kAffine;
+  std::unordered_map<int, Mat3> affine_maps;
+  if (options_.refine.model == MotionModel::kHomography) affine_maps = mosaic_from_work_;
+  RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
+  s->model = options_.refine.model;
+  if (options_.refine.model != MotionModel::kHomography) return rr;
+  if (!rr.ok) {
+    spdlog::warn("homography refinement refused ({}); refining affine maps instead", rr.failure);
+    mosaic_from_work_ = std::move(affine_maps);
+    s->model = MotionModel::kAffine;
+    return RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
+  }
+  if (!options_.refine.choose_model) return rr;
+  const RefineResult ra = RefineGlobal(edges, variable, anchor, half_diag, affine, &affine_maps);
+  if (!ra.ok) return rr;
+  const double homography_rms = TransferErrors(edges, mosaic_from_work_, true).rms;
+  const double affine_rms = TransferErrors(edges, affine_maps, true).rms;
+  const bool keep_homographies = homography_rms < (1.0 - options_.refine.homography_min_gain) * affine_rms;
+  spdlog::info("refinement models: held-out RMS {:.4f} px with homographies, {:.4f} with affines: {} kept",
+               homography_rms, affine_rms, keep_homographies ? "homographies" : "affines");
+  if (keep_homographies) {
+    s->holdout_other_model_rms = affine_rms;
+    return rr;
+  }
+  s->holdout_other_model_rms = homography_rms;
+  mosaic_from_work_ = std::move(affine_maps);
+  s->model = MotionModel::kAffine;
+  return ra;
+}
+
 // Re-anchors on the component's first frame (identity), solves all of it linearly, then refines: transfer errors in
 // frame pixels (no pull to shrink towards the anchor) and, with the homography model, each frame's perspective.
 void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish,
@@ -687,15 +724,7 @@ void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const
   s->holdout_linear = TransferErrors(edges, mosaic_from_work_, true);
   StageTimer refine_timer;
   EnterPhase("refine");
-  RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
-  s->model = options_.refine.model;
-  if (!rr.ok && options_.refine.model == MotionModel::kHomography) {
-    spdlog::warn("homography refinement refused ({}); refining affine maps instead", rr.failure);
-    RefineOptions affine = options_.refine;
-    affine.model = MotionModel::kAffine;
-    rr = RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
-    s->model = MotionModel::kAffine;
-  }
+  const RefineResult rr = RefineAndChooseModel(edges, variable, anchor, half_diag, s);
   s->refine = rr;
   s->refine_ms = refine_timer.ElapsedMs();
   s->holdout_final = TransferErrors(edges, mosaic_from_work_, true);

@@ -116,6 +116,8 @@ struct Solution {
   double median_px = 0.0;
   RefineResult refine;
   MotionModel model = MotionModel::kAffine;
+  // With refine.choose_model: the held-out RMS of the model not kept (0: only one was refined).
+  double holdout_other_model_rms = 0.0;
   TransferStats holdout_linear;  // held-out correspondences under the linear solution, then the final one
   TransferStats holdout_final;
   TransferStats holdout_inliers;  // of those, the ones within refine.outlier_px
@@ -240,6 +242,8 @@ class RegistrationEngine {
   void Place(int id);
   [[nodiscard]] Solution FinishSolve();
   void SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish, Solution* s);
+  RefineResult RefineAndChooseModel(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
+                                    int anchor, const std::unordered_map<int, double>& half_diag, Solution* s);
   void EnterPhase(const char* name) const {
     if (enter_phase_) enter_phase_(name);
   }

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# lens_rates.sh DATA_DIR [OUT_DIR]
+#
+# False- and true-positive rates of the lens self-calibration's decision (issue 35). Simulated 640x480 flights over
+# DATA_DIR/caliterra/images/IMG_9360.jpg with yaw and altitude jitter, tilts, noise and blur
+# (bench/plans/lens_jitter.yaml; lens_jitter_hard.yaml has stronger jitter and tilts): flights without a lens (any
+# lens accepted is a false positive) and flights with a barrel lens of -5, -10 and -15 % at the half-diagonal
+# (accepted, and a true RMS of at most 0.3 px with the session's lens, is a true positive). Each flight through
+# uavmosaic-onboard with the defaults and scored by uavmosaic-eval against the truth. One line per flight, then the rates.
+#
+# Environment: HARD_SEEDS (default "11 .. 20", lens-free on lens_jitter_hard.yaml), EASY_SEEDS (default "21 .. 30",
+# lens-free on lens_jitter.yaml), LENS_SEEDS (default "31 .. 40", barrels cycling -5/-10/-15 % on lens_jitter.yaml),
+# UAVM_BUILD_DIR (default <repo>/build).
+set -euo pipefail
+SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+REPO=$(dirname "$SCRIPT_DIR")
+[[ $# -ge 1 ]] || { sed -n '2,14p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2; exit 2; }
+DATA_DIR=$(cd "$1" && pwd)
+OUT=${2:-$(mktemp -d "${TMPDIR:-/tmp}/uavm_lens_rates.XXXXXX")}
+mkdir -p "$OUT"
+B=${UAVM_BUILD_DIR:-$REPO/build}
+CANVAS=$DATA_DIR/caliterra/images/IMG_9360.jpg
+# k1 for a share of the half-diagonal: the sim's focal is the frame width (640), so the half-diagonal is at r = 0.625.
+k1_for() { awk -v s="$1" 'BEGIN { printf "%.5f", s / (0.625 * 0.625) }'; }
+fp=0 n0=0 tp=0 n1=0
+one() {  # NAME PLAN SEED K1 -> prints a line; sets ACCEPTED and RMS
+  local n=$OUT/$1 ev=()
+  { cat "$2"; echo "seed: $3"; echo "k1: $4"; } >"$n.yaml"
+  [[ -f $n/gt.csv ]] || "$B/tools/uavmosaic-sim" --plan "$n.yaml" --canvas "$CANVAS" --out "$n" >"$n.sim.log" 2>&1
+  "$B/firmware_app/uavmosaic-onboard" --source "replay:$n/images" --out "$n.out" --no-tiff >"$n.log" 2>&1
+  [[ -f $n.out/camera.yaml ]] && ev=(--session-camera "$n.out/camera.yaml")
+  "$B/tools/uavmosaic-eval" --session "$n.out" --gt "$n/gt.csv" --json "$n.eval.json" "${ev[@]}" --no-photometric \
+    >"$n.eval.log" 2>&1
+  RMS=$(jq -r '.rms_px' "$n.eval.json")
+  ACCEPTED=0
+  grep -q 'self-calibration accepted' "$n.log" && ACCEPTED=1
+  echo "$1 (k1 $4): true RMS $RMS px; $(grep -o 'lens self-calibration [a-z]*: .*edges)' "$n.log" | head -1)"
+}
+for s in ${HARD_SEEDS-11 12 13 14 15 16 17 18 19 20}; do
+  one "hard_${s}_none" "$SCRIPT_DIR/plans/lens_jitter_hard.yaml" "$s" 0
+  n0=$((n0 + 1)) fp=$((fp + ACCEPTED))
+done
+for s in ${EASY_SEEDS-21 22 23 24 25 26 27 28 29 30}; do
+  one "jitter_${s}_none" "$SCRIPT_DIR/plans/lens_jitter.yaml" "$s" 0
+  n0=$((n0 + 1)) fp=$((fp + ACCEPTED))
+done
+shares=(-0.05 -0.10 -0.15)
+i=0
+for s in ${LENS_SEEDS-31 32 33 34 35 36 37 38 39 40}; do
+  share=${shares[$((i % 3))]}
+  i=$((i + 1))
+  one "barrel_${s}_${share}" "$SCRIPT_DIR/plans/lens_jitter.yaml" "$s" "$(k1_for "$share")"
+  n1=$((n1 + 1))
+  ((ACCEPTED == 1)) && awk -v r="$RMS" 'BEGIN { exit !(r <= 0.3) }' && tp=$((tp + 1))
+done
+echo "false positives: $fp of $n0 flights without a lens; true positives (accepted, true RMS <= 0.3 px): $tp of $n1 flights with a barrel of -5 to -15 %"
