@@ -175,10 +175,15 @@ bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector
   std::vector<Vec2> mosaic_pts, canvas_pts;
   std::vector<double> weights, scales;
   std::vector<size_t> owner;
+  int registered = 0;
   for (size_t f = 0; f < gt.size(); ++f) {
     if (match[f] == nullptr) continue;
+    ++registered;
     for (const Vec2& p : grid) {
       const Vec2 ideal = Undistorted(options.truth_camera, p);
+      // A strong barrel folds before the frame's corners: a recorded pixel there has no ideal preimage (its
+      // undistortion does not round-trip), so the truth says nothing about it.
+      if (options.truth_camera && (options.truth_camera->DistortPixel(ideal) - p).norm() > 1e-3) continue;
       const double s = LocalScale(gt[f].canvas_from_frame, ideal);
       mosaic_pts.push_back(Apply(match[f]->mosaic_from_frame, Undistorted(options.session_camera, p)));
       canvas_pts.push_back(Apply(gt[f].canvas_from_frame, ideal));
@@ -188,7 +193,7 @@ bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector
     }
   }
   result->frames = static_cast<int>(gt.size());
-  result->registered = static_cast<int>(mosaic_pts.size() / grid.size());
+  result->registered = registered;
   result->registered_share = static_cast<double>(result->registered) / static_cast<double>(result->frames);
   if (result->registered == 0) {
     *error = "no registered frame matches the ground truth";
@@ -201,10 +206,12 @@ bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector
 
   result->per_frame.resize(gt.size());
   std::vector<double> sum_sq(gt.size(), 0.0);
+  std::vector<size_t> points(gt.size(), 0);  // grid points of each frame the truth covers
   double total_sq = 0.0;
   for (size_t k = 0; k < mosaic_pts.size(); ++k) {
     const double e = (Apply(result->canvas_from_mosaic, mosaic_pts[k]) - canvas_pts[k]).norm() / scales[k];
     sum_sq[owner[k]] += e * e;
+    ++points[owner[k]];
     total_sq += e * e;
     result->per_frame[owner[k]].max_px = std::max(result->per_frame[owner[k]].max_px, e);
     result->max_px = std::max(result->max_px, e);
@@ -221,7 +228,7 @@ bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector
     fe.registered = match[f] != nullptr;
     fe.path_length_px = path;
     if (fe.registered) {
-      fe.rms_px = std::sqrt(sum_sq[f] / static_cast<double>(grid.size()));
+      fe.rms_px = points[f] > 0 ? std::sqrt(sum_sq[f] / static_cast<double>(points[f])) : 0.0;
       reg.push_back(f);
     }
   }
@@ -230,8 +237,12 @@ bool EvaluateSession(const std::vector<TransformRow>& session, const std::vector
   const size_t third = std::max<size_t>(1, reg.size() / 3);
   auto pooled = [&](size_t begin, size_t end) {
     double s = 0.0;
-    for (size_t i = begin; i < end; ++i) s += sum_sq[reg[i]];
-    return std::sqrt(s / static_cast<double>((end - begin) * grid.size()));
+    size_t n = 0;
+    for (size_t i = begin; i < end; ++i) {
+      s += sum_sq[reg[i]];
+      n += points[reg[i]];
+    }
+    return n > 0 ? std::sqrt(s / static_cast<double>(n)) : 0.0;
   };
   result->first_third_rms_px = pooled(0, third);
   result->last_third_rms_px = pooled(reg.size() - third, reg.size());
