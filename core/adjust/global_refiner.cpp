@@ -347,23 +347,20 @@ class RefineProblem {
     std::vector<size_t> order(used_.size());
     for (size_t i = 0; i < order.size(); ++i) order[i] = i;
     std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return keep_[a].size() > keep_[b].size(); });
-    std::unordered_map<int, int> parent;
-    const auto root = [&](int id) {
-      auto it = parent.try_emplace(id, id).first;
-      while (it->second != it->first) {
-        const auto up = parent.find(it->second);
-        it->second = up->second;  // path halving
-        it = parent.find(it->second);
-      }
-      return it->first;
+    UnionFind sets;  // over the frames, by a dense index of their own
+    std::unordered_map<int, int> index;
+    const auto element = [&](int id) {
+      const auto [it, added] = index.try_emplace(id, 0);
+      if (added) it->second = sets.Add();
+      return it->second;
     };
     std::vector<bool> in_tree(used_.size(), false);
     for (size_t i : order) {
       if (keep_[i].size() < 4) continue;
-      const int a = root(used_[i]->src);
-      const int b = root(used_[i]->tgt);
+      const int a = sets.Find(element(used_[i]->src));
+      const int b = sets.Find(element(used_[i]->tgt));
       if (a == b) continue;
-      parent[a] = b;
+      sets.Unite(a, b);
       in_tree[i] = true;
     }
     return in_tree;
@@ -428,12 +425,12 @@ class RefineProblem {
 // A factorisation up to max_frames_per_solve variable frames; beyond, conjugate gradients on the normal equations
 // preconditioned by a spanning tree of the edges: no J^T J, no fill-in, memory linear in the correspondences (which
 // are capped) and the frames.
-ceres::Solver::Options SolverOptions(const RefineOptions& options, size_t num_variables) {
+ceres::Solver::Options SolverOptions(const RefineOptions& options, bool iterative) {
   ceres::Solver::Options solver_options;
   solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
   solver_options.function_tolerance = 1e-9;
   solver_options.parameter_tolerance = 1e-10;
-  if (num_variables > static_cast<size_t>(options.max_frames_per_solve)) {
+  if (iterative) {
     solver_options.linear_solver_type = ceres::CGNR;
     solver_options.preconditioner_type = ceres::SUBSET;  // RefineProblem::SpanningTree
     solver_options.max_linear_solver_iterations = options.max_linear_iterations;
@@ -504,7 +501,7 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   }
   result.num_variables = refine.NumVariables();
   result.iterative = result.num_variables > static_cast<size_t>(options.max_frames_per_solve);
-  const ceres::Solver::Options solver_options = SolverOptions(options, result.num_variables);
+  const ceres::Solver::Options solver_options = SolverOptions(options, result.iterative);
   result.failure = refine.Solve(solver_options, &result.iterations, /*log=*/true);
   if (!result.failure.empty()) return result;
   if (options.outlier_px > 0) {
