@@ -34,7 +34,9 @@ one() {  # NAME PLAN SEED K1 -> prints a line; sets ACCEPTED and RMS
   RMS=$(jq -r '.rms_px' "$n.eval.json")
   ACCEPTED=0
   grep -q 'self-calibration accepted' "$n.log" && ACCEPTED=1
-  echo "$1 (k1 $4): true RMS $RMS px; $(grep -o 'lens self-calibration [a-z]*: .*edges)' "$n.log" | head -1)"
+  # The final estimate (after the pairs are matched again under the first one, lens_calibration.rematch).
+  echo "$1 (k1 $4): true RMS $RMS px; $(grep -o 'lens self-calibration [a-z]*: .*edges)' "$n.log" | tail -1)$(
+    grep -o '; [0-9]* of [0-9]* pairs matched again.*' <(sed 's/lens: /; /' "$n.log") | head -1)"
 }
 for s in ${HARD_SEEDS-11 12 13 14 15 16 17 18 19 20}; do
   one "hard_${s}_none" "$SCRIPT_DIR/plans/lens_jitter_hard.yaml" "$s" 0

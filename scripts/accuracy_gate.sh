@@ -31,7 +31,7 @@ forward_overlap: 0.75
 side_overlap: 0.4
 noise_sigma: 1.0"
 declare -A PLAN
-FLIGHTS=(easy jitter_tilt barrel_lens water_gps)
+FLIGHTS=(easy jitter_tilt barrel_lens barrel_jitter water_gps)
 PLAN[easy]="seed: 3"
 PLAN[jitter_tilt]="seed: 7
 yaw_jitter_deg: 3.0
@@ -42,6 +42,15 @@ blur_px: 1.5
 jpeg_quality: 90"
 PLAN[barrel_lens]="seed: 11
 k1: -0.25"
+# A -5 % barrel under yaw/altitude jitter and tilts: the lens is estimated twice (lens_calibration.rematch).
+PLAN[barrel_jitter]="seed: 17
+k1: -0.128
+yaw_jitter_deg: 5.0
+altitude_change: 0.2
+tilt_deg: 2.5
+noise_sigma: 3.0
+blur_px: 1.5
+jpeg_quality: 90"
 PLAN[water_gps]="seed: 13
 gps: 1
 water_from: 0.45

@@ -41,6 +41,15 @@ class Mosaicker::StoreFeatures final : public FeatureProvider {
  public:
   explicit StoreFeatures(FeatureStore* store) : store_(store) {}
   std::shared_ptr<const Features> Get(int id) override { return store_->Get(id); }
+  std::shared_ptr<const Features> Load(int id) override {
+    auto features = std::make_shared<Features>();
+    std::string err;
+    if (!store_->Load(id, features.get(), &err)) {
+      spdlog::warn("features of frame {}: {}", id, err);
+      return nullptr;
+    }
+    return features;
+  }
   void ReleaseAll() override {
     store_->Clear();
     TrimHeap();  // the solves and the compositor get the pages back

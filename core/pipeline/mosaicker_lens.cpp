@@ -81,6 +81,8 @@ nlohmann::json Mosaicker::LensJson() const {
         {"holdout_gain_t", cal.holdout_gain_t},
         {"halves_distortion_at_half_diagonal", {cal.half_a_at_half_diagonal, cal.half_b_at_half_diagonal}},
         {"correspondences", cal.used},
+        {"rematched_edges", cal.rematched_edges},
+        {"first_distortion_at_half_diagonal", cal.first_at_half_diagonal},
         {"seconds", cal.seconds}}}};
   const PinholeCamera final_camera = FinalCamera();
   j["final"] = {{"k1", final_camera.distortion.k1},

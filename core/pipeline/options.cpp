@@ -42,6 +42,7 @@ std::vector<Field> LensFields(PipelineOptions& o) {
       {"lens_calibration", "min_effect_px", &o.lens_calibration.min_effect_px},
       {"lens_calibration", "max_halves_disagreement", &o.lens_calibration.max_halves_disagreement},
       {"lens_calibration", "halves_below_gain", &o.lens_calibration.halves_below_gain},
+      {"lens_calibration", "rematch", &o.lens_calibration.rematch},
   };
 }
 

@@ -599,6 +599,62 @@ Solution RegistrationEngine::FinishSolve() {
   return s;
 }
 
+size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edges, const LensDistortion& lens) {
+  const PinholeCamera& prepared = *camera_;
+  PinholeCamera calibrated = prepared;
+  calibrated.distortion = lens;
+  const auto to_ideal = [&](const Features& f) {
+    Features g;
+    g.descriptors = f.descriptors;
+    g.points.reserve(f.points.size());
+    for (const cv::Point2f& p : f.points) {
+      const Vec2 q = calibrated.UndistortPixel(prepared.DistortPixel(Vec2(p.x, p.y)));
+      g.points.emplace_back(static_cast<float>(q.x()), static_cast<float>(q.y()));
+    }
+    return g;
+  };
+  const auto to_prepared = [&](std::vector<Vec2>* points) {
+    for (Vec2& p : *points) p = prepared.UndistortPixel(calibrated.DistortPixel(p));
+  };
+  // One index per target frame: the pairs in target order.
+  std::vector<const Edge*> order = edges;
+  std::sort(order.begin(), order.end(), [](const Edge* a, const Edge* b) { return a->tgt < b->tgt; });
+  const size_t max_points = counters_.end_points_per_edge;
+  size_t rematched = 0;
+  int indexed = -1;
+  Features target;
+  std::optional<DescriptorIndex> index;
+  for (const Edge* e : order) {
+    if (e->tgt != indexed) {
+      indexed = e->tgt;
+      index.reset();
+      const auto t = features_->Load(e->tgt);
+      if (!t) continue;
+      target = to_ideal(*t);
+      index.emplace(target, options_.matching);
+    }
+    const auto source = features_->Load(e->src);
+    if (!index || !source) continue;
+    MatchGuide guide;
+    guide.tgt_from_src = Map(e->tgt).inverse() * Map(e->src);
+    guide.tgt_size = Record(e->tgt).work_size;
+    PairResult r = MatchPair(*index, target, to_ideal(*source), options_.matching, &guide);
+    // A pair that verifies much worse under the lens than without it keeps its points (a guided query asks fewer
+    // points than the flight's first query may have).
+    if (!Acceptable(r) || 2 * r.num_inliers < e->num_inliers) continue;
+    for (auto* points : {&r.src_points, &r.tgt_points, &r.holdout_src_points, &r.holdout_tgt_points})
+      to_prepared(points);
+    auto* edge = const_cast<Edge*>(e);  // the engine's own edge (the const view is the solve's)
+    edge->src_points = std::move(r.src_points);
+    edge->tgt_points = std::move(r.tgt_points);
+    edge->holdout_src_points = std::move(r.holdout_src_points);
+    edge->holdout_tgt_points = std::move(r.holdout_tgt_points);
+    if (max_points > 0) (void)ThinPoints(edge, max_points, std::max<size_t>(2, max_points / 4));
+    ++rematched;
+  }
+  return rematched;
+}
+
 namespace {
 
 struct LensWindow {
@@ -638,6 +694,17 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
   const LensWindow w = MiddleWindow(s->component, edges, static_cast<size_t>(options_.refine.max_frames_per_solve));
   s->lens = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, *camera_,
                           options_.lens_calibration, mosaic_from_work_);
+  if (s->lens.accepted && options_.lens_calibration.rematch) {
+    const size_t rematched = RematchUnderLens(w.edges, s->lens.distortion);
+    LensCalibration again = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, *camera_,
+                                          options_.lens_calibration, mosaic_from_work_);
+    again.rematched_edges = rematched;
+    again.first_at_half_diagonal = s->lens.distortion_at_half_diagonal;
+    spdlog::info("lens: {} of {} pairs matched again under it: {:+.4f} -> {:+.4f} at the half-diagonal ({})", rematched,
+                 w.edges.size(), s->lens.distortion_at_half_diagonal, again.distortion_at_half_diagonal,
+                 again.accepted ? "accepted" : "refused, the first estimate is kept");
+    if (again.accepted) s->lens = again;
+  }
   const bool has_radial = camera_->distortion.k1 != 0.0 || camera_->distortion.k2 != 0.0;
   if (!s->lens.accepted && s->lens.solve_failed && !camera_verified_ && has_radial) {
     // A database entry can be wrong for these frames (one calibrated on raw files, JPEGs the camera already corrected):

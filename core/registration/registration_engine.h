@@ -60,6 +60,8 @@ class FeatureProvider {
  public:
   virtual ~FeatureProvider() = default;
   [[nodiscard]] virtual std::shared_ptr<const Features> Get(int id) = 0;
+  // As Get, once ReleaseAll() was called: read for one use, not kept (the end of the flight's memory is the solves').
+  [[nodiscard]] virtual std::shared_ptr<const Features> Load(int id) { return Get(id); }
   // Called once no more features will be asked for (end of flight): their memory can go.
   virtual void ReleaseAll() {}
 };
@@ -253,6 +255,10 @@ class RegistrationEngine {
                                              const std::unordered_set<int>& variable,
                                              const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
                                              Solution* s);
+
+  // The pairs of `edges` matched again with every keypoint at `lens`'s ideal pixels (RANSAC judges them under the
+  // lens); their points are replaced, in the prepared camera's pixels, when the pair verifies. Returns how many were.
+  [[nodiscard]] size_t RematchUnderLens(const std::vector<const Edge*>& edges, const LensDistortion& lens);
 
   RegistrationOptions options_;
   std::optional<PinholeCamera> camera_;  // SetCamera()
