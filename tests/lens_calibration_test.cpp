@@ -287,5 +287,24 @@ TEST(LensCalibrationTest, UndistortionAndDistortionConvertBothWays) {
   }
 }
 
+// A lens followed by a small correction is one Brown lens again: a barrel with k1 alone, corrected by a lens with k2
+// alone, composes to (k1, k2) up to the second-order cross terms (checked against the two applied in turn), and a zero
+// correction gives the first lens back.
+TEST(LensCalibrationTest, ALensAndItsCorrectionComposeToOneLens) {
+  LensDistortion first;
+  first.k1 = -0.2;
+  LensDistortion correction;
+  correction.k1 = -0.004;
+  correction.k2 = 0.002;
+  const LensDistortion composed = ComposeRadial(first, correction, 0.8);
+  for (double r = 0.05; r <= 0.95; r += 0.05) {  // ideal radii up to the recorded 0.8's
+    const double both = first.Distort(correction.Distort(Vec2(r, 0))).x();
+    EXPECT_NEAR(composed.Distort(Vec2(r, 0)).x(), both, 1e-4) << r;
+  }
+  const LensDistortion alone = ComposeRadial(first, LensDistortion{}, 0.8);
+  EXPECT_NEAR(alone.k1, first.k1, 1e-9);
+  EXPECT_NEAR(alone.k2, 0.0, 1e-9);
+}
+
 }  // namespace
 }  // namespace uavm

@@ -15,12 +15,13 @@ namespace uavm {
 bool LensCalibrationOptions::Check(std::string* why) const {
   if (min_frames < 2 || max_correspondences < 100 || !(min_holdout_gain >= 0 && min_holdout_gain < 1) ||
       !(min_holdout_t >= 0) || !(max_distortion > 0 && max_distortion < 1) || !(prior_weight >= 0) ||
-      !(min_effect_px >= 0) || !(max_halves_disagreement >= 0) || !(halves_below_gain >= 0 && halves_below_gain < 1)) {
+      !(min_effect_px >= 0) || !(max_halves_disagreement >= 0) || !(halves_below_gain >= 0 && halves_below_gain < 1) ||
+      !(rematch_holdout_tolerance >= 0)) {
     if (why != nullptr)
       *why =
           "lens_calibration: min_frames >= 2, max_correspondences >= 100, min_holdout_gain in [0,1), min_holdout_t >= "
           "0, max_distortion in (0,1), prior_weight >= 0, min_effect_px >= 0, max_halves_disagreement >= 0, "
-          "halves_below_gain in [0,1)";
+          "halves_below_gain in [0,1), rematch_holdout_tolerance >= 0";
     return false;
   }
   return true;
@@ -70,6 +71,25 @@ std::array<double, 3> UndistortionFromDistortion(const LensDistortion& d, double
 
 LensDistortion DistortionFromUndistortion(const std::array<double, 3>& u, double max_radius) {
   return FitRadialDistortion(&DistortedRadius, &u, max_radius);
+}
+
+namespace {
+
+struct TwoLenses {
+  LensDistortion first, residual;
+};
+
+double ComposedDistortedRadius(double r, const void* ctx) {
+  const auto& l = *static_cast<const TwoLenses*>(ctx);
+  return l.first.Distort(l.residual.Distort(Vec2(r, 0.0))).x();
+}
+
+}  // namespace
+
+LensDistortion ComposeRadial(const LensDistortion& first, const LensDistortion& residual, double max_radius) {
+  const TwoLenses lenses{first, residual};
+  const double ideal_max = residual.Undistort(first.Undistort(Vec2(max_radius, 0.0))).x();
+  return FitRadialDistortion(&ComposedDistortedRadius, &lenses, std::max(max_radius, ideal_max));
 }
 
 PairedGain HoldoutPairedGain(const std::vector<const Edge*>& edges, const std::unordered_map<int, Mat3>& without,
@@ -166,7 +186,8 @@ std::pair<double, double> LensOfHalves(const std::vector<const Edge*>& edges, co
 LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                               int anchor, const std::unordered_map<int, double>& half_diagonal,
                               const RefineOptions& refine, const PinholeCamera& prepared,
-                              const LensCalibrationOptions& options, const std::unordered_map<int, Mat3>& start) {
+                              const LensCalibrationOptions& options, const std::unordered_map<int, Mat3>& start,
+                              std::string_view log_name) {
   LensCalibration cal;
   StageTimer timer;
   const LensDistortion& d0 = prepared.distortion;
@@ -241,11 +262,11 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   }
   cal.seconds = timer.ElapsedMs() / 1000.0;
   spdlog::info(
-      "lens self-calibration {}: k1 {:.4f} k2 {:.4f} ({:+.4f} at the half-diagonal; halves {:+.4f} {:+.4f}), "
+      "{} {}: k1 {:.4f} k2 {:.4f} ({:+.4f} at the half-diagonal; halves {:+.4f} {:+.4f}), "
       "held-out RMS {:.3f} -> {:.3f} px over {} points (paired t {:.2f} over {} edges), {:.1f} s{}{}",
-      cal.accepted ? "accepted" : "refused", cal.distortion.k1, cal.distortion.k2, cal.distortion_at_half_diagonal,
-      cal.half_a_at_half_diagonal, cal.half_b_at_half_diagonal, h0.rms, h1.rms, h1.count, paired.t, paired.edges,
-      cal.seconds, cal.why.empty() ? "" : ": ", cal.why);
+      log_name, cal.accepted ? "accepted" : "refused", cal.distortion.k1, cal.distortion.k2,
+      cal.distortion_at_half_diagonal, cal.half_a_at_half_diagonal, cal.half_b_at_half_diagonal, h0.rms, h1.rms,
+      h1.count, paired.t, paired.edges, cal.seconds, cal.why.empty() ? "" : ": ", cal.why);
   return cal;
 }
 

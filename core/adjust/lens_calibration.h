@@ -3,6 +3,7 @@
 #include <array>
 #include <cmath>
 #include <string>
+#include <string_view>
 #include <unordered_map>
 #include <unordered_set>
 #include <vector>
@@ -40,6 +41,9 @@ struct LensCalibrationOptions {
   // model explains, the ones the lens displaces least, so a lens fitted to them alone comes out too weak: a -5 %
   // barrel on a jittered flight came out -4.8 % and cost 0.44 px against the truth (0.18 with the true lens).
   bool rematch = true;
+  // The rematched points also replace the flight's in the final solve unless they fit the flight's held-out points
+  // worse by more than this share (see RegistrationEngine::KeepBetterPoints).
+  double rematch_holdout_tolerance = 0.02;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -61,9 +65,17 @@ struct LensCalibration {
   double half_a_at_half_diagonal = std::nan("");
   double half_b_at_half_diagonal = std::nan("");
   size_t used = 0;  // correspondences in the two solves
-  // With options.rematch: the pairs matched again under the first estimate, and that estimate (NaN: not rematched).
+  // With options.rematch: the pairs matched again under the first estimate, that estimate (NaN: not rematched), and
+  // the held-out RMS of the correction estimated on them after it (without, with; 0: none kept).
   size_t rematched_edges = 0;
   double first_at_half_diagonal = std::nan("");
+  double residual_holdout_without_px = 0.0;
+  double residual_holdout_with_px = 0.0;
+  // Then which points the final solve takes: the held-out RMS on the flight's held-out points of the subset refined on
+  // the flight's points and on the rematched ones (0: not compared), and whether the rematched were kept.
+  double holdout_flight_points_px = 0.0;
+  double holdout_rematched_points_px = 0.0;
+  bool rematched_points_kept = false;
   double seconds = 0.0;
 };
 
@@ -72,13 +84,14 @@ struct LensCalibration {
 // correspondences (which neither solve uses) agree better by more than chance (min_holdout_t, min_holdout_gain) and
 // its distortion is plausible. The
 // distortion returned is Brown's (k1, k2) in `prepared`'s normalised coordinates. Tangential terms are not estimated:
-// a prepared lens with them is not calibrated again.
+// a prepared lens with them is not calibrated again. `log_name` starts its log line.
 [[nodiscard]] LensCalibration CalibrateLens(const std::vector<const Edge*>& edges,
                                             const std::unordered_set<int>& variable, int anchor,
                                             const std::unordered_map<int, double>& half_diagonal,
                                             const RefineOptions& refine, const PinholeCamera& prepared,
                                             const LensCalibrationOptions& options,
-                                            const std::unordered_map<int, Mat3>& start);
+                                            const std::unordered_map<int, Mat3>& start,
+                                            std::string_view log_name = "lens self-calibration");
 
 // The paired test of the held-out points between two solves: per edge, the mean of e_without^2 - e_with^2 over its
 // held-out points; over the edges, that mean divided by its standard error (0 with fewer than 3 edges).
@@ -98,5 +111,10 @@ void ReprojectEdgePoints(const PinholeCamera& prepared, const LensDistortion& ca
 // The radial undistortion (u1, u2, u3) of LensRefine closest to `d`'s inverse over (0, max_radius], and back.
 [[nodiscard]] std::array<double, 3> UndistortionFromDistortion(const LensDistortion& d, double max_radius);
 [[nodiscard]] LensDistortion DistortionFromUndistortion(const std::array<double, 3>& u, double max_radius);
+
+// The radial distortion (k1, k2) closest to `first` after `residual` (recorded = first.Distort(residual.Distort(
+// ideal)), both in one camera's normalised coordinates) over the ideal radii of the recorded (0, max_radius].
+[[nodiscard]] LensDistortion ComposeRadial(const LensDistortion& first, const LensDistortion& residual,
+                                           double max_radius);
 
 }  // namespace uavm

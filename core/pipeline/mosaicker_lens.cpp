@@ -83,6 +83,11 @@ nlohmann::json Mosaicker::LensJson() const {
         {"correspondences", cal.used},
         {"rematched_edges", cal.rematched_edges},
         {"first_distortion_at_half_diagonal", cal.first_at_half_diagonal},
+        {"correction_holdout_rms_px", {cal.residual_holdout_without_px, cal.residual_holdout_with_px}},
+        {"final_points",
+         {{"rematched_kept", cal.rematched_points_kept},
+          {"holdout_rms_px_flight", cal.holdout_flight_points_px},
+          {"holdout_rms_px_rematched", cal.holdout_rematched_points_px}}},
         {"seconds", cal.seconds}}}};
   const PinholeCamera final_camera = FinalCamera();
   j["final"] = {{"k1", final_camera.distortion.k1},

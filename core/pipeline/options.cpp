@@ -43,6 +43,7 @@ std::vector<Field> LensFields(PipelineOptions& o) {
       {"lens_calibration", "max_halves_disagreement", &o.lens_calibration.max_halves_disagreement},
       {"lens_calibration", "halves_below_gain", &o.lens_calibration.halves_below_gain},
       {"lens_calibration", "rematch", &o.lens_calibration.rematch},
+      {"lens_calibration", "rematch_holdout_tolerance", &o.lens_calibration.rematch_holdout_tolerance},
   };
 }
 

@@ -259,6 +259,14 @@ class RegistrationEngine {
   // The pairs of `edges` matched again with every keypoint at `lens`'s ideal pixels (RANSAC judges them under the
   // lens); their points are replaced, in the prepared camera's pixels, when the pair verifies. Returns how many were.
   [[nodiscard]] size_t RematchUnderLens(const std::vector<const Edge*>& edges, const LensDistortion& lens);
+  // After an accepted lens: its pairs matched again under it, then a correction of it estimated on their points at
+  // its ideal pixels, composed with it when the held-out points agree better.
+  void CorrectLensAfterRematch(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
+                               int anchor, const std::unordered_map<int, double>& half_diag, LensCalibration* lens);
+  // After the correction: the edges keep the rematched points or get the flight's (`own`) back.
+  void KeepBetterPoints(const std::vector<const Edge*>& edges, std::vector<Edge>* own,
+                        const std::unordered_set<int>& variable, int anchor,
+                        const std::unordered_map<int, double>& half_diag, LensCalibration* lens);
 
   RegistrationOptions options_;
   std::optional<PinholeCamera> camera_;  // SetCamera()
