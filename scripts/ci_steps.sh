@@ -75,6 +75,7 @@ ci_tier() {
   step "vm kernel" vm_kernel
   step "native build" bash "$ROOT/scripts/build.sh"
   step "format" bash "$ROOT/scripts/lint.sh" --check
+  step "layers" bash "$ROOT/scripts/lint.sh" --layers
   step "function size" bash "$ROOT/scripts/lint.sh" --function-size
   step "native suite" native_suite
   step "accuracy gate" bash "$ROOT/scripts/accuracy_gate.sh"

@@ -6,6 +6,8 @@
 # core/, hal/, firmware_app/, ground_app/ and tools/, two files at a time: exit 1 when a function exceeds them and is
 # not in scripts/function_size_exceptions.txt, or when an exception there no longer exceeds them (so the list only
 # shrinks).
+# `scripts/lint.sh --layers` only checks every #include and CMake dependency between folders against
+# scripts/layers.txt (exit 1 on one the table does not allow, or on a folder it does not list).
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$ROOT"
@@ -101,7 +103,56 @@ function_size() {
   return "$status"
 }
 
+# folder_of PATH: the layer a path belongs to (core/<x>, hal/<x>, or the top folder).
+folder_of() {
+  case $1 in
+    core/* | hal/*) echo "$1" | cut -d/ -f1-2 ;;
+    *) echo "${1%%/*}" ;;
+  esac
+}
+
+layers() {
+  local table="$ROOT/scripts/layers.txt" status=0 line folder file inc dst target cm
+  declare -A allowed
+  while IFS= read -r line; do
+    line=${line%%#*}
+    [[ -z ${line// /} ]] && continue
+    allowed[${line%%:*}]=" ${line#*:} "
+  done <"$table"
+  # use FOLDER DST WHERE: fails unless the table lets FOLDER use DST.
+  use() {
+    [[ $1 == "$2" ]] && return 0
+    if [[ -z ${allowed[$1]+x} ]]; then
+      echo "layers: $1 is not in scripts/layers.txt ($3)" >&2
+      return 1
+    fi
+    [[ ${allowed[$1]} == *" $2 "* ]] && return 0
+    echo "layers: $1 uses $2 ($3), which scripts/layers.txt does not allow" >&2
+    return 1
+  }
+  while IFS=: read -r file _ inc; do
+    inc=${inc#*\"}
+    inc=${inc%%\"*}
+    dst=$(folder_of "$(dirname "$inc")")
+    use "$(folder_of "$file")" "$dst" "$file: #include \"$inc\"" || status=1
+  done < <(git grep --untracked -n -E '^#include "(core|hal|firmware_app|ground_app|tools)/' -- core hal firmware_app ground_app tools)
+  while IFS= read -r cm; do
+    folder=$(dirname "$cm")
+    for target in $(grep -oE 'uavm_(core|hal)_[a-z0-9_]+' "$cm" | sort -u); do
+      dst=$(echo "$target" | sed -E 's#^uavm_(core|hal)_#\1/#')
+      [[ -d $dst ]] || continue # a target of another name (uavm_core_eval_* helpers are core/eval's)
+      use "$folder" "$dst" "$cm: $target" || status=1
+    done
+  done < <(git ls-files 'core/*/CMakeLists.txt' 'hal/*/CMakeLists.txt' firmware_app/CMakeLists.txt ground_app/CMakeLists.txt tools/CMakeLists.txt)
+  [[ $status == 0 ]] && echo "layers: every include and link between folders is in scripts/layers.txt"
+  return "$status"
+}
+
 case "${1:-}" in
+  --layers)
+    layers
+    exit $?
+    ;;
   --check)
     clang-format --dry-run --Werror "${FILES[@]}"
     exit $?

@@ -26,7 +26,10 @@ bool GlobalIndexOptions::Check(std::string* why) const {
 GlobalIndex::GlobalIndex(const GlobalIndexOptions& options)
     : options_(options),
       quota_(options.descriptors_per_frame),
-      descriptors_(options.max_descriptors, kDescriptorSize, CV_8U) {
+      // Zeroed, not just allocated: every page is resident from the first frame, so the index's line of the memory
+      // plan is held from take-off instead of arriving in the flight's last hour (and a budget that cannot hold it
+      // fails at the start).
+      descriptors_(cv::Mat::zeros(options.max_descriptors, kDescriptorSize, CV_8U)) {
   const auto cap = static_cast<size_t>(options.max_descriptors);
   frame_of_row_.reserve(cap);
   rank_in_frame_.reserve(cap);
