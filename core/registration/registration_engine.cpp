@@ -6,6 +6,7 @@
 #include <cmath>
 #include <future>
 #include <map>
+#include <numeric>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
 
@@ -600,7 +601,8 @@ Solution RegistrationEngine::FinishSolve() {
   return s;
 }
 
-size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edges, const LensDistortion& lens) {
+size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edges, const LensDistortion& lens,
+                                            std::vector<char>* at_lens) {
   const PinholeCamera& prepared = *camera_;
   PinholeCamera calibrated = prepared;
   calibrated.distortion = lens;
@@ -614,18 +616,18 @@ size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edge
     }
     return g;
   };
-  const auto to_prepared = [&](std::vector<Vec2>* points) {
-    for (Vec2& p : *points) p = prepared.UndistortPixel(calibrated.DistortPixel(p));
-  };
   // One index per target frame: the pairs in target order.
-  std::vector<const Edge*> order = edges;
-  std::sort(order.begin(), order.end(), [](const Edge* a, const Edge* b) { return a->tgt < b->tgt; });
+  std::vector<size_t> order(edges.size());
+  std::iota(order.begin(), order.end(), size_t{0});
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return edges[a]->tgt < edges[b]->tgt; });
+  at_lens->assign(edges.size(), 0);
   const size_t max_points = counters_.end_points_per_edge;
   size_t rematched = 0;
   int indexed = -1;
   Features target;
   std::optional<DescriptorIndex> index;
-  for (const Edge* e : order) {
+  for (size_t i : order) {
+    const Edge* e = edges[i];
     if (e->tgt != indexed) {
       indexed = e->tgt;
       index.reset();
@@ -643,14 +645,13 @@ size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edge
     // A pair that verifies much worse under the lens than without it keeps its points (a guided query asks fewer
     // points than the flight's first query may have).
     if (!Acceptable(r) || 2 * r.num_inliers < e->num_inliers) continue;
-    for (auto* points : {&r.src_points, &r.tgt_points, &r.holdout_src_points, &r.holdout_tgt_points})
-      to_prepared(points);
     auto* edge = const_cast<Edge*>(e);  // the engine's own edge (the const view is the solve's)
     edge->src_points = std::move(r.src_points);
     edge->tgt_points = std::move(r.tgt_points);
     edge->holdout_src_points = std::move(r.holdout_src_points);
     edge->holdout_tgt_points = std::move(r.holdout_tgt_points);
     if (max_points > 0) (void)ThinPoints(edge, max_points, std::max<size_t>(2, max_points / 4));
+    (*at_lens)[i] = 1;
     ++rematched;
   }
   return rematched;
@@ -668,7 +669,14 @@ double HoldoutOfRefinement(const std::vector<const Edge*>& fit, const std::vecto
   std::vector<Edge> copies(fit.size());
   std::vector<const Edge*> view;
   for (size_t i = 0; i < fit.size(); ++i) {
-    copies[i] = *fit[i];
+    // The fit's points and the holdout's held-out points only: nothing is copied to be overwritten.
+    copies[i].src = fit[i]->src;
+    copies[i].tgt = fit[i]->tgt;
+    copies[i].num_matches = fit[i]->num_matches;
+    copies[i].num_inliers = fit[i]->num_inliers;
+    copies[i].tgt_from_src = fit[i]->tgt_from_src;
+    copies[i].src_points = fit[i]->src_points;
+    copies[i].tgt_points = fit[i]->tgt_points;
     copies[i].holdout_src_points = holdout[i].holdout_src_points;
     copies[i].holdout_tgt_points = holdout[i].holdout_tgt_points;
     ReprojectEdgePoints(prepared, lens, &copies[i]);
@@ -687,12 +695,15 @@ void RegistrationEngine::CorrectLensAfterRematch(const std::vector<const Edge*>&
   const LensDistortion first = lens->distortion;
   std::vector<Edge> own(edges.size());
   for (size_t i = 0; i < own.size(); ++i) own[i] = *edges[i];
-  lens->rematched_edges = RematchUnderLens(edges, first);
+  // The rematched edges' points are at the first estimate's ideal pixels already; the others are moved there.
+  std::vector<char> at_first_lens;
+  lens->rematched_edges = RematchUnderLens(edges, first, &at_first_lens);
   lens->first_at_half_diagonal = lens->distortion_at_half_diagonal;
   // The correction is estimated on the points at the first estimate's ideal pixels: the solve's polynomial then
   // carries only what the first missed, which it represents well even where it could not represent a strong lens
   // whole (a -15 % barrel: 0.6 px at the corners).
-  for (const Edge* e : edges) ReprojectEdgePoints(*camera_, first, const_cast<Edge*>(e));
+  for (size_t i = 0; i < edges.size(); ++i)
+    if (at_first_lens[i] == 0) ReprojectEdgePoints(*camera_, first, const_cast<Edge*>(edges[i]));
   PinholeCamera at_first = *camera_;
   at_first.distortion = LensDistortion{};
   LensCalibrationOptions options = options_.lens_calibration;

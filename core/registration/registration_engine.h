@@ -257,8 +257,10 @@ class RegistrationEngine {
                                              Solution* s);
 
   // The pairs of `edges` matched again with every keypoint at `lens`'s ideal pixels (RANSAC judges them under the
-  // lens); their points are replaced, in the prepared camera's pixels, when the pair verifies. Returns how many were.
-  [[nodiscard]] size_t RematchUnderLens(const std::vector<const Edge*>& edges, const LensDistortion& lens);
+  // lens); their points are replaced, at `lens`'s ideal pixels, when the pair verifies (`at_lens`[i] set for edges[i]).
+  // Returns how many were.
+  [[nodiscard]] size_t RematchUnderLens(const std::vector<const Edge*>& edges, const LensDistortion& lens,
+                                        std::vector<char>* at_lens);
   // After an accepted lens: its pairs matched again under it, then a correction of it estimated on their points at
   // its ideal pixels, composed with it when the held-out points agree better.
   void CorrectLensAfterRematch(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
