@@ -1,11 +1,11 @@
-#include "core/util/stats.h"
-
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <random>
 #include <vector>
+
+#include "core/util/stats.h"
 
 namespace uavm {
 namespace {
