@@ -696,6 +696,9 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
     if (candidates.empty() || !BlendRoi(geometry, candidates, image_of, roi, options.num_bands, &image, &mask)) return;
     const cv::Rect inner(tile.x - roi.x, tile.y - roi.y, tile.width, tile.height);
     if (cv::countNonZero(mask(inner)) > 0) sink.Put(tile, image(inner), mask(inner));
+    // A tile's pyramids and warps are freed in pieces the next tile does not fit back exactly: without a trim the
+    // workers' arenas kept ~37 MiB of free pages by the end of a 5000-frame flight's mosaic (heaptrack against RSS).
+    if (options.memory_budget_mib > 0) TrimHeap();
   });
   sink.Finish(&result);
   if (!result.error.empty()) return result;
