@@ -45,6 +45,10 @@ bool RefineOptions::Check(std::string* why) const {
 
 namespace {
 
+// Points an edge needs to join the spanning tree that preconditions the iterative solve: an affine pair is then
+// determined (3 points) with one to spare, and the tree's normal equations are positive definite.
+constexpr size_t kTreeMinPoints = 4;
+
 // Per frame: the affine rows (h00 h01 h02 h10 h11 h12) and the perspective row (h20 h21), h22 = 1. Two blocks, so
 // that the affine model holds the perspective block constant and the anchor holds its affine block constant.
 struct FrameParams {
@@ -235,8 +239,16 @@ class RefineProblem {
   size_t Select(size_t stride, const std::unordered_map<int, Mat3>& T) {
     size_t used_points = 0;
     keep_.assign(used_.size(), {});
+    // The iterative solve's preconditioner is a spanning tree of edges of kTreeMinPoints points at least: where the
+    // stride leaves an edge fewer (a flight beyond ~5000 frames at the defaults: 12 points an edge, stride 4), the
+    // edges of a tree over the full point counts keep that many, at most a point more per frame than the cap.
+    std::vector<size_t> full(used_.size());
+    for (size_t i = 0; i < used_.size(); ++i) full[i] = used_[i]->src_points.size();
+    const std::vector<bool> tree = stride > 1 ? SpanningTreeBy(full) : std::vector<bool>(used_.size(), false);
     for (size_t i = 0; i < used_.size(); ++i) {
-      for (size_t k = 0; k < used_[i]->src_points.size(); k += stride) keep_[i].push_back(static_cast<uint32_t>(k));
+      size_t step = stride;
+      if (tree[i] && (full[i] + step - 1) / step < kTreeMinPoints) step = std::max<size_t>(1, full[i] / kTreeMinPoints);
+      for (size_t k = 0; k < full[i]; k += step) keep_[i].push_back(static_cast<uint32_t>(k));
       used_points += keep_[i].size();
       for (int id : {used_[i]->src, used_[i]->tgt})
         if (params_.find(id) == params_.end()) params_.emplace(id, ToParams(T.at(id)));
@@ -344,9 +356,15 @@ class RefineProblem {
   // the frames; it carries the mosaic's long, soft modes (a bend across the flight) that a block-diagonal
   // preconditioner leaves to hundreds of steps. Kruskal over the edges, heaviest first.
   std::vector<bool> SpanningTree() const {
+    std::vector<size_t> kept(used_.size());
+    for (size_t i = 0; i < kept.size(); ++i) kept[i] = keep_[i].size();
+    return SpanningTreeBy(kept);
+  }
+  // The same over `points` per edge.
+  std::vector<bool> SpanningTreeBy(const std::vector<size_t>& points) const {
     std::vector<size_t> order(used_.size());
     for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return keep_[a].size() > keep_[b].size(); });
+    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return points[a] > points[b]; });
     UnionFind sets;  // over the frames, by a dense index of their own
     std::unordered_map<int, int> index;
     const auto element = [&](int id) {
@@ -356,7 +374,7 @@ class RefineProblem {
     };
     std::vector<bool> in_tree(used_.size(), false);
     for (size_t i : order) {
-      if (keep_[i].size() < 4) continue;
+      if (points[i] < kTreeMinPoints) continue;
       const int a = sets.Find(element(used_[i]->src));
       const int b = sets.Find(element(used_[i]->tgt));
       if (a == b) continue;
