@@ -340,6 +340,11 @@ TEST(GlobalRefiner, ConjugateGradientsReachTheFactorisationsSolution) {
   for (const auto& [id, m] : failed) EXPECT_TRUE(m.isApprox(start.at(id), 1e-15)) << id;
 }
 
+// The whole scene refined from `maps` with every frame but the first variable.
+RefineResult RefineScene(const Scene& s, const RefineOptions& o, std::unordered_map<int, Mat3>* maps) {
+  return RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, maps);
+}
+
 // A flight long enough that the correspondence cap leaves its edges 3 points each (beyond ~5000 frames at the
 // defaults: 12 points an edge, stride 4) still has a spanning tree to precondition the iterative solve: its edges
 // keep 4. (Before, the tree was empty and Ceres refused the problem: the flight kept its linear solution.)
@@ -357,8 +362,7 @@ TEST(GlobalRefiner, ACapThatLeavesEdgesThreePointsStillRefinesIteratively) {
   o.max_correspondences = static_cast<int>(total / 4);  // stride 4: 3 of an edge's 12 points
   ASSERT_GE(o.max_correspondences, 100);
   auto capped = start;
-  const RefineResult r =
-      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &capped);
+  const RefineResult r = RefineScene(s, o, &capped);
   ASSERT_TRUE(r.ok) << r.failure;
   EXPECT_TRUE(r.iterative);
   // The cap plus at most a point for each tree edge (one fewer than the frames).
@@ -366,8 +370,7 @@ TEST(GlobalRefiner, ACapThatLeavesEdgesThreePointsStillRefinesIteratively) {
   // Against the factorisation on the same cap (3 points an edge: no tree needed).
   o.max_frames_per_solve = 600;
   auto factored = start;
-  const RefineResult rd =
-      RefineGlobal(Pointers(s.edges), AllButFirst(s.truth.size()), 0, HalfDiagonals(s.truth.size()), o, &factored);
+  const RefineResult rd = RefineScene(s, o, &factored);
   ASSERT_TRUE(rd.ok) << rd.failure;
   const auto [start_rms, start_max] = ModelFreeError(s, start);
   const auto [direct_rms, direct_max] = ModelFreeError(s, factored);

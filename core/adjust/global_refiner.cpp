@@ -227,16 +227,18 @@ class RefineProblem {
 
   const std::vector<const Edge*>& used() const { return used_; }
   bool empty() const { return params_.empty(); }
+  // The variable frames the edges touch (known before Select: it decides the solve, which decides the selection).
   size_t NumVariables() const {
-    size_t n = 0;
-    for (const auto& [id, p] : params_)
-      if (variable_.count(id) != 0) ++n;
-    return n;
+    std::unordered_set<int> touched;
+    for (const Edge* e : used_)
+      for (int id : {e->src, e->tgt})
+        if (variable_.count(id) != 0) touched.insert(id);
+    return touched.size();
   }
 
   // The correspondences each edge contributes: every `stride`-th (points are grid-spread over the frame in no
   // particular order, so a stride keeps the spread); the parameters of the frames they touch. Returns how many.
-  size_t Select(size_t stride, const std::unordered_map<int, Mat3>& T) {
+  size_t Select(size_t stride, bool iterative, const std::unordered_map<int, Mat3>& T) {
     size_t used_points = 0;
     keep_.assign(used_.size(), {});
     // The iterative solve's preconditioner is a spanning tree of edges of kTreeMinPoints points at least: where the
@@ -244,7 +246,8 @@ class RefineProblem {
     // edges of a tree over the full point counts keep that many, at most a point more per frame than the cap.
     std::vector<size_t> full(used_.size());
     for (size_t i = 0; i < used_.size(); ++i) full[i] = used_[i]->src_points.size();
-    const std::vector<bool> tree = stride > 1 ? SpanningTreeBy(full) : std::vector<bool>(used_.size(), false);
+    const std::vector<bool> tree =
+        iterative && stride > 1 ? SpanningTreeBy(full) : std::vector<bool>(used_.size(), false);
     for (size_t i = 0; i < used_.size(); ++i) {
       size_t step = stride;
       if (tree[i] && (full[i] + step - 1) / step < kTreeMinPoints) step = std::max<size_t>(1, full[i] / kTreeMinPoints);
@@ -512,13 +515,15 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   const auto max_correspondences = static_cast<size_t>(options.max_correspondences);
   const size_t stride =
       before.count > max_correspondences ? (before.count + max_correspondences - 1) / max_correspondences : 1;
-  result.num_used = refine.Select(stride, T);
+  const size_t num_variables = refine.NumVariables();
+  const bool iterative = num_variables > static_cast<size_t>(options.max_frames_per_solve);
+  result.num_used = refine.Select(stride, iterative, T);
   if (refine.empty()) {
     result.ok = true;
     return result;
   }
-  result.num_variables = refine.NumVariables();
-  result.iterative = result.num_variables > static_cast<size_t>(options.max_frames_per_solve);
+  result.num_variables = num_variables;
+  result.iterative = iterative;
   const ceres::Solver::Options solver_options = SolverOptions(options, result.iterative);
   result.failure = refine.Solve(solver_options, &result.iterations, /*log=*/true);
   if (!result.failure.empty()) return result;
