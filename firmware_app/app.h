@@ -33,6 +33,8 @@ struct RunConfig {
 // SIGINT / SIGTERM: the capture stops, and what was received is registered and composited (exit 0 when that
 // succeeds). A second signal does not interrupt the compositing: use SIGKILL, then --resume.
 void InstallStopHandlers();
+// The stop signal received (0: none yet).
+[[nodiscard]] int StopSignal();
 
 // --list-cameras: prints what the V4L2 and libcamera back-ends see. Returns an ExitCode.
 [[nodiscard]] int ListCameras();

@@ -97,10 +97,10 @@ RegistrationCounters RegistrationEngine::counters() const {
   return c;
 }
 
-const std::vector<int>& RegistrationEngine::MembersOf(int root) {
+const std::vector<int>& RegistrationEngine::MembersOf(int root) const {
   static const std::vector<int> kNone;
   // A frame that registered nothing is a component of its own, outside the graph.
-  return Record(components_.Find(root)).in_graph ? components_.MembersOf(root) : kNone;
+  return frame(components_.Find(root)).in_graph ? components_.MembersOf(root) : kNone;
 }
 
 std::vector<const Edge*> RegistrationEngine::EdgesTouching(const std::unordered_set<int>& ids, int root) {

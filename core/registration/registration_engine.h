@@ -171,6 +171,7 @@ class RegistrationEngine {
     camera_ = work_camera;
     camera_verified_ = verified;
   }
+  [[nodiscard]] bool has_camera() const { return camera_.has_value(); }
   // Refines every new edge's points at the working resolution where it holds both frames' images (borrowed, may be
   // null; must outlive the engine).
   void SetRefiner(SubpixelRefiner* refiner) { refiner_ = refiner; }
@@ -187,10 +188,10 @@ class RegistrationEngine {
   [[nodiscard]] const Mat3& mosaic_from_work(int id) const { return mosaic_from_work_.at(id); }
   [[nodiscard]] bool placed(int id) const { return mosaic_from_work_.count(id) != 0; }
   // Frame `id`'s component during the flight (its root: frames of one component share it) and that component's size.
-  [[nodiscard]] int ComponentOf(int id) { return components_.Find(id); }
-  [[nodiscard]] int ComponentSize(int id) { return components_.SizeOf(id); }
+  [[nodiscard]] int ComponentOf(int id) const { return components_.Find(id); }
+  [[nodiscard]] int ComponentSize(int id) const { return components_.SizeOf(id); }
   // The frames of the component rooted at `root`, ascending.
-  [[nodiscard]] const std::vector<int>& MembersOf(int root);
+  [[nodiscard]] const std::vector<int>& MembersOf(int root) const;
   // Frames placed or moved (a solve, a merge) since the last call, for a follower such as the live tiles; only
   // recorded after TrackMoves(true), so that nobody's unread log grows.
   void TrackMoves(bool on) { track_moves_ = on; }
@@ -278,7 +279,8 @@ class RegistrationEngine {
   EdgeSpill* spill_;                    // borrowed, may be null
   GlobalIndex global_index_;
   MatchGraph graph_;
-  Components components_;
+  // Mutable: a lookup compresses the union-find's paths (the flight's followers read components through a const view).
+  mutable Components components_;
   FootprintGrid footprints_;        // in_graph frames' footprints, for overlap candidates and new-ground checks
   std::deque<FrameRecord> frames_;  // grows chunk by chunk: no doubling copy in a long flight
   std::vector<std::vector<size_t>> adjacency_;  // edge indices per frame

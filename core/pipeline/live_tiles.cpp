@@ -1,7 +1,5 @@
-// The live tile pyramid during the flight (core/tiles/live_tile_pyramid.h): which grid it is on (local until the live
-// georeference holds, then web mercator), which piece of the flight it shows (the largest), each registered frame
-// and each frame a solve moved handed to its worker, the frame footprints for the live page, and at the end the
-// switch to the end-of-flight tiles/.
+#include "core/pipeline/live_tiles.h"
+
 #include <ogr_spatialref.h>
 #include <spdlog/spdlog.h>
 
@@ -13,7 +11,6 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "core/pipeline/mosaicker.h"
 #include "core/pipeline/stored_frame.h"
 #include "core/tiles/web_mercator.h"
 #include "core/util/clock.h"
@@ -37,56 +34,30 @@ int DecodeReduce(cv::Size original, cv::Size work) {
 
 }  // namespace
 
-struct Mosaicker::LiveTiles {
-  std::unique_ptr<LiveTilePyramid> pyramid;
-  bool started = false;
-  TileGrid grid;
-  int anchor = -1;  // a frame of the piece shown (its component's root changes with merges)
-  // Geographic: the live georeference the tiles were drawn with and lat/lon from its CRS.
-  int refits_seen = -1;
-  GeorefFit fit;
-  std::unique_ptr<OGRCoordinateTransformation> to_wgs84;
-  Vec2 local_offset = Vec2::Zero();  // local: max_zoom pixels = mosaic pixels + offset
-  cv::Rect2d drawn_mosaic;           // what has been drawn, mosaic pixels (the refit's shift is measured on it)
-  std::unordered_set<int> drawn;
-  std::deque<std::pair<int, std::array<Vec2, 4>>> outlines;  // max_zoom pixels, newest last
-  std::mutex listeners_mutex;                                // the tile listener runs on the pyramid's worker
-  TilesListener tiles_listener;
-  FootprintsListener footprints_listener;
-};
-
-void Mosaicker::SetTilesListeners(TilesListener tiles, FootprintsListener footprints) {
-  if (!live_tiles_) return;
-  std::lock_guard lock(live_tiles_->listeners_mutex);
-  live_tiles_->tiles_listener = std::move(tiles);
-  live_tiles_->footprints_listener = std::move(footprints);
-}
-
-void Mosaicker::StartLiveTiles() {
-  if (!options_.live_tiles.enabled) return;
-  live_tiles_ = std::make_shared<LiveTiles>();
-  engine_.TrackMoves(true);
-  LiveTiles* lt = live_tiles_.get();
-  // Frames redrawn from frames/ (moved by a solve) are undistorted like the new ones (work_lens_ is set on the first
-  // frame's Prepare, before anything is drawn, and not written again).
-  auto read = [this](const std::string& path, cv::Size work_size, int decode_reduce) {
+LiveTiles::LiveTiles(const PipelineOptions& options, SessionPaths paths, const FlightRecord* record,
+                     const WorkLens* lens, const LiveGeoref* georef)
+    : options_(options), paths_(std::move(paths)), record_(record), georef_(georef) {
+  // Frames redrawn from frames/ (moved by a solve) are undistorted like the new ones (the lens is chosen on the first
+  // frame's preparation, before anything is drawn, and not changed again).
+  auto read = [lens](const std::string& path, cv::Size work_size, int decode_reduce) {
     const cv::Mat recorded = LoadStoredFrame(path, work_size, decode_reduce);
-    return work_lens_.UndistortImage(recorded);  // the recorded image itself when the sizes differ or no lens
+    return lens->work().UndistortImage(recorded);  // the recorded image itself when the sizes differ or no lens
   };
-  lt->pyramid = std::make_unique<LiveTilePyramid>(paths_.Join("live_tiles"), options_.live_tiles, read,
-                                                  [lt](std::shared_ptr<const TileSetInfo> info) {
-                                                    std::lock_guard lock(lt->listeners_mutex);
-                                                    if (lt->tiles_listener) lt->tiles_listener(std::move(info));
-                                                  });
+  pyramid_ = std::make_unique<LiveTilePyramid>(
+      paths_.Join("live_tiles"), options_.live_tiles, read,
+      [this](std::shared_ptr<const TileSetInfo> info) { tiles_published_.Emit(std::move(info)); });
 }
 
-Mat3 Mosaicker::GridFromWork(int id) const {
-  const LiveTiles& lt = *live_tiles_;
-  const Mat3& mosaic_from_work = engine_.mosaic_from_work(id);
+// The worker publishes through this object's signal: it stops before anything else goes.
+LiveTiles::~LiveTiles() { pyramid_.reset(); }
+
+Mat3 LiveTiles::GridFromWork(int id) const {
+  const Grid& lt = grid_;
+  const Mat3& mosaic_from_work = engine().mosaic_from_work(id);
   if (!lt.grid.geographic) return Translation(lt.local_offset.x(), lt.local_offset.y()) * mosaic_from_work;
   // Work pixels -> mosaic -> UTM (the live fit, affine) -> lat/lon -> web mercator: not affine over the map, but a
   // homography fitted on a 3x3 lattice of the frame is exact to far below a pixel over one footprint.
-  const cv::Size size = engine_.frame(id).work_size;
+  const cv::Size size = engine().frame(id).work_size;
   std::vector<cv::Point2d> src, dst;
   for (int j = 0; j < 3; ++j)
     for (int i = 0; i < 3; ++i) {
@@ -112,22 +83,22 @@ Mat3 Mosaicker::GridFromWork(int id) const {
 // The ground pixel the live tiles need: what they are drawn from (the newest frame's working copy; the reference frame
 // may have been taken lower, at take-off), but no finer than the final mosaic's (mosaic_scale of the originals): a
 // finer zoom would only enlarge the same pixels into more tiles.
-double Mosaicker::LiveTilesGsd(int id) const {
-  const FrameState& st = frames_[static_cast<size_t>(id)];
-  const cv::Size work = engine_.frame(id).work_size;
+double LiveTiles::TilesGsd(int id) const {
+  const SessionFrame& st = record_->frame(id);
+  const cv::Size work = engine().frame(id).work_size;
   const Vec2 centre(0.5 * (work.width - 1), 0.5 * (work.height - 1));
-  const double work_gsd = live_tiles_->fit.gsd_m * LocalScale(engine_.mosaic_from_work(id), centre);
+  const double work_gsd = grid_.fit.gsd_m * LocalScale(engine().mosaic_from_work(id), centre);
   const double work_per_original = std::sqrt(std::abs(st.work_from_original.topLeftCorner<2, 2>().determinant()));
   return std::max(work_gsd, work_gsd * work_per_original / options_.mosaic_scale);
 }
 
-bool Mosaicker::StartTileGrid(int id) {
-  LiveTiles& lt = *live_tiles_;
-  const FrameMetadata& m = frames_[static_cast<size_t>(id)].metadata;
+bool LiveTiles::StartGrid(int id) {
+  Grid& lt = grid_;
+  const FrameMetadata& m = record_->frame(id).metadata;
   const bool has_position = m.latitude_deg && m.longitude_deg;
-  if (live_georef_.ok()) {
-    lt.fit = live_georef_.fit();
-    lt.refits_seen = live_georef_.refits();
+  if (georef_->ok()) {
+    lt.fit = georef_->fit();
+    lt.refits_seen = georef_->refits();
     OGRSpatialReference utm, wgs;
     utm.importFromEPSG(lt.fit.epsg);
     wgs.SetWellKnownGeogCS("WGS84");
@@ -138,12 +109,12 @@ bool Mosaicker::StartTileGrid(int id) {
     if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &lon, &lat)) return false;
     // The zoom of the first georeference stays unless a later one differs by two levels or more (a GSD estimate
     // near a level's edge must not redraw the map back and forth).
-    const int zoom = MaxZoomForGsd(lat, LiveTilesGsd(id));
+    const int zoom = MaxZoomForGsd(lat, TilesGsd(id));
     if (!lt.grid.geographic || std::abs(zoom - lt.grid.max_zoom) >= 2) lt.grid.max_zoom = zoom;
     lt.grid.geographic = true;
   } else if (!has_position && !lt.started) {
-    const cv::Size s = engine_.frame(id).work_size;
-    const Vec2 centre = Apply(engine_.mosaic_from_work(id), Vec2(0.5 * (s.width - 1), 0.5 * (s.height - 1)));
+    const cv::Size s = engine().frame(id).work_size;
+    const Vec2 centre = Apply(engine().mosaic_from_work(id), Vec2(0.5 * (s.width - 1), 0.5 * (s.height - 1)));
     lt.grid.geographic = false;
     lt.grid.max_zoom = kLocalMaxZoom;
     lt.local_offset = Vec2::Constant(kTileSize * std::ldexp(1.0, kLocalMaxZoom - 1)) - centre;
@@ -156,41 +127,41 @@ bool Mosaicker::StartTileGrid(int id) {
   lt.drawn.clear();
   lt.outlines.clear();
   lt.drawn_mosaic = cv::Rect2d();
-  lt.pyramid->Reset(lt.grid);
+  pyramid_->Reset(lt.grid);
   spdlog::info("live tiles: {} grid, zoom {}-{} (tile pixel no coarser than {:.1f} cm)",
                lt.grid.geographic ? "web-mercator" : "local", lt.grid.min_zoom, lt.grid.max_zoom,
-               lt.grid.geographic ? 100 * LiveTilesGsd(id) : 0.0);
+               lt.grid.geographic ? 100 * TilesGsd(id) : 0.0);
   return true;
 }
 
 // Whether the pyramid must start again: the first georeference, a new one that moves the drawn map by more than
 // refit_shift_m, or another piece of the flight has become the largest.
-bool Mosaicker::TileGridStale(int id) {
-  LiveTiles& lt = *live_tiles_;
+bool LiveTiles::GridStale(int id) {
+  Grid& lt = grid_;
   if (!lt.started) return true;
-  if (engine_.ComponentOf(id) != engine_.ComponentOf(lt.anchor) &&
-      engine_.ComponentSize(id) > engine_.ComponentSize(lt.anchor))
+  if (engine().ComponentOf(id) != engine().ComponentOf(lt.anchor) &&
+      engine().ComponentSize(id) > engine().ComponentSize(lt.anchor))
     return true;
-  if (!live_georef_.ok() || live_georef_.refits() == lt.refits_seen) return false;
+  if (!georef_->ok() || georef_->refits() == lt.refits_seen) return false;
   if (!lt.grid.geographic) return true;
-  lt.refits_seen = live_georef_.refits();
+  lt.refits_seen = georef_->refits();
   const auto& a = lt.fit.world_from_pixel;
-  const auto& b = live_georef_.fit().world_from_pixel;
+  const auto& b = georef_->fit().world_from_pixel;
   double shift = 0;
   const cv::Rect2d r = lt.drawn_mosaic;
   for (const Vec2& c : {Vec2(r.x, r.y), Vec2(r.br().x, r.y), Vec2(r.x, r.br().y), Vec2(r.br().x, r.br().y)})
     shift = std::max(shift, ((a.leftCols<2>() - b.leftCols<2>()) * c + a.col(2) - b.col(2)).norm());
   // Moves within the fit's own residual are GPS noise, not news: the map stays where it is.
-  const double threshold = std::max(options_.live_tiles.refit_shift_m, 2.0 * live_georef_.fit().rms_m);
-  return live_georef_.fit().epsg != lt.fit.epsg || shift > threshold;
+  const double threshold = std::max(options_.live_tiles.refit_shift_m, 2.0 * georef_->fit().rms_m);
+  return georef_->fit().epsg != lt.fit.epsg || shift > threshold;
 }
 
-void Mosaicker::DrawTile(int id, std::shared_ptr<const cv::Mat> image) {
-  LiveTiles& lt = *live_tiles_;
+void LiveTiles::Draw(int id, std::shared_ptr<const cv::Mat> image) {
+  Grid& lt = grid_;
   const Mat3 grid_from_work = GridFromWork(id);
   if (grid_from_work.isZero()) return;
-  const FrameState& st = frames_[static_cast<size_t>(id)];
-  const cv::Size size = engine_.frame(id).work_size;
+  const SessionFrame& st = record_->frame(id);
+  const cv::Size size = engine().frame(id).work_size;
   const int64_t registered_ns = image ? MonotonicNs() : 0;  // a new frame's latency is measured, not a redraw's
   TileFrame f;
   f.id = id;
@@ -200,9 +171,9 @@ void Mosaicker::DrawTile(int id, std::shared_ptr<const cv::Mat> image) {
   f.image = std::move(image);
   f.decode_reduce = DecodeReduce(st.original_size, size);
   f.registered_ns = registered_ns;
-  if (!lt.pyramid->Draw(std::move(f))) return;
+  if (!pyramid_->Draw(std::move(f))) return;
   const bool is_new = lt.drawn.insert(id).second;
-  const cv::Rect2d box = cv::boundingRect(Footprint(engine_.mosaic_from_work(id), size.width, size.height));
+  const cv::Rect2d box = cv::boundingRect(Footprint(engine().mosaic_from_work(id), size.width, size.height));
   lt.drawn_mosaic = lt.drawn_mosaic.area() > 0 ? (lt.drawn_mosaic | box) : box;
   if (!is_new) return;
   std::array<Vec2, 4> outline;
@@ -212,27 +183,26 @@ void Mosaicker::DrawTile(int id, std::shared_ptr<const cv::Mat> image) {
   if (lt.outlines.size() > kFootprintsShown) lt.outlines.pop_front();
 }
 
-void Mosaicker::UpdateLiveTiles(int id, const cv::Mat& work_bgr) {
-  if (!live_tiles_) return;
-  LiveTiles& lt = *live_tiles_;
-  std::vector<int> moved = engine_.TakeMoved();
-  if (!engine_.frame(id).failure.empty() || !engine_.placed(id)) return;
-  if (TileGridStale(id)) {
-    if (!StartTileGrid(id)) return;
+void LiveTiles::Update(int id, const cv::Mat& work_bgr, const std::vector<int>& moved_frames) {
+  Grid& lt = grid_;
+  std::vector<int> moved = moved_frames;
+  if (!engine().frame(id).failure.empty() || !engine().placed(id)) return;
+  if (GridStale(id)) {
+    if (!StartGrid(id)) return;
     // Everything of the piece shown is drawn again on the new grid (read back from frames/ by the worker).
-    for (int k : engine_.MembersOf(engine_.ComponentOf(id)))
-      if (k != id && engine_.placed(k)) DrawTile(k, nullptr);
+    for (int k : engine().MembersOf(engine().ComponentOf(id)))
+      if (k != id && engine().placed(k)) Draw(k, nullptr);
     moved.clear();
   }
-  const int root = engine_.ComponentOf(lt.anchor);
+  const int root = engine().ComponentOf(lt.anchor);
   for (int k : moved)  // a solve or a merge moved them (or brought them into the piece shown)
-    if (k != id && engine_.ComponentOf(k) == root) DrawTile(k, nullptr);
-  if (engine_.ComponentOf(id) == root) DrawTile(id, std::make_shared<const cv::Mat>(work_bgr));
+    if (k != id && engine().ComponentOf(k) == root) Draw(k, nullptr);
+  if (engine().ComponentOf(id) == root) Draw(id, std::make_shared<const cv::Mat>(work_bgr));
 }
 
-void Mosaicker::PublishLiveFootprints() {
-  if (!live_tiles_ || !live_tiles_->started) return;
-  LiveTiles& lt = *live_tiles_;
+void LiveTiles::PublishFootprints() {
+  if (!grid_.started) return;
+  Grid& lt = grid_;
   nlohmann::json features = nlohmann::json::array();
   const double local_unit = std::ldexp(1.0, lt.grid.max_zoom);
   for (const auto& [id, outline] : lt.outlines) {
@@ -244,42 +214,40 @@ void Mosaicker::PublishLiveFootprints() {
       ring.push_back({ll.x(), ll.y()});
     }
     features.push_back({{"type", "Feature"},
-                        {"properties", {{"id", id}, {"name", frames_[static_cast<size_t>(id)].name}}},
+                        {"properties", {{"id", id}, {"name", record_->frame(id).name}}},
                         {"geometry", {{"type", "Polygon"}, {"coordinates", {ring}}}}});
   }
   const nlohmann::json doc = {
       {"type", "FeatureCollection"}, {"crs", lt.grid.geographic ? "EPSG:4326" : "local"}, {"features", features}};
-  std::lock_guard lock(lt.listeners_mutex);
-  if (lt.footprints_listener) lt.footprints_listener(std::make_shared<const std::string>(doc.dump()));
+  footprints_published_.Emit(std::make_shared<const std::string>(doc.dump()));
 }
 
-TileOptions Mosaicker::FinalTileOptions() const {
+TileOptions LiveTiles::FinalTileOptions(bool georeferenced) const {
   TileOptions o = options_.tiles;
   // The end-of-flight tiles on the live grid's zooms, so that a client keeps its URLs (and sees every zoom it had).
-  if (live_tiles_ && live_tiles_->started && live_tiles_->grid.geographic && georef_.ok) {
-    o.keep_max_zoom = live_tiles_->grid.max_zoom;
-    o.keep_min_zoom = live_tiles_->grid.min_zoom;
+  if (grid_.started && grid_.grid.geographic && georeferenced) {
+    o.keep_max_zoom = grid_.grid.max_zoom;
+    o.keep_min_zoom = grid_.grid.min_zoom;
   }
   return o;
 }
 
-void Mosaicker::StopLiveTilesForFinalTiles() {
+void LiveTiles::StopForFinalTiles() {
   // The final tiles will replace the live ones: what still waits to be drawn would only slow the end of the flight.
-  if (live_tiles_ && live_tiles_->pyramid && options_.write_products && options_.write_tiff)
-    live_tiles_->pyramid->Cancel();
+  if (pyramid_ && options_.write_products && options_.write_tiff) pyramid_->Cancel();
 }
 
-void Mosaicker::FinishLiveTiles(const TileSet* final_tiles) {
-  if (!live_tiles_ || !live_tiles_->pyramid) return;
-  LiveTiles& lt = *live_tiles_;
-  lt.pyramid->Drain();
-  const LiveTileStats stats = lt.pyramid->Stats();
+void LiveTiles::Finish(const TileSet* final_tiles, int frames) {
+  if (!pyramid_) return;
+  Grid& lt = grid_;
+  pyramid_->Drain();
+  const LiveTileStats stats = pyramid_->Stats();
   std::vector<double> latency = stats.latency_ms;
   std::sort(latency.begin(), latency.end());
   const auto at = [&](double q) {
     return latency.empty() ? 0.0 : latency[static_cast<size_t>(q * static_cast<double>(latency.size() - 1))];
   };
-  live_tiles_report_ = {{"enabled", true},
+  report_ = {{"enabled", true},
                         {"grid", !lt.started          ? "none"
                                  : lt.grid.geographic ? "EPSG:3857"
                                                       : "local"},
@@ -296,15 +264,14 @@ void Mosaicker::FinishLiveTiles(const TileSet* final_tiles) {
                         {"worker_ms", stats.busy_ms},
                         {"latency_ms_median", at(0.5)},
                         {"latency_ms_p95", at(0.95)}};
-  auto last = lt.pyramid->Info();
-  lt.pyramid.reset();  // the worker stops
+  auto last = pyramid_->Info();
+  pyramid_.reset();  // the worker stops
   if (final_tiles == nullptr || final_tiles->tiles == 0) {
     // No end-of-flight tiles (--no-products, or they failed): the live pyramid stays, as it is, the map served.
-    std::lock_guard lock(lt.listeners_mutex);
-    if (last && lt.tiles_listener) {
+    if (last) {
       auto info = std::make_shared<TileSetInfo>(*last);
       info->final = true;
-      lt.tiles_listener(std::move(info));
+      tiles_published_.Emit(std::move(info));
     }
     return;
   }
@@ -318,11 +285,8 @@ void Mosaicker::FinishLiveTiles(const TileSet* final_tiles) {
   info->final = true;
   info->generation = (last ? last->generation : 0) + 1;
   info->updated_ns = MonotonicNs();
-  info->frames = final_registered_;
-  {
-    std::lock_guard lock(lt.listeners_mutex);
-    if (lt.tiles_listener) lt.tiles_listener(std::move(info));
-  }
+  info->frames = frames;
+  tiles_published_.Emit(std::move(info));
   std::error_code ec;
   std::filesystem::remove_all(paths_.Join("live_tiles"), ec);  // superseded: the server reads tiles/ now
 }

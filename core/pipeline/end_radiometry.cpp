@@ -1,0 +1,98 @@
+// Radiometry at the end of the flight: the solve over the component's edges from the session's thumbnails.
+#include "core/pipeline/end_radiometry.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgcodecs.hpp>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "core/pipeline/session_stores.h"
+#include "core/util/clock.h"
+#include "core/util/memory.h"
+
+namespace uavm {
+
+EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<int>& component,
+                                 const RadiometryOptions& options, const SessionPaths& paths) {
+  EndRadiometry out;
+  RadiometryModel& radiometry = out.model;
+  if (!options.enabled || component.size() < 2) return out;
+  const StageTimer timer;
+  const std::unordered_set<int> in_component(component.begin(), component.end());
+  const std::string dir = paths.Join("thumbs");
+  // Edges come in flight order, so a small cache of thumbnails serves most of them.
+  std::unordered_map<int, cv::Mat> thumbs;
+  auto thumb_of = [&](int id) -> const cv::Mat& {
+    if (thumbs.size() >= 64) thumbs.clear();
+    auto it = thumbs.find(id);
+    if (it == thumbs.end()) it = thumbs.emplace(id, cv::imread(SessionStores::ThumbPath(dir, id), cv::IMREAD_COLOR)).first;
+    return it->second;
+  };
+  std::vector<const Edge*> edges;
+  for (const Edge& e : record.engine().edges())
+    if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0) edges.push_back(&e);
+  // A long flight samples fewer points per edge (4 at least: the solve's memory grows with the frames and pairs, the
+  // samples' with their count).
+  const int per_edge = std::clamp(options.max_samples / std::max<int>(1, static_cast<int>(edges.size())), 4,
+                                  options.samples_per_edge);
+  std::vector<RadiometrySample> samples;
+  samples.reserve(edges.size() * static_cast<size_t>(per_edge));
+  for (const Edge* edge : edges) {
+    const Edge& e = *edge;
+    const cv::Mat& a = thumb_of(e.src);
+    const cv::Mat& b = thumb_of(e.tgt);
+    if (a.empty() || b.empty()) continue;
+    SampleOverlap(e.src, e.tgt, a, b, record.frame(e.src).work_size,
+                  record.frame(e.tgt).work_size, e.tgt_from_src, per_edge, &samples);
+  }
+  radiometry = SolveRadiometry(samples, component, options);
+  out.ms = timer.ElapsedMs();
+  if (!radiometry.ok) {
+    spdlog::warn("radiometry: not corrected ({})", radiometry.note);
+    return out;
+  }
+  // Each frame's gains beside transforms.csv: what the mosaic divided out (a reader can compare them with the
+  // camera's recorded exposure, or undo them).
+  std::string csv = "frame,name,gain_b,gain_g,gain_r\n";
+  for (int id : component) {
+    const cv::Vec3d g = radiometry.Gain(id);
+    csv += fmt::format("{},{},{:.5f},{:.5f},{:.5f}\n", id, record.frame(id).name, g[0], g[1], g[2]);
+  }
+  std::string error;
+  if (!WriteFileAtomic(paths.Join("radiometry.csv"), csv, &error)) spdlog::warn("radiometry: {}", error);
+  spdlog::info(
+      "radiometry: {} samples over {} edges, log RMS {:.4f} -> {:.4f}, corner falloff {:.3f} {:.3f} {:.3f}{} "
+      "({:.0f} ms)",
+      radiometry.samples, radiometry.edges, radiometry.rms_log_before, radiometry.rms_log_after,
+      radiometry.Falloff(0, 1.0), radiometry.Falloff(1, 1.0), radiometry.Falloff(2, 1.0),
+      radiometry.note.empty() ? "" : " (" + radiometry.note + ")", out.ms);
+  return out;
+}
+
+nlohmann::json RadiometryJson(const EndRadiometry& end, const RadiometryOptions& options) {
+  const RadiometryModel& radiometry = end.model;
+  nlohmann::json j = {{"enabled", options.enabled}, {"corrected", radiometry.ok}};
+  if (!options.enabled) return j;
+  double min_gain = 1e9, max_gain = 0;
+  for (const auto& [id, g] : radiometry.log_gain)
+    for (int c = 0; c < 3; ++c) {
+      min_gain = std::min(min_gain, std::exp(g[c]));
+      max_gain = std::max(max_gain, std::exp(g[c]));
+    }
+  j["samples"] = radiometry.samples;
+  j["edges"] = radiometry.edges;
+  j["rms_log_before"] = radiometry.rms_log_before;
+  j["rms_log_after"] = radiometry.rms_log_after;
+  j["vignetting"] = radiometry.vignetting;
+  j["corner_falloff_bgr"] = {radiometry.Falloff(0, 1.0), radiometry.Falloff(1, 1.0), radiometry.Falloff(2, 1.0)};
+  j["log_falloff_c1_c2_bgr"] = radiometry.log_falloff;
+  if (!radiometry.log_gain.empty()) j["gain_range"] = {min_gain, max_gain};
+  j["note"] = radiometry.note;
+  j["solve_ms"] = end.ms;
+  return j;
+}
+
+}  // namespace uavm

@@ -1,0 +1,30 @@
+#include "core/pipeline/finish_flight.h"
+
+#include "core/pipeline/end_of_flight.h"
+
+namespace uavm {
+
+bool FinishFlight(FlightSession* session, LiveView* live, nlohmann::json report_sections, FlightSummary* summary,
+                  std::string* error) {
+  if (live != nullptr) live->StopForFinalTiles();
+  const Solution solution = session->Solve();
+  if (!solution.ok) {
+    *error = solution.failure;
+    return false;
+  }
+  summary->registered = static_cast<int>(solution.component.size());
+  summary->residual_rms_px = solution.rms_px;
+  EndOfFlight::Inputs inputs;
+  inputs.record = &session->record();
+  inputs.solution = &solution;
+  inputs.lens = &session->lens();
+  inputs.session = session;
+  inputs.live = live;
+  inputs.report_sections = std::move(report_sections);
+  EndOfFlight end(session->options(), session->paths(), std::move(inputs));
+  if (!end.Run(error)) return false;
+  session->MarkFinished();
+  return true;
+}
+
+}  // namespace uavm

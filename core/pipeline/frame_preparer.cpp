@@ -1,0 +1,60 @@
+#include "core/pipeline/frame_preparer.h"
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "core/util/clock.h"
+
+namespace uavm {
+
+PreparedFrame FramePreparer::Prepare(Frame frame) const {
+  PreparedFrame p = PrepareImages(std::move(frame));
+  DetectFeatures(&p);
+  return p;
+}
+
+void FramePreparer::DetectFeatures(PreparedFrame* p) const {
+  StageTimer t;
+  p->features = extractor_.Extract(p->work_gray);
+  lens_.For(p->frame, p->work_gray.size()).UndistortPoints(&p->features.points);
+  p->features_ms = t.ElapsedMs();
+}
+
+PreparedFrame FramePreparer::PrepareImages(Frame frame) const {
+  StageTimer t;
+  PreparedFrame p;
+  const int long_side = std::max(frame.original_size.width, frame.original_size.height);
+  const double s = std::min(1.0, work_long_side_ / static_cast<double>(long_side));
+  const cv::Size work_size(std::max(1, static_cast<int>(std::lround(frame.original_size.width * s))),
+                           std::max(1, static_cast<int>(std::lround(frame.original_size.height * s))));
+  if (frame.image.size() == work_size)
+    p.work_bgr = frame.image;
+  else
+    cv::resize(frame.image, p.work_bgr, work_size, 0, 0, cv::INTER_AREA);
+  cv::cvtColor(p.work_bgr, p.work_gray, cv::COLOR_BGR2GRAY);
+  // Features are found on the recorded pixels (no resampling) and their positions undistorted (Prepare); the live
+  // view, thumbnails and tiles draw the ideal image, on which the maps act.
+  const Undistorter& lens = lens_.For(frame, work_size);
+  if (lens.active()) p.work_bgr = lens.UndistortImage(p.work_bgr);
+  if (frame.source_path.empty()) {
+    // No file to copy into the session (camera, video, simulation): encode here, on the capture thread.
+    try {
+      cv::imencode(".jpg", frame.image, p.encoded, {cv::IMWRITE_JPEG_QUALITY, 95});
+    } catch (const cv::Exception&) {
+      p.encoded.clear();
+    }
+  }
+  frame.image.release();  // the decoded original is not needed any more: keep queued frames small
+  p.prepare_ms = t.ElapsedMs();
+  p.frame = std::move(frame);
+  return p;
+}
+
+cv::Mat FramePreparer::IdealGray(const PreparedFrame& p) const {
+  if (!lens_.For(p.frame, p.work_gray.size()).active()) return p.work_gray;
+  cv::Mat gray;  // the features' coordinates are the undistorted image's
+  cv::cvtColor(p.work_bgr, gray, cv::COLOR_BGR2GRAY);
+  return gray;
+}
+
+}  // namespace uavm

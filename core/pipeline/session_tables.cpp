@@ -1,0 +1,52 @@
+#include "core/pipeline/session_tables.h"
+
+#include <filesystem>
+#include <optional>
+#include <sstream>
+
+#include "core/session/session_dir.h"
+#include "core/util/memory.h"
+
+namespace uavm {
+
+bool WriteTransformsCsv(const std::string& path, const FlightRecord& record, const std::unordered_set<int>& in_map,
+                        const std::vector<Mat3>& canvas_from_original, const std::unordered_set<int>& by_telemetry,
+                        std::string* error) {
+  std::vector<TransformRow> rows;
+  for (const auto& f : record.frames()) {
+    TransformRow r;
+    r.index = f.id;
+    r.filename = f.name;
+    r.registered = in_map.count(f.id) != 0;
+    r.mosaic_from_frame = canvas_from_original[static_cast<size_t>(f.id)];
+    if (r.registered) r.placed_by = by_telemetry.count(f.id) != 0 ? "telemetry" : "image";
+    rows.push_back(r);
+  }
+  return WriteFileAtomic(path, FormatTransformsCsv(rows), error);
+}
+
+bool WriteFramesCsv(const std::string& path, const FlightRecord& record, const std::unordered_set<int>& in_map,
+                    std::string* error) {
+  std::ostringstream frames_csv;
+  frames_csv.precision(12);
+  frames_csv << "index,filename,stored_file,width,height,timestamp_ns,registered,latitude_deg,longitude_deg,"
+                "altitude_m,relative_altitude_m,flight_yaw_deg,gimbal_yaw_deg,gimbal_pitch_deg,focal_length_mm\n";
+  const auto cell = [](const std::optional<double>& v) {
+    std::ostringstream c;
+    c.precision(12);
+    if (v) c << *v;
+    return c.str();
+  };
+  for (const auto& f : record.frames()) {
+    const auto& m = f.metadata;
+    frames_csv << f.id << ',' << f.name << ',' << std::filesystem::path(f.stored_file).filename().string() << ','
+               << f.original_size.width << ',' << f.original_size.height << ',' << f.timestamp_ns << ','
+               << (in_map.count(f.id) != 0 ? 1 : 0) << ',' << cell(m.latitude_deg) << ',' << cell(m.longitude_deg)
+               << ',' << cell(m.altitude_m) << ',' << cell(m.relative_altitude_m) << ',' << cell(m.flight_yaw_deg)
+               << ',' << cell(m.gimbal_yaw_deg) << ',' << cell(m.gimbal_pitch_deg) << ',' << cell(m.focal_length_mm)
+               << '\n';
+  }
+  return WriteFileAtomic(path, frames_csv.str(), error);
+}
+
+}  // namespace uavm
