@@ -117,10 +117,12 @@ bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, FlightSe
 }
 
 // What the flight's inputs say of themselves: the telemetry's report and the drop and capture counters.
-nlohmann::json ReportInputs(hal::FrameSource* source, hal::TelemetrySource* telemetry, const BoundedQueue<Item>& queue,
-                            const CaptureOutcome& capture, FlightSession* session, FlightStatus* status) {
+OutputAdditions ReportInputs(const RunConfig& config, hal::FrameSource* source, hal::TelemetrySource* telemetry,
+                             const BoundedQueue<Item>& queue, const CaptureOutcome& capture, FlightSession* session,
+                             FlightStatus* status) {
   source->Close();
-  nlohmann::json sections = nlohmann::json::object();
+  OutputAdditions additions;
+  additions.config_yaml = hal::ToYaml(config.telemetry_timing);
   if (telemetry) {
     telemetry->Stop();
     const hal::TelemetryReport tr = telemetry->Report();
@@ -128,7 +130,7 @@ nlohmann::json ReportInputs(hal::FrameSource* source, hal::TelemetrySource* tele
                 "telemetry: {} of {} frames placed ({} without: stale, lost, no fix or not covered; report.json "
                 "\"telemetry\" counts each)",
                 tr.frames_placed, tr.frames_asked, tr.frames_without);
-    sections["telemetry"] = TelemetryJson(tr);
+    additions.report_sections["telemetry"] = TelemetryJson(tr);
   }
   // Frames lost to a slow consumer: in this queue, and in a camera source's own capture queue.
   const hal::CaptureCounters counters = source->Counters();
@@ -140,12 +142,12 @@ nlohmann::json ReportInputs(hal::FrameSource* source, hal::TelemetrySource* tele
   if (capture.source_failed)
     spdlog::error("source stopped: {} (finishing with what was received)", capture.source_error);
   status->status().dropped = static_cast<int>(queue.dropped() + counters.dropped);
-  return sections;
+  return additions;
 }
 
 // After the flight: the end solves, compositing and products, the exit code.
-int EndFlight(nlohmann::json report_sections, const CaptureOutcome& capture, bool storage_stopped,
-              FlightSession* session, LiveView* view, ServiceNotifier* notifier, FlightStatus* status) {
+int EndFlight(OutputAdditions additions, const CaptureOutcome& capture, bool storage_stopped, FlightSession* session,
+              LiveView* view, ServiceNotifier* notifier, FlightStatus* status) {
   status->line().Finish();
   status->Publish("finishing", true);
   notifier->Stopping(fmt::format("flight over after {} frames: final solve and mosaic", session->frames_in()));
@@ -154,7 +156,7 @@ int EndFlight(nlohmann::json report_sections, const CaptureOutcome& capture, boo
   FlightSummary summary;
   {
     const WatchdogHeartbeat heartbeat(notifier);  // the end solves and compositing have no frame loop to feed it
-    finished = FinishFlight(session, view, std::move(report_sections), &summary, &error);
+    finished = FinishFlight(session, view, std::move(additions), &summary, &error);
   }
   status->status().registered = summary.registered;
   status->Publish(finished ? "done" : "failed", true);
@@ -208,9 +210,9 @@ int Run(const RunConfig& config) {
   if (const int rc = StartSession(config, session.get()); rc != kExitOk) return rc;
   ServiceNotifier notifier;
   notifier.Ready(fmt::format("capturing from {} into {}", source->Describe(), config.out_dir));
-  BoundedQueue<Item> queue(static_cast<size_t>(session->options().queue_capacity),
-                           source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock
-                                              : BoundedQueue<Item>::Policy::kDropOldest);
+  BoundedQueue<Item> queue(
+      static_cast<size_t>(session->options().queue_capacity),
+      source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock : BoundedQueue<Item>::Policy::kDropOldest);
   // One frame between loading and detection: the decode of the next frame overlaps this one's SIFT. The loader waits
   // for detection (a camera's own queue drops its oldest frames meanwhile, as before: no CPU is spent on frames that
   // would be dropped here).
@@ -222,8 +224,9 @@ int Run(const RunConfig& config) {
   const bool storage_stopped = !RegisterFrames(config, &queue, session.get(), &notifier, &status, telemetry.get());
   detect.join();
   load.join();
-  nlohmann::json sections = ReportInputs(source.get(), telemetry.get(), queue, capture, session.get(), &status);
-  const int rc = EndFlight(std::move(sections), capture, storage_stopped, session.get(), &view, &notifier, &status);
+  OutputAdditions additions =
+      ReportInputs(config, source.get(), telemetry.get(), queue, capture, session.get(), &status);
+  const int rc = EndFlight(std::move(additions), capture, storage_stopped, session.get(), &view, &notifier, &status);
   status.Linger(config.http_linger_s);
   return rc;
 }

@@ -2,6 +2,7 @@
 #include <string>
 
 #include "core/pipeline/options.h"
+#include "hal/telemetry/telemetry_config.h"
 
 namespace uavm::app {
 
@@ -28,7 +29,13 @@ struct RunConfig {
   double http_linger_s = 0;  // after the flight, the final map stays served this long (or until SIGTERM)
   std::string telemetry;     // --telemetry KIND:ARG (hal/telemetry/telemetry_source.h); empty = EXIF GPS only
   PipelineOptions pipeline;
+  hal::TelemetryConfig telemetry_timing;  // the config's `telemetry:` keys (hal's)
 };
+
+// --config FILE: core's keys into config->pipeline, the telemetry's into config->telemetry_timing.
+[[nodiscard]] bool LoadConfigFile(const std::string& path, RunConfig* config, std::string* error);
+// --print-config and the session's config.yaml: every key the run uses, core's and hal's.
+[[nodiscard]] std::string EffectiveConfigYaml(const RunConfig& config);
 
 // SIGINT / SIGTERM: the capture stops, and what was received is registered and composited (exit 0 when that
 // succeeds). A second signal does not interrupt the compositing: use SIGKILL, then --resume.

@@ -113,7 +113,7 @@ int main(int argc, char** argv) {
     cli.parse(argc, argv);
     if (!config_file.empty()) {
       std::string error;
-      if (!LoadOptionsYaml(config_file, &p, &error)) {
+      if (!app::LoadConfigFile(config_file, &config, &error)) {
         spdlog::error("{}", error);
         return app::kExitUsage;
       }
@@ -134,7 +134,7 @@ int main(int argc, char** argv) {
     return app::kExitUsage;
   }
   if (print_config) {
-    std::fputs(ToYaml(p).c_str(), stdout);
+    std::fputs(app::EffectiveConfigYaml(config).c_str(), stdout);
     return app::kExitOk;
   }
   if (config.source.empty() || config.out_dir.empty()) {

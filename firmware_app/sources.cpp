@@ -4,6 +4,7 @@
 
 #include <cstdio>
 
+#include "core/session/session_dir.h"
 #include "hal/common/camera_options.h"
 #include "hal/sim/sim_source.h"
 #include "hal/v4l2/v4l2_source.h"
@@ -12,6 +13,20 @@
 #endif
 
 namespace uavm::app {
+
+bool LoadConfigFile(const std::string& path, RunConfig* config, std::string* error) {
+  std::string text;
+  if (!ReadTextFile(path, &text, error)) {
+    *error = "config " + path + ": cannot read";
+    return false;
+  }
+  return ParseOptionsYaml(text, path, &config->pipeline, error, {hal::kTelemetrySection}) &&
+         hal::ParseTelemetryConfigYaml(text, path, &config->telemetry_timing, error);
+}
+
+std::string EffectiveConfigYaml(const RunConfig& config) {
+  return ToYaml(config.pipeline) + hal::ToYaml(config.telemetry_timing);
+}
 
 std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::string* error) {
   const std::string& s = config.source;
@@ -22,7 +37,6 @@ std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::strin
     hal::ReplayOptions o;
     o.path = arg;
     o.stride = config.stride;
-    o.keep_uniform_with_telemetry = !config.telemetry.empty();  // calm water: a frame to place, not a bad file
     return std::make_unique<hal::ReplaySource>(o);
   }
   if (scheme == "sim") {
@@ -69,12 +83,7 @@ int ListCameras() {
 std::unique_ptr<hal::TelemetrySource> StartTelemetry(const RunConfig& config, bool* failed) {
   *failed = false;
   if (config.telemetry.empty()) return nullptr;
-  const auto& t = config.pipeline.telemetry;
-  hal::TelemetryOptions options;
-  options.latency_ns = static_cast<int64_t>(t.latency_ms * 1e6);
-  options.max_gap_ns = static_cast<int64_t>(t.max_gap_s * 1e9);
-  options.max_hold_ns = static_cast<int64_t>(t.max_hold_s * 1e9);
-  options.exif_utc_offset_s = t.exif_utc_offset_s;
+  const hal::TelemetryOptions options = config.telemetry_timing.ToOptions();
   std::string error;
   auto source = hal::MakeTelemetrySource(config.telemetry, options, &error);
   if (source && source->Start(&error) != hal::Status::kOk) source.reset();

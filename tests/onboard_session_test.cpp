@@ -23,7 +23,7 @@ namespace fs = std::filesystem;
 
 constexpr int kCropWidth = 320;
 constexpr int kCropHeight = 240;
-constexpr double kMetresPerPixel = 0.1;  // of the photograph, north up
+constexpr double kMetresPerPixel = 0.1;      // of the photograph, north up
 constexpr double kLat0 = 47.0, kLon0 = 9.0;  // on UTM zone 32's central meridian: grid north is north
 
 // A serpentine flight of 2 strips over the bundled photograph: frame k is the crop whose top-left is Origin(k).
@@ -214,6 +214,37 @@ TEST(FlightSessionTest, AFrameTheSessionCannotStoreFailsAndStopsTheFlightWithout
   EXPECT_FALSE(session->record().engine().frame(1).failure.empty());
 }
 
+TEST(FlightSessionTest, AFrameOfOneColourIsKeptOnlyWhenItsPositionCanPlaceItWhateverTheSource) {
+  const PhotoFlight flight;
+  ASSERT_TRUE(flight.ok());
+  const SessionDir dir("uniform");
+  auto session = NewSession(TestOptions(), dir.paths());
+  std::string error;
+  ASSERT_EQ(session->Start(false, nullptr, &error), FlightSession::StartStatus::kOk);
+  (void)session->AddFrame(flight.At(0, true));
+  const auto uniform = [&](const std::string& name, cv::Scalar colour, bool gps) {
+    Frame f = flight.At(1, gps);  // a camera's frame: no file behind it
+    f.image.setTo(colour);
+    f.source_name = name;
+    return f;
+  };
+  // Calm water: nothing to match, but its GPS places it (bridging): kept, with an id.
+  EXPECT_NE(session->AddFrame(uniform("water_gps.jpg", cv::Scalar(120, 90, 60), true)), FrameOutcome::kRegistered);
+  EXPECT_EQ(session->record().size(), 2u);
+  // The same without a position, and a lens cap even with one: skipped, no id, journaled as skipped.
+  (void)session->AddFrame(uniform("water.jpg", cv::Scalar(120, 90, 60), false));
+  (void)session->AddFrame(uniform("cap.jpg", cv::Scalar(3, 3, 3), true));
+  EXPECT_EQ(session->record().size(), 2u);
+  ASSERT_EQ(session->record().skipped().size(), 2u);
+  EXPECT_EQ(session->record().skipped()[0].file, "water.jpg");
+  EXPECT_EQ(session->record().skipped()[0].reason.rfind("uniform frame (one colour", 0), 0u);
+  EXPECT_EQ(session->record().skipped()[1].reason.rfind("uniform frame (black or saturated)", 0), 0u);
+  JournalContents journal;
+  ASSERT_TRUE(ReadJournal(dir.paths().Join("journal.jsonl"), &journal, &error)) << error;
+  EXPECT_EQ(journal.frames.size(), 2u);
+  EXPECT_EQ(journal.skipped.size(), 2u);
+}
+
 TEST(FlightSessionTest, FollowersAnswerHintRequestsWithEachFramesMetadataAndDisconnectThemselves) {
   const PhotoFlight flight;
   ASSERT_TRUE(flight.ok());
@@ -316,12 +347,13 @@ TEST(EndOfFlightTest, WritesTheMapFromARecordAndASolutionAlone) {
   in.lens = &session->lens();
   in.session = &fake_session;
   in.live = &fake_live;
-  in.report_sections = {{"telemetry", {{"kind", "test"}}}};
+  in.additions.report_sections = {{"telemetry", {{"kind", "test"}}}};
+  in.additions.config_yaml = "telemetry:\n  latency_ms: 5\n";
   EndOfFlight end(session->options(), dir.paths(), std::move(in));
   ASSERT_TRUE(end.Run(&error)) << error;
 
-  EXPECT_EQ(fake_session.phases, std::vector<std::string>({"radiometry", "outputs", "compose", "compose_end",
-                                                           "products"}));
+  EXPECT_EQ(fake_session.phases,
+            std::vector<std::string>({"radiometry", "outputs", "compose", "compose_end", "products"}));
   EXPECT_EQ(fake_session.tables_for, 10u);
   // transforms.csv: every frame in the map, their offsets on the canvas as in the photograph (the canvas is
   // georeferenced by 3 frames' GPS and turned north-up: the photograph is north-up already).
@@ -353,6 +385,9 @@ TEST(EndOfFlightTest, WritesTheMapFromARecordAndASolutionAlone) {
   EXPECT_EQ(report["live_tiles"]["fake"], true);
   EXPECT_EQ(report["telemetry"]["kind"], "test");
   EXPECT_TRUE(report["georef"]["georeferenced"].get<bool>());
+  std::string config_yaml;
+  ASSERT_TRUE(ReadTextFile(dir.paths().Join("config.yaml"), &config_yaml, &error));
+  EXPECT_NE(config_yaml.find("latency_ms: 5"), std::string::npos);
 }
 
 TEST(EndOfFlightTest, FinishFlightRunsTheWholeEndAndTellsTheJournal) {
@@ -364,7 +399,7 @@ TEST(EndOfFlightTest, FinishFlightRunsTheWholeEndAndTellsTheJournal) {
   ASSERT_EQ(session->Start(false, nullptr, &error), FlightSession::StartStatus::kOk);
   for (int k = 0; k < 4; ++k) (void)session->AddFrame(flight.At(k, false));
   FlightSummary summary;
-  ASSERT_TRUE(FinishFlight(session.get(), nullptr, nlohmann::json::object(), &summary, &error)) << error;
+  ASSERT_TRUE(FinishFlight(session.get(), nullptr, OutputAdditions{}, &summary, &error)) << error;
   EXPECT_EQ(summary.registered, 4);
   JournalContents journal;
   ASSERT_TRUE(ReadJournal(dir.paths().Join("journal.jsonl"), &journal, &error));

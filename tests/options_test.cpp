@@ -58,5 +58,17 @@ TEST(OptionsTest, BadConfigsGiveClearErrors) {
   EXPECT_TRUE(LoadOptionsYaml(WriteTemp("empty", ""), &o, &err)) << err;  // empty = defaults
 }
 
+// A section another unit reads (the program's `telemetry:`, hal's) is an unknown key to core unless it is told so.
+TEST(OptionsTest, SectionsReadElsewhereArePassedOverOnlyWhenNamed) {
+  const std::string yaml = "work_long_side: 800\ntelemetry:\n  latency_ms: 250\n";
+  PipelineOptions p;
+  std::string error;
+  EXPECT_FALSE(ParseOptionsYaml(yaml, "core.yaml", &p, &error));
+  EXPECT_EQ(error, "config core.yaml: unknown key 'telemetry'");
+  EXPECT_EQ(p.work_long_side, PipelineOptions().work_long_side);  // a refused config changes nothing
+  ASSERT_TRUE(ParseOptionsYaml(yaml, "core.yaml", &p, &error, {"telemetry"})) << error;
+  EXPECT_EQ(p.work_long_side, 800);
+}
+
 }  // namespace
 }  // namespace uavm

@@ -17,6 +17,7 @@
 #include "core/util/clock.h"
 #include "hal/telemetry/geo_txt.h"
 #include "hal/telemetry/mavlink.h"
+#include "hal/telemetry/telemetry_config.h"
 #include "hal/telemetry/telemetry_source.h"
 #include "hal/telemetry/track.h"
 
@@ -219,6 +220,37 @@ TEST(TelemetrySourceTest, SerialLinkOnAPseudoTerminal) {
   const auto stop_start = std::chrono::steady_clock::now();
   source->Stop();
   EXPECT_LT(std::chrono::steady_clock::now() - stop_start, std::chrono::seconds(2));
+}
+
+}  // namespace
+}  // namespace uavm::hal
+
+namespace uavm::hal {
+namespace {
+
+// The telemetry's config keys are hal's: read from the program's YAML (other sections passed over), checked, and
+// turned into the sources' units.
+TEST(TelemetryConfigTest, ReadsItsSectionChecksItAndHandsTheSourcesNanoseconds) {
+  const std::string yaml = "work_long_side: 800\ntelemetry:\n  latency_ms: 250\n  max_gap_s: 3\n";
+  TelemetryConfig c;
+  std::string error;
+  ASSERT_TRUE(ParseTelemetryConfigYaml(yaml, "test.yaml", &c, &error)) << error;
+  EXPECT_DOUBLE_EQ(c.latency_ms, 250);
+  EXPECT_DOUBLE_EQ(c.max_hold_s, 1.0);  // not given: the default
+  const TelemetryOptions o = c.ToOptions();
+  EXPECT_EQ(o.latency_ns, 250'000'000);
+  EXPECT_EQ(o.max_gap_ns, 3'000'000'000);
+  TelemetryConfig round;
+  ASSERT_TRUE(ParseTelemetryConfigYaml(ToYaml(c), "round", &round, &error)) << error;
+  EXPECT_DOUBLE_EQ(round.max_gap_s, 3);
+
+  TelemetryConfig bad;
+  EXPECT_FALSE(ParseTelemetryConfigYaml("telemetry:\n  latency: 5\n", "a.yaml", &bad, &error));
+  EXPECT_EQ(error, "config a.yaml: unknown key 'telemetry.latency'");
+  EXPECT_FALSE(ParseTelemetryConfigYaml("telemetry:\n  max_gap_s: 90\n", "b.yaml", &bad, &error));
+  EXPECT_EQ(error, "config b.yaml: telemetry.max_gap_s must be in (0,60]");
+  EXPECT_FALSE(ParseTelemetryConfigYaml("telemetry:\n  max_hold_s: x\n", "c.yaml", &bad, &error));
+  EXPECT_DOUBLE_EQ(bad.max_hold_s, 1.0);  // a refused config leaves the defaults
 }
 
 }  // namespace

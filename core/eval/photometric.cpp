@@ -4,14 +4,11 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
+#include "core/util/fail.h"
+
 namespace uavm::eval {
 
 namespace {
-
-bool Fail(std::string* error, const std::string& msg) {
-  *error = msg;
-  return false;
-}
 
 // Colour (CV_32FC3) and coverage (CV_32F, 1 = flown) of a BGR or BGRA image (8-bit, 16-bit or float).
 void SplitCoverage(const cv::Mat& image, cv::Mat* colour, cv::Mat* coverage) {

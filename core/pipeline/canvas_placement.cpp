@@ -181,7 +181,8 @@ std::vector<BridgeFrame> CanvasPlacement::BridgeInputs(int* candidates) const {
       ++*candidates;
       const auto it = piece_of.find(f.id);
       b.piece = it != piece_of.end() && record_->engine().placed(f.id) ? it->second : f.id;
-      if (record_->engine().placed(f.id)) b.piece_from_frame = record_->engine().mosaic_from_work(f.id) * f.work_from_original;
+      if (record_->engine().placed(f.id))
+        b.piece_from_frame = record_->engine().mosaic_from_work(f.id) * f.work_from_original;
     }
     const auto& m = f.metadata;
     b.height_m = m.relative_altitude_m;
@@ -248,9 +249,9 @@ void CanvasPlacement::BridgeFrames() {
 // Grows the canvas (and shifts every placed frame and the georeference) to hold `placed`; false, with nothing
 // changed, when that would exceed max_canvas_side.
 bool CanvasPlacement::GrowCanvas(const std::vector<int>& placed) {
-  const Bounds2 box = FootprintBounds(placed, canvas_from_original_,
-                                      [this](int id) { return record_->frame(id).original_size; },
-                                      {0, 0, canvas_.width - 1.0, canvas_.height - 1.0});
+  const Bounds2 box =
+      FootprintBounds(placed, canvas_from_original_, [this](int id) { return record_->frame(id).original_size; },
+                      {0, 0, canvas_.width - 1.0, canvas_.height - 1.0});
   const double x0 = std::floor(box.minx), y0 = std::floor(box.miny);
   const double w = std::ceil(box.maxx) - x0 + 1, h = std::ceil(box.maxy) - y0 + 1;
   if (std::max(w, h) > options_.max_canvas_side) {

@@ -52,7 +52,7 @@ bool EndOfFlight::WriteTables(std::string* error) {
          in_.session->WriteEdgeTables(in_component, error) &&
          WriteFramesCsv(paths_.Join("frames.csv"), *in_.record, in_map, error) &&
          (camera_yaml.empty() || WriteFileAtomic(paths_.Join("camera.yaml"), camera_yaml, error)) &&
-         WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_), error);
+         WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_) + in_.additions.config_yaml, error);
 }
 
 // The mosaic, tile by tile: mosaic.tiled.tif (MakeProducts() turns it into the COG mosaic.tif) and mosaic.png.
@@ -250,7 +250,7 @@ bool EndOfFlight::WriteReport(const CompositeResult& composite, nlohmann::json p
   report["lens"] = LensJson(*in_.lens, in_.solution->lens);
   report["georef"] = placement_.GeorefJson();
   report["products"] = products;
-  for (const auto& [key, value] : in_.report_sections.items()) report[key] = value;
+  for (const auto& [key, value] : in_.additions.report_sections.items()) report[key] = value;
   return WriteFileAtomic(paths_.Join("report.json"), report.dump(2) + "\n", error);
 }
 

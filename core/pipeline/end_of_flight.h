@@ -39,6 +39,13 @@ class FinalMapListener {
   [[nodiscard]] virtual nlohmann::json Report() const = 0;
 };
 
+// What the program adds to the session's outputs from units outside core (e.g. hal's telemetry): keys of
+// report.json, and of config.yaml (YAML text appended to core's).
+struct OutputAdditions {
+  nlohmann::json report_sections = nlohmann::json::object();
+  std::string config_yaml;
+};
+
 // The end of the flight after the engine's solve: record + solution + options -> the session's outputs. In order:
 // radiometry (gains and vignetting), the canvas (placement, georeference, bridging), the tables (transforms.csv,
 // graph.csv, correspondences.csv, frames.csv, camera.yaml, config.yaml), the mosaic (mosaic.tiled.tif, mosaic.png),
@@ -52,7 +59,7 @@ class EndOfFlight {
     const WorkLens* lens = nullptr;        // required
     SessionEnd* session = nullptr;         // required
     FinalMapListener* live = nullptr;      // may be null (no live view)
-    nlohmann::json report_sections = nlohmann::json::object();  // more keys of report.json (e.g. "telemetry")
+    OutputAdditions additions;
   };
   // Borrows what `inputs` points to, which must outlive Run().
   EndOfFlight(const PipelineOptions& options, SessionPaths paths, Inputs inputs);

@@ -28,7 +28,8 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
   auto thumb_of = [&](int id) -> const cv::Mat& {
     if (thumbs.size() >= 64) thumbs.clear();
     auto it = thumbs.find(id);
-    if (it == thumbs.end()) it = thumbs.emplace(id, cv::imread(SessionStores::ThumbPath(dir, id), cv::IMREAD_COLOR)).first;
+    if (it == thumbs.end())
+      it = thumbs.emplace(id, cv::imread(SessionStores::ThumbPath(dir, id), cv::IMREAD_COLOR)).first;
     return it->second;
   };
   std::vector<const Edge*> edges;
@@ -36,8 +37,8 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
     if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0) edges.push_back(&e);
   // A long flight samples fewer points per edge (4 at least: the solve's memory grows with the frames and pairs, the
   // samples' with their count).
-  const int per_edge = std::clamp(options.max_samples / std::max<int>(1, static_cast<int>(edges.size())), 4,
-                                  options.samples_per_edge);
+  const int per_edge =
+      std::clamp(options.max_samples / std::max<int>(1, static_cast<int>(edges.size())), 4, options.samples_per_edge);
   std::vector<RadiometrySample> samples;
   samples.reserve(edges.size() * static_cast<size_t>(per_edge));
   for (const Edge* edge : edges) {
@@ -45,8 +46,8 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
     const cv::Mat& a = thumb_of(e.src);
     const cv::Mat& b = thumb_of(e.tgt);
     if (a.empty() || b.empty()) continue;
-    SampleOverlap(e.src, e.tgt, a, b, record.frame(e.src).work_size,
-                  record.frame(e.tgt).work_size, e.tgt_from_src, per_edge, &samples);
+    SampleOverlap(e.src, e.tgt, a, b, record.frame(e.src).work_size, record.frame(e.tgt).work_size, e.tgt_from_src,
+                  per_edge, &samples);
   }
   radiometry = SolveRadiometry(samples, component, options);
   out.ms = timer.ElapsedMs();

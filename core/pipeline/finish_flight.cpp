@@ -4,7 +4,7 @@
 
 namespace uavm {
 
-bool FinishFlight(FlightSession* session, LiveView* live, nlohmann::json report_sections, FlightSummary* summary,
+bool FinishFlight(FlightSession* session, LiveView* live, OutputAdditions additions, FlightSummary* summary,
                   std::string* error) {
   if (live != nullptr) live->StopForFinalTiles();
   const Solution solution = session->Solve();
@@ -20,7 +20,7 @@ bool FinishFlight(FlightSession* session, LiveView* live, nlohmann::json report_
   inputs.lens = &session->lens();
   inputs.session = session;
   inputs.live = live;
-  inputs.report_sections = std::move(report_sections);
+  inputs.additions = std::move(additions);
   EndOfFlight end(session->options(), session->paths(), std::move(inputs));
   if (!end.Run(error)) return false;
   session->MarkFinished();

@@ -13,9 +13,9 @@ struct FlightSummary {
 };
 
 // The end of the flight, in order: the live tiles' queue given up (final tiles will replace them), the engine's
-// solve, the outputs (EndOfFlight, with `report_sections` added to report.json) and the journal told the flight
+// solve, the outputs (EndOfFlight, with the program's `additions`) and the journal told the flight
 // finished. `live` may be null. False on a failed solve or output (message in `error`).
-[[nodiscard]] bool FinishFlight(FlightSession* session, LiveView* live, nlohmann::json report_sections,
+[[nodiscard]] bool FinishFlight(FlightSession* session, LiveView* live, OutputAdditions additions,
                                 FlightSummary* summary, std::string* error);
 
 }  // namespace uavm

@@ -196,7 +196,22 @@ SessionFrame& FlightSession::RecordFrame(int id, const PreparedFrame& prepared) 
   return st;
 }
 
+// A frame of one colour has nothing to register: it is kept only when it can be placed without images (its own GPS
+// or the telemetry's position: calm water between two shores), for every source alike. Black or saturated frames
+// (a lens cap, a blown exposure) are never a picture. Null when the frame is worth registering.
+const char* FlightSession::Unregistrable(const PreparedFrame& prepared) {
+  const FrameMetadata& m = prepared.frame.metadata;
+  if (prepared.blank) return "uniform frame (black or saturated): nothing to register";
+  if (prepared.uniform && !(m.latitude_deg && m.longitude_deg))
+    return "uniform frame (one colour, no position to place it by): nothing to register";
+  return nullptr;
+}
+
 FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
+  if (const char* why = Unregistrable(prepared)) {
+    RecordSkipped(prepared.frame.source_name, why);
+    return FrameOutcome::kFailed;
+  }
   StageTimer frame_timer;
   StageTimer t;
   HandEngineTheCamera(prepared.work_bgr.size());
@@ -208,9 +223,9 @@ FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
         plan_.frames_reserved);
   SessionFrame& st = RecordFrame(id, prepared);
   if (!StoreFrame(id, prepared, &st)) return FrameOutcome::kFailed;
-  const cv::Mat thumb = options_.radiometry.enabled ? stores_.StoreThumbnail(id, prepared.work_bgr,
-                                                                             options_.radiometry.thumb_long_side)
-                                                    : cv::Mat();
+  const cv::Mat thumb = options_.radiometry.enabled
+                            ? stores_.StoreThumbnail(id, prepared.work_bgr, options_.radiometry.thumb_long_side)
+                            : cv::Mat();
   stats_.Add("prepare", prepared.prepare_ms + t.ElapsedMs());
   stats_.Add("features", prepared.features_ms);
   if (prepared.decode_ms > 0) stats_.Add("decode", prepared.decode_ms);

@@ -78,6 +78,8 @@ class FlightSession final : public SessionEnd {
   [[nodiscard]] StartStatus Start(bool resume, StoredFrameReader* stored, std::string* error);
   [[nodiscard]] const std::unordered_set<std::string>& seen() const { return seen_; }
 
+  // Registers the frame, or records it as skipped (no id, a journal line) when it has nothing to register: one
+  // colour and no position to place it by, or black / saturated (kFailed then).
   [[nodiscard]] FrameOutcome AddFrame(PreparedFrame prepared);
   [[nodiscard]] FrameOutcome AddFrame(Frame frame) { return AddFrame(preparer_.Prepare(std::move(frame))); }
   // An input the source could not turn into a frame (corrupt, empty, not an image).
@@ -127,6 +129,7 @@ class FlightSession final : public SessionEnd {
     int64_t start_ns = 0;
   };
 
+  [[nodiscard]] static const char* Unregistrable(const PreparedFrame& prepared);
   [[nodiscard]] PreparedFrame PrepareStored(Frame frame, int id, const std::string& stored_name) const;
   [[nodiscard]] bool Resume(const JournalContents& journal, StoredFrameReader* stored, std::string* error);
   void HandEngineTheCamera(cv::Size work_size);

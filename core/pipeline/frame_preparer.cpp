@@ -1,11 +1,28 @@
 #include "core/pipeline/frame_preparer.h"
 
+#include <algorithm>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "core/util/clock.h"
 
 namespace uavm {
+
+namespace {
+
+// Nearly one colour: every channel's deviation under one grey level; blank when that colour is black or saturated.
+void MeasureFlatness(const cv::Mat& image, PreparedFrame* p) {
+  if (image.empty()) return;
+  cv::Scalar mean;
+  cv::Scalar stddev;
+  cv::meanStdDev(image, mean, stddev);
+  p->uniform = std::max({stddev[0], stddev[1], stddev[2]}) < 1.0;
+  const double brightest = std::max({mean[0], mean[1], mean[2]});
+  const double darkest = std::min({mean[0], mean[1], mean[2]});
+  p->blank = p->uniform && (brightest < 16.0 || darkest > 240.0);
+}
+
+}  // namespace
 
 PreparedFrame FramePreparer::Prepare(Frame frame) const {
   PreparedFrame p = PrepareImages(std::move(frame));
@@ -23,6 +40,7 @@ void FramePreparer::DetectFeatures(PreparedFrame* p) const {
 PreparedFrame FramePreparer::PrepareImages(Frame frame) const {
   StageTimer t;
   PreparedFrame p;
+  MeasureFlatness(frame.image, &p);  // the decoded frame, before any resampling smooths it
   const int long_side = std::max(frame.original_size.width, frame.original_size.height);
   const double s = std::min(1.0, work_long_side_ / static_cast<double>(long_side));
   const cv::Size work_size(std::max(1, static_cast<int>(std::lround(frame.original_size.width * s))),

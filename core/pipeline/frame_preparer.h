@@ -20,6 +20,10 @@ struct PreparedFrame {
   double decode_ms = 0.0;      // measured by the caller around the source's Next()
   double prepare_ms = 0.0;
   double features_ms = 0.0;
+  // Every pixel nearly one colour (lens cap, blown exposure, a blank sensor read, calm water): measured on the decoded
+  // frame; `blank` when that colour is black or saturated. FlightSession decides what such a frame is worth.
+  bool uniform = false;
+  bool blank = false;
   bool resumed = false;     // already in the session (frames/, features/, journal): registered again, not stored
   std::string stored_name;  // its file in frames/ when resumed
 };

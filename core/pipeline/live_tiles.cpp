@@ -49,7 +49,9 @@ LiveTiles::LiveTiles(const PipelineOptions& options, SessionPaths paths, const F
 }
 
 // The worker publishes through this object's signal: it stops before anything else goes.
-LiveTiles::~LiveTiles() { pyramid_.reset(); }
+LiveTiles::~LiveTiles() {
+  pyramid_.reset();
+}
 
 Mat3 LiveTiles::GridFromWork(int id) const {
   const Grid& lt = grid_;
@@ -248,22 +250,22 @@ void LiveTiles::Finish(const TileSet* final_tiles, int frames) {
     return latency.empty() ? 0.0 : latency[static_cast<size_t>(q * static_cast<double>(latency.size() - 1))];
   };
   report_ = {{"enabled", true},
-                        {"grid", !lt.started          ? "none"
-                                 : lt.grid.geographic ? "EPSG:3857"
-                                                      : "local"},
-                        {"min_zoom", lt.grid.min_zoom},
-                        {"max_zoom", lt.grid.max_zoom},
-                        {"frames_drawn", stats.frames_drawn},
-                        {"frames_redrawn", stats.frames_redrawn},
-                        {"frames_reread", stats.frames_reread},
-                        {"grid_resets", stats.resets},
-                        {"tiles_written", stats.tiles_written},
-                        {"jobs_dropped", stats.jobs_dropped},
-                        {"jobs_superseded", stats.jobs_superseded},
-                        {"write_errors", stats.write_errors},
-                        {"worker_ms", stats.busy_ms},
-                        {"latency_ms_median", at(0.5)},
-                        {"latency_ms_p95", at(0.95)}};
+             {"grid", !lt.started          ? "none"
+                      : lt.grid.geographic ? "EPSG:3857"
+                                           : "local"},
+             {"min_zoom", lt.grid.min_zoom},
+             {"max_zoom", lt.grid.max_zoom},
+             {"frames_drawn", stats.frames_drawn},
+             {"frames_redrawn", stats.frames_redrawn},
+             {"frames_reread", stats.frames_reread},
+             {"grid_resets", stats.resets},
+             {"tiles_written", stats.tiles_written},
+             {"jobs_dropped", stats.jobs_dropped},
+             {"jobs_superseded", stats.jobs_superseded},
+             {"write_errors", stats.write_errors},
+             {"worker_ms", stats.busy_ms},
+             {"latency_ms_median", at(0.5)},
+             {"latency_ms_p95", at(0.95)}};
   auto last = pyramid_->Info();
   pyramid_.reset();  // the worker stops
   if (final_tiles == nullptr || final_tiles->tiles == 0) {

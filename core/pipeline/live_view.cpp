@@ -191,7 +191,8 @@ void LiveView::FinalTiles(const TileSet* tiles, int frames) {
 
 void LiveView::WriteLastPreview() {
   std::string err;
-  if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err)) spdlog::warn("live preview: {}", err);
+  if (options_.preview_every > 0 && !preview_.Write(paths_.Join("live.jpg"), &err))
+    spdlog::warn("live preview: {}", err);
 }
 
 nlohmann::json LiveView::Report() const {

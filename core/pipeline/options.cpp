@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <functional>
@@ -11,6 +12,8 @@
 #include <type_traits>
 #include <variant>
 #include <vector>
+
+#include "core/util/fail.h"
 
 namespace uavm {
 
@@ -182,20 +185,11 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"live_tiles", "levels", &o.live_tiles.levels},
       {"live_tiles", "redraw_shift_px", &o.live_tiles.redraw_shift_px},
       {"live_tiles", "refit_shift_m", &o.live_tiles.refit_shift_m},
-      {"telemetry", "latency_ms", &o.telemetry.latency_ms},
-      {"telemetry", "max_gap_s", &o.telemetry.max_gap_s},
-      {"telemetry", "max_hold_s", &o.telemetry.max_hold_s},
-      {"telemetry", "exif_utc_offset_s", &o.telemetry.exif_utc_offset_s},
   };
   for (Field& f : SolveFields(o)) fields.push_back(std::move(f));
   for (Field& f : LensFields(o)) fields.push_back(std::move(f));
   for (Field& f : SubpixelFields(o)) fields.push_back(std::move(f));
   return fields;
-}
-
-bool Fail(std::string* why, const std::string& msg) {
-  if (why != nullptr) *why = msg;
-  return false;
 }
 
 }  // namespace
@@ -209,13 +203,6 @@ bool PipelineOptions::Check(std::string* why) const {
   if (!bridge.Check(why)) return false;
   if (tiles.max_tiles < 1) return Fail(why, "products.max_tiles must be >= 1");
   if (!live_tiles.Check(why)) return false;
-  if (!(telemetry.max_gap_s > 0 && telemetry.max_gap_s <= 60))
-    return Fail(why, "telemetry.max_gap_s must be in (0,60]");
-  if (!(telemetry.max_hold_s >= 0 && telemetry.max_hold_s <= telemetry.max_gap_s))
-    return Fail(why, "telemetry.max_hold_s must be in [0, telemetry.max_gap_s]");
-  if (!(std::abs(telemetry.latency_ms) <= 10000)) return Fail(why, "telemetry.latency_ms must be within +-10000");
-  if (!(std::abs(telemetry.exif_utc_offset_s) <= 14 * 3600))
-    return Fail(why, "telemetry.exif_utc_offset_s must be within +-14 h");
   if (preview_every < 0 || preview_side < 64) return Fail(why, "preview_every >= 0 and preview_side >= 64");
   if (!(mosaic_scale > 0 && mosaic_scale <= 4)) return Fail(why, "mosaic_scale must be in (0,4]");
   if (max_canvas_side < 256) return Fail(why, "max_canvas_side must be >= 256");
@@ -226,16 +213,17 @@ bool PipelineOptions::Check(std::string* why) const {
   return features.Check(why) && mosaic.Check(why) && radiometry.Check(why) && camera.Check(why);
 }
 
-bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error) {
+bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error,
+                     const std::vector<std::string>& sections_read_elsewhere) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return Fail(error, "config " + path + ": cannot read");
   std::ostringstream text;
   text << in.rdbuf();  // an empty file leaves the text empty: the defaults
-  return ParseOptionsYaml(text.str(), path, options, error);
+  return ParseOptionsYaml(text.str(), path, options, error, sections_read_elsewhere);
 }
 
-bool ParseOptionsYaml(const std::string& text, const std::string& origin, PipelineOptions* options,
-                      std::string* error) {
+bool ParseOptionsYaml(const std::string& text, const std::string& origin, PipelineOptions* options, std::string* error,
+                      const std::vector<std::string>& sections_read_elsewhere) {
   YAML::Node root;
   try {
     root = YAML::Load(text);
@@ -256,6 +244,8 @@ bool ParseOptionsYaml(const std::string& text, const std::string& origin, Pipeli
   try {
     for (const auto& kv : root) {
       const std::string k = kv.first.as<std::string>();
+      if (std::find(sections_read_elsewhere.begin(), sections_read_elsewhere.end(), k) != sections_read_elsewhere.end())
+        continue;
       if (known_sections.count(k) != 0) {
         if (!kv.second.IsMap()) return Fail(error, "config " + origin + ": '" + k + "' must be a mapping");
         for (const auto& sub : kv.second) {

@@ -1,5 +1,6 @@
 #pragma once
 #include <string>
+#include <vector>
 
 #include "core/adjust/affine_adjuster.h"
 #include "core/adjust/global_refiner.h"
@@ -57,23 +58,18 @@ struct PipelineOptions : RegistrationOptions {
   TileOptions tiles;
   // The live tile pyramid (core/tiles): on with --http (unless --no-live-tiles) or live_tiles.enabled.
   LiveTileOptions live_tiles;
-  std::string leaflet_dir = "/usr/share/javascript/leaflet";
-  // Telemetry beside the frames (--telemetry; hal/telemetry): how its times meet the frames'.
-  struct Telemetry {
-    double latency_ms = 0.0;         // a camera frame is looked up at its timestamp minus this
-    double max_gap_s = 2.0;          // fixes further apart than this place no frame between them
-    double max_hold_s = 1.0;         // a frame after the newest fix (link lost) takes it only within this
-    double exif_utc_offset_s = 0.0;  // replayed stills: EXIF local time minus UTC
-  } telemetry;                       // Debian's libjs-leaflet, copied into the session
+  std::string leaflet_dir = "/usr/share/javascript/leaflet";  // Debian's libjs-leaflet, copied into the session
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
 
-// YAML config: keys as in ToYaml(); unknown keys are an error (a typo must not be silently ignored).
-[[nodiscard]] bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error);
+// YAML config: keys as in ToYaml(); unknown keys are an error (a typo must not be silently ignored), except in
+// `sections_read_elsewhere`, whose keys another unit reads and checks (the program's `telemetry:` is hal's).
+[[nodiscard]] bool LoadOptionsYaml(const std::string& path, PipelineOptions* options, std::string* error,
+                                   const std::vector<std::string>& sections_read_elsewhere = {});
 // The same from YAML text; `origin` names it in messages (e.g. the file it came from).
 [[nodiscard]] bool ParseOptionsYaml(const std::string& text, const std::string& origin, PipelineOptions* options,
-                                    std::string* error);
+                                    std::string* error, const std::vector<std::string>& sections_read_elsewhere = {});
 [[nodiscard]] std::string ToYaml(const PipelineOptions& options);
 
 }  // namespace uavm

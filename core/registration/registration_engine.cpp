@@ -11,6 +11,7 @@
 #include <stdexcept>
 
 #include "core/util/clock.h"
+#include "core/util/fail.h"
 #include "core/util/memory.h"
 
 namespace uavm {
@@ -29,11 +30,6 @@ Edge EdgeFromPair(int src, int tgt, PairResult&& r) {
   e.holdout_src_points = std::move(r.holdout_src_points);
   e.holdout_tgt_points = std::move(r.holdout_tgt_points);
   return e;
-}
-
-bool Fail(std::string* why, const char* msg) {
-  if (why != nullptr) *why = msg;
-  return false;
 }
 
 }  // namespace

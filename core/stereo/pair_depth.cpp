@@ -6,13 +6,10 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "core/util/fail.h"
+
 namespace uavm::stereo {
 namespace {
-
-bool Fail(std::string* error, const std::string& what) {
-  if (error) *error = what;
-  return false;
-}
 
 bool Finite(const cv::Vec3d& v) {
   return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);

@@ -17,6 +17,8 @@
 #include <opencv2/imgproc.hpp>
 #include <vector>
 
+#include "core/util/fail.h"
+
 // The hot loops are plain C++ that the compiler vectorises; on x86-64 an AVX2 clone is chosen at run time (the
 // baseline build targets SSE2 only, and the census cost needs a hardware popcount to be cheap).
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__)) && !defined(UAVM_FUZZ_BUILD)
@@ -29,11 +31,6 @@ namespace uavm::stereo {
 namespace {
 
 constexpr int16_t kBig = std::numeric_limits<int16_t>::max() / 4;  // "no path": + P2 stays far below overflow
-
-bool Fail(std::string* error, const std::string& what) {
-  if (error) *error = what;
-  return false;
-}
 
 cv::Mat ToGray(const cv::Mat& image) {
   cv::Mat gray;

@@ -181,24 +181,6 @@ bool DecodeJpeg(const std::vector<uchar>& bytes, unsigned denom, cv::Mat* bgr, s
   return true;
 }
 
-// An image whose pixels are all nearly the same (lens cap, over-exposure, a blank sensor read) has nothing to register.
-struct Flatness {
-  bool uniform = false;  // one colour
-  bool blank = false;    // and that colour black or saturated (a lens cap, a blown exposure): never a picture
-};
-
-Flatness Flat(const cv::Mat& image) {
-  cv::Scalar mean;
-  cv::Scalar stddev;
-  cv::meanStdDev(image, mean, stddev);
-  Flatness f;
-  f.uniform = std::max({stddev[0], stddev[1], stddev[2]}) < 1.0;
-  const double brightest = std::max({mean[0], mean[1], mean[2]});
-  const double darkest = std::min({mean[0], mean[1], mean[2]});
-  f.blank = f.uniform && (brightest < 16.0 || darkest > 240.0);
-  return f;
-}
-
 }  // namespace
 
 ReplaySource::ReplaySource(ReplayOptions options) : options_(std::move(options)) {}
@@ -334,14 +316,6 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
     return Status::kSkipped;
   }
   if (options_.read_metadata) frame->metadata = ReadMetadata(bytes.data(), bytes.size());
-  const Flatness flat = Flat(image);
-  const bool placeable = options_.keep_uniform_with_telemetry ||
-                         (frame->metadata.latitude_deg.has_value() && frame->metadata.longitude_deg.has_value());
-  if (flat.blank || (flat.uniform && !placeable)) {
-    *error = flat.blank ? "uniform frame (black or saturated): nothing to register"
-                        : "uniform frame (one colour, no position to place it by): nothing to register";
-    return Status::kSkipped;
-  }
   frame->timestamp_ns = MonotonicNs();
   frame->original_size = full;
   frame->decode_scale = static_cast<double>(image.cols) / full.width;

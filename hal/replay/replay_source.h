@@ -13,9 +13,6 @@ struct ReplayOptions {
   std::string path;  // an image folder or a video file
   int stride = 1;    // take every stride-th input (video frames or folder files)
   bool read_metadata = true;
-  // A frame of one colour is skipped as bad input unless it may be placed without images: with telemetry beside
-  // the frames, or GPS in its own metadata (calm water looks uniform). Black and saturated frames are always skipped.
-  bool keep_uniform_with_telemetry = false;
 };
 
 // File replay: every file of an image folder in natural filename order, or the frames of a video file.

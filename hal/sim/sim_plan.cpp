@@ -11,6 +11,7 @@
 #include <sstream>
 #include <variant>
 
+#include "core/util/fail.h"
 #include "core/util/portable_random.h"
 
 namespace uavm::hal {
@@ -20,11 +21,6 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 double Rad(double deg) {
   return deg * kPi / 180.0;
-}
-
-bool Fail(std::string* error, const std::string& msg) {
-  *error = msg;
-  return false;
 }
 
 using FieldPtr = std::variant<int*, double*, uint64_t*, std::string*>;
