@@ -186,34 +186,38 @@ nlohmann::json EndOfFlight::MakeProducts() {
                 {"count", tiles.tiles},
                 {"empty_skipped", tiles.tiles_empty},
                 {"ms", tiles_ms}};
-  if (tiles_ok) {
-    const std::vector<Mat3>& canvas_from_original = placement_.canvas_from_original();
-    std::unordered_set<int> in(placement_.placed().begin(), placement_.placed().end());
-    std::vector<MapFrame> frames;
-    for (const auto& f : in_.record->frames()) {
-      MapFrame m;
-      m.id = f.id;
-      m.name = f.name;
-      m.registered = in.count(f.id) != 0;
-      m.mosaic_from_frame = canvas_from_original[static_cast<size_t>(f.id)];
-      m.width = f.original_size.width;
-      m.height = f.original_size.height;
-      frames.push_back(m);
-    }
-    std::vector<MapEdge> edges;
-    const RegistrationEngine& engine = in_.record->engine();
-    for (const Edge& e : engine.edges())
-      edges.push_back(
-          {e.src, e.tgt, e.num_inliers, in.count(e.src) != 0 && in.count(e.tgt) != 0 && engine.EdgeCounts(e)});
-    const bool page = WriteWebPage(paths_.root, options_.leaflet_dir, tiles, georef, frames, edges, &err);
-    if (!page) spdlog::warn("index.html: {}", err);
-    j["web_page"] = page;
-  }
+  if (tiles_ok) j["web_page"] = WriteMapPage(tiles);
   j["ms"] = timer.ElapsedMs();
   j["peak_rss_mib"] = HighWaterRssMiB();
   spdlog::info("products: COG {}, tiles z{}-{} ({}), {:.0f} ms", cog ? "ok" : "failed", tiles.min_zoom, tiles.max_zoom,
                tiles.tiles, timer.ElapsedMs());
   return j;
+}
+
+// index.html: the tiles, the frames' footprints and the match graph on an offline map page.
+bool EndOfFlight::WriteMapPage(const TileSet& tiles) const {
+  const std::vector<Mat3>& canvas_from_original = placement_.canvas_from_original();
+  const std::unordered_set<int> in(placement_.placed().begin(), placement_.placed().end());
+  std::vector<MapFrame> frames;
+  for (const auto& f : in_.record->frames()) {
+    MapFrame m;
+    m.id = f.id;
+    m.name = f.name;
+    m.registered = in.count(f.id) != 0;
+    m.mosaic_from_frame = canvas_from_original[static_cast<size_t>(f.id)];
+    m.width = f.original_size.width;
+    m.height = f.original_size.height;
+    frames.push_back(m);
+  }
+  std::vector<MapEdge> edges;
+  const RegistrationEngine& engine = in_.record->engine();
+  for (const Edge& e : engine.edges())
+    edges.push_back(
+        {e.src, e.tgt, e.num_inliers, in.count(e.src) != 0 && in.count(e.tgt) != 0 && engine.EdgeCounts(e)});
+  std::string err;
+  const bool page = WriteWebPage(paths_.root, options_.leaflet_dir, tiles, placement_.georef(), frames, edges, &err);
+  if (!page) spdlog::warn("index.html: {}", err);
+  return page;
 }
 
 bool EndOfFlight::WriteReport(const CompositeResult& composite, nlohmann::json products, std::string* error) const {

@@ -76,6 +76,7 @@ class EndOfFlight {
   [[nodiscard]] FramePart LoadIdealPart(int id, const CanvasLoad& how, const cv::Rect& need) const;
   // mosaic.tiled.tif -> COG mosaic.tif, then mosaic.kmz, tiles/, index.html. Returns the report's "products" block.
   [[nodiscard]] nlohmann::json MakeProducts();
+  [[nodiscard]] bool WriteMapPage(const TileSet& tiles) const;
   [[nodiscard]] bool WriteReport(const CompositeResult& composite, nlohmann::json products, std::string* error) const;
 
   const PipelineOptions& options_;  // borrowed
