@@ -1,5 +1,6 @@
 #include "core/adjust/affine_adjuster.h"
 
+#include <Eigen/Cholesky>  // LDLT of the 6x6 blocks
 #include <Eigen/Core>
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
