@@ -15,34 +15,40 @@
 #include "core/pipeline/live_view.h"
 #include "core/session/session_dir.h"
 #include "tests/session_test_util.h"
+#include "tests/test_image.h"
 
 namespace uavm {
 namespace {
 
 namespace fs = std::filesystem;
 
-constexpr int kCropWidth = 320;
-constexpr int kCropHeight = 240;
-constexpr double kMetresPerPixel = 0.1;      // of the photograph, north up
-constexpr double kLat0 = 47.0, kLon0 = 9.0;  // on UTM zone 32's central meridian: grid north is north
+// Under emulation (qemu-aarch64) the photograph, the crops and their offsets are half the size (tests/test_env.h):
+// the same flight, a quarter of the pixels to detect.
+const double kScale = test::EmulationImageScale();
+const int kCropWidth = static_cast<int>(320 * kScale);
+const int kCropHeight = static_cast<int>(240 * kScale);
+const double kMetresPerPixel = 0.1 / kScale;  // of the photograph, north up
+constexpr double kLat0 = 47.0, kLon0 = 9.0;   // on UTM zone 32's central meridian: grid north is north
 
 // A serpentine flight of 2 strips over the bundled photograph: frame k is the crop whose top-left is Origin(k).
 class PhotoFlight {
  public:
-  PhotoFlight() : photo_(cv::imread(UAVM_TEST_DATA "/caliterra_small/images/IMG_9360.jpg")) {}
+  PhotoFlight() : photo_(test::ScaledForEmulation(cv::imread(UAVM_TEST_DATA "/caliterra_small/images/IMG_9360.jpg"))) {}
   [[nodiscard]] bool ok() const { return !photo_.empty(); }
   [[nodiscard]] static int size() { return 10; }
 
   [[nodiscard]] static Vec2 Origin(int k) {
     const int strip = k / 5, i = k % 5;
     const int column = strip == 0 ? i : 4 - i;
-    return Vec2(60 + 100 * column, 150 + 120 * strip);
+    return kScale * Vec2(60 + 100 * column, 150 + 120 * strip);
   }
   // The frame as a camera source delivers it (no file: the session stores a JPEG), with GPS when `gps`.
   [[nodiscard]] Frame At(int k, bool gps) const {
     const Vec2 o = Origin(k);
     Frame f;
-    f.image = photo_(cv::Rect(static_cast<int>(o.x()), static_cast<int>(o.y()), kCropWidth, kCropHeight)).clone();
+    f.image = photo_(cv::Rect(static_cast<int>(std::lround(o.x())), static_cast<int>(std::lround(o.y())), kCropWidth,
+                              kCropHeight))
+                  .clone();
     f.original_size = f.image.size();
     f.source_name = "crop_" + std::to_string(k) + ".jpg";
     f.timestamp_ns = 1'000'000'000LL * (k + 1);
