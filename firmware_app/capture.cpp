@@ -38,15 +38,23 @@ void LoadFrames(const RunConfig& config, hal::FrameSource* source, hal::Telemetr
     item.message = err;
     if (seen.count(item.name) != 0) continue;  // accepted or skipped before the interruption
     if (item.status == hal::Status::kOk) {
-      ++delivered;
-      if (telemetry) {
-        const auto pose = telemetry->PoseFor(frame);
-        if (pose) hal::ApplyPose(*pose, &frame.metadata);
-        telemetry_watch.Saw(frame.source_name, pose.has_value(), telemetry->Report());
-      }
       try {
-        item.prepared = preparer->PrepareImages(std::move(frame));
-        item.prepared.decode_ms = decode_ms;
+        // The session's rule for frames of one colour, applied here before any work is spent on them: a black or
+        // saturated frame needs no position to be refused; another needs its position (the telemetry's) to be kept.
+        const Flatness flatness = MeasureFlatness(frame.image);
+        if (!flatness.blank && telemetry) {
+          const auto pose = telemetry->PoseFor(frame);
+          if (pose) hal::ApplyPose(*pose, &frame.metadata);
+          telemetry_watch.Saw(frame.source_name, pose.has_value(), telemetry->Report());
+        }
+        if (const char* why = WhyNotRegistrable(flatness, frame.metadata)) {
+          item.status = hal::Status::kSkipped;
+          item.message = why;
+        } else {
+          ++delivered;
+          item.prepared = preparer->PrepareImages(std::move(frame), flatness);
+          item.prepared.decode_ms = decode_ms;
+        }
       } catch (const std::exception& e) {
         MarkUnprocessable(e, &item);
       }

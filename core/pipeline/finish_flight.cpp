@@ -6,6 +6,7 @@ namespace uavm {
 
 bool FinishFlight(FlightSession* session, LiveView* live, OutputAdditions additions, FlightSummary* summary,
                   std::string* error) {
+  session->EndFlight();
   if (live != nullptr) live->StopForFinalTiles();
   const Solution solution = session->Solve();
   if (!solution.ok) {

@@ -12,8 +12,8 @@ struct FlightSummary {
   double residual_rms_px = 0.0;
 };
 
-// The end of the flight, in order: the live tiles' queue given up (final tiles will replace them), the engine's
-// solve, the outputs (EndOfFlight, with the program's `additions`) and the journal told the flight
+// The end of the flight, in order: the flight's end noted, the live tiles' queue given up (final tiles will replace
+// them), the engine's solve, the outputs (EndOfFlight, with the program's `additions`) and the journal told the flight
 // finished. `live` may be null. False on a failed solve or output (message in `error`).
 [[nodiscard]] bool FinishFlight(FlightSession* session, LiveView* live, OutputAdditions additions,
                                 FlightSummary* summary, std::string* error);

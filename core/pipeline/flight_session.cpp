@@ -80,11 +80,17 @@ bool FlightSession::Resume(const JournalContents& journal, StoredFrameReader* st
     // passed over: its input is taken from the source again.
     Frame frame;
     for (;;) {
-      if (stored->Next(&frame) == StoredFrameReader::Status::kEnd) {
+      const StoredFrameReader::Status status = stored->Next(&frame);
+      if (status == StoredFrameReader::Status::kEnd) {
         *error = "resume: frame " + jf.stored_file + " of the journal is missing from frames/";
         return false;
       }
-      if (frame.source_name == jf.stored_file) break;
+      if (frame.source_name != jf.stored_file) continue;
+      if (status == StoredFrameReader::Status::kUnreadable) {
+        *error = "resume: frames/" + jf.stored_file + " of the journal cannot be read";
+        return false;
+      }
+      break;
     }
     if (frame.original_size != cv::Size(jf.width, jf.height)) {
       *error = "resume: frames/" + jf.stored_file + " does not match the journal";
@@ -196,19 +202,10 @@ SessionFrame& FlightSession::RecordFrame(int id, const PreparedFrame& prepared) 
   return st;
 }
 
-// A frame of one colour has nothing to register: it is kept only when it can be placed without images (its own GPS
-// or the telemetry's position: calm water between two shores), for every source alike. Black or saturated frames
-// (a lens cap, a blown exposure) are never a picture. Null when the frame is worth registering.
-const char* FlightSession::Unregistrable(const PreparedFrame& prepared) {
-  const FrameMetadata& m = prepared.frame.metadata;
-  if (prepared.blank) return "uniform frame (black or saturated): nothing to register";
-  if (prepared.uniform && !(m.latitude_deg && m.longitude_deg))
-    return "uniform frame (one colour, no position to place it by): nothing to register";
-  return nullptr;
-}
-
 FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
-  if (const char* why = Unregistrable(prepared)) {
+  // The rule for frames of one colour (the capture threads apply it too, before spending work on them); a frame the
+  // journal accepted is registered again as it was.
+  if (const char* why = WhyNotRegistrable(prepared.flatness, prepared.frame.metadata); why && !prepared.resumed) {
     RecordSkipped(prepared.frame.source_name, why);
     return FrameOutcome::kFailed;
   }
@@ -240,7 +237,7 @@ FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
   const FrameOutcome outcome = engine_.Register(id, feats, &timing, hint.hint ? &*hint.hint : nullptr);
   stats_.Add("matching", timing.matching_ms);
   stats_.Add("adjust", timing.adjust_ms);
-  events_.registered.Emit(RegisteredFrame{id, outcome, &prepared.work_bgr, &thumb, edges_before, engine_.TakeMoved()});
+  events_.registered.Emit(RegisteredFrame{id, &prepared.work_bgr, &thumb, edges_before, engine_.TakeMoved()});
   // Every few frames, not every frame: a trim walks the arenas (~1 ms).
   if (options_.trim_heap_every > 0 && id % options_.trim_heap_every == 0) TrimHeap();
   const double frame_ms = frame_timer.ElapsedMs();
@@ -251,7 +248,6 @@ FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
 }
 
 Solution FlightSession::Solve() {
-  resources_.FlightEnd();
   Solution solution = engine_.Finish([this](const std::string& phase) { resources_.EnterPhase(phase); });
   if (!solution.ok) return solution;
   if (solution.component.size() >= 2) {

@@ -27,7 +27,6 @@ namespace uavm {
 // are the frame loop's: valid during the call only.
 struct RegisteredFrame {
   int id = -1;
-  FrameOutcome outcome = FrameOutcome::kFailed;
   const cv::Mat* work_bgr = nullptr;  // the ideal working copy
   const cv::Mat* thumb = nullptr;     // its radiometry thumbnail (empty when radiometry is off)
   size_t edges_before = 0;            // the engine's edges before this frame: the ones after are its own
@@ -78,8 +77,8 @@ class FlightSession final : public SessionEnd {
   [[nodiscard]] StartStatus Start(bool resume, StoredFrameReader* stored, std::string* error);
   [[nodiscard]] const std::unordered_set<std::string>& seen() const { return seen_; }
 
-  // Registers the frame, or records it as skipped (no id, a journal line) when it has nothing to register: one
-  // colour and no position to place it by, or black / saturated (kFailed then).
+  // Registers the frame, or records it as skipped (no id, a journal line; kFailed) when WhyNotRegistrable() says it
+  // has nothing to register. A frame being resumed is registered again as the journal has it.
   [[nodiscard]] FrameOutcome AddFrame(PreparedFrame prepared);
   [[nodiscard]] FrameOutcome AddFrame(Frame frame) { return AddFrame(preparer_.Prepare(std::move(frame))); }
   // An input the source could not turn into a frame (corrupt, empty, not an image).
@@ -88,7 +87,8 @@ class FlightSession final : public SessionEnd {
   // A live camera's counters (captured, dropped in its own queue, driver gaps, reconnects): report.json "camera".
   void RecordCapture(const CaptureCounters& counters) { counters_.capture = counters; }
 
-  // Followers. Their connections disconnect themselves (either side may go first).
+  // Followers. Their connections disconnect themselves, whichever side goes first; a follower that borrows the
+  // record (LiveView) must still not outlive the session.
   [[nodiscard]] Connection OnFrameRegistered(std::function<void(const RegisteredFrame&)> slot) {
     return events_.registered.Connect(std::move(slot));
   }
@@ -96,7 +96,9 @@ class FlightSession final : public SessionEnd {
     return events_.hint_request.Connect(std::move(slot));
   }
 
-  // The end of the flight: the engine's final solve of the largest component (its steps are memory phases).
+  // The end of the flight: the last frame is in (the resources at the flight's end are noted), then the engine's
+  // final solve of the largest component (its steps are memory phases).
+  void EndFlight() { resources_.FlightEnd(); }
   [[nodiscard]] Solution Solve();
   // The end's side of the session (SessionEnd): its memory phases after the solve (radiometry, outputs, compose,
   // products); graph.csv and correspondences.csv (streamed, each edge's points read back and given up again); its
@@ -129,7 +131,6 @@ class FlightSession final : public SessionEnd {
     int64_t start_ns = 0;
   };
 
-  [[nodiscard]] static const char* Unregistrable(const PreparedFrame& prepared);
   [[nodiscard]] PreparedFrame PrepareStored(Frame frame, int id, const std::string& stored_name) const;
   [[nodiscard]] bool Resume(const JournalContents& journal, StoredFrameReader* stored, std::string* error);
   void HandEngineTheCamera(cv::Size work_size);

@@ -8,21 +8,25 @@
 
 namespace uavm {
 
-namespace {
-
-// Nearly one colour: every channel's deviation under one grey level; blank when that colour is black or saturated.
-void MeasureFlatness(const cv::Mat& image, PreparedFrame* p) {
-  if (image.empty()) return;
+Flatness MeasureFlatness(const cv::Mat& image) {
+  Flatness f;
+  if (image.empty()) return f;
   cv::Scalar mean;
   cv::Scalar stddev;
   cv::meanStdDev(image, mean, stddev);
-  p->uniform = std::max({stddev[0], stddev[1], stddev[2]}) < 1.0;
+  f.uniform = std::max({stddev[0], stddev[1], stddev[2]}) < 1.0;  // under one grey level in every channel
   const double brightest = std::max({mean[0], mean[1], mean[2]});
   const double darkest = std::min({mean[0], mean[1], mean[2]});
-  p->blank = p->uniform && (brightest < 16.0 || darkest > 240.0);
+  f.blank = f.uniform && (brightest < 16.0 || darkest > 240.0);
+  return f;
 }
 
-}  // namespace
+const char* WhyNotRegistrable(const Flatness& flatness, const FrameMetadata& m) {
+  if (flatness.blank) return "uniform frame (black or saturated): nothing to register";
+  if (flatness.uniform && !(m.latitude_deg && m.longitude_deg))
+    return "uniform frame (one colour, no position to place it by): nothing to register";
+  return nullptr;
+}
 
 PreparedFrame FramePreparer::Prepare(Frame frame) const {
   PreparedFrame p = PrepareImages(std::move(frame));
@@ -33,14 +37,14 @@ PreparedFrame FramePreparer::Prepare(Frame frame) const {
 void FramePreparer::DetectFeatures(PreparedFrame* p) const {
   StageTimer t;
   p->features = extractor_.Extract(p->work_gray);
-  lens_.For(p->frame, p->work_gray.size()).UndistortPoints(&p->features.points);
+  if (!p->flatness.uniform) lens_.For(p->frame, p->work_gray.size()).UndistortPoints(&p->features.points);
   p->features_ms = t.ElapsedMs();
 }
 
-PreparedFrame FramePreparer::PrepareImages(Frame frame) const {
+PreparedFrame FramePreparer::PrepareImages(Frame frame, std::optional<Flatness> flatness) const {
   StageTimer t;
   PreparedFrame p;
-  MeasureFlatness(frame.image, &p);  // the decoded frame, before any resampling smooths it
+  p.flatness = flatness ? *flatness : MeasureFlatness(frame.image);  // the decoded frame, before resampling smooths it
   const int long_side = std::max(frame.original_size.width, frame.original_size.height);
   const double s = std::min(1.0, work_long_side_ / static_cast<double>(long_side));
   const cv::Size work_size(std::max(1, static_cast<int>(std::lround(frame.original_size.width * s))),
@@ -52,8 +56,10 @@ PreparedFrame FramePreparer::PrepareImages(Frame frame) const {
   cv::cvtColor(p.work_bgr, p.work_gray, cv::COLOR_BGR2GRAY);
   // Features are found on the recorded pixels (no resampling) and their positions undistorted (Prepare); the live
   // view, thumbnails and tiles draw the ideal image, on which the maps act.
-  const Undistorter& lens = lens_.For(frame, work_size);
-  if (lens.active()) p.work_bgr = lens.UndistortImage(p.work_bgr);
+  if (!p.flatness.uniform) {
+    const Undistorter& lens = lens_.For(frame, work_size);
+    if (lens.active()) p.work_bgr = lens.UndistortImage(p.work_bgr);
+  }
   if (frame.source_path.empty()) {
     // No file to copy into the session (camera, video, simulation): encode here, on the capture thread.
     try {
@@ -69,7 +75,7 @@ PreparedFrame FramePreparer::PrepareImages(Frame frame) const {
 }
 
 cv::Mat FramePreparer::IdealGray(const PreparedFrame& p) const {
-  if (!lens_.For(p.frame, p.work_gray.size()).active()) return p.work_gray;
+  if (p.flatness.uniform || !lens_.For(p.frame, p.work_gray.size()).active()) return p.work_gray;
   cv::Mat gray;  // the features' coordinates are the undistorted image's
   cv::cvtColor(p.work_bgr, gray, cv::COLOR_BGR2GRAY);
   return gray;

@@ -30,7 +30,8 @@ class LiveView final : public FinalMapListener {
   LiveView(const LiveView&) = delete;
   LiveView& operator=(const LiveView&) = delete;
 
-  // Hears `session`'s frames and answers its hint requests until the view goes (the connections are its own).
+  // Hears `session`'s frames and answers its hint requests until the view goes (the connections are its own). Once
+  // per session: a second call would hear every frame twice.
   void Follow(FlightSession* session);
   void FrameRegistered(const RegisteredFrame& frame);
   // Where the frame's position puts it on the live georeference, for the engine's candidates when the recent frames

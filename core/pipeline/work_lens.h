@@ -22,7 +22,8 @@ class WorkLens {
   // The undistortion of `frame`'s working copy of `work_size` pixels (the first call chooses the lens).
   [[nodiscard]] const Undistorter& For(const Frame& frame, cv::Size work_size) const;
 
-  // Set by the first For(); before it, no lens (chosen() false).
+  // Set by the first For(); before it, no lens (chosen() false). Read them on a thread that a For() happened before
+  // (the frame loop after the capture queue's hand-over; the tile worker after its job's): they are not locked.
   [[nodiscard]] bool chosen() const { return original_size_.width > 0; }
   [[nodiscard]] const CameraChoice& choice() const { return choice_; }
   [[nodiscard]] cv::Size original_size() const { return original_size_; }

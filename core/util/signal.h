@@ -70,14 +70,16 @@ class Signal {
   }
 
   void Emit(Args... args) const {
-    std::lock_guard lock(state_->mutex);
+    // Held by the emission: a slot may destroy the signal's owner.
+    const std::shared_ptr<State> state = state_;
+    std::lock_guard lock(state->mutex);
     // The slots connected when the emission starts, each looked up again before its call (an earlier one may have
     // disconnected it) and called through a copy (a slot may disconnect itself).
     std::vector<uint64_t> keys;
-    keys.reserve(state_->slots.size());
-    for (const auto& entry : state_->slots) keys.push_back(entry.first);
+    keys.reserve(state->slots.size());
+    for (const auto& entry : state->slots) keys.push_back(entry.first);
     for (const uint64_t key : keys)
-      for (const auto& [k, slot] : state_->slots)
+      for (const auto& [k, slot] : state->slots)
         if (k == key) {
           const Slot call = slot;
           call(args...);
