@@ -1,6 +1,5 @@
 #include "core/pipeline/live_tiles.h"
 
-#include <ogr_spatialref.h>
 #include <spdlog/spdlog.h>
 
 #include <cmath>
@@ -49,7 +48,9 @@ LiveTiles::LiveTiles(const PipelineOptions& options, SessionPaths paths, const F
 }
 
 // The worker publishes through this object's signal: it stops before anything else goes.
-LiveTiles::~LiveTiles() { pyramid_.reset(); }
+LiveTiles::~LiveTiles() {
+  pyramid_.reset();
+}
 
 Mat3 LiveTiles::GridFromWork(int id) const {
   const Grid& lt = grid_;
@@ -63,12 +64,13 @@ Mat3 LiveTiles::GridFromWork(int id) const {
     for (int i = 0; i < 3; ++i) {
       const Vec2 w(0.5 * i * (size.width - 1), 0.5 * j * (size.height - 1));
       const Vec2 m = Apply(mosaic_from_work, w);
-      double e =
+      const double e =
           lt.fit.world_from_pixel(0, 0) * m.x() + lt.fit.world_from_pixel(0, 1) * m.y() + lt.fit.world_from_pixel(0, 2);
-      double n =
+      const double n =
           lt.fit.world_from_pixel(1, 0) * m.x() + lt.fit.world_from_pixel(1, 1) * m.y() + lt.fit.world_from_pixel(1, 2);
-      if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &e, &n)) return Mat3::Zero();
-      const Vec2 px = MercatorPixelFromLatLon(n, e, lt.grid.max_zoom);  // traditional order: e = lon, n = lat
+      double lat = 0, lon = 0;
+      if (!lt.to_latlon.ToLatLon(lt.fit.epsg, Vec2(e, n), &lat, &lon)) return Mat3::Zero();
+      const Vec2 px = MercatorPixelFromLatLon(lat, lon, lt.grid.max_zoom);
       src.emplace_back(w.x(), w.y());
       dst.emplace_back(px.x(), px.y());
     }
@@ -99,14 +101,9 @@ bool LiveTiles::StartGrid(int id) {
   if (georef_->ok()) {
     lt.fit = georef_->fit();
     lt.refits_seen = georef_->refits();
-    OGRSpatialReference utm, wgs;
-    utm.importFromEPSG(lt.fit.epsg);
-    wgs.SetWellKnownGeogCS("WGS84");
-    utm.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-    wgs.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-    lt.to_wgs84.reset(OGRCreateCoordinateTransformation(&utm, &wgs));
-    double lon = lt.fit.world_from_pixel(0, 2), lat = lt.fit.world_from_pixel(1, 2);
-    if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &lon, &lat)) return false;
+    double lat = 0, lon = 0;
+    const Vec2 origin(lt.fit.world_from_pixel(0, 2), lt.fit.world_from_pixel(1, 2));
+    if (!lt.to_latlon.ToLatLon(lt.fit.epsg, origin, &lat, &lon)) return false;
     // The zoom of the first georeference stays unless a later one differs by two levels or more (a GSD estimate
     // near a level's edge must not redraw the map back and forth).
     const int zoom = MaxZoomForGsd(lat, TilesGsd(id));
@@ -248,22 +245,22 @@ void LiveTiles::Finish(const TileSet* final_tiles, int frames) {
     return latency.empty() ? 0.0 : latency[static_cast<size_t>(q * static_cast<double>(latency.size() - 1))];
   };
   report_ = {{"enabled", true},
-                        {"grid", !lt.started          ? "none"
-                                 : lt.grid.geographic ? "EPSG:3857"
-                                                      : "local"},
-                        {"min_zoom", lt.grid.min_zoom},
-                        {"max_zoom", lt.grid.max_zoom},
-                        {"frames_drawn", stats.frames_drawn},
-                        {"frames_redrawn", stats.frames_redrawn},
-                        {"frames_reread", stats.frames_reread},
-                        {"grid_resets", stats.resets},
-                        {"tiles_written", stats.tiles_written},
-                        {"jobs_dropped", stats.jobs_dropped},
-                        {"jobs_superseded", stats.jobs_superseded},
-                        {"write_errors", stats.write_errors},
-                        {"worker_ms", stats.busy_ms},
-                        {"latency_ms_median", at(0.5)},
-                        {"latency_ms_p95", at(0.95)}};
+             {"grid", !lt.started          ? "none"
+                      : lt.grid.geographic ? "EPSG:3857"
+                                           : "local"},
+             {"min_zoom", lt.grid.min_zoom},
+             {"max_zoom", lt.grid.max_zoom},
+             {"frames_drawn", stats.frames_drawn},
+             {"frames_redrawn", stats.frames_redrawn},
+             {"frames_reread", stats.frames_reread},
+             {"grid_resets", stats.resets},
+             {"tiles_written", stats.tiles_written},
+             {"jobs_dropped", stats.jobs_dropped},
+             {"jobs_superseded", stats.jobs_superseded},
+             {"write_errors", stats.write_errors},
+             {"worker_ms", stats.busy_ms},
+             {"latency_ms_median", at(0.5)},
+             {"latency_ms_p95", at(0.95)}};
   auto last = pyramid_->Info();
   pyramid_.reset();  // the worker stops
   if (final_tiles == nullptr || final_tiles->tiles == 0) {

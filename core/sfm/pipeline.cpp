@@ -20,6 +20,7 @@
 
 #include "core/features/sift.h"
 #include "core/geometry/similarity.h"
+#include "core/georef/georef.h"
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/dense.h"
 #include "core/util/parallel.h"
@@ -339,33 +340,33 @@ struct GpsPositions {
 GpsPositions ProjectGps(const std::vector<const SessionFrame*>& frames) {
   GpsPositions out;
   out.local.resize(frames.size());
-  UtmProjection utm;
-  bool have_utm = false;
+  // The UTM zone of the first frame with a position: the whole flight in one CRS.
+  int epsg = 0;
   for (const auto* f : frames) {
     if (f->latitude_deg && f->longitude_deg) {
-      std::string why;
-      have_utm = utm.Init(*f->latitude_deg, *f->longitude_deg, &why);
+      epsg = UtmEpsg(*f->latitude_deg, *f->longitude_deg);
       break;
     }
   }
-  if (!have_utm) return out;
+  if (epsg == 0) return out;
+  ProjectedConverter utm;
   bool origin_set = false;
   for (size_t i = 0; i < frames.size(); ++i) {
     const auto* f = frames[i];
     if (!f->latitude_deg || !f->longitude_deg) continue;
-    const auto en = utm.Forward(*f->latitude_deg, *f->longitude_deg);
-    if (!en) continue;
+    Vec2 en;
+    if (!utm.ToProjected(epsg, *f->latitude_deg, *f->longitude_deg, &en)) continue;
     if (!origin_set) {
-      out.origin = Eigen::Vector2d(std::round(en->x()), std::round(en->y()));
+      out.origin = Eigen::Vector2d(std::round(en.x()), std::round(en.y()));
       origin_set = true;
     }
     const double z = f->relative_altitude_m ? *f->relative_altitude_m : f->altitude_m.value_or(NAN);
-    out.local[i] = Eigen::Vector3d(en->x() - out.origin.x(), en->y() - out.origin.y(), z);
+    out.local[i] = Eigen::Vector3d(en.x() - out.origin.x(), en.y() - out.origin.y(), z);
   }
   if (origin_set) {
     out.projected = true;
-    out.crs_wkt = utm.wkt();
-    out.epsg = utm.epsg();
+    out.crs_wkt = EpsgWkt(epsg);
+    out.epsg = epsg;
   }
   return out;
 }
