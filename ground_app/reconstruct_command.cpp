@@ -1,5 +1,5 @@
-// `uavmosaic-ground SESSION_DIR --out DIR`: the offline reconstruction of a flight (core/sfm/pipeline.h) and its
-// products: cloud.ply, dsm.tif, sparse/ (COLMAP text model), summary.json, optional PNG previews.
+// `uavmosaic-ground SESSION_DIR --out DIR`: the offline reconstruction of a flight (core/sfm/run_reconstruction.h) and
+// its products: cloud.ply, dsm.tif, sparse/ (COLMAP text model), summary.json, optional PNG previews.
 #include "ground_app/reconstruct_command.h"
 
 #include <CLI/CLI.hpp>
@@ -12,9 +12,9 @@
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
+#include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
-#include "core/sfm/pipeline.h"
-#include "core/sfm/products.h"
+#include "core/sfm/run_reconstruction.h"
 #include "core/sfm/session_import.h"
 #include "hal/common/metadata.h"
 
@@ -23,7 +23,7 @@ namespace uavm::ground {
 namespace {
 
 // The reconstruction's tuning options (features, matching, dense, GCPs).
-void AddPipelineOptions(CLI::App* app, sfm::PipelineOptions* opts, std::string* dense_cost) {
+void AddReconstructionOptions(CLI::App* app, sfm::ReconstructionOptions* opts, std::string* dense_cost) {
   app->add_option("--feature-scale", opts->feature_scale,
                   "SIFT resolution relative to the stored frames (1 = full; 0 = long side --feature-size, default)");
   app->add_option("--feature-size", opts->feature_long_side_px,
@@ -56,7 +56,7 @@ void AddPipelineOptions(CLI::App* app, sfm::PipelineOptions* opts, std::string* 
 int RunReconstructCommand(int argc, char** argv) {
   CLI::App app{"uavmosaic-ground: sparse + dense 3-D reconstruction of a uavmosaic session directory"};
   std::string session_dir, out_dir;
-  sfm::PipelineOptions opts;
+  sfm::ReconstructionOptions opts;
   opts.threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   bool previews = false;
   bool no_dense = false;
@@ -64,7 +64,7 @@ int RunReconstructCommand(int argc, char** argv) {
   app.add_option("session", session_dir, "session directory written by uavmosaic-onboard")->required();
   app.add_option("--out", out_dir, "output directory (created)")->required();
   app.add_option("--threads", opts.threads, "worker threads (features, matching, bundle adjustment)");
-  AddPipelineOptions(&app, &opts, &dense_cost);
+  AddReconstructionOptions(&app, &opts, &dense_cost);
   app.add_flag("--no-dense", no_dense, "sparse only (the DSM is rasterised from the sparse points)");
   app.add_flag("--render-previews", previews, "write preview_cloud.png and preview_dsm.png");
   try {
@@ -103,8 +103,8 @@ int RunReconstructCommand(int argc, char** argv) {
     std::fprintf(stderr, "\r[%s] %zu/%zu%s", stage.c_str(), done, total, done == total ? "\n" : "");
     std::fflush(stderr);
   };
-  sfm::PipelineResult result;
-  if (!sfm::RunPipeline(session_dir, opts, progress, &result, &error)) {
+  sfm::ReconstructionResult result;
+  if (!sfm::RunReconstruction(session_dir, opts, progress, &result, &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return 5;
   }

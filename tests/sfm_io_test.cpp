@@ -9,8 +9,8 @@
 #include <sstream>
 
 #include "core/georef/georef.h"
+#include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
-#include "core/sfm/products.h"
 #include "core/sfm/session_import.h"
 #include "sfm_synthetic.h"
 

@@ -1,4 +1,4 @@
-#include "core/sfm/pipeline.h"
+#include "core/sfm/run_reconstruction.h"
 
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
@@ -27,7 +27,7 @@
 
 namespace uavm::sfm {
 
-bool PipelineOptions::Check(std::string* why) const {
+bool ReconstructionOptions::Check(std::string* why) const {
   auto fail = [&](const char* m) {
     *why = m;
     return false;
@@ -118,7 +118,7 @@ bool SelectFrames(const std::string& session_dir, SelectedFrames* out, std::stri
   return true;
 }
 
-double FeatureScale(const PipelineOptions& options, const SessionFrame& frame) {
+double FeatureScale(const ReconstructionOptions& options, const SessionFrame& frame) {
   if (options.feature_scale > 0.0) return options.feature_scale;
   const int long_side = std::max(frame.width, frame.height);
   return long_side > options.feature_long_side_px ? static_cast<double>(options.feature_long_side_px) / long_side : 1.0;
@@ -148,8 +148,8 @@ bool FrameFeaturesOf(const std::string& path, const SiftExtractor& sift, double 
 }
 
 bool ExtractFeatures(const std::string& session_dir, const std::vector<const SessionFrame*>& frames,
-                     const PipelineOptions& options, const ProgressFn& progress, std::vector<FrameFeatures>* feats,
-                     nlohmann::json* js, std::string* error) {
+                     const ReconstructionOptions& options, const ProgressFn& progress,
+                     std::vector<FrameFeatures>* feats, nlohmann::json* js, std::string* error) {
   feats->assign(frames.size(), FrameFeatures{});
   std::vector<std::string> failures(frames.size());
   std::atomic<size_t> done{0};
@@ -256,7 +256,7 @@ GuidedNeighbours GuidedSearch(const FrameFeatures& fa, const FrameFeatures& fb, 
 }
 
 PairMatch MatchPair(size_t a, size_t b, const FrameFeatures& fa, const FrameFeatures& fb, const SessionFrame& frame_a,
-                    const SessionFrame& frame_b, const PipelineOptions& options) {
+                    const SessionFrame& frame_b, const ReconstructionOptions& options) {
   PairMatch out;
   if (fa.points.size() < 8 || fb.points.size() < 8) return out;
   const Mat3 b_from_a = frame_b.mosaic_from_frame.inverse() * frame_a.mosaic_from_frame;
@@ -291,7 +291,7 @@ PairMatch MatchPair(size_t a, size_t b, const FrameFeatures& fa, const FrameFeat
 
 // The verified matches of all pairs, in pair order (image slots, ascending).
 std::vector<FeatureMatch> MatchGraphPairs(const SelectedFrames& sel, const std::vector<FrameFeatures>& feats,
-                                          const PipelineOptions& options, const ProgressFn& progress,
+                                          const ReconstructionOptions& options, const ProgressFn& progress,
                                           nlohmann::json* js) {
   const auto& frames = sel.frames;
   std::vector<std::pair<size_t, size_t>> pairs;
@@ -386,8 +386,8 @@ void StartDistortionFrom(const std::optional<SessionLens>& lens, Camera* camera,
 }
 
 IntrinsicsGuess InitImages(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
-                           const std::optional<SessionLens>& lens, const PipelineOptions& options, Reconstruction* rec,
-                           nlohmann::json* js) {
+                           const std::optional<SessionLens>& lens, const ReconstructionOptions& options,
+                           Reconstruction* rec, nlohmann::json* js) {
   *rec = Reconstruction{};
   const SessionFrame& f0 = *frames[0];
   IntrinsicsGuess guess = GuessIntrinsics(f0.width, f0.height, f0.focal_length_mm.value_or(0.0), options.camera_model,
@@ -519,7 +519,7 @@ struct InitialModel {
 };
 
 bool InitialPoses(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
-                  const std::optional<SessionLens>& lens, const PipelineOptions& options, Reconstruction* rec,
+                  const std::optional<SessionLens>& lens, const ReconstructionOptions& options, Reconstruction* rec,
                   InitialModel* out, nlohmann::json* js, std::string* error) {
   out->guess = InitImages(frames, feats, lens, options, rec, js);
   out->gps = ProjectGps(frames);
@@ -602,7 +602,7 @@ struct BundlePriors {
 };
 
 BundlePriors MakeBundlePriors(const std::vector<const SessionFrame*>& frames, const InitialModel& init,
-                              const PipelineOptions& options, nlohmann::json* js) {
+                              const ReconstructionOptions& options, nlohmann::json* js) {
   BundlePriors priors;
   // A nadir flight over nearly flat ground cannot tell focal length from depth: the EXIF focal length stays as a prior
   // (1 % when the sensor is known, 10 % for a guess).
@@ -624,7 +624,7 @@ BundlePriors MakeBundlePriors(const std::vector<const SessionFrame*>& frames, co
 // The BA rounds: each adjusts, re-triangulates every track with the adjusted poses (recovers points the rough poses
 // lost) and rejects above the round's threshold; a final BA on the cleaned set gives the reported before/after pair.
 bool BundleRounds(const std::vector<Track>& tracks, const std::vector<FrameFeatures>& feats, const BundlePriors& priors,
-                  const PipelineOptions& options, const ProgressFn& progress, Reconstruction* rec,
+                  const ReconstructionOptions& options, const ProgressFn& progress, Reconstruction* rec,
                   nlohmann::json* rounds, std::string* error) {
   BundleOptions base;
   base.threads = options.threads;
@@ -667,8 +667,9 @@ bool BundleRounds(const std::vector<Track>& tracks, const std::vector<FrameFeatu
 }
 
 bool TriangulateAndAdjust(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
-                          const std::vector<Track>& tracks, const InitialModel& init, const PipelineOptions& options,
-                          const ProgressFn& progress, Reconstruction* rec, nlohmann::json* js, std::string* error) {
+                          const std::vector<Track>& tracks, const InitialModel& init,
+                          const ReconstructionOptions& options, const ProgressFn& progress, Reconstruction* rec,
+                          nlohmann::json* js, std::string* error) {
   TriangulateAll(tracks, feats, options.min_triangulation_angle_deg, options.initial_reprojection_px, rec);
   size_t obs_tracks = 0;
   for (const auto& t : tracks) obs_tracks += t.size();
@@ -719,7 +720,7 @@ void Georeference(const GpsPositions& gps, Reconstruction* rec, nlohmann::json* 
                      {"z_reference", "relative altitude (take-off = 0) when in EXIF, else GPS altitude"}};
 }
 
-void SetCrs(const InitialModel& init, const GcpInput* gcp, PipelineResult* result) {
+void SetCrs(const InitialModel& init, const GcpInput* gcp, ReconstructionResult* result) {
   auto& js = result->summary;
   result->offset = init.gps.origin;
   if (gcp != nullptr) {
@@ -747,8 +748,8 @@ struct DenseCloud {
 };
 
 bool DenseStage(const std::string& session_dir, const std::vector<const SessionFrame*>& frames,
-                const Reconstruction& rec, const PipelineOptions& options, const ProgressFn& progress, DenseCloud* out,
-                nlohmann::json* js, std::string* error) {
+                const Reconstruction& rec, const ReconstructionOptions& options, const ProgressFn& progress,
+                DenseCloud* out, nlohmann::json* js, std::string* error) {
   if (options.dense) {
     DenseOptions dopt;
     dopt.image_scale = options.dense_image_scale;
@@ -771,7 +772,7 @@ bool DenseStage(const std::string& session_dir, const std::vector<const SessionF
 
 // 9. Fusion + DSM.
 // Cell size: the dense sampling distance on the ground (or 20x the sparse GSD without dense points).
-double DsmCell(const Reconstruction& rec, bool have_dense, const PipelineOptions& options, nlohmann::json* js) {
+double DsmCell(const Reconstruction& rec, bool have_dense, const ReconstructionOptions& options, nlohmann::json* js) {
   const double gsd = rec.MedianGsd();
   double cell = options.dsm_cell_m;
   if (cell <= 0.0) {
@@ -801,7 +802,7 @@ DsmGrid GridOver(const std::vector<CloudPoint>& points, double cell) {
 }
 
 // The fused dense cloud (the sparse points without one) and the DSM rasterised from it.
-void FuseAndRasterize(const DenseCloud& dense, const PipelineOptions& options, PipelineResult* result) {
+void FuseAndRasterize(const DenseCloud& dense, const ReconstructionOptions& options, ReconstructionResult* result) {
   auto& js = result->summary;
   const Reconstruction& rec = result->rec;
   std::vector<CloudPoint> sparse_cloud;
@@ -829,7 +830,7 @@ void FuseAndRasterize(const DenseCloud& dense, const PipelineOptions& options, P
 
 // 7b. Ground control points: the georeferenced model moved onto the GCPs, adjusted with them, every point measured.
 bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialModel& init, GcpInput* gcp,
-                  const PipelineOptions& options, Reconstruction* rec, nlohmann::json* js, std::string* error) {
+                  const ReconstructionOptions& options, Reconstruction* rec, nlohmann::json* js, std::string* error) {
   BundlePriors priors = MakeBundlePriors(frames, init, options, js);
   ControlReport report;
   const auto& cps = gcp->binding.points;
@@ -862,8 +863,8 @@ bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialM
 }  // namespace
 
 // The stages in order; each reads the earlier ones' outputs and adds its figures to the summary.
-bool RunPipeline(const std::string& session_dir, const PipelineOptions& options, const ProgressFn& progress,
-                 PipelineResult* result, std::string* error) {
+bool RunReconstruction(const std::string& session_dir, const ReconstructionOptions& options, const ProgressFn& progress,
+                       ReconstructionResult* result, std::string* error) {
   if (!options.Check(error)) return false;
   auto& js = result->summary;
   js = nlohmann::json::object();

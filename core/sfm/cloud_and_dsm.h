@@ -4,6 +4,8 @@
 #include <string>
 #include <vector>
 
+// The ground tool's point cloud and DSM: the PLY file, the DSM raster and its GeoTIFF, PNG previews. (The onboard
+// program's map products are core/georef/products.h.)
 namespace uavm::sfm {
 
 struct CloudPoint {

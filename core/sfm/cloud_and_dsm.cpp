@@ -1,4 +1,4 @@
-#include "core/sfm/products.h"
+#include "core/sfm/cloud_and_dsm.h"
 
 #include <gdal_priv.h>
 
