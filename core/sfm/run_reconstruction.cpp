@@ -21,6 +21,7 @@
 #include "core/features/sift.h"
 #include "core/geometry/similarity.h"
 #include "core/georef/georef.h"
+#include "core/matching/radius_matcher.h"
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/dense.h"
 #include "core/util/parallel.h"
@@ -192,88 +193,24 @@ struct PairMatch {
   std::vector<FeatureMatch> matches;  // the inliers when at least min_pair_inliers, else none
 };
 
-// Keypoint indices of a frame in square cells of `cell` pixels, for the guided search.
-struct KeypointGrid {
-  KeypointGrid(const std::vector<Eigen::Vector2d>& points, double cell_px, int frame_w, int frame_h)
-      : cell(cell_px),
-        gw(static_cast<int>(frame_w / cell_px) + 1),
-        gh(static_cast<int>(frame_h / cell_px) + 1),
-        cells(static_cast<size_t>(gw * gh)) {
-    for (size_t j = 0; j < points.size(); ++j) {
-      const int gx = std::clamp(static_cast<int>(points[j].x() / cell), 0, gw - 1);
-      const int gy = std::clamp(static_cast<int>(points[j].y() / cell), 0, gh - 1);
-      cells[static_cast<size_t>(gy * gw + gx)].push_back(static_cast<int>(j));
-    }
-  }
-  double cell;
-  int gw, gh;
-  std::vector<std::vector<int>> cells;
-};
-
-// Best and second-best candidate per keypoint of a; best per keypoint of b (for the mutual check).
-struct GuidedNeighbours {
-  std::vector<int> best_a;
-  std::vector<float> d1_a, d2_a;
-  std::vector<int> best_b;
-  std::vector<float> d1_b;
-};
-
-// Guided matching: the onboard maps predict where a keypoint of `a` lies in `b`; only keypoints of `b` within
-// `radius` of that prediction are candidates. At full resolution this keeps the ratio test meaningful (the unguided
-// nearest neighbour among 8000 fine-scale features is too often a look-alike).
-GuidedNeighbours GuidedSearch(const FrameFeatures& fa, const FrameFeatures& fb, const Mat3& b_from_a,
-                              const KeypointGrid& grid, double radius) {
-  GuidedNeighbours n{std::vector<int>(fa.points.size(), -1), std::vector<float>(fa.points.size(), 1e30f),
-                     std::vector<float>(fa.points.size(), 1e30f), std::vector<int>(fb.points.size(), -1),
-                     std::vector<float>(fb.points.size(), 1e30f)};
-  const double cell = grid.cell;
-  for (size_t i = 0; i < fa.points.size(); ++i) {
-    const Vec2 q = Apply(b_from_a, fa.points[i]);
-    const int gx = static_cast<int>(std::floor(q.x() / cell)), gy = static_cast<int>(std::floor(q.y() / cell));
-    const cv::Mat da = fa.descriptors.row(static_cast<int>(i));
-    for (int y = gy - 1; y <= gy + 1; ++y) {
-      for (int x = gx - 1; x <= gx + 1; ++x) {
-        if (x < 0 || y < 0 || x >= grid.gw || y >= grid.gh) continue;
-        for (int j : grid.cells[static_cast<size_t>(y * grid.gw + x)]) {
-          if ((fb.points[static_cast<size_t>(j)] - q).norm() > radius) continue;
-          const float d = static_cast<float>(cv::norm(da, fb.descriptors.row(j), cv::NORM_L2SQR));
-          if (d < n.d1_a[i]) {
-            n.d2_a[i] = n.d1_a[i];
-            n.d1_a[i] = d;
-            n.best_a[i] = j;
-          } else if (d < n.d2_a[i]) {
-            n.d2_a[i] = d;
-          }
-          if (d < n.d1_b[static_cast<size_t>(j)]) {
-            n.d1_b[static_cast<size_t>(j)] = d;
-            n.best_b[static_cast<size_t>(j)] = static_cast<int>(i);
-          }
-        }
-      }
-    }
-  }
-  return n;
-}
-
 PairMatch MatchPair(size_t a, size_t b, const FrameFeatures& fa, const FrameFeatures& fb, const SessionFrame& frame_a,
                     const SessionFrame& frame_b, const ReconstructionOptions& options) {
   PairMatch out;
   if (fa.points.size() < 8 || fb.points.size() < 8) return out;
   const Mat3 b_from_a = frame_b.mosaic_from_frame.inverse() * frame_a.mosaic_from_frame;
-  const double radius = options.guided_radius * std::max(frame_a.width, frame_a.height);
-  const KeypointGrid grid(fb.points, radius, frame_b.width, frame_b.height);
-  const GuidedNeighbours n = GuidedSearch(fa, fb, b_from_a, grid, radius);
+  // Guided by the onboard maps (core/matching/radius_matcher.h): candidates near the predicted position only.
+  const RadiusMatchOptions guide{.radius_px = options.guided_radius * std::max(frame_a.width, frame_a.height),
+                                 .ratio = options.ratio};
+  const std::vector<RadiusMatch> guided = MatchWithinRadius(fa.points, fa.descriptors, fb.points, fb.descriptors,
+                                                            cv::Size(frame_b.width, frame_b.height), b_from_a, guide);
   std::vector<cv::Point2f> pa, pb;
   std::vector<FeatureMatch> cand;
-  const float r2 = static_cast<float>(options.ratio * options.ratio);  // squared distances
-  for (size_t i = 0; i < fa.points.size(); ++i) {
-    const int j = n.best_a[i];
-    if (j < 0 || n.d1_a[i] > r2 * n.d2_a[i]) continue;
-    if (n.best_b[static_cast<size_t>(j)] != static_cast<int>(i)) continue;  // mutual best
-    cand.push_back({static_cast<int>(a), static_cast<int>(i), static_cast<int>(b), j, n.d1_a[i]});
-    pa.emplace_back(static_cast<float>(fa.points[i].x()), static_cast<float>(fa.points[i].y()));
-    pb.emplace_back(static_cast<float>(fb.points[static_cast<size_t>(j)].x()),
-                    static_cast<float>(fb.points[static_cast<size_t>(j)].y()));
+  for (const RadiusMatch& m : guided) {
+    cand.push_back({static_cast<int>(a), m.a, static_cast<int>(b), m.b, m.distance_sq});
+    pa.emplace_back(static_cast<float>(fa.points[static_cast<size_t>(m.a)].x()),
+                    static_cast<float>(fa.points[static_cast<size_t>(m.a)].y()));
+    pb.emplace_back(static_cast<float>(fb.points[static_cast<size_t>(m.b)].x()),
+                    static_cast<float>(fb.points[static_cast<size_t>(m.b)].y()));
   }
   out.candidates = static_cast<int>(cand.size());
   if (static_cast<int>(cand.size()) < options.min_pair_inliers) return out;
