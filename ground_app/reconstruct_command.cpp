@@ -16,6 +16,7 @@
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/run_reconstruction.h"
 #include "core/sfm/session_import.h"
+#include "ground_app/exit_codes.h"
 #include "hal/common/metadata.h"
 
 namespace uavm::ground {
@@ -70,20 +71,20 @@ int RunReconstructCommand(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e) == 0 ? 0 : 2;
+    return app.exit(e) == 0 ? kExitOk : kExitUsage;
   }
   opts.dense = !no_dense;
   opts.dense_daisy = dense_cost == "daisy";
   std::string error;
   if (!opts.Check(&error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
-    return 2;
+    return kExitUsage;
   }
   std::error_code ec;
   std::filesystem::create_directories(out_dir + "/sparse", ec);
   if (ec) {
     std::fprintf(stderr, "uavmosaic-ground: cannot create %s: %s\n", out_dir.c_str(), ec.message().c_str());
-    return 4;
+    return kExitOutputError;
   }
   // Camera model (sensor table) from the first stored frame's EXIF.
   {
@@ -106,7 +107,7 @@ int RunReconstructCommand(int argc, char** argv) {
   sfm::ReconstructionResult result;
   if (!sfm::RunReconstruction(session_dir, opts, progress, &result, &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
-    return 5;
+    return kExitReconstructionFailed;
   }
   const auto t_out = std::chrono::steady_clock::now();
   auto& js = result.summary;
@@ -115,7 +116,7 @@ int RunReconstructCommand(int argc, char** argv) {
       !sfm::WriteDsmGeoTiff(out_dir + "/dsm.tif", result.dsm, result.grid, result.offset, result.crs_wkt, -9999.0f,
                             &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
-    return 4;
+    return kExitOutputError;
   }
   if (previews) {
     const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};
@@ -133,7 +134,7 @@ int RunReconstructCommand(int argc, char** argv) {
   std::fprintf(stderr, "uavmosaic-ground: %zu frames, %zu sparse points, BA RMS %.3f -> %.3f px, %zu dense points\n",
                result.rec.images.size(), result.rec.points.size(), js.value("ba_rms_before_px", 0.0),
                js.value("ba_rms_after_px", 0.0), result.dense.size());
-  return 0;
+  return kExitOk;
 }
 
 }  // namespace uavm::ground
