@@ -45,8 +45,8 @@ std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::strin
   }
   if (scheme == "v4l2" || scheme == "libcamera") {
     // A live camera: v4l2:/dev/videoN?width=..&height=..&format=..&fps=.. (hal/common/camera_options.h).
-    hal::CameraOptions o;
-    if (!hal::ParseCameraOptions(arg, &o, error)) return nullptr;
+    hal::CaptureOptions o;
+    if (!hal::ParseCaptureOptions(arg, &o, error)) return nullptr;
     if (scheme == "v4l2") return std::make_unique<hal::V4l2Source>(o);
 #ifdef UAVM_HAVE_LIBCAMERA
     return std::make_unique<hal::LibcameraSource>(o);

@@ -1,5 +1,5 @@
-// `uavmosaic-ground SESSION_DIR --out DIR`: the offline reconstruction of a flight (core/sfm/pipeline.h) and its
-// products: cloud.ply, dsm.tif, sparse/ (COLMAP text model), summary.json, optional PNG previews.
+// `uavmosaic-ground SESSION_DIR --out DIR`: the offline reconstruction of a flight (core/sfm/run_reconstruction.h) and
+// its products: cloud.ply, dsm.tif, sparse/ (COLMAP text model), summary.json, optional PNG previews.
 #include "ground_app/reconstruct_command.h"
 
 #include <CLI/CLI.hpp>
@@ -12,10 +12,11 @@
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
+#include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
-#include "core/sfm/pipeline.h"
-#include "core/sfm/products.h"
+#include "core/sfm/run_reconstruction.h"
 #include "core/sfm/session_import.h"
+#include "ground_app/exit_codes.h"
 #include "hal/common/metadata.h"
 
 namespace uavm::ground {
@@ -23,7 +24,7 @@ namespace uavm::ground {
 namespace {
 
 // The reconstruction's tuning options (features, matching, dense, GCPs).
-void AddPipelineOptions(CLI::App* app, sfm::PipelineOptions* opts, std::string* dense_cost) {
+void AddReconstructionOptions(CLI::App* app, sfm::ReconstructionOptions* opts, std::string* dense_cost) {
   app->add_option("--feature-scale", opts->feature_scale,
                   "SIFT resolution relative to the stored frames (1 = full; 0 = long side --feature-size, default)");
   app->add_option("--feature-size", opts->feature_long_side_px,
@@ -56,7 +57,7 @@ void AddPipelineOptions(CLI::App* app, sfm::PipelineOptions* opts, std::string* 
 int RunReconstructCommand(int argc, char** argv) {
   CLI::App app{"uavmosaic-ground: sparse + dense 3-D reconstruction of a uavmosaic session directory"};
   std::string session_dir, out_dir;
-  sfm::PipelineOptions opts;
+  sfm::ReconstructionOptions opts;
   opts.threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   bool previews = false;
   bool no_dense = false;
@@ -64,26 +65,26 @@ int RunReconstructCommand(int argc, char** argv) {
   app.add_option("session", session_dir, "session directory written by uavmosaic-onboard")->required();
   app.add_option("--out", out_dir, "output directory (created)")->required();
   app.add_option("--threads", opts.threads, "worker threads (features, matching, bundle adjustment)");
-  AddPipelineOptions(&app, &opts, &dense_cost);
+  AddReconstructionOptions(&app, &opts, &dense_cost);
   app.add_flag("--no-dense", no_dense, "sparse only (the DSM is rasterised from the sparse points)");
   app.add_flag("--render-previews", previews, "write preview_cloud.png and preview_dsm.png");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e) == 0 ? 0 : 2;
+    return app.exit(e) == 0 ? kExitOk : kExitUsage;
   }
   opts.dense = !no_dense;
   opts.dense_daisy = dense_cost == "daisy";
   std::string error;
   if (!opts.Check(&error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
-    return 2;
+    return kExitUsage;
   }
   std::error_code ec;
   std::filesystem::create_directories(out_dir + "/sparse", ec);
   if (ec) {
     std::fprintf(stderr, "uavmosaic-ground: cannot create %s: %s\n", out_dir.c_str(), ec.message().c_str());
-    return 4;
+    return kExitOutputError;
   }
   // Camera model (sensor table) from the first stored frame's EXIF.
   {
@@ -103,10 +104,10 @@ int RunReconstructCommand(int argc, char** argv) {
     std::fprintf(stderr, "\r[%s] %zu/%zu%s", stage.c_str(), done, total, done == total ? "\n" : "");
     std::fflush(stderr);
   };
-  sfm::PipelineResult result;
-  if (!sfm::RunPipeline(session_dir, opts, progress, &result, &error)) {
+  sfm::ReconstructionResult result;
+  if (!sfm::RunReconstruction(session_dir, opts, progress, &result, &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
-    return 5;
+    return kExitReconstructionFailed;
   }
   const auto t_out = std::chrono::steady_clock::now();
   auto& js = result.summary;
@@ -115,7 +116,7 @@ int RunReconstructCommand(int argc, char** argv) {
       !sfm::WriteDsmGeoTiff(out_dir + "/dsm.tif", result.dsm, result.grid, result.offset, result.crs_wkt, -9999.0f,
                             &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
-    return 4;
+    return kExitOutputError;
   }
   if (previews) {
     const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};
@@ -133,7 +134,7 @@ int RunReconstructCommand(int argc, char** argv) {
   std::fprintf(stderr, "uavmosaic-ground: %zu frames, %zu sparse points, BA RMS %.3f -> %.3f px, %zu dense points\n",
                result.rec.images.size(), result.rec.points.size(), js.value("ba_rms_before_px", 0.0),
                js.value("ba_rms_after_px", 0.0), result.dense.size());
-  return 0;
+  return kExitOk;
 }
 
 }  // namespace uavm::ground

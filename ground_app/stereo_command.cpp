@@ -9,20 +9,22 @@
 #include <vector>
 
 #include "core/stereo/sgm.h"
+#include "ground_app/exit_codes.h"
 
 namespace uavm::ground {
 namespace {
 
 int Error(const std::string& what) {
   std::fprintf(stderr, "uavmosaic-ground stereo: error: %s\n", what.c_str());
-  return 1;
+  return kExitStereoFailed;
 }
 
 }  // namespace
 
 int RunStereoCommand(int argc, char** argv) {
   CLI::App app{
-      "Dense disparity of one rectified pair (semi-global matching, census or DAISY cost, left-right check). Writes the LEFT "
+      "Dense disparity of one rectified pair (semi-global matching, census or DAISY cost, left-right check). Writes "
+      "the LEFT "
       "image's disparity (x_left - x_right, pixels) as a float32 single-band TIFF; NaN = no disparity.",
       "uavmosaic-ground stereo"};
   std::string left_path, right_path, out_path;
@@ -45,7 +47,7 @@ int RunStereoCommand(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    return app.exit(e);  // 0 for --help, else CLI11's own code for the error (see exit_codes.h)
   }
 
   try {
@@ -75,7 +77,7 @@ int RunStereoCommand(int argc, char** argv) {
                  "uavmosaic-ground stereo: %dx%d, disparities %d..%d, %.1f %% of pixels with a disparity -> %s\n",
                  left.cols, left.rows, options.min_disparity, options.min_disparity + options.num_disparities - 1,
                  100.0 * valid / (static_cast<double>(disparity.total()) + 1e-9), out_path.c_str());
-    return 0;
+    return kExitOk;
   } catch (const std::exception& e) {
     // cv::imwrite throws on unsupported extensions, for instance.
     return Error(e.what());

@@ -6,10 +6,10 @@
 namespace uavm::hal {
 namespace {
 
-TEST(CameraOptions, DefaultsWhenNoKeys) {
-  CameraOptions o;
+TEST(CaptureOptions, DefaultsWhenNoKeys) {
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions("/dev/video3", &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions("/dev/video3", &o, &err)) << err;
   EXPECT_EQ(o.device, "/dev/video3");
   EXPECT_EQ(o.width, 640);
   EXPECT_EQ(o.height, 480);
@@ -19,10 +19,10 @@ TEST(CameraOptions, DefaultsWhenNoKeys) {
   EXPECT_EQ(o.queue, 2);
 }
 
-TEST(CameraOptions, AllKeys) {
-  CameraOptions o;
+TEST(CaptureOptions, AllKeys) {
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions(
+  ASSERT_TRUE(ParseCaptureOptions(
       "/dev/video0?width=1280&height=720&format=mjpg&fps=15&buffers=8&queue=3&reconnect_s=2.5", &o, &err))
       << err;
   EXPECT_EQ(o.device, "/dev/video0");
@@ -35,15 +35,15 @@ TEST(CameraOptions, AllKeys) {
   EXPECT_DOUBLE_EQ(o.reconnect_s, 2.5);
 }
 
-TEST(CameraOptions, LibcameraIdWithSpaces) {
-  CameraOptions o;
+TEST(CaptureOptions, LibcameraIdWithSpaces) {
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions("platform/vimc.0 Sensor B?format=RGB24", &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions("platform/vimc.0 Sensor B?format=RGB24", &o, &err)) << err;
   EXPECT_EQ(o.device, "platform/vimc.0 Sensor B");
   EXPECT_EQ(o.format, PixelFormat::kRgb24);
 }
 
-TEST(CameraOptions, Errors) {
+TEST(CaptureOptions, Errors) {
   const char* bad[] = {
       "/dev/video0?width=abc",          // not a number
       "/dev/video0?width=641",          // odd
@@ -58,15 +58,15 @@ TEST(CameraOptions, Errors) {
       "/dev/video0?width=640x",
   };
   for (const char* spec : bad) {
-    CameraOptions o;
+    CaptureOptions o;
     std::string err;
-    EXPECT_FALSE(ParseCameraOptions(spec, &o, &err)) << spec;
+    EXPECT_FALSE(ParseCaptureOptions(spec, &o, &err)) << spec;
     EXPECT_FALSE(err.empty()) << spec;
   }
 }
 
-TEST(CameraOptions, CheckOnDefaults) {
-  CameraOptions o;
+TEST(CaptureOptions, CheckOnDefaults) {
+  CaptureOptions o;
   std::string err;
   EXPECT_FALSE(o.Check(&err));  // no device
   o.device = "/dev/video0";

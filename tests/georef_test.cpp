@@ -46,6 +46,28 @@ TEST(GeorefTest, ProjectedConverterMatchesLatLonToProjected) {
   EXPECT_FALSE(err.empty());
 }
 
+// Its inverse direction gives ProjectedToLatLon's numbers, bit for bit, interleaved with the forward one (each
+// direction keeps its own transformation).
+TEST(GeorefTest, ProjectedConverterMatchesProjectedToLatLon) {
+  ProjectedConverter converter;
+  std::string err;
+  for (const int epsg : {32615, 32616, 32616, 32615}) {
+    const Vec2 en(576000.0, 5187000.0);
+    std::vector<double> lat, lon;
+    ASSERT_TRUE(ProjectedToLatLon(epsg, {en}, &lat, &lon, &err)) << err;
+    double got_lat = 0, got_lon = 0;
+    ASSERT_TRUE(converter.ToLatLon(epsg, en, &got_lat, &got_lon, &err)) << err;
+    EXPECT_EQ(got_lat, lat[0]) << "EPSG:" << epsg;
+    EXPECT_EQ(got_lon, lon[0]) << "EPSG:" << epsg;
+    Vec2 back;
+    ASSERT_TRUE(converter.ToProjected(epsg, got_lat, got_lon, &back, &err)) << err;
+    EXPECT_NEAR((back - en).norm(), 0.0, 1e-6);
+  }
+  double lat = 0, lon = 0;
+  EXPECT_FALSE(converter.ToLatLon(999999, Vec2(576000.0, 5187000.0), &lat, &lon, &err));
+  EXPECT_FALSE(err.empty());
+}
+
 TEST(GeorefTest, WorldFromPixel3IsHomogeneous) {
   Eigen::Matrix<double, 2, 3> m;
   m << 0.1, 0.02, 576000, 0.02, -0.1, 5187000;

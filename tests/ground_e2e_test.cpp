@@ -13,8 +13,8 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
-#include "core/sfm/products.h"
 #include "tests/test_env.h"
 
 namespace uavm::sfm {

@@ -8,8 +8,9 @@
 #include <fstream>
 #include <sstream>
 
+#include "core/georef/georef.h"
+#include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
-#include "core/sfm/products.h"
 #include "core/sfm/session_import.h"
 #include "sfm_synthetic.h"
 
@@ -132,15 +133,15 @@ TEST(SfmIo, PlyBytes) {
 }
 
 TEST(SfmIo, DsmGeoTiffAndUtm) {
-  UtmProjection utm;
   std::string err;
-  // Brighton (UK), 50.82 N, 0.14 W: UTM zone 30N.
-  ASSERT_TRUE(utm.Init(50.82, -0.14, &err)) << err;
-  EXPECT_EQ(utm.epsg(), 32630);
-  const auto en = utm.Forward(50.82, -0.14);
-  ASSERT_TRUE(en.has_value());
-  EXPECT_NEAR(en->x(), 701443.7, 0.5);  // gdaltransform -s_srs EPSG:4326 -t_srs EPSG:32630
-  EXPECT_NEAR(en->y(), 5633707.3, 0.5);
+  // Brighton (UK), 50.82 N, 0.14 W: UTM zone 30N (the ground tool projects GPS through core/georef).
+  const int epsg = UtmEpsg(50.82, -0.14);
+  EXPECT_EQ(epsg, 32630);
+  ProjectedConverter utm;
+  Vec2 en;
+  ASSERT_TRUE(utm.ToProjected(epsg, 50.82, -0.14, &en, &err)) << err;
+  EXPECT_NEAR(en.x(), 701443.7, 0.5);  // gdaltransform -s_srs EPSG:4326 -t_srs EPSG:32630
+  EXPECT_NEAR(en.y(), 5633707.3, 0.5);
 
   std::vector<CloudPoint> pts;
   for (int i = 0; i < 10; ++i)
@@ -160,7 +161,7 @@ TEST(SfmIo, DsmGeoTiffAndUtm) {
   EXPECT_FLOAT_EQ(dsm(0, 11), -9999.f);
   const fs::path dir = TempDir("dsm");
   ASSERT_TRUE(
-      WriteDsmGeoTiff((dir / "d.tif").string(), dsm, g, Eigen::Vector2d(700000, 5600000), utm.wkt(), -9999.f, &err))
+      WriteDsmGeoTiff((dir / "d.tif").string(), dsm, g, Eigen::Vector2d(700000, 5600000), EpsgWkt(epsg), -9999.f, &err))
       << err;
   GDALAllRegister();
   GDALDataset* ds = static_cast<GDALDataset*>(GDALOpen((dir / "d.tif").c_str(), GA_ReadOnly));

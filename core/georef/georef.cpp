@@ -136,21 +136,43 @@ bool LatLonToProjected(int epsg, const std::vector<double>& lat, const std::vect
 ProjectedConverter::ProjectedConverter() = default;
 ProjectedConverter::~ProjectedConverter() = default;
 
+OGRCoordinateTransformation* ProjectedConverter::TransformFor(Cached* cached, int epsg, bool to_projected,
+                                                              std::string* error) {
+  if (!cached->transform || epsg != cached->epsg) {
+    cached->epsg = epsg;
+    cached->transform = MakeTransform(epsg, to_projected, error);
+  }
+  return cached->transform.get();
+}
+
 bool ProjectedConverter::ToProjected(int epsg, double latitude_deg, double longitude_deg, Vec2* out,
                                      std::string* error_out) {
   std::string ignored;
   std::string* error = error_out != nullptr ? error_out : &ignored;
-  if (!transform_ || epsg != epsg_) {
-    epsg_ = epsg;
-    transform_ = MakeTransform(epsg, true, error);
-    if (!transform_) return false;
-  }
+  OGRCoordinateTransformation* transform = TransformFor(&to_projected_, epsg, true, error);
+  if (transform == nullptr) return false;
   double x = longitude_deg, y = latitude_deg;
-  if (!transform_->Transform(1, &x, &y)) {
+  if (!transform->Transform(1, &x, &y)) {
     *error = "PROJ failed to project the positions";
     return false;
   }
   *out = Vec2(x, y);
+  return true;
+}
+
+bool ProjectedConverter::ToLatLon(int epsg, const Vec2& xy, double* latitude_deg, double* longitude_deg,
+                                  std::string* error_out) {
+  std::string ignored;
+  std::string* error = error_out != nullptr ? error_out : &ignored;
+  OGRCoordinateTransformation* transform = TransformFor(&to_latlon_, epsg, false, error);
+  if (transform == nullptr) return false;
+  double x = xy.x(), y = xy.y();
+  if (!transform->Transform(1, &x, &y)) {
+    *error = "PROJ failed to unproject the positions";
+    return false;
+  }
+  *longitude_deg = x;
+  *latitude_deg = y;
   return true;
 }
 

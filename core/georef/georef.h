@@ -66,8 +66,9 @@ struct GeorefFit {
                                      std::vector<double>* lon, std::string* error);
 [[nodiscard]] std::string EpsgWkt(int epsg);
 
-// WGS 84 lat/lon -> a projected CRS, one position at a time, for the frame loop: PROJ's transformation (~0.4 ms to
-// build) is kept and built again only when the EPSG changes. The same numbers as LatLonToProjected.
+// Between WGS 84 lat/lon and a projected CRS, one position at a time, for loops: PROJ's transformations (~0.4 ms to
+// build) are kept and built again only when the EPSG changes. The same numbers as LatLonToProjected and
+// ProjectedToLatLon (one function builds every transformation between WGS 84 and a projected CRS of the project).
 class ProjectedConverter {
  public:
   ProjectedConverter();
@@ -77,10 +78,21 @@ class ProjectedConverter {
 
   [[nodiscard]] bool ToProjected(int epsg, double latitude_deg, double longitude_deg, Vec2* out,
                                  std::string* error = nullptr);
+  // (x = easting, y = northing) of `epsg` -> WGS 84.
+  [[nodiscard]] bool ToLatLon(int epsg, const Vec2& xy, double* latitude_deg, double* longitude_deg,
+                              std::string* error = nullptr);
 
  private:
-  int epsg_ = 0;  // of transform_
-  std::unique_ptr<OGRCoordinateTransformation> transform_;
+  // One direction's transformation and the EPSG it was built for.
+  struct Cached {
+    int epsg = 0;
+    std::unique_ptr<OGRCoordinateTransformation> transform;
+  };
+  [[nodiscard]] static OGRCoordinateTransformation* TransformFor(Cached* cached, int epsg, bool to_projected,
+                                                                 std::string* error);
+
+  Cached to_projected_;
+  Cached to_latlon_;
 };
 
 [[nodiscard]] GeorefFit FitGeoref(const std::vector<GeoPoint>& points, const GeorefOptions& options);

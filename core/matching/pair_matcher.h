@@ -79,6 +79,7 @@ struct PairResult {
 
 // A prediction of where the source lands in the target: only source points predicted inside the target frame
 // (grown by `margin` of its size) are queried. Halves the work for a typical overlap and removes hopeless matches.
+// (A finer guide, candidates only within a radius of each predicted point, is radius_matcher.h's, the ground tool's.)
 struct MatchGuide {
   Mat3 tgt_from_src = Mat3::Identity();
   cv::Size tgt_size;

@@ -1,6 +1,5 @@
 #include "core/pipeline/live_tiles.h"
 
-#include <ogr_spatialref.h>
 #include <spdlog/spdlog.h>
 
 #include <cmath>
@@ -65,12 +64,13 @@ Mat3 LiveTiles::GridFromWork(int id) const {
     for (int i = 0; i < 3; ++i) {
       const Vec2 w(0.5 * i * (size.width - 1), 0.5 * j * (size.height - 1));
       const Vec2 m = Apply(mosaic_from_work, w);
-      double e =
+      const double e =
           lt.fit.world_from_pixel(0, 0) * m.x() + lt.fit.world_from_pixel(0, 1) * m.y() + lt.fit.world_from_pixel(0, 2);
-      double n =
+      const double n =
           lt.fit.world_from_pixel(1, 0) * m.x() + lt.fit.world_from_pixel(1, 1) * m.y() + lt.fit.world_from_pixel(1, 2);
-      if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &e, &n)) return Mat3::Zero();
-      const Vec2 px = MercatorPixelFromLatLon(n, e, lt.grid.max_zoom);  // traditional order: e = lon, n = lat
+      double lat = 0, lon = 0;
+      if (!lt.to_latlon.ToLatLon(lt.fit.epsg, Vec2(e, n), &lat, &lon)) return Mat3::Zero();
+      const Vec2 px = MercatorPixelFromLatLon(lat, lon, lt.grid.max_zoom);
       src.emplace_back(w.x(), w.y());
       dst.emplace_back(px.x(), px.y());
     }
@@ -101,14 +101,9 @@ bool LiveTiles::StartGrid(int id) {
   if (georef_->ok()) {
     lt.fit = georef_->fit();
     lt.refits_seen = georef_->refits();
-    OGRSpatialReference utm, wgs;
-    utm.importFromEPSG(lt.fit.epsg);
-    wgs.SetWellKnownGeogCS("WGS84");
-    utm.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-    wgs.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-    lt.to_wgs84.reset(OGRCreateCoordinateTransformation(&utm, &wgs));
-    double lon = lt.fit.world_from_pixel(0, 2), lat = lt.fit.world_from_pixel(1, 2);
-    if (!lt.to_wgs84 || !lt.to_wgs84->Transform(1, &lon, &lat)) return false;
+    double lat = 0, lon = 0;
+    const Vec2 origin(lt.fit.world_from_pixel(0, 2), lt.fit.world_from_pixel(1, 2));
+    if (!lt.to_latlon.ToLatLon(lt.fit.epsg, origin, &lat, &lon)) return false;
     // The zoom of the first georeference stays unless a later one differs by two levels or more (a GSD estimate
     // near a level's edge must not redraw the map back and forth).
     const int zoom = MaxZoomForGsd(lat, TilesGsd(id));

@@ -8,6 +8,7 @@
 #include <unordered_set>
 #include <vector>
 
+#include "core/georef/georef.h"
 #include "core/georef/live_georef.h"
 #include "core/georef/products.h"
 #include "core/pipeline/flight_record.h"
@@ -17,8 +18,6 @@
 #include "core/tiles/live_tile_pyramid.h"
 #include "core/tiles/tile_set.h"
 #include "core/util/signal.h"
-
-class OGRCoordinateTransformation;
 
 namespace uavm {
 
@@ -64,9 +63,9 @@ class LiveTiles {
     // Geographic: the live georeference the tiles were drawn with and lat/lon from its CRS.
     int refits_seen = -1;
     GeorefFit fit;
-    std::unique_ptr<OGRCoordinateTransformation> to_wgs84;
-    Vec2 local_offset = Vec2::Zero();  // local: max_zoom pixels = mosaic pixels + offset
-    cv::Rect2d drawn_mosaic;           // what has been drawn, mosaic pixels (the refit's shift is measured on it)
+    mutable ProjectedConverter to_latlon;  // mutable: GridFromWork (const) converts through it
+    Vec2 local_offset = Vec2::Zero();      // local: max_zoom pixels = mosaic pixels + offset
+    cv::Rect2d drawn_mosaic;               // what has been drawn, mosaic pixels (the refit's shift is measured on it)
     std::unordered_set<int> drawn;
     std::deque<std::pair<int, std::array<Vec2, 4>>> outlines;  // max_zoom pixels, newest last
   };

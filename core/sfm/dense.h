@@ -4,7 +4,7 @@
 #include <string>
 #include <vector>
 
-#include "core/sfm/products.h"
+#include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/reconstruction.h"
 
 namespace uavm::sfm {

@@ -7,7 +7,7 @@
 #include <set>
 #include <sstream>
 
-#include "core/sfm/products.h"
+#include "core/georef/georef.h"
 
 namespace uavm::sfm {
 
@@ -196,9 +196,7 @@ bool GcpCrs::Init(const std::string& crs_line, std::vector<Eigen::Vector3d>* poi
                ") is outside UTM's range: are x and y in the right order (x = longitude)?";
       return false;
     }
-    UtmProjection zone;
-    if (!zone.Init(mean.y(), mean.x(), error)) return false;
-    const int utm_epsg = zone.epsg();
+    const int utm_epsg = UtmEpsg(mean.y(), mean.x());
     OGRSpatialReference geo = s.srs;
     std::unique_ptr<OGRCoordinateTransformation> to_utm;
     s.srs.Clear();

@@ -35,7 +35,7 @@ bool ParseSeconds(const std::string& key, const std::string& v, double* out, std
 
 }  // namespace
 
-bool CameraOptions::Check(std::string* error) const {
+bool CaptureOptions::Check(std::string* error) const {
   if (device.empty()) {
     *error = "camera: no device given";
     return false;
@@ -63,7 +63,7 @@ bool CameraOptions::Check(std::string* error) const {
   return true;
 }
 
-bool ParseCameraOptions(const std::string& spec, CameraOptions* options, std::string* error) {
+bool ParseCaptureOptions(const std::string& spec, CaptureOptions* options, std::string* error) {
   const auto q = spec.find('?');
   options->device = spec.substr(0, q);
   if (q != std::string::npos) {

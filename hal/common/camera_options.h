@@ -9,8 +9,9 @@ namespace uavm::hal {
 // What both camera back-ends (hal/v4l2, hal/libcamera) are asked for. Source syntax (--source):
 //   v4l2:/dev/video0?width=640&height=480&format=YUYV&fps=30&buffers=6&queue=2&reconnect_s=30
 //   libcamera:0?width=640&height=480&format=RGB24      (libcamera:N = N-th camera, or libcamera:<camera id>)
-// Every key is optional; an unknown key or a bad value is an error.
-struct CameraOptions {
+// Every key is optional; an unknown key or a bad value is an error. (How a capture is asked for; the lens of the frames
+// is core/lens's CameraOptions.)
+struct CaptureOptions {
   std::string device;  // /dev/videoN for V4L2; index or camera id for libcamera
   int width = 640;     // requested size; the driver's nearest size is refused unless equal (no surprises)
   int height = 480;
@@ -24,7 +25,7 @@ struct CameraOptions {
 };
 
 // Splits "DEVICE?k=v&k=v" and applies the keys to `options` (which keeps its defaults for keys not given).
-[[nodiscard]] bool ParseCameraOptions(const std::string& spec, CameraOptions* options, std::string* error);
+[[nodiscard]] bool ParseCaptureOptions(const std::string& spec, CaptureOptions* options, std::string* error);
 
 // The query syntax above as one line of help text.
 [[nodiscard]] std::string CameraOptionsHelp();

@@ -46,7 +46,7 @@ struct LibcameraSource::Slot {
   std::vector<const uint8_t*> planes;          // start of each plane
 };
 
-LibcameraSource::LibcameraSource(CameraOptions options)
+LibcameraSource::LibcameraSource(CaptureOptions options)
     : options_(std::move(options)),
       feed_(static_cast<size_t>(std::max(1, options_.queue)), "libcamera", cv::Size(options_.width, options_.height)) {}
 

@@ -33,7 +33,7 @@ namespace uavm::hal {
 // libcamera allows one CameraManager per process: do not list cameras while a LibcameraSource is open.
 class LibcameraSource final : public FrameSource, private BufferPool {
  public:
-  explicit LibcameraSource(CameraOptions options);
+  explicit LibcameraSource(CaptureOptions options);
   ~LibcameraSource() override;
   LibcameraSource(const LibcameraSource&) = delete;
   LibcameraSource& operator=(const LibcameraSource&) = delete;
@@ -57,7 +57,7 @@ class LibcameraSource final : public FrameSource, private BufferPool {
   void WatchLoop();
   void Abandon();  // gives up a lost camera without stopping it (libcamera 0.0.3 aborts there)
 
-  CameraOptions options_;
+  CaptureOptions options_;
   std::string camera_id_;
   std::unique_ptr<libcamera::CameraManager> manager_;
   std::shared_ptr<libcamera::Camera> camera_;

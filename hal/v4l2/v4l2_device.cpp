@@ -63,7 +63,7 @@ V4l2Device::~V4l2Device() {
   Close();
 }
 
-Status V4l2Device::Open(const CameraOptions& o, std::string* error) {
+Status V4l2Device::Open(const CaptureOptions& o, std::string* error) {
   Close();
   const int fd = ::open(o.device.c_str(), O_RDWR | O_NONBLOCK | O_CLOEXEC);
   if (fd < 0) {

@@ -30,7 +30,7 @@ class V4l2Device final : public BufferPool {
   // Opens the node, negotiates exactly options.width x height in options.format (a different answer from the driver
   // is an error that names what it offered), sets the frame rate, allocates and maps options.buffers buffers, queues
   // them and starts streaming. kError with the reason otherwise (nothing left open).
-  [[nodiscard]] Status Open(const CameraOptions& options, std::string* error);
+  [[nodiscard]] Status Open(const CaptureOptions& options, std::string* error);
   // Waits up to timeout_ms for a filled buffer. Single consumer (the capture thread).
   [[nodiscard]] Wait Dequeue(int timeout_ms, CapturedBuffer* out, std::string* error);
   // Stops streaming, unmaps and closes. Waits until every CapturedBuffer issued has been released first (their

@@ -19,7 +19,7 @@ int64_t StallNs(double fps) {
 }
 }  // namespace
 
-V4l2Source::V4l2Source(CameraOptions options)
+V4l2Source::V4l2Source(CaptureOptions options)
     : options_(std::move(options)),
       feed_(static_cast<size_t>(std::max(1, options_.queue)),
             std::filesystem::path(options_.device).filename().string(), cv::Size(options_.width, options_.height)) {}

@@ -18,7 +18,7 @@ namespace uavm::hal {
 // Counters().reconnects. When it gives up, Next() returns kError with the reason.
 class V4l2Source final : public FrameSource {
  public:
-  explicit V4l2Source(CameraOptions options);
+  explicit V4l2Source(CaptureOptions options);
   ~V4l2Source() override;
   V4l2Source(const V4l2Source&) = delete;
   V4l2Source& operator=(const V4l2Source&) = delete;
@@ -32,7 +32,7 @@ class V4l2Source final : public FrameSource {
   [[nodiscard]] bool IsReplay() const override { return false; }
   [[nodiscard]] CaptureCounters Counters() const override;
 
-  [[nodiscard]] const CameraOptions& options() const { return options_; }
+  [[nodiscard]] const CaptureOptions& options() const { return options_; }
   [[nodiscard]] double actual_fps() const { return actual_fps_; }
 
  private:
@@ -40,7 +40,7 @@ class V4l2Source final : public FrameSource {
   // Closes the lost device (after releasing queued buffers) and reopens it with back-off. False when it gave up.
   bool Reconnect(const std::string& why);
 
-  CameraOptions options_;
+  CaptureOptions options_;
   V4l2Device device_;
   CameraFeed feed_;  // frames named after the device node ("video0_<timestamp>")
   std::thread thread_;

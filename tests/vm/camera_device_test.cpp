@@ -129,9 +129,9 @@ class VividTest : public ::testing::TestWithParam<const char*> {};
 TEST_P(VividTest, CapturesFramesInFormat) {
   const std::string node = FindNode("vivid");
   ASSERT_FALSE(node.empty()) << "no vivid video capture node (is the vivid module loaded?)";
-  CameraOptions o;
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions(node + "?width=640&height=480&fps=30&format=" + GetParam(), &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions(node + "?width=640&height=480&fps=30&format=" + GetParam(), &o, &err)) << err;
   V4l2Source source(o);
   const int64_t opened = MonotonicNs();
   ASSERT_EQ(source.Open(&err), Status::kOk) << err;
@@ -167,9 +167,9 @@ TEST(Vivid, FormatsAgree) {
   ASSERT_FALSE(node.empty());
   std::vector<cv::Mat> images;
   for (const char* f : {"YUYV", "NV12"}) {
-    CameraOptions o;
+    CaptureOptions o;
     std::string err;
-    ASSERT_TRUE(ParseCameraOptions(node + "?format=" + f, &o, &err)) << err;
+    ASSERT_TRUE(ParseCaptureOptions(node + "?format=" + f, &o, &err)) << err;
     V4l2Source source(o);
     ASSERT_EQ(source.Open(&err), Status::kOk) << err;
     Captured c;
@@ -187,9 +187,9 @@ TEST(Vivid, FormatsAgree) {
 TEST(Vivid, RefusesWhatTheDriverDoesNotOffer) {
   const std::string node = FindNode("vivid");
   ASSERT_FALSE(node.empty());
-  CameraOptions o;
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions(node + "?width=642&height=482", &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions(node + "?width=642&height=482", &o, &err)) << err;
   V4l2Source source(o);
   EXPECT_EQ(source.Open(&err), Status::kError);
   EXPECT_NE(err.find("not offered"), std::string::npos) << err;
@@ -200,9 +200,9 @@ TEST(Vivid, RefusesWhatTheDriverDoesNotOffer) {
 TEST(Vivid, SlowConsumerDropsOldestAndCounts) {
   const std::string node = FindNode("vivid");
   ASSERT_FALSE(node.empty());
-  CameraOptions o;
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions(node + "?fps=30&buffers=4&queue=2", &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions(node + "?fps=30&buffers=4&queue=2", &o, &err)) << err;
   V4l2Source source(o);
   ASSERT_EQ(source.Open(&err), Status::kOk) << err;
   std::this_thread::sleep_for(std::chrono::milliseconds(1500));
@@ -234,9 +234,9 @@ TEST(Vivid, ReconnectsAfterUnplug) {
   const std::string node = FindNode("vivid");
   ASSERT_FALSE(node.empty());
   ASSERT_TRUE(fs::exists("/sys/bus/platform/drivers/vivid/vivid.0")) << "vivid.0 is not bound to vivid";
-  CameraOptions o;
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions(node + "?reconnect_s=20", &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions(node + "?reconnect_s=20", &o, &err)) << err;
   V4l2Source source(o);
   ASSERT_EQ(source.Open(&err), Status::kOk) << err;
   Captured before;
@@ -267,9 +267,9 @@ TEST(Vivid, ReconnectsAfterUnplug) {
 TEST(Vivid, GivesUpWhenTheDeviceStaysAway) {
   const std::string node = FindNode("vivid");
   ASSERT_FALSE(node.empty());
-  CameraOptions o;
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions(node + "?reconnect_s=1.5", &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions(node + "?reconnect_s=1.5", &o, &err)) << err;
   V4l2Source source(o);
   ASSERT_EQ(source.Open(&err), Status::kOk) << err;
   Captured c;
@@ -308,10 +308,10 @@ void MarkUdevInitialised() {
 
 TEST(Vimc, CapturesThroughLibcamera) {
   MarkUdevInitialised();
-  CameraOptions o;
+  CaptureOptions o;
   std::string err;
   // vimc's pipeline scales the sensor by 3 from a 2-aligned size: widths are multiples of 6 (636, not 640).
-  ASSERT_TRUE(ParseCameraOptions("0?width=636&height=480&format=RGB24&fps=30", &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions("0?width=636&height=480&format=RGB24&fps=30", &o, &err)) << err;
   LibcameraSource source(o);
   const int64_t opened = MonotonicNs();
   ASSERT_EQ(source.Open(&err), Status::kOk) << err;
@@ -338,9 +338,9 @@ TEST(Vimc, CapturesThroughLibcamera) {
 TEST(Vimc, ReportsUnplug) {
   MarkUdevInitialised();
   ASSERT_TRUE(fs::exists("/sys/bus/platform/drivers/vimc/vimc.0")) << "vimc.0 is not bound to vimc";
-  CameraOptions o;
+  CaptureOptions o;
   std::string err;
-  ASSERT_TRUE(ParseCameraOptions("0?width=636&height=480&format=RGB24", &o, &err)) << err;
+  ASSERT_TRUE(ParseCaptureOptions("0?width=636&height=480&format=RGB24", &o, &err)) << err;
   LibcameraSource source(o);
   ASSERT_EQ(source.Open(&err), Status::kOk) << err;
   Captured before;

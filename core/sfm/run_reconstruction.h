@@ -5,16 +5,17 @@
 #include <vector>
 
 #include "core/sfm/bundle_adjuster.h"
+#include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/control_points.h"
 #include "core/sfm/gcp_stage.h"
-#include "core/sfm/products.h"
 #include "core/sfm/reconstruction.h"
 #include "core/sfm/session_import.h"
 #include "core/sfm/triangulation.h"
 
 namespace uavm::sfm {
 
-struct PipelineOptions {
+// The ground reconstruction's options (the onboard program's are core/pipeline/options.h's PipelineOptions).
+struct ReconstructionOptions {
   int threads = 2;
   // Features are re-detected in the stored frames at this fraction of the original resolution (1 = full); 0 = so that
   // the long side is feature_long_side_px (never enlarged). Measured against COLMAP (bench/results/ground-vs-colmap-*):
@@ -59,7 +60,7 @@ struct PipelineOptions {
   [[nodiscard]] bool Check(std::string* why) const;
 };
 
-struct PipelineResult {
+struct ReconstructionResult {
   Reconstruction rec;
   std::vector<CloudPoint> dense;  // fused cloud (world coordinates, relative to `offset`)
   cv::Mat1f dsm;
@@ -75,7 +76,7 @@ using ProgressFn = std::function<void(const std::string& stage, size_t done, siz
 
 // The whole offline reconstruction of a session: features, matching of graph.csv's used pairs, tracks, initial
 // poses, triangulation, BA rounds, georeferencing, dense pairs, fusion, DSM.
-[[nodiscard]] bool RunPipeline(const std::string& session_dir, const PipelineOptions& options,
-                               const ProgressFn& progress, PipelineResult* result, std::string* error);
+[[nodiscard]] bool RunReconstruction(const std::string& session_dir, const ReconstructionOptions& options,
+                                     const ProgressFn& progress, ReconstructionResult* result, std::string* error);
 
 }  // namespace uavm::sfm

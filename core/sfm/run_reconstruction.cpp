@@ -1,4 +1,4 @@
-#include "core/sfm/pipeline.h"
+#include "core/sfm/run_reconstruction.h"
 
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
@@ -20,13 +20,15 @@
 
 #include "core/features/sift.h"
 #include "core/geometry/similarity.h"
+#include "core/georef/georef.h"
+#include "core/matching/radius_matcher.h"
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/dense.h"
 #include "core/util/parallel.h"
 
 namespace uavm::sfm {
 
-bool PipelineOptions::Check(std::string* why) const {
+bool ReconstructionOptions::Check(std::string* why) const {
   auto fail = [&](const char* m) {
     *why = m;
     return false;
@@ -117,7 +119,7 @@ bool SelectFrames(const std::string& session_dir, SelectedFrames* out, std::stri
   return true;
 }
 
-double FeatureScale(const PipelineOptions& options, const SessionFrame& frame) {
+double FeatureScale(const ReconstructionOptions& options, const SessionFrame& frame) {
   if (options.feature_scale > 0.0) return options.feature_scale;
   const int long_side = std::max(frame.width, frame.height);
   return long_side > options.feature_long_side_px ? static_cast<double>(options.feature_long_side_px) / long_side : 1.0;
@@ -147,8 +149,8 @@ bool FrameFeaturesOf(const std::string& path, const SiftExtractor& sift, double 
 }
 
 bool ExtractFeatures(const std::string& session_dir, const std::vector<const SessionFrame*>& frames,
-                     const PipelineOptions& options, const ProgressFn& progress, std::vector<FrameFeatures>* feats,
-                     nlohmann::json* js, std::string* error) {
+                     const ReconstructionOptions& options, const ProgressFn& progress,
+                     std::vector<FrameFeatures>* feats, nlohmann::json* js, std::string* error) {
   feats->assign(frames.size(), FrameFeatures{});
   std::vector<std::string> failures(frames.size());
   std::atomic<size_t> done{0};
@@ -191,88 +193,24 @@ struct PairMatch {
   std::vector<FeatureMatch> matches;  // the inliers when at least min_pair_inliers, else none
 };
 
-// Keypoint indices of a frame in square cells of `cell` pixels, for the guided search.
-struct KeypointGrid {
-  KeypointGrid(const std::vector<Eigen::Vector2d>& points, double cell_px, int frame_w, int frame_h)
-      : cell(cell_px),
-        gw(static_cast<int>(frame_w / cell_px) + 1),
-        gh(static_cast<int>(frame_h / cell_px) + 1),
-        cells(static_cast<size_t>(gw * gh)) {
-    for (size_t j = 0; j < points.size(); ++j) {
-      const int gx = std::clamp(static_cast<int>(points[j].x() / cell), 0, gw - 1);
-      const int gy = std::clamp(static_cast<int>(points[j].y() / cell), 0, gh - 1);
-      cells[static_cast<size_t>(gy * gw + gx)].push_back(static_cast<int>(j));
-    }
-  }
-  double cell;
-  int gw, gh;
-  std::vector<std::vector<int>> cells;
-};
-
-// Best and second-best candidate per keypoint of a; best per keypoint of b (for the mutual check).
-struct GuidedNeighbours {
-  std::vector<int> best_a;
-  std::vector<float> d1_a, d2_a;
-  std::vector<int> best_b;
-  std::vector<float> d1_b;
-};
-
-// Guided matching: the onboard maps predict where a keypoint of `a` lies in `b`; only keypoints of `b` within
-// `radius` of that prediction are candidates. At full resolution this keeps the ratio test meaningful (the unguided
-// nearest neighbour among 8000 fine-scale features is too often a look-alike).
-GuidedNeighbours GuidedSearch(const FrameFeatures& fa, const FrameFeatures& fb, const Mat3& b_from_a,
-                              const KeypointGrid& grid, double radius) {
-  GuidedNeighbours n{std::vector<int>(fa.points.size(), -1), std::vector<float>(fa.points.size(), 1e30f),
-                     std::vector<float>(fa.points.size(), 1e30f), std::vector<int>(fb.points.size(), -1),
-                     std::vector<float>(fb.points.size(), 1e30f)};
-  const double cell = grid.cell;
-  for (size_t i = 0; i < fa.points.size(); ++i) {
-    const Vec2 q = Apply(b_from_a, fa.points[i]);
-    const int gx = static_cast<int>(std::floor(q.x() / cell)), gy = static_cast<int>(std::floor(q.y() / cell));
-    const cv::Mat da = fa.descriptors.row(static_cast<int>(i));
-    for (int y = gy - 1; y <= gy + 1; ++y) {
-      for (int x = gx - 1; x <= gx + 1; ++x) {
-        if (x < 0 || y < 0 || x >= grid.gw || y >= grid.gh) continue;
-        for (int j : grid.cells[static_cast<size_t>(y * grid.gw + x)]) {
-          if ((fb.points[static_cast<size_t>(j)] - q).norm() > radius) continue;
-          const float d = static_cast<float>(cv::norm(da, fb.descriptors.row(j), cv::NORM_L2SQR));
-          if (d < n.d1_a[i]) {
-            n.d2_a[i] = n.d1_a[i];
-            n.d1_a[i] = d;
-            n.best_a[i] = j;
-          } else if (d < n.d2_a[i]) {
-            n.d2_a[i] = d;
-          }
-          if (d < n.d1_b[static_cast<size_t>(j)]) {
-            n.d1_b[static_cast<size_t>(j)] = d;
-            n.best_b[static_cast<size_t>(j)] = static_cast<int>(i);
-          }
-        }
-      }
-    }
-  }
-  return n;
-}
-
 PairMatch MatchPair(size_t a, size_t b, const FrameFeatures& fa, const FrameFeatures& fb, const SessionFrame& frame_a,
-                    const SessionFrame& frame_b, const PipelineOptions& options) {
+                    const SessionFrame& frame_b, const ReconstructionOptions& options) {
   PairMatch out;
   if (fa.points.size() < 8 || fb.points.size() < 8) return out;
   const Mat3 b_from_a = frame_b.mosaic_from_frame.inverse() * frame_a.mosaic_from_frame;
-  const double radius = options.guided_radius * std::max(frame_a.width, frame_a.height);
-  const KeypointGrid grid(fb.points, radius, frame_b.width, frame_b.height);
-  const GuidedNeighbours n = GuidedSearch(fa, fb, b_from_a, grid, radius);
+  // Guided by the onboard maps (core/matching/radius_matcher.h): candidates near the predicted position only.
+  const RadiusMatchOptions guide{.radius_px = options.guided_radius * std::max(frame_a.width, frame_a.height),
+                                 .ratio = options.ratio};
+  const std::vector<RadiusMatch> guided = MatchWithinRadius(fa.points, fa.descriptors, fb.points, fb.descriptors,
+                                                            cv::Size(frame_b.width, frame_b.height), b_from_a, guide);
   std::vector<cv::Point2f> pa, pb;
   std::vector<FeatureMatch> cand;
-  const float r2 = static_cast<float>(options.ratio * options.ratio);  // squared distances
-  for (size_t i = 0; i < fa.points.size(); ++i) {
-    const int j = n.best_a[i];
-    if (j < 0 || n.d1_a[i] > r2 * n.d2_a[i]) continue;
-    if (n.best_b[static_cast<size_t>(j)] != static_cast<int>(i)) continue;  // mutual best
-    cand.push_back({static_cast<int>(a), static_cast<int>(i), static_cast<int>(b), j, n.d1_a[i]});
-    pa.emplace_back(static_cast<float>(fa.points[i].x()), static_cast<float>(fa.points[i].y()));
-    pb.emplace_back(static_cast<float>(fb.points[static_cast<size_t>(j)].x()),
-                    static_cast<float>(fb.points[static_cast<size_t>(j)].y()));
+  for (const RadiusMatch& m : guided) {
+    cand.push_back({static_cast<int>(a), m.a, static_cast<int>(b), m.b, m.distance_sq});
+    pa.emplace_back(static_cast<float>(fa.points[static_cast<size_t>(m.a)].x()),
+                    static_cast<float>(fa.points[static_cast<size_t>(m.a)].y()));
+    pb.emplace_back(static_cast<float>(fb.points[static_cast<size_t>(m.b)].x()),
+                    static_cast<float>(fb.points[static_cast<size_t>(m.b)].y()));
   }
   out.candidates = static_cast<int>(cand.size());
   if (static_cast<int>(cand.size()) < options.min_pair_inliers) return out;
@@ -290,7 +228,7 @@ PairMatch MatchPair(size_t a, size_t b, const FrameFeatures& fa, const FrameFeat
 
 // The verified matches of all pairs, in pair order (image slots, ascending).
 std::vector<FeatureMatch> MatchGraphPairs(const SelectedFrames& sel, const std::vector<FrameFeatures>& feats,
-                                          const PipelineOptions& options, const ProgressFn& progress,
+                                          const ReconstructionOptions& options, const ProgressFn& progress,
                                           nlohmann::json* js) {
   const auto& frames = sel.frames;
   std::vector<std::pair<size_t, size_t>> pairs;
@@ -339,33 +277,33 @@ struct GpsPositions {
 GpsPositions ProjectGps(const std::vector<const SessionFrame*>& frames) {
   GpsPositions out;
   out.local.resize(frames.size());
-  UtmProjection utm;
-  bool have_utm = false;
+  // The UTM zone of the first frame with a position: the whole flight in one CRS.
+  int epsg = 0;
   for (const auto* f : frames) {
     if (f->latitude_deg && f->longitude_deg) {
-      std::string why;
-      have_utm = utm.Init(*f->latitude_deg, *f->longitude_deg, &why);
+      epsg = UtmEpsg(*f->latitude_deg, *f->longitude_deg);
       break;
     }
   }
-  if (!have_utm) return out;
+  if (epsg == 0) return out;
+  ProjectedConverter utm;
   bool origin_set = false;
   for (size_t i = 0; i < frames.size(); ++i) {
     const auto* f = frames[i];
     if (!f->latitude_deg || !f->longitude_deg) continue;
-    const auto en = utm.Forward(*f->latitude_deg, *f->longitude_deg);
-    if (!en) continue;
+    Vec2 en;
+    if (!utm.ToProjected(epsg, *f->latitude_deg, *f->longitude_deg, &en)) continue;
     if (!origin_set) {
-      out.origin = Eigen::Vector2d(std::round(en->x()), std::round(en->y()));
+      out.origin = Eigen::Vector2d(std::round(en.x()), std::round(en.y()));
       origin_set = true;
     }
     const double z = f->relative_altitude_m ? *f->relative_altitude_m : f->altitude_m.value_or(NAN);
-    out.local[i] = Eigen::Vector3d(en->x() - out.origin.x(), en->y() - out.origin.y(), z);
+    out.local[i] = Eigen::Vector3d(en.x() - out.origin.x(), en.y() - out.origin.y(), z);
   }
   if (origin_set) {
     out.projected = true;
-    out.crs_wkt = utm.wkt();
-    out.epsg = utm.epsg();
+    out.crs_wkt = EpsgWkt(epsg);
+    out.epsg = epsg;
   }
   return out;
 }
@@ -385,8 +323,8 @@ void StartDistortionFrom(const std::optional<SessionLens>& lens, Camera* camera,
 }
 
 IntrinsicsGuess InitImages(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
-                           const std::optional<SessionLens>& lens, const PipelineOptions& options, Reconstruction* rec,
-                           nlohmann::json* js) {
+                           const std::optional<SessionLens>& lens, const ReconstructionOptions& options,
+                           Reconstruction* rec, nlohmann::json* js) {
   *rec = Reconstruction{};
   const SessionFrame& f0 = *frames[0];
   IntrinsicsGuess guess = GuessIntrinsics(f0.width, f0.height, f0.focal_length_mm.value_or(0.0), options.camera_model,
@@ -518,7 +456,7 @@ struct InitialModel {
 };
 
 bool InitialPoses(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
-                  const std::optional<SessionLens>& lens, const PipelineOptions& options, Reconstruction* rec,
+                  const std::optional<SessionLens>& lens, const ReconstructionOptions& options, Reconstruction* rec,
                   InitialModel* out, nlohmann::json* js, std::string* error) {
   out->guess = InitImages(frames, feats, lens, options, rec, js);
   out->gps = ProjectGps(frames);
@@ -601,7 +539,7 @@ struct BundlePriors {
 };
 
 BundlePriors MakeBundlePriors(const std::vector<const SessionFrame*>& frames, const InitialModel& init,
-                              const PipelineOptions& options, nlohmann::json* js) {
+                              const ReconstructionOptions& options, nlohmann::json* js) {
   BundlePriors priors;
   // A nadir flight over nearly flat ground cannot tell focal length from depth: the EXIF focal length stays as a prior
   // (1 % when the sensor is known, 10 % for a guess).
@@ -623,7 +561,7 @@ BundlePriors MakeBundlePriors(const std::vector<const SessionFrame*>& frames, co
 // The BA rounds: each adjusts, re-triangulates every track with the adjusted poses (recovers points the rough poses
 // lost) and rejects above the round's threshold; a final BA on the cleaned set gives the reported before/after pair.
 bool BundleRounds(const std::vector<Track>& tracks, const std::vector<FrameFeatures>& feats, const BundlePriors& priors,
-                  const PipelineOptions& options, const ProgressFn& progress, Reconstruction* rec,
+                  const ReconstructionOptions& options, const ProgressFn& progress, Reconstruction* rec,
                   nlohmann::json* rounds, std::string* error) {
   BundleOptions base;
   base.threads = options.threads;
@@ -666,8 +604,9 @@ bool BundleRounds(const std::vector<Track>& tracks, const std::vector<FrameFeatu
 }
 
 bool TriangulateAndAdjust(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
-                          const std::vector<Track>& tracks, const InitialModel& init, const PipelineOptions& options,
-                          const ProgressFn& progress, Reconstruction* rec, nlohmann::json* js, std::string* error) {
+                          const std::vector<Track>& tracks, const InitialModel& init,
+                          const ReconstructionOptions& options, const ProgressFn& progress, Reconstruction* rec,
+                          nlohmann::json* js, std::string* error) {
   TriangulateAll(tracks, feats, options.min_triangulation_angle_deg, options.initial_reprojection_px, rec);
   size_t obs_tracks = 0;
   for (const auto& t : tracks) obs_tracks += t.size();
@@ -718,7 +657,7 @@ void Georeference(const GpsPositions& gps, Reconstruction* rec, nlohmann::json* 
                      {"z_reference", "relative altitude (take-off = 0) when in EXIF, else GPS altitude"}};
 }
 
-void SetCrs(const InitialModel& init, const GcpInput* gcp, PipelineResult* result) {
+void SetCrs(const InitialModel& init, const GcpInput* gcp, ReconstructionResult* result) {
   auto& js = result->summary;
   result->offset = init.gps.origin;
   if (gcp != nullptr) {
@@ -746,8 +685,8 @@ struct DenseCloud {
 };
 
 bool DenseStage(const std::string& session_dir, const std::vector<const SessionFrame*>& frames,
-                const Reconstruction& rec, const PipelineOptions& options, const ProgressFn& progress, DenseCloud* out,
-                nlohmann::json* js, std::string* error) {
+                const Reconstruction& rec, const ReconstructionOptions& options, const ProgressFn& progress,
+                DenseCloud* out, nlohmann::json* js, std::string* error) {
   if (options.dense) {
     DenseOptions dopt;
     dopt.image_scale = options.dense_image_scale;
@@ -770,7 +709,7 @@ bool DenseStage(const std::string& session_dir, const std::vector<const SessionF
 
 // 9. Fusion + DSM.
 // Cell size: the dense sampling distance on the ground (or 20x the sparse GSD without dense points).
-double DsmCell(const Reconstruction& rec, bool have_dense, const PipelineOptions& options, nlohmann::json* js) {
+double DsmCell(const Reconstruction& rec, bool have_dense, const ReconstructionOptions& options, nlohmann::json* js) {
   const double gsd = rec.MedianGsd();
   double cell = options.dsm_cell_m;
   if (cell <= 0.0) {
@@ -800,7 +739,7 @@ DsmGrid GridOver(const std::vector<CloudPoint>& points, double cell) {
 }
 
 // The fused dense cloud (the sparse points without one) and the DSM rasterised from it.
-void FuseAndRasterize(const DenseCloud& dense, const PipelineOptions& options, PipelineResult* result) {
+void FuseAndRasterize(const DenseCloud& dense, const ReconstructionOptions& options, ReconstructionResult* result) {
   auto& js = result->summary;
   const Reconstruction& rec = result->rec;
   std::vector<CloudPoint> sparse_cloud;
@@ -828,7 +767,7 @@ void FuseAndRasterize(const DenseCloud& dense, const PipelineOptions& options, P
 
 // 7b. Ground control points: the georeferenced model moved onto the GCPs, adjusted with them, every point measured.
 bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialModel& init, GcpInput* gcp,
-                  const PipelineOptions& options, Reconstruction* rec, nlohmann::json* js, std::string* error) {
+                  const ReconstructionOptions& options, Reconstruction* rec, nlohmann::json* js, std::string* error) {
   BundlePriors priors = MakeBundlePriors(frames, init, options, js);
   ControlReport report;
   const auto& cps = gcp->binding.points;
@@ -861,8 +800,8 @@ bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialM
 }  // namespace
 
 // The stages in order; each reads the earlier ones' outputs and adds its figures to the summary.
-bool RunPipeline(const std::string& session_dir, const PipelineOptions& options, const ProgressFn& progress,
-                 PipelineResult* result, std::string* error) {
+bool RunReconstruction(const std::string& session_dir, const ReconstructionOptions& options, const ProgressFn& progress,
+                       ReconstructionResult* result, std::string* error) {
   if (!options.Check(error)) return false;
   auto& js = result->summary;
   js = nlohmann::json::object();

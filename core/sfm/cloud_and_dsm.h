@@ -1,10 +1,11 @@
 #pragma once
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
-#include <optional>
 #include <string>
 #include <vector>
 
+// The ground tool's point cloud and DSM: the PLY file, the DSM raster and its GeoTIFF, PNG previews. (The onboard
+// program's map products are core/georef/products.h.)
 namespace uavm::sfm {
 
 struct CloudPoint {
@@ -16,22 +17,6 @@ struct CloudPoint {
 [[nodiscard]] bool WritePly(const std::string& path, const std::vector<CloudPoint>& points, std::string* error);
 // Reads what WritePly writes (and any binary_little_endian PLY with exactly those vertex properties).
 [[nodiscard]] bool ReadPly(const std::string& path, std::vector<CloudPoint>* points, std::string* error);
-
-// WGS84 -> UTM of a fixed zone (GDAL/PROJ OGRCoordinateTransformation).
-class UtmProjection {
- public:
-  // Zone from the longitude / hemisphere from the latitude of a point of the flight.
-  [[nodiscard]] bool Init(double lat_deg, double lon_deg, std::string* error);
-  [[nodiscard]] std::optional<Eigen::Vector2d> Forward(double lat_deg, double lon_deg) const;
-  [[nodiscard]] int epsg() const { return epsg_; }
-  [[nodiscard]] std::string wkt() const { return wkt_; }
-  ~UtmProjection();
-
- private:
-  void* transform_ = nullptr;  // OGRCoordinateTransformation*
-  int epsg_ = 0;
-  std::string wkt_;
-};
 
 // The raster grid of a DSM: cell (col, row) covers x in [x0 + col*cell, x0 + (col+1)*cell), y in
 // [y0 - (row+1)*cell, y0 - row*cell) (north up).

@@ -1,7 +1,6 @@
-#include "core/sfm/products.h"
+#include "core/sfm/cloud_and_dsm.h"
 
 #include <gdal_priv.h>
-#include <ogr_spatialref.h>
 
 #include <algorithm>
 #include <cmath>
@@ -95,40 +94,6 @@ bool ReadPly(const std::string& path, std::vector<CloudPoint>* points, std::stri
     (*points)[i].bgr = cv::Vec3b(static_cast<uchar>(p[14]), static_cast<uchar>(p[13]), static_cast<uchar>(p[12]));
   }
   return true;
-}
-
-UtmProjection::~UtmProjection() {
-  if (transform_) OGRCoordinateTransformation::DestroyCT(static_cast<OGRCoordinateTransformation*>(transform_));
-}
-
-bool UtmProjection::Init(double lat_deg, double lon_deg, std::string* error) {
-  const int zone = std::clamp(static_cast<int>(std::floor((lon_deg + 180.0) / 6.0)) + 1, 1, 60);
-  epsg_ = (lat_deg >= 0 ? 32600 : 32700) + zone;
-  OGRSpatialReference wgs84, utm;
-  wgs84.importFromEPSG(4326);
-  wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);  // x = lon, y = lat
-  if (utm.importFromEPSG(epsg_) != OGRERR_NONE) {
-    *error = "PROJ cannot build EPSG:" + std::to_string(epsg_);
-    return false;
-  }
-  utm.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
-  transform_ = OGRCreateCoordinateTransformation(&wgs84, &utm);
-  if (!transform_) {
-    *error = "no WGS84 -> UTM transformation";
-    return false;
-  }
-  char* wkt = nullptr;
-  utm.exportToWkt(&wkt);
-  wkt_ = wkt ? wkt : "";
-  CPLFree(wkt);
-  return true;
-}
-
-std::optional<Eigen::Vector2d> UtmProjection::Forward(double lat_deg, double lon_deg) const {
-  if (!transform_) return std::nullopt;
-  double x = lon_deg, y = lat_deg;
-  if (!static_cast<OGRCoordinateTransformation*>(transform_)->Transform(1, &x, &y)) return std::nullopt;
-  return Eigen::Vector2d(x, y);
 }
 
 cv::Mat1f RasterizeMedian(const std::vector<CloudPoint>& points, const DsmGrid& grid, float nodata) {
