@@ -2,8 +2,9 @@
 # radiometry.sh DATA_DIR [OUT_DIR]
 #
 # Issue 19's photometric table. Simulated flights over DATA_DIR/caliterra/images/IMG_9360.jpg (bench/plans/
-# radiometry_{clean,vignetting,exposure}.yaml: an ideal camera; vignetting 0.6; vignetting 0.6 + exposure +-25 % +
-# white balance +-5 %) through uavmosaic-onboard with the radiometric correction off and on, and through cv::Stitcher
+# radiometry_{clean,vignetting,exposure,hotspot}.yaml: an ideal camera; vignetting 0.6; vignetting 0.6 + exposure
+# +-25 % + white balance +-5 %; the same camera at +-20 % under a high sun: a 35 % opposition hotspot and the drone's
+# shadow 12 deg off nadir) through uavmosaic-onboard with the radiometric correction off and on, and through cv::Stitcher
 # SCANS without and with its gain compensation (uavm-stitcher-bench --exposure none|gain|channels); each mosaic's
 # low-frequency brightness error after one gain per channel (uavmosaic-eval image --footprint-px: placed on the
 # canvas by SIFT + RANSAC, the same measure for every tool). Real flights (DATA_DIR/{brighton_beach,caliterra}/images,
@@ -15,7 +16,7 @@ export LC_ALL=C
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 if [[ $# -lt 1 || $# -gt 2 || $1 == -h || $1 == --help ]]; then
-  sed -n '2,13p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,14p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 DATA_DIR=$(cd "$1" && pwd)
@@ -73,7 +74,7 @@ real_row() {
   echo
   echo "| flight | frames | ours, correction off | ours, on | Stitcher SCANS (no compensation) | Stitcher + GainCompensator | Stitcher + ChannelsCompensator | vignetting corner found (B G R) |"
   echo "|---|---:|---:|---:|---:|---:|---:|---|"
-  for name in clean vignetting exposure; do log "sim $name"; sim_row "$name"; done
+  for name in clean vignetting exposure hotspot; do log "sim $name"; sim_row "$name"; done
   echo
   echo "Real flights: gains found (radiometry.csv, green) against the recorded exposure (EXIF ExposureTime x ISO / FNumber^2)."
   echo

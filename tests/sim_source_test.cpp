@@ -227,6 +227,46 @@ TEST(SimSourceTest, VignettingDarkensTheCornersToThePlannedRatio) {
   fs::remove(canvas);
 }
 
+// Issue 37's light: the opposition hotspot and the drone's shadow sit at the antisolar point, fixed on the ground, so
+// they move across the frame with its yaw (the return strip sees them on the other side); the falloff may be
+// off-centre.
+TEST(SimSourceTest, HotspotAndShadowSitAtTheAntisolarPointAndTurnWithTheFrame) {
+  const std::string canvas = WriteCanvas("flat150", cv::Mat(750, 1000, CV_8UC3, cv::Scalar(150, 150, 150)));
+  SimSource src({"",
+                 kNadirPlan + "hotspot: 0.3\nhotspot_width_deg: 5\nsun_elevation_deg: 80\nsun_azimuth_deg: 0\n"
+                              "shadow: 0.5\nshadow_radius_px: 5\n",
+                 canvas, 0});
+  std::string err;
+  ASSERT_EQ(src.Open(&err), Status::kOk) << err;
+  // Sun at azimuth 0 (canvas +x), 80 deg high: the antisolar point 10 deg off nadir towards canvas -x, f tan(10 deg)
+  // = 70.5 px from the centre of a 400 px focal frame: left of centre on the first strip, right on the return one.
+  const double off = 400.0 * std::tan(10.0 * M_PI / 180.0);
+  Frame f;
+  for (size_t i = 0; i < 6; ++i) {
+    ASSERT_EQ(src.Next(&f, &err), Status::kOk) << err;
+    if (i != 0 && i != 5) continue;
+    const double yaw = src.last_truth().pose.yaw_deg;
+    const int x = static_cast<int>(std::lround(199.5 + (std::abs(yaw) < 1 ? -off : off)));
+    const double shadow = cv::mean(f.image(cv::Rect(x - 1, 148, 3, 3)))[1];
+    const double hot = cv::mean(f.image(cv::Rect(x + (x < 200 ? 12 : -12) - 1, 148, 3, 3)))[1];
+    const double far = cv::mean(f.image(cv::Rect(x < 200 ? 380 : 10, 140, 10, 20)))[1];
+    EXPECT_NEAR(shadow, 150 * 1.3 * 0.5, 3.0) << "frame " << i;  // the hotspot's peak, half of it in shadow
+    EXPECT_NEAR(hot, 150 * (1 + 0.3 * std::exp(-std::pow(std::atan(12.0 / 400) / (5 * M_PI / 180), 2) / 2)), 3.0);
+    EXPECT_NEAR(far, 150.0, 2.0) << "frame " << i;  // 25+ deg from the antisolar direction: no hotspot left
+  }
+  fs::remove(canvas);
+  // The falloff's centre moved right by a tenth of the half-diagonal: the right edge is brighter than the left.
+  const std::string flat = WriteCanvas("flat200", cv::Mat(750, 1000, CV_8UC3, cv::Scalar(200, 200, 200)));
+  SimSource shaded({"", kNadirPlan + "vignetting: 0.6\nshading_offset_x: 0.1\n", flat, 0});
+  ASSERT_EQ(shaded.Open(&err), Status::kOk) << err;
+  ASSERT_EQ(shaded.Next(&f, &err), Status::kOk) << err;
+  EXPECT_GT(cv::mean(f.image(cv::Rect(390, 140, 10, 20)))[1], cv::mean(f.image(cv::Rect(0, 140, 10, 20)))[1] + 10);
+  fs::remove(flat);
+  SimPlan plan;
+  for (const char* bad : {"hotspot: 1.5\n", "sun_elevation_deg: 5\n", "shadow: 1\n", "shading_offset_x: 0.7\n"})
+    EXPECT_FALSE(ParseSimPlan(bad, "", &plan, &err)) << bad;
+}
+
 TEST(SimSourceTest, WhiteBalanceIsPerFrameAndChannelAndLeavesTheOtherDrawsAlone) {
   const std::string canvas = WriteCanvas("flat100", cv::Mat(750, 1000, CV_8UC3, cv::Scalar(100, 100, 100)));
   SimSource src({"", kNadirPlan + "exposure_gain: 0.1\nwhite_balance: 0.2\n", canvas, 0});

@@ -45,6 +45,14 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"white_balance", &p.white_balance},
           {"vignetting", &p.vignetting},
           {"vignetting_per_channel", &p.vignetting_per_channel},
+          {"shading_offset_x", &p.shading_offset_x},
+          {"shading_offset_y", &p.shading_offset_y},
+          {"hotspot", &p.hotspot},
+          {"hotspot_width_deg", &p.hotspot_width_deg},
+          {"sun_elevation_deg", &p.sun_elevation_deg},
+          {"sun_azimuth_deg", &p.sun_azimuth_deg},
+          {"shadow", &p.shadow},
+          {"shadow_radius_px", &p.shadow_radius_px},
           {"k1", &p.k1},
           {"k2", &p.k2},
           {"p1", &p.p1},
@@ -133,6 +141,14 @@ bool SimPlan::CheckCamera(std::string* error) const {
   if (!(vignetting >= 0.2 && vignetting <= 1)) return Fail(error, "vignetting must be in [0.2, 1]");
   if (!(vignetting_per_channel >= 0 && vignetting * (1 + vignetting_per_channel) <= 1))
     return Fail(error, "vignetting_per_channel must be >= 0 with vignetting * (1 + vignetting_per_channel) <= 1");
+  if (!(std::abs(shading_offset_x) <= 0.5 && std::abs(shading_offset_y) <= 0.5))
+    return Fail(error, "shading_offset_x and _y must be within +-0.5 (of the half-diagonal)");
+  if (!(hotspot >= 0 && hotspot <= 1 && hotspot_width_deg >= 0.5 && hotspot_width_deg <= 45))
+    return Fail(error, "hotspot must be in [0, 1] and hotspot_width_deg in [0.5, 45]");
+  if (!(sun_elevation_deg >= 10 && sun_elevation_deg <= 90 && std::isfinite(sun_azimuth_deg)))
+    return Fail(error, "sun_elevation_deg must be in [10, 90] and sun_azimuth_deg finite");
+  if (!(shadow >= 0 && shadow < 1 && shadow_radius_px >= 1 && shadow_radius_px <= 200))
+    return Fail(error, "shadow must be in [0, 1) and shadow_radius_px in [1, 200]");
   if (!(std::isfinite(k1) && std::isfinite(k2) && std::isfinite(p1) && std::isfinite(p2)))
     return Fail(error, "k1, k2, p1, p2 must be finite");
   // Bound on the distortion's derivative over the frame: the rendering's undistortion converges and the lens maps

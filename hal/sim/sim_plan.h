@@ -34,7 +34,18 @@ namespace uavm::hal {
 //     / half the image diagonal sqrt(w^2 + h^2) / 2, measured in the recorded (distorted) image [1 = none]
 //   vignetting_per_channel: spread of the corner value between channels: B, G, R corners at vignetting x (1 - s, 1,
 //     1 + s); vignetting x (1 + s) must stay <= 1 [0 = the same for B, G, R]
-//   A recorded pixel is gain x white_balance[c] x V_c(r) x canvas_c + offset (then noise, clipping, JPEG).
+//   shading_offset_x, shading_offset_y: the vignetting's centre off the image centre, fractions of the half-diagonal
+//     (an off-centre falloff, sensor shading): r is measured from there [0, 0]
+//   hotspot: the opposition hotspot, brightness added around the antisolar point as a fraction (0.35: 35 % brighter at
+//     its centre): H = 1 + hotspot exp(-g^2 / (2 w^2)), g the angle between a pixel's view ray and the antisolar
+//     direction, w = hotspot_width_deg. The antisolar direction is fixed relative to the sun, not the lens: it lies
+//     90 - sun_elevation_deg off nadir, towards sun_azimuth_deg + 180 on the canvas, so its place in the image turns
+//     with the frame's yaw [0 = none]
+//   hotspot_width_deg [8]; sun_elevation_deg [60]; sun_azimuth_deg: direction towards the sun on the canvas, degrees
+//     from canvas +x towards +y (as yaw) [0]
+//   shadow: the drone's own shadow at the antisolar point, the fraction of light it takes (0.5: half as bright), a disc
+//     of shadow_radius_px frame pixels with a one-pixel soft edge [0 = none; radius 6]
+//   A recorded pixel is gain x white_balance[c] x V_c(r) x H x S x canvas_c + offset (then noise, clipping, JPEG).
 //   k1, k2, p1, p2: lens distortion, Brown-Conrady on normalised ideal coordinates x = (u - cx) / f, y = (v - cy) / f
 //     (cx, cy the image centre, f = Focal()); see LensDistortion. The frame is the distorted picture: its pixel p
 //     shows the canvas at canvas_from_frame(undistorted p), so the truth's homography acts on undistorted pixels.
@@ -100,6 +111,14 @@ struct SimPlan {
   double white_balance = 0.0;
   double vignetting = 1.0;
   double vignetting_per_channel = 0.0;
+  double shading_offset_x = 0.0;
+  double shading_offset_y = 0.0;
+  double hotspot = 0.0;
+  double hotspot_width_deg = 8.0;
+  double sun_elevation_deg = 60.0;
+  double sun_azimuth_deg = 0.0;
+  double shadow = 0.0;
+  double shadow_radius_px = 6.0;
   double k1 = 0.0;
   double k2 = 0.0;
   double p1 = 0.0;

@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -132,9 +133,11 @@ void SimSource::PrepareLens() {
     falloff_.create(size, CV_32FC3);
     const double half_diagonal = 0.5 * std::hypot(size.width, size.height);
     const std::array<RadialFalloff, 3> v{plan_.Vignetting(0), plan_.Vignetting(1), plan_.Vignetting(2)};
+    const double shading_x = camera.cx + plan_.shading_offset_x * half_diagonal;  // the falloff's centre
+    const double shading_y = camera.cy + plan_.shading_offset_y * half_diagonal;
     for (int y = 0; y < size.height; ++y)
       for (int x = 0; x < size.width; ++x) {
-        const double r = std::hypot(x - camera.cx, y - camera.cy) / half_diagonal;
+        const double r = std::hypot(x - shading_x, y - shading_y) / half_diagonal;
         falloff_.at<cv::Vec3f>(y, x) =
             cv::Vec3f(static_cast<float>(v[0].At(r)), static_cast<float>(v[1].At(r)), static_cast<float>(v[2].At(r)));
       }
@@ -234,17 +237,47 @@ cv::Mat SimSource::Project(const cv::Mat& src, const Mat3& src_from_frame) const
   return frame;
 }
 
-// Vignetting, exposure and white balance, sensor noise. The falloff is applied after the motion blur, not before as
-// in a real camera: it is smooth, so over a blur of a few pixels the order changes nothing measurable.
+// The light the sun adds and the drone takes in frame i: the opposition hotspot around the antisolar point and the
+// drone's shadow on it, a CV_32FC3 factor per pixel (empty when the plan has neither). The antisolar direction is
+// fixed on the ground, so in the frame it turns with the yaw (the camera's small tilts are left out).
+cv::Mat SimSource::SunLight(const SimPose& pose) const {
+  if (!(plan_.hotspot > 0) && !(plan_.shadow > 0)) return {};
+  constexpr double kDeg = M_PI / 180.0;
+  const PinholeCamera camera = plan_.Camera();
+  const double off_nadir = (90.0 - plan_.sun_elevation_deg) * kDeg;
+  const double towards = (plan_.sun_azimuth_deg + 180.0 - pose.yaw_deg) * kDeg;  // in the frame, from +x to +y
+  const Eigen::Vector3d antisolar(std::sin(off_nadir) * std::cos(towards), std::sin(off_nadir) * std::sin(towards),
+                                  std::cos(off_nadir));
+  const double f = camera.focal_px;
+  const Vec2 shadow_px(camera.cx + f * antisolar.x() / antisolar.z(), camera.cy + f * antisolar.y() / antisolar.z());
+  const double width = plan_.hotspot_width_deg * kDeg;
+  cv::Mat light(plan_.frame_height, plan_.frame_width, CV_32FC3);
+  for (int y = 0; y < light.rows; ++y)
+    for (int x = 0; x < light.cols; ++x) {
+      const Eigen::Vector3d ray = Eigen::Vector3d((x - camera.cx) / f, (y - camera.cy) / f, 1.0).normalized();
+      const double angle = std::acos(std::clamp(ray.dot(antisolar), -1.0, 1.0));
+      double v = 1.0 + plan_.hotspot * std::exp(-angle * angle / (2 * width * width));
+      const double d = std::hypot(x - shadow_px.x(), y - shadow_px.y());
+      v *= 1.0 - plan_.shadow * std::clamp(plan_.shadow_radius_px + 0.5 - d, 0.0, 1.0);
+      light.at<cv::Vec3f>(y, x) = cv::Vec3f::all(static_cast<float>(v));
+    }
+  return light;
+}
+
+// Vignetting, exposure and white balance, the sun's hotspot and the drone's shadow, sensor noise. The falloff is
+// applied after the motion blur, not before as in a real camera: it is smooth, so over a blur of a few pixels the order
+// changes nothing measurable.
 void SimSource::Expose(size_t i, cv::Mat* frame) const {
   const SimPose& pose = poses_[i];
   const auto& wb = pose.white_balance;
-  const bool colour = !falloff_.empty() || wb[0] != 1.0 || wb[1] != 1.0 || wb[2] != 1.0;
+  const cv::Mat sun = SunLight(pose);
+  const bool colour = !falloff_.empty() || !sun.empty() || wb[0] != 1.0 || wb[1] != 1.0 || wb[2] != 1.0;
   if (!colour && pose.gain == 1.0 && pose.offset == 0.0 && !(plan_.noise_sigma > 0)) return;
   cv::Mat f;
   if (colour) {
     frame->convertTo(f, CV_32F);
     if (!falloff_.empty()) f = f.mul(falloff_);
+    if (!sun.empty()) f = f.mul(sun);
     cv::multiply(f, cv::Scalar(pose.gain * wb[0], pose.gain * wb[1], pose.gain * wb[2]), f);
     f += cv::Scalar::all(pose.offset);
   } else {

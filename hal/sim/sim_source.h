@@ -85,6 +85,7 @@ class SimSource final : public FrameSource {
 
  private:
   void PrepareLens();
+  [[nodiscard]] cv::Mat SunLight(const SimPose& pose) const;
   [[nodiscard]] cv::Mat Project(const cv::Mat& src, const Mat3& src_from_frame) const;
   void Expose(size_t i, cv::Mat* frame) const;
   [[nodiscard]] Vec2 GroundOf(size_t i) const;                 // canvas point under frame i's centre
