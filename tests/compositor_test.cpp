@@ -81,6 +81,41 @@ TEST(CompositorTest, RebuildsTheGroundFromCrops) {
   EXPECT_LT(hard_err[0] + hard_err[1] + hard_err[2], 0.01);
 }
 
+// A frame's avoid disc (the sun's hotspot and the drone's shadow): the ground under it is taken from another frame
+// that sees it, although distance-to-border alone would give it to the disc's frame.
+TEST(CompositorTest, SeamsKeepOutOfAnAvoidDisc) {
+  Scene s = MakeScene();
+  ASSERT_FALSE(s.ground.empty());
+  // A dark shadow in frame 1 at (100, 200), canvas (480, 300): 100 px from frame 1's border, 40 px from frame 0's.
+  cv::circle(s.images[1], cv::Point(100, 200), 8, cv::Scalar::all(0), cv::FILLED);
+  CompositorOptions o = SceneOptions();
+  o.num_bands = 0;
+  const cv::Size canvas(s.ground.cols, s.ground.rows);
+  auto error_at_shadow = [&](const std::vector<CompositeInput>& inputs) {
+    const auto r = Composite(
+        inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+    EXPECT_TRUE(r.ok) << r.error;
+    cv::Mat bgr;
+    cv::cvtColor(r.quicklook, bgr, cv::COLOR_BGRA2BGR);
+    const cv::Rect window(470, 290, 21, 21);
+    cv::Mat diff;
+    cv::absdiff(bgr(window), s.ground(window), diff);
+    const cv::Scalar e = cv::mean(diff);
+    return (e[0] + e[1] + e[2]) / 3;
+  };
+  EXPECT_GT(error_at_shadow(s.inputs), 20.0);  // the shadow is in the mosaic
+  std::vector<CompositeInput> avoiding = s.inputs;
+  avoiding[1].avoid_centre = cv::Point2d(100, 200);
+  avoiding[1].avoid_radius = 60;
+  EXPECT_LT(error_at_shadow(avoiding), 0.01);  // frame 0's pixels, exactly
+  // Ground only the disc's frame sees stays its own: a disc at frame 1's far corner changes nothing there.
+  avoiding[1].avoid_centre = cv::Point2d(480, 380);
+  const auto r = Composite(
+      avoiding, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  ASSERT_TRUE(r.ok);
+  EXPECT_EQ(r.quicklook.at<cv::Vec4b>(480, 860)[3], 255);
+}
+
 TEST(CompositorTest, TilesMatchAWholeCanvasBlend) {
   Scene s = MakeScene();
   // Perturb the exposure of one crop so that the blend has work to do across seams.

@@ -19,7 +19,7 @@ double TrueLogFalloff(int c, double r2) {
 
 std::vector<RadiometrySample> SyntheticSamples(const std::vector<cv::Vec3d>& log_gain, double noise, int outliers,
                                                std::mt19937* rng) {
-  std::uniform_real_distribution<double> r2(0.0, 1.0), scene(30.0, 200.0);
+  std::uniform_real_distribution<double> u(-0.8, 0.8), v(-0.6, 0.6), scene(30.0, 200.0);
   std::normal_distribution<double> n01(0.0, noise);
   std::vector<RadiometrySample> samples;
   const int frames = static_cast<int>(log_gain.size());
@@ -30,14 +30,14 @@ std::vector<RadiometrySample> SyntheticSamples(const std::vector<cv::Vec3d>& log
         RadiometrySample s;
         s.a = a;
         s.b = b;
-        s.r2_a = static_cast<float>(r2(*rng));
-        s.r2_b = static_cast<float>(r2(*rng));
+        s.in_a = {static_cast<float>(u(*rng)), static_cast<float>(v(*rng)), 0.0f};
+        s.in_b = {static_cast<float>(u(*rng)), static_cast<float>(v(*rng)), 0.0f};
         const double l = std::log(scene(*rng));
         for (int c = 0; c < 3; ++c) {
           s.log_a[c] =
-              static_cast<float>(l + log_gain[static_cast<size_t>(a)][c] + TrueLogFalloff(c, s.r2_a) + n01(*rng));
+              static_cast<float>(l + log_gain[static_cast<size_t>(a)][c] + TrueLogFalloff(c, s.in_a.R2()) + n01(*rng));
           s.log_b[c] =
-              static_cast<float>(l + log_gain[static_cast<size_t>(b)][c] + TrueLogFalloff(c, s.r2_b) + n01(*rng));
+              static_cast<float>(l + log_gain[static_cast<size_t>(b)][c] + TrueLogFalloff(c, s.in_b.R2()) + n01(*rng));
         }
         samples.push_back(s);
       }
@@ -75,6 +75,182 @@ TEST(RadiometryTest, RecoversGainsAndFalloffFromPairs) {
       EXPECT_NEAR(std::log(m.Gain(i)[c]), log_gain[static_cast<size_t>(i)][c] - mean, 0.02) << i << " " << c;
   }
   EXPECT_LT(m.rms_log_after, 0.3 * m.rms_log_before);
+  EXPECT_FALSE(m.hotspot.found);  // none in the data: the held-out pairs keep the lens model
+}
+
+// A flight of three strips (the middle one flown the other way) under a high sun: every frame's gain, a 0.6-corner
+// lens, and the opposition hotspot (log(1 + A exp(-d^2 / 2 w^2)) about the antisolar point, which turns with the
+// heading), with an optional off-centre falloff. Samples at random places of both frames of each pair.
+struct SunFlight {
+  double hotspot = 0.35;
+  double width = 0.22;                          // half-diagonals
+  cv::Point2d antisolar{0.12, 0.30};            // at heading 0
+  cv::Point2d falloff_centre{0.0, 0.0};         // the lens's falloff about this point
+  [[nodiscard]] double TrueLogShading(const ImagePoint& p) const {
+    const double du = p.u - falloff_centre.x;
+    const double dv = p.v - falloff_centre.y;
+    double s = TrueLogFalloff(1, du * du + dv * dv);
+    Hotspot at;
+    at.antisolar_u = antisolar.x;
+    at.antisolar_v = antisolar.y;
+    const cv::Point2d c = at.Centre(p.heading);
+    const double d2 = (p.u - c.x) * (p.u - c.x) + (p.v - c.y) * (p.v - c.y);
+    return s + std::log(1 + hotspot * std::exp(-d2 / (2 * width * width)));
+  }
+};
+
+std::vector<RadiometrySample> SunFlightSamples(const SunFlight& flight, std::vector<double>* log_gain,
+                                               std::mt19937* rng) {
+  constexpr int kStrip = 20;
+  std::uniform_real_distribution<double> u(-0.8, 0.8), v(-0.6, 0.6), scene(30.0, 200.0), g(-0.2, 0.2);
+  std::normal_distribution<double> n01(0.0, 0.01);
+  log_gain->clear();
+  for (int i = 0; i < 3 * kStrip; ++i) log_gain->push_back(g(*rng));
+  auto heading = [](int id) { return (id / kStrip) % 2 == 1 ? static_cast<float>(M_PI) : 0.0f; };
+  std::vector<RadiometrySample> samples;
+  for (int a = 0; a < 3 * kStrip; ++a)
+    for (int b : {a + 1, a + 2, a + kStrip}) {
+      if (b >= 3 * kStrip || (b < a + kStrip && b / kStrip != a / kStrip)) continue;
+      for (int k = 0; k < 64; ++k) {
+        RadiometrySample s;
+        s.a = a;
+        s.b = b;
+        s.in_a = {static_cast<float>(u(*rng)), static_cast<float>(v(*rng)), heading(a)};
+        s.in_b = {static_cast<float>(u(*rng)), static_cast<float>(v(*rng)), heading(b)};
+        const double l = std::log(scene(*rng));
+        s.log_a = cv::Vec3f::all(static_cast<float>(l + (*log_gain)[static_cast<size_t>(a)] +
+                                                    flight.TrueLogShading(s.in_a) + n01(*rng)));
+        s.log_b = cv::Vec3f::all(static_cast<float>(l + (*log_gain)[static_cast<size_t>(b)] +
+                                                    flight.TrueLogShading(s.in_b) + n01(*rng)));
+        samples.push_back(s);
+      }
+    }
+  return samples;
+}
+
+// RMS over the frame and both headings of the fitted shading against the truth, up to a constant (the gauge the gains
+// share).
+double ShadingError(const RadiometryModel& m, const SunFlight& flight) {
+  std::vector<double> d;
+  for (float heading : {0.0f, static_cast<float>(M_PI)})
+    for (float v = -0.58f; v <= 0.58f; v += 0.04f)
+      for (float u = -0.78f; u <= 0.78f; u += 0.04f) {
+        const ImagePoint p{u, v, heading};
+        d.push_back(m.LogShading(1, p) - flight.TrueLogShading(p));
+      }
+  double mean = 0, sq = 0;
+  for (double x : d) mean += x / static_cast<double>(d.size());
+  for (double x : d) sq += (x - mean) * (x - mean) / static_cast<double>(d.size());
+  return std::sqrt(sq);
+}
+
+TEST(RadiometryTest, FindsTheHotspotWhereTheSunPutsIt) {
+  std::mt19937 rng(5);
+  const SunFlight flight;
+  std::vector<double> log_gain;
+  const auto samples = SunFlightSamples(flight, &log_gain, &rng);
+  std::vector<int> frames;
+  for (int i = 0; i < 60; ++i) frames.push_back(i);
+  const RadiometryModel m = SolveRadiometry(samples, frames, RadiometryOptions{});
+  ASSERT_TRUE(m.ok) << m.note;
+  ASSERT_TRUE(m.hotspot.found) << m.note;
+  EXPECT_NEAR(m.hotspot.antisolar_u, flight.antisolar.x, 0.04);
+  EXPECT_NEAR(m.hotspot.antisolar_v, flight.antisolar.y, 0.04);
+  EXPECT_NEAR(std::exp(m.hotspot.LogBoost(0)), 1.35, 0.05);
+  EXPECT_LT(m.holdout_cost[2], 0.5 * m.holdout_cost[0]);
+  EXPECT_LT(ShadingError(m, flight), 0.02);
+  // The radial model alone cannot take it.
+  RadiometryOptions radial_only;
+  radial_only.hotspot = false;
+  radial_only.flat_field = false;
+  EXPECT_GT(ShadingError(SolveRadiometry(samples, frames, radial_only), flight), 0.04);
+  // Gains: their differences (the gauge is the mean frame).
+  double mean_true = 0, mean_fit = 0;
+  for (int i = 0; i < 60; ++i) {
+    mean_true += log_gain[static_cast<size_t>(i)] / 60;
+    mean_fit += std::log(m.Gain(i)[1]) / 60;
+  }
+  for (int i = 0; i < 60; ++i)
+    EXPECT_NEAR(std::log(m.Gain(i)[1]) - mean_fit, log_gain[static_cast<size_t>(i)] - mean_true, 0.03) << i;
+}
+
+TEST(RadiometryTest, OffCentreFalloffKeepsTheFlatField) {
+  std::mt19937 rng(6);
+  SunFlight flight;
+  flight.hotspot = 0.0;
+  flight.falloff_centre = {0.12, -0.08};
+  std::vector<double> log_gain;
+  const auto samples = SunFlightSamples(flight, &log_gain, &rng);
+  std::vector<int> frames;
+  for (int i = 0; i < 60; ++i) frames.push_back(i);
+  const RadiometryModel m = SolveRadiometry(samples, frames, RadiometryOptions{});
+  ASSERT_TRUE(m.ok) << m.note;
+  EXPECT_TRUE(m.flat_field);
+  EXPECT_FALSE(m.hotspot.found);
+  EXPECT_LT(ShadingError(m, flight), 0.015);
+}
+
+// Nothing beyond the lens: the held-out pairs keep the radial model alone.
+TEST(RadiometryTest, NoSunNoHotspot) {
+  std::mt19937 rng(7);
+  SunFlight flight;
+  flight.hotspot = 0.0;
+  std::vector<double> log_gain;
+  const auto samples = SunFlightSamples(flight, &log_gain, &rng);
+  std::vector<int> frames;
+  for (int i = 0; i < 60; ++i) frames.push_back(i);
+  const RadiometryModel m = SolveRadiometry(samples, frames, RadiometryOptions{});
+  ASSERT_TRUE(m.ok) << m.note;
+  EXPECT_FALSE(m.flat_field);
+  EXPECT_FALSE(m.hotspot.found);
+  EXPECT_GT(m.holdout_cost[2], 0.0);  // tried
+  EXPECT_LT(ShadingError(m, flight), 0.01);
+}
+
+// The correction of a frame with every term: a uniform grey ground comes back uniform, and the avoid disc sits at
+// the antisolar point.
+TEST(RadiometryTest, CorrectionRemovesTheHotspotAndFlatField) {
+  RadiometryModel m;
+  m.ok = true;
+  m.vignetting = true;
+  for (int c = 0; c < 3; ++c) m.log_falloff[static_cast<size_t>(c)] = {std::log(0.6) / 0.8, -0.2 * std::log(0.6) / 0.8};
+  m.flat_field = true;
+  m.log_flat = {0.05, -0.03, 0.02, 0.01, -0.04, 0.02};
+  m.hotspot.found = true;
+  m.hotspot.antisolar_u = 0.2;
+  m.hotspot.antisolar_v = -0.1;
+  m.hotspot.weights = {0.1, 0.15, 0.05};
+  m.log_gain[3] = cv::Vec3d::all(std::log(1.1));
+  const cv::Size size(600, 400);
+  const double heading = 2.0;
+  cv::Mat frame(size, CV_8UC3);
+  const double hd = 0.5 * std::hypot(600.0, 400.0);
+  for (int y = 0; y < size.height; ++y)
+    for (int x = 0; x < size.width; ++x) {
+      const ImagePoint p{static_cast<float>((x - 299.5) / hd), static_cast<float>((y - 199.5) / hd),
+                         static_cast<float>(heading)};
+      frame.at<cv::Vec3b>(y, x) = cv::Vec3b::all(cv::saturate_cast<uchar>(120 * 1.1 * std::exp(m.LogShading(1, p))));
+    }
+  cv::Mat part = frame(cv::Rect(37, 11, 500, 300)).clone();
+  CorrectRadiometry(m, 3, heading, size, cv::Point2d(37, 11), &part);
+  double lo = 0, hi = 0;
+  cv::minMaxLoc(part.reshape(1), &lo, &hi);
+  EXPECT_GE(lo, 118);
+  EXPECT_LE(hi, 122);
+  const AvoidDisc disc = HotspotDisc(m, heading, size);
+  const cv::Point2d c = m.hotspot.Centre(heading);
+  EXPECT_NEAR(disc.centre.x, 299.5 + c.x * hd, 1e-6);
+  EXPECT_NEAR(disc.centre.y, 199.5 + c.y * hd, 1e-6);
+  EXPECT_GT(disc.radius, 0.06 * hd - 1e-6);
+  // The heading turns it: a frame turned by pi sees the antisolar point on the other side of its centre.
+  EXPECT_NEAR(m.hotspot.Centre(M_PI).x, -0.2, 1e-9);
+}
+
+TEST(RadiometryTest, HeadingOfARotation) {
+  const double angle = 0.7;
+  Mat3 h = Mat3::Identity();
+  h << 2 * std::cos(angle), -2 * std::sin(angle), 50, 2 * std::sin(angle), 2 * std::cos(angle), -20, 0, 0, 1;
+  EXPECT_NEAR(HeadingOf(h, cv::Size(640, 480)), angle, 1e-9);
 }
 
 TEST(RadiometryTest, TooFewSamplesGiveGainsOnly) {
@@ -116,18 +292,18 @@ TEST(RadiometryTest, OverlapSamplesAndCorrectionOfRenderedFrames) {
   }
   std::vector<RadiometrySample> samples;
   const cv::Mat ta = MakeThumbnail(frames[0], 128), tb = MakeThumbnail(frames[1], 128);
-  SampleOverlap(0, 1, ta, tb, work, work, Translation(-200, 0), 64, &samples);
+  SampleOverlap({0, &ta, work, 0.0}, {1, &tb, work, 0.0}, Translation(-200, 0), 64, &samples);
   ASSERT_GE(samples.size(), 32u);
   EXPECT_LE(samples.size(), 64u);
   for (const auto& s : samples) {
-    const double expected = std::log(truth.Falloff(0, s.r2_a)) - std::log(1.2) - std::log(truth.Falloff(0, s.r2_b));
+    const double expected = std::log(truth.Falloff(0, s.in_a.R2())) - std::log(1.2) - std::log(truth.Falloff(0, s.in_b.R2()));
     EXPECT_NEAR(s.log_a[1] - s.log_b[1], expected, 0.02);
   }
   // Correction of a part of frame 1 at half resolution: flat at 150 grey levels.
   cv::Mat half;
   cv::resize(frames[1], half, cv::Size(300, 200), 0, 0, cv::INTER_AREA);
   cv::Mat part = half(cv::Rect(10, 20, 200, 150)).clone();
-  CorrectRadiometry(truth, 1, half.size(), cv::Point2d(10, 20), &part);
+  CorrectRadiometry(truth, 1, 0.0, half.size(), cv::Point2d(10, 20), &part);
   double lo = 0, hi = 0;
   cv::minMaxLoc(part.reshape(1), &lo, &hi);
   EXPECT_GE(lo, 147);
@@ -156,7 +332,7 @@ TEST(RadiometryTest, LiveFitFindsTheVignettingFromRecentFrames) {
         auto& p = f.at<cv::Vec3b>(y, x);
         for (int c = 0; c < 3; ++c) p[c] = cv::saturate_cast<uchar>(p[c] * v);
       }
-    live.AddFrame(id, MakeThumbnail(f, RadiometryOptions{}.thumb_long_side), f.size());
+    live.AddFrame(id, MakeThumbnail(f, RadiometryOptions{}.thumb_long_side), f.size(), 0.0);
     for (int back : {1, 2, 3})  // frame id - back seen 120 * back px further along
       if (id - back >= 0) live.AddEdge(id, id - back, Translation(120.0 * back, 0));
     const bool solved = live.MaybeSolve();

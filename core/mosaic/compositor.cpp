@@ -95,6 +95,8 @@ struct FrameGeometry {
   cv::Size size;
   double canvas_px_per_image_px = 1.0;
   cv::Rect2d bbox;  // footprint bounding box in the canvas
+  cv::Point2d avoid_centre;
+  double avoid_radius = 0.0;
 };
 
 FrameGeometry MakeGeometry(const CompositeInput& in) {
@@ -110,6 +112,8 @@ FrameGeometry MakeGeometry(const CompositeInput& in) {
   g.canvas_px_per_image_px = std::sqrt(std::abs(J.determinant()));
   const auto fp = Footprint(in.canvas_from_image, in.image_size.width, in.image_size.height);
   g.bbox = cv::boundingRect(fp);
+  g.avoid_centre = in.avoid_centre;
+  g.avoid_radius = in.avoid_radius;
   return g;
 }
 
@@ -117,7 +121,6 @@ FrameGeometry MakeGeometry(const CompositeInput& in) {
 // to the canvas (identical in every tile), then spread to the cells' pixels. A cell is owned only when its centre lies
 // kSeamMargin px inside the owner, so that every pixel of the cell is inside it too.
 constexpr int kSeamStep = 4;
-constexpr float kSeamMargin = 3.0f;  // > half the cell diagonal (2.1 px)
 
 // Fills image coordinates (map_x, map_y) for the canvas points (x0 + c * step + offset, y0 + r * step + offset),
 // c < size.width, r < size.height. step 1, offset 0: every pixel of an ROI.
@@ -155,18 +158,34 @@ void ComputeMaps(const FrameGeometry& g, const cv::Rect& roi, cv::Mat* map_x, cv
   ComputeMapsGrid(g, roi.x, roi.y, roi.size(), 1, 0.0, map_x, map_y);
 }
 
-// Distance to the nearest image border in canvas pixels; negative outside the image.
+// The seam margin (see below); a frame's pixel that is inside it always scores above it.
+constexpr float kSeamMargin = 3.0f;  // > half the cell diagonal (2.1 px) of the kSeamStep cells
+
+// Distance to the nearest image border in canvas pixels; negative outside the image. Inside the frame's avoid disc
+// it is scaled down towards the disc's centre (to a tenth at half its radius and nearer), so that a frame that sees
+// the same ground farther from its own disc takes it; never below the seam margin, so that ground only this frame sees
+// stays its own.
 void BorderDistance(const FrameGeometry& g, const cv::Mat& map_x, const cv::Mat& map_y, cv::Mat* dist) {
   dist->create(map_x.size(), CV_32F);
   const float w1 = static_cast<float>(g.size.width - 1);
   const float h1 = static_cast<float>(g.size.height - 1);
   const float s = static_cast<float>(g.canvas_px_per_image_px);
+  const auto ax = static_cast<float>(g.avoid_centre.x);
+  const auto ay = static_cast<float>(g.avoid_centre.y);
+  const auto radius = static_cast<float>(g.avoid_radius);
   for (int r = 0; r < map_x.rows; ++r) {
     const auto* mx = map_x.ptr<float>(r);
     const auto* my = map_y.ptr<float>(r);
     auto* d = dist->ptr<float>(r);
     for (int c = 0; c < map_x.cols; ++c) {
       d[c] = s * std::min(std::min(mx[c], w1 - mx[c]), std::min(my[c], h1 - my[c]));
+      if (radius > 0 && d[c] > kSeamMargin + 1) {
+        const float t = std::hypot(mx[c] - ax, my[c] - ay) / radius;  // 0 at the centre, 1 at the rim
+        if (t < 1) {
+          const float keep = 0.1f + 0.9f * std::clamp(2 * t - 1, 0.0f, 1.0f);
+          d[c] = std::max(kSeamMargin + 1, d[c] * keep);
+        }
+      }
     }
   }
 }

@@ -73,6 +73,10 @@ struct CompositeInput {
   // The loader reads only the part asked for (JPEG region decoding): a load then holds about load_bytes times the
   // part's share of the image, and such loads may run in parallel.
   bool region_loads = false;
+  // A disc of the image the seams keep out of where another frame sees the same ground (e.g. the sun's hotspot and
+  // the drone's shadow, which no gain removes); image_size pixels, radius 0 = none.
+  cv::Point2d avoid_centre;
+  double avoid_radius = 0.0;
 };
 
 using ImageLoadFn = std::function<cv::Mat(int id)>;  // BGR8 image of a frame; empty = unreadable

@@ -79,12 +79,15 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
     in.canvas_from_image = c * ResizeMap(static_cast<double>(how.size.width) / f.original_size.width,
                                          static_cast<double>(how.size.height) / f.original_size.height)
                                    .inverse();
+    const AvoidDisc avoid = HotspotDisc(radiometry_.model, HeadingOf(id), how.size);
+    in.avoid_centre = avoid.centre;
+    in.avoid_radius = avoid.radius;
     inputs.push_back(in);
   }
   auto load = [&](int id, const cv::Rect& need) {
     const CanvasLoad& how = load_of.at(id);
     FramePart part = LoadIdealPart(id, how, need);
-    CorrectRadiometry(radiometry_.model, id, how.size, part.origin, &part.image);
+    CorrectRadiometry(radiometry_.model, id, HeadingOf(id), how.size, part.origin, &part.image);
     return part;
   };
   GdalTiffWriter tiff;
@@ -113,6 +116,10 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
       composite->tiles_written, composite->image_loads, composite->load_ms, composite->reloads_from_memory,
       composite->ms);
   return true;
+}
+
+double EndOfFlight::HeadingOf(int id) const {
+  return uavm::HeadingOf(in_.record->engine().mosaic_from_work(id), in_.record->frame(id).work_size);
 }
 
 FramePart EndOfFlight::LoadIdealPart(int id, const CanvasLoad& how, const cv::Rect& need) const {

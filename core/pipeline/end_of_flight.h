@@ -72,6 +72,8 @@ class EndOfFlight {
   [[nodiscard]] int SolvedFrames() const { return static_cast<int>(in_.solution->component.size()); }
   [[nodiscard]] bool WriteTables(std::string* error);
   [[nodiscard]] bool CompositeMosaic(CompositeResult* composite, std::string* error);
+  // The frame's heading in the registration (the radiometry's hotspot turns with it).
+  [[nodiscard]] double HeadingOf(int id) const;
   // Part `need` of frame `id`'s ideal (undistorted) image on the load's grid.
   [[nodiscard]] FramePart LoadIdealPart(int id, const CanvasLoad& how, const cv::Rect& need) const;
   // mosaic.tiled.tif -> COG mosaic.tif, then mosaic.kmz, tiles/, index.html. Returns the report's "products" block.

@@ -46,7 +46,10 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
     const cv::Mat& a = thumb_of(e.src);
     const cv::Mat& b = thumb_of(e.tgt);
     if (a.empty() || b.empty()) continue;
-    SampleOverlap(e.src, e.tgt, a, b, record.frame(e.src).work_size, record.frame(e.tgt).work_size, e.tgt_from_src,
+    const cv::Size work_a = record.frame(e.src).work_size;
+    const cv::Size work_b = record.frame(e.tgt).work_size;
+    SampleOverlap({e.src, &a, work_a, HeadingOf(record.engine().mosaic_from_work(e.src), work_a)},
+                  {e.tgt, &b, work_b, HeadingOf(record.engine().mosaic_from_work(e.tgt), work_b)}, e.tgt_from_src,
                   per_edge, &samples);
   }
   radiometry = SolveRadiometry(samples, component, options);
@@ -64,11 +67,16 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
   }
   std::string error;
   if (!WriteFileAtomic(paths.Join("radiometry.csv"), csv, &error)) spdlog::warn("radiometry: {}", error);
+  const Hotspot& hot = radiometry.hotspot;
   spdlog::info(
-      "radiometry: {} samples over {} edges, log RMS {:.4f} -> {:.4f}, corner falloff {:.3f} {:.3f} {:.3f}{} "
-      "({:.0f} ms)",
+      "radiometry: {} samples over {} edges, log RMS {:.4f} -> {:.4f}, corner falloff {:.3f} {:.3f} {:.3f}, flat "
+      "field {}, hotspot {}{} ({:.0f} ms)",
       radiometry.samples, radiometry.edges, radiometry.rms_log_before, radiometry.rms_log_after,
       radiometry.Falloff(0, 1.0), radiometry.Falloff(1, 1.0), radiometry.Falloff(2, 1.0),
+      radiometry.flat_field ? "kept" : "not kept",
+      hot.found ? fmt::format("{:+.0f} % at ({:.2f}, {:.2f}) half-diagonals", 100 * (std::exp(hot.LogBoost(0)) - 1),
+                              hot.antisolar_u, hot.antisolar_v)
+                : "not found",
       radiometry.note.empty() ? "" : " (" + radiometry.note + ")", out.ms);
   return out;
 }
@@ -90,6 +98,21 @@ nlohmann::json RadiometryJson(const EndRadiometry& end, const RadiometryOptions&
   j["vignetting"] = radiometry.vignetting;
   j["corner_falloff_bgr"] = {radiometry.Falloff(0, 1.0), radiometry.Falloff(1, 1.0), radiometry.Falloff(2, 1.0)};
   j["log_falloff_c1_c2_bgr"] = radiometry.log_falloff;
+  j["flat_field"] = radiometry.flat_field;
+  if (radiometry.flat_field) j["log_flat_u_v_uu-vv_uv_ur2_vr2"] = radiometry.log_flat;
+  const Hotspot& hot = radiometry.hotspot;
+  nlohmann::json hotspot = {{"found", hot.found}};
+  if (hot.found) {
+    hotspot["peak_gain"] = std::exp(hot.LogBoost(0.0));
+    hotspot["core_radius_half_diagonals"] = hot.CoreRadius();
+    // Where a frame whose axes lie along the mosaic's sees the antisolar point (x right, y down).
+    hotspot["antisolar_half_diagonals"] = {hot.antisolar_u, hot.antisolar_v};
+    hotspot["log_weights"] = hot.weights;
+    hotspot["sigmas_half_diagonals"] = Hotspot::kSigma;
+  }
+  j["hotspot"] = hotspot;
+  // The held-out fifth of the edges' robust cost under each model tried (0: not tried): what chose the terms.
+  j["holdout_cost_radial_flat_hotspot"] = radiometry.holdout_cost;
   if (!radiometry.log_gain.empty()) j["gain_range"] = {min_gain, max_gain};
   j["note"] = radiometry.note;
   j["solve_ms"] = end.ms;

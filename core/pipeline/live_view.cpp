@@ -63,22 +63,26 @@ void LiveView::FrameRegistered(const RegisteredFrame& frame) {
 
 cv::Mat LiveView::CorrectedImage(const RegisteredFrame& frame) {
   const cv::Mat& work_bgr = *frame.work_bgr;
-  if (!options_.radiometry.enabled || !options_.radiometry.vignetting || frame.thumb->empty() ||
+  const RadiometryOptions& radiometry = options_.radiometry;
+  if (!radiometry.enabled || !(radiometry.vignetting || radiometry.flat_field || radiometry.hotspot) ||
+      frame.thumb->empty() ||
       (options_.preview_every <= 0 && !tiles_))
     return work_bgr;
   if (!radiometry_) radiometry_.emplace(options_.radiometry);
-  radiometry_->AddFrame(frame.id, *frame.thumb, work_bgr.size());
+  const double heading = HeadingOf(record_->engine().mosaic_from_work(frame.id), work_bgr.size());
+  radiometry_->AddFrame(frame.id, *frame.thumb, work_bgr.size(), heading);
   const auto& edges = record_->engine().edges();
   for (size_t k = frame.edges_before; k < edges.size(); ++k)
     radiometry_->AddEdge(edges[k].src, edges[k].tgt, edges[k].tgt_from_src);
   if (radiometry_->MaybeSolve()) {
     const RadiometryModel& m = radiometry_->model();
-    spdlog::info("radiometry: live vignetting from the last frames: corner {:.3f} {:.3f} {:.3f}", m.Falloff(0, 1.0),
-                 m.Falloff(1, 1.0), m.Falloff(2, 1.0));
+    spdlog::info("radiometry: live model from the last frames: corner {:.3f} {:.3f} {:.3f}, flat field {}, hotspot {}",
+                 m.Falloff(0, 1.0), m.Falloff(1, 1.0), m.Falloff(2, 1.0), m.flat_field ? "kept" : "not kept",
+                 m.hotspot.found ? fmt::format("{:+.0f} %", 100 * (std::exp(m.hotspot.LogBoost(0)) - 1)) : "not found");
   }
   if (!radiometry_->model().ok) return work_bgr;
   cv::Mat corrected = work_bgr.clone();
-  CorrectRadiometry(radiometry_->model(), frame.id, work_bgr.size(), cv::Point2d(), &corrected);
+  CorrectRadiometry(radiometry_->model(), frame.id, heading, work_bgr.size(), cv::Point2d(), &corrected);
   return corrected;
 }
 

@@ -27,14 +27,16 @@ bool SampleBgr(const cv::Mat& img, double x, double y, cv::Vec3f* out) {
   return true;
 }
 
-// r^2 of a pixel, r = distance from the image centre / half-diagonal.
-struct RadiusOf {
-  explicit RadiusOf(cv::Size s)
+// A pixel's place in its frame: centre and half-diagonal, so that any resolution of the frame gives the same (u, v).
+struct PlaceOf {
+  explicit PlaceOf(cv::Size s)
       : cx(0.5 * (s.width - 1)),
         cy(0.5 * (s.height - 1)),
-        inv_hd2(4.0 / (double(s.width) * s.width + double(s.height) * s.height)) {}
-  [[nodiscard]] double R2(double x, double y) const { return ((x - cx) * (x - cx) + (y - cy) * (y - cy)) * inv_hd2; }
-  double cx, cy, inv_hd2;
+        inv_hd(2.0 / std::sqrt(double(s.width) * s.width + double(s.height) * s.height)) {}
+  [[nodiscard]] ImagePoint At(double x, double y, double heading) const {
+    return {static_cast<float>((x - cx) * inv_hd), static_cast<float>((y - cy) * inv_hd), static_cast<float>(heading)};
+  }
+  double cx, cy, inv_hd;
 };
 
 bool Usable(const cv::Vec3f& v) {
@@ -47,86 +49,135 @@ cv::Vec3f Log(const cv::Vec3f& v) {
   return {std::log(v[0]), std::log(v[1]), std::log(v[2])};
 }
 
-// One channel's weighted least squares: x = [log gains of `frames`..., c1, c2]; `fit_falloff` false leaves c1 = c2 = 0.
-struct ChannelSolve {
-  std::vector<double> log_gain;
-  double c1 = 0, c2 = 0;
-  double rms_before = 0, rms_after = 0;
-};
-
-// The unknowns a sample touches with their coefficients: +1 at a's gain, -1 at b's, and the radii terms of the falloff
-// (index -1 = unused).
-using SampleRow = std::array<std::pair<int, double>, 4>;
-
-SampleRow RowOf(const RadiometrySample& s, const std::unordered_map<int, int>& index, bool fit_falloff, int n) {
-  SampleRow row{{{index.at(s.a), 1.0}, {index.at(s.b), -1.0}, {-1, 0.0}, {-1, 0.0}}};
-  if (fit_falloff) {
-    row[2] = {n, double(s.r2_a) - s.r2_b};
-    row[3] = {n + 1, double(s.r2_a) * s.r2_a - double(s.r2_b) * s.r2_b};
-  }
-  return row;
+void FlatBasis(double u, double v, double* out) {
+  const double r2 = u * u + v * v;
+  out[0] = u;
+  out[1] = v;
+  out[2] = u * u - v * v;
+  out[3] = u * v;
+  out[4] = u * r2;
+  out[5] = v * r2;
 }
 
-// The summed normal equations as triplets (both halves of the symmetric matrix); `pair_sum` is freed.
-std::vector<Eigen::Triplet<double>> NormalTriplets(const Eigen::VectorXd& diagonal, const Eigen::MatrixXd& falloff_rows,
-                                                   std::unordered_map<uint64_t, double>* pair_sum_in) {
-  auto& pair_sum = *pair_sum_in;
-  const auto unknowns = static_cast<int>(diagonal.size());
-  const int n = unknowns - static_cast<int>(falloff_rows.rows());
+void HotspotBasis(const cv::Point2d& centre, const ImagePoint& p, double* out) {
+  const double d2 = (p.u - centre.x) * (p.u - centre.x) + (p.v - centre.y) * (p.v - centre.y);
+  for (size_t k = 0; k < Hotspot::kSigma.size(); ++k)
+    out[k] = std::exp(-d2 / (2 * Hotspot::kSigma[k] * Hotspot::kSigma[k]));
+}
+
+// The shared unknowns of a fit, the same for every frame (the radial falloff, the flat field, the hotspot's profile
+// about a given antisolar point), and their basis functions at a point.
+struct Terms {
+  static constexpr int kMax = 2 + RadiometryModel::kFlatTerms + static_cast<int>(Hotspot::kSigma.size());
+  bool radial = false;
+  bool flat = false;
+  bool hotspot = false;
+  Hotspot at;  // antisolar point only
+
+  [[nodiscard]] int Count() const {
+    return (radial ? 2 : 0) + (flat ? RadiometryModel::kFlatTerms : 0) +
+           (hotspot ? static_cast<int>(Hotspot::kSigma.size()) : 0);
+  }
+  void Eval(const ImagePoint& p, double* out) const {
+    if (radial) {
+      const double r2 = p.R2();
+      *out++ = r2;
+      *out++ = r2 * r2;
+    }
+    if (flat) {
+      FlatBasis(p.u, p.v, out);
+      out += RadiometryModel::kFlatTerms;
+    }
+    if (hotspot) HotspotBasis(at.Centre(p.heading), p, out);
+  }
+  // The sample's row: basis at a minus basis at b.
+  void Row(const RadiometrySample& s, double* row) const {
+    std::array<double, kMax> at_b{};
+    Eval(s.in_a, row);
+    Eval(s.in_b, at_b.data());
+    for (int j = 0; j < Count(); ++j) row[j] -= at_b[static_cast<size_t>(j)];
+  }
+};
+
+using Row = std::array<double, Terms::kMax>;
+
+// One channel's fit: a log gain per frame (by index) and the shared terms' coefficients.
+struct Fit {
+  std::vector<double> log_gain;
+  std::vector<double> shared;
+  std::vector<double> weight;  // each sample's robust weight at the last iteration
+};
+
+double PairDifference(const RadiometrySample& s, int channel) {
+  return double(s.log_a[channel]) - double(s.log_b[channel]);
+}
+
+double Predicted(const Fit& fit, const Terms& terms, const std::unordered_map<int, int>& index,
+                 const RadiometrySample& s) {
+  Row row{};
+  terms.Row(s, row.data());
+  double p = fit.log_gain[static_cast<size_t>(index.at(s.a))] - fit.log_gain[static_cast<size_t>(index.at(s.b))];
+  for (int j = 0; j < terms.Count(); ++j) p += fit.shared[static_cast<size_t>(j)] * row[static_cast<size_t>(j)];
+  return p;
+}
+
+double Huber(double r, double width) {
+  const double a = std::abs(r);
+  return a <= width ? 0.5 * r * r : width * (a - 0.5 * width);
+}
+
+// One weighted least-squares step: the normal equations with the gain prior (and a whisper of ridge on the shared
+// terms, which keeps the system definite when the samples barely tell them apart). False when the factorisation
+// fails. The normal equations are summed as they are made: a diagonal, one entry per pair of frames, and the shared
+// terms' rows (dense); their memory grows with the frames and pairs, not with the samples.
+bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
+                   const Terms& terms, double prior, const std::vector<double>& weight, Eigen::VectorXd* x) {
+  const int n = static_cast<int>(index.size());
+  const int m = terms.Count();
+  const int unknowns = n + m;
+  Eigen::VectorXd diagonal = Eigen::VectorXd::Constant(n, prior);
+  Eigen::MatrixXd shared_rows = Eigen::MatrixXd::Zero(m, unknowns);
+  for (int j = 0; j < m; ++j) shared_rows(j, n + j) = 1e-6 * static_cast<double>(samples.size());
+  std::unordered_map<uint64_t, double> pair_sum;  // key: lower index << 32 | higher index
+  Eigen::VectorXd rhs = Eigen::VectorXd::Zero(unknowns);
+  Row row{};
+  for (size_t k = 0; k < samples.size(); ++k) {
+    const RadiometrySample& s = samples[k];
+    const int ia = index.at(s.a);
+    const int ib = index.at(s.b);
+    const double w = weight[k];
+    const double d = PairDifference(s, channel);
+    diagonal[ia] += w;
+    diagonal[ib] += w;
+    pair_sum[(static_cast<uint64_t>(std::min(ia, ib)) << 32) | static_cast<uint32_t>(std::max(ia, ib))] -= w;
+    rhs[ia] += w * d;
+    rhs[ib] -= w * d;
+    if (m == 0) continue;
+    terms.Row(s, row.data());
+    for (int j = 0; j < m; ++j) {
+      const double wj = w * row[static_cast<size_t>(j)];
+      rhs[n + j] += wj * d;
+      shared_rows(j, ia) += wj;
+      shared_rows(j, ib) -= wj;
+      for (int l = 0; l < m; ++l) shared_rows(j, n + l) += wj * row[static_cast<size_t>(l)];
+    }
+  }
   std::vector<Eigen::Triplet<double>> t;
-  t.reserve(static_cast<size_t>(unknowns) + 2 * pair_sum.size() + 2 * static_cast<size_t>(falloff_rows.size()));
-  for (int i = 0; i < unknowns; ++i) t.emplace_back(i, i, diagonal[i]);
+  t.reserve(static_cast<size_t>(n) + 2 * pair_sum.size() + 2 * static_cast<size_t>(shared_rows.size()));
+  for (int i = 0; i < n; ++i) t.emplace_back(i, i, diagonal[i]);
   for (const auto& [key, v] : pair_sum) {
     const auto i = static_cast<int>(key >> 32);
     const auto j = static_cast<int>(key & 0xffffffffu);
     t.emplace_back(i, j, v);
     t.emplace_back(j, i, v);
   }
-  for (int r = 0; r < unknowns - n; ++r)
-    for (int j = 0; j < unknowns; ++j) {
-      if (j == n + r || falloff_rows(r, j) == 0.0) continue;
-      t.emplace_back(n + r, j, falloff_rows(r, j));
-      if (j < n) t.emplace_back(j, n + r, falloff_rows(r, j));  // the gain rows' falloff columns
-    }
   pair_sum = {};
-  return t;
-}
-
-// One weighted least-squares step: the normal equations with the gain prior (and a whisper of ridge on the falloff,
-// which keeps the system definite when radii barely differ). False when the factorisation fails.
-bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
-                   bool fit_falloff, double prior, const std::vector<double>& weight, Eigen::VectorXd* x) {
-  const int n = static_cast<int>(index.size());
-  const auto unknowns = static_cast<int>(x->size());
-  // The normal equations summed as they are made: a diagonal, one entry per pair of frames, and the falloff's rows
-  // (dense). Their memory grows with the frames and pairs, not with the samples (a triplet per term would take
-  // ~250 bytes per sample).
-  Eigen::VectorXd diagonal = Eigen::VectorXd::Zero(unknowns);
-  Eigen::MatrixXd falloff_rows = Eigen::MatrixXd::Zero(unknowns - n, unknowns);  // rows n.. (0 or 2 of them)
-  std::unordered_map<uint64_t, double> pair_sum;  // key: lower index << 32 | higher index
-  Eigen::VectorXd rhs = Eigen::VectorXd::Zero(unknowns);
-  for (int i = 0; i < n; ++i) diagonal[i] = prior;
-  for (int i = n; i < unknowns; ++i) diagonal[i] = 1e-6 * static_cast<double>(samples.size());
-  for (size_t k = 0; k < samples.size(); ++k) {
-    const SampleRow row = RowOf(samples[k], index, fit_falloff, n);
-    const double d = double(samples[k].log_a[channel] - samples[k].log_b[channel]);
-    for (const auto& [i, vi] : row) {
-      if (i < 0) continue;
-      rhs[i] += weight[k] * vi * d;
-      for (const auto& [j, vj] : row) {
-        if (j < 0) continue;
-        const double v = weight[k] * vi * vj;
-        if (i == j) {
-          diagonal[i] += v;
-        } else if (i >= n) {
-          falloff_rows(i - n, j) += v;
-        } else if (j < n && i < j) {
-          pair_sum[(static_cast<uint64_t>(i) << 32) | static_cast<uint32_t>(j)] += v;
-        }
-      }
+  for (int j = 0; j < m; ++j)
+    for (int c = 0; c < unknowns; ++c) {
+      if (shared_rows(j, c) == 0.0) continue;
+      t.emplace_back(n + j, c, shared_rows(j, c));
+      if (c < n) t.emplace_back(c, n + j, shared_rows(j, c));  // the gain rows' shared columns
     }
-  }
-  const std::vector<Eigen::Triplet<double>> t = NormalTriplets(diagonal, falloff_rows, &pair_sum);
   Eigen::SparseMatrix<double> normal(unknowns, unknowns);
   normal.setFromTriplets(t.begin(), t.end());
   const Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(normal);
@@ -135,96 +186,246 @@ bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unor
   return true;
 }
 
-// One channel's robust fit (Huber, iteratively reweighted): x = [log gains of the frames in `index`..., c1, c2];
-// `fit_falloff` false leaves c1 = c2 = 0. The log gains come back centred (the mean frame keeps its brightness).
-ChannelSolve SolveChannel(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index,
-                          int channel, bool fit_falloff, const RadiometryOptions& o) {
+// One channel's robust fit (Huber, iteratively reweighted). `prior_share` pulls each log gain towards 0 as a share of
+// an average frame's samples, so that it means the same on any flight. The log gains come back centred (the mean
+// frame keeps its brightness).
+Fit SolveRobust(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
+                const Terms& terms, double prior_share, double huber) {
   const int n = static_cast<int>(index.size());
-  Eigen::VectorXd x = Eigen::VectorXd::Zero(n + (fit_falloff ? 2 : 0));
-  std::vector<double> weight(samples.size(), 1.0);
-  // Relative to an average frame's share of the data, so that it means the same on any flight.
-  const double prior = o.gain_prior_weight * static_cast<double>(samples.size()) / std::max(1, n);
+  const int m = terms.Count();
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(n + m);
+  Fit fit;
+  fit.weight.assign(samples.size(), 1.0);
+  const double prior = prior_share * static_cast<double>(samples.size()) / std::max(1, n);
   for (int iteration = 0; iteration < 5; ++iteration) {
-    if (!SolveWeighted(samples, index, channel, fit_falloff, prior, weight, &x)) break;
+    if (!SolveWeighted(samples, index, channel, terms, prior, fit.weight, &x)) break;
+    fit.log_gain.assign(x.data(), x.data() + n);
+    fit.shared.assign(x.data() + n, x.data() + n + m);
     for (size_t k = 0; k < samples.size(); ++k) {
-      double model = 0;
-      for (const auto& [i, v] : RowOf(samples[k], index, fit_falloff, n))
-        if (i >= 0) model += v * x[i];
-      const double r = std::abs(double(samples[k].log_a[channel] - samples[k].log_b[channel]) - model);
-      weight[k] = r <= o.huber_log ? 1.0 : o.huber_log / r;
+      const double r = std::abs(PairDifference(samples[k], channel) - Predicted(fit, terms, index, samples[k]));
+      fit.weight[k] = r <= huber ? 1.0 : huber / r;
     }
   }
-  ChannelSolve out;
-  out.log_gain.assign(x.data(), x.data() + n);
+  fit.log_gain.assign(x.data(), x.data() + n);
+  fit.shared.assign(x.data() + n, x.data() + n + m);
   double mean = 0;
-  for (double g : out.log_gain) mean += g / std::max(1, n);
-  for (double& g : out.log_gain) g -= mean;
-  if (fit_falloff) {
-    out.c1 = x[n];
-    out.c2 = x[n + 1];
-  }
-  return out;
+  for (double g : fit.log_gain) mean += g / std::max(1, n);
+  for (double& g : fit.log_gain) g -= mean;
+  return fit;
 }
 
-// Brightness first, colour second: the exposure (mean of the log channels) is solved with the gain prior, then each
-// channel's deviation from it (white balance, a colour tint of the falloff) with the stronger colour prior. A colour
-// cast drifting along a flight is more visible than a brightness drift, and real white balance moves less than
-// exposure.
-std::array<ChannelSolve, 3> SolveColour(const std::vector<RadiometrySample>& samples,
-                                        const std::unordered_map<int, int>& index, bool fit_falloff,
-                                        const RadiometryOptions& options) {
+// The samples' mean log colour in every channel (the exposure's share of them).
+std::vector<RadiometrySample> Grey(const std::vector<RadiometrySample>& samples) {
   std::vector<RadiometrySample> grey = samples;
   for (auto& s : grey) {
     s.log_a = cv::Vec3f::all((s.log_a[0] + s.log_a[1] + s.log_a[2]) / 3);
     s.log_b = cv::Vec3f::all((s.log_b[0] + s.log_b[1] + s.log_b[2]) / 3);
   }
-  const ChannelSolve exposure = SolveChannel(grey, index, 0, fit_falloff, options);
-  auto explained = [&](int id, float r2) {
-    const double g = exposure.log_gain[static_cast<size_t>(index.at(id))];
-    return static_cast<float>(g + exposure.c1 * r2 + exposure.c2 * double(r2) * r2);
+  return grey;
+}
+
+// Evenly thinned to at most `most`.
+std::vector<RadiometrySample> Thinned(const std::vector<RadiometrySample>& samples, size_t most) {
+  if (samples.size() <= most) return samples;
+  std::vector<RadiometrySample> out;
+  out.reserve(most);
+  for (size_t k = 0; k < most; ++k) out.push_back(samples[k * samples.size() / most]);
+  return out;
+}
+
+// The antisolar point that best explains the grey samples with the frames' gains held at `gains`' (and their robust
+// weights): for each point of a grid (`step` apart within `radius` of `around`), the shared terms alone by dense least
+// squares; the lowest weighted cost wins. Cheap enough for a few hundred points: the gains' sparse system is not
+// solved again.
+cv::Point2d SearchAntisolar(const std::vector<RadiometrySample>& grey, const std::unordered_map<int, int>& index,
+                            Terms terms, const Fit& gains, cv::Point2d around, double radius, double step) {
+  const int m = terms.Count();
+  std::vector<double> rest(grey.size());
+  for (size_t k = 0; k < grey.size(); ++k)
+    rest[k] = PairDifference(grey[k], 0) - (gains.log_gain[static_cast<size_t>(index.at(grey[k].a))] -
+                                            gains.log_gain[static_cast<size_t>(index.at(grey[k].b))]);
+  double best_cost = std::numeric_limits<double>::infinity();
+  cv::Point2d best = around;
+  const int steps = static_cast<int>(std::floor(radius / step));
+  Row row{};
+  for (int i = -steps; i <= steps; ++i)
+    for (int j = -steps; j <= steps; ++j) {
+      if (i * i + j * j > steps * steps) continue;
+      terms.at.antisolar_u = around.x + j * step;
+      terms.at.antisolar_v = around.y + i * step;
+      Eigen::MatrixXd normal = Eigen::MatrixXd::Identity(m, m) * 1e-6 * static_cast<double>(grey.size());
+      Eigen::VectorXd rhs = Eigen::VectorXd::Zero(m);
+      double base = 0;
+      for (size_t k = 0; k < grey.size(); ++k) {
+        terms.Row(grey[k], row.data());
+        const Eigen::Map<const Eigen::VectorXd> r(row.data(), m);
+        normal.selfadjointView<Eigen::Lower>().rankUpdate(r, gains.weight[k]);
+        rhs += gains.weight[k] * rest[k] * r;
+        base += gains.weight[k] * rest[k] * rest[k];
+      }
+      normal.triangularView<Eigen::Upper>() = normal.transpose();
+      const Eigen::VectorXd x = normal.ldlt().solve(rhs);
+      const double cost = base - x.dot(rhs);  // the weighted residual at the least-squares solution
+      if (cost < best_cost) {
+        best_cost = cost;
+        best = {terms.at.antisolar_u, terms.at.antisolar_v};
+      }
+    }
+  return best;
+}
+
+// The hotspot's antisolar point for these samples: a coarse grid over the frame (the antisolar point may be anywhere
+// in it, or beyond its border at a lower sun), then a fine one around the best, each with the gains of a fit with the
+// hotspot at the point found so far.
+Fit FitHotspot(const std::vector<RadiometrySample>& grey, const std::unordered_map<int, int>& index, Terms* terms,
+               const Fit& without, const RadiometryOptions& o) {
+  constexpr size_t kSearchSamples = 6000;
+  const std::vector<RadiometrySample> few = Thinned(grey, kSearchSamples);
+  const cv::Point2d coarse = SearchAntisolar(few, index, *terms, without, {0, 0}, 0.96, 0.08);
+  terms->at.antisolar_u = coarse.x;
+  terms->at.antisolar_v = coarse.y;
+  const Fit first = SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o.huber_log);
+  const cv::Point2d fine = SearchAntisolar(few, index, *terms, first, coarse, 0.08, 0.02);
+  terms->at.antisolar_u = fine.x;
+  terms->at.antisolar_v = fine.y;
+  return SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o.huber_log);
+}
+
+double HeldOutCost(const std::vector<RadiometrySample>& held, const std::unordered_map<int, int>& index,
+                   const Terms& terms, const Fit& fit, double huber) {
+  double cost = 0;
+  for (const auto& s : held) cost += Huber(PairDifference(s, 0) - Predicted(fit, terms, index, s), huber);
+  return cost / static_cast<double>(std::max<size_t>(1, held.size()));
+}
+
+Hotspot HotspotOf(const Terms& terms, const Fit& fit) {
+  Hotspot h = terms.at;
+  h.found = true;
+  const size_t first = static_cast<size_t>(terms.Count()) - Hotspot::kSigma.size();
+  for (size_t k = 0; k < Hotspot::kSigma.size(); ++k) h.weights[k] = fit.shared[first + k];
+  return h;
+}
+
+// A hotspot brightens the ground around the antisolar point, by less than a factor of 3.
+bool PlausibleHotspot(const Hotspot& h) {
+  const double peak = h.LogBoost(0.0);
+  return peak > 0.01 && peak < std::log(3.0);
+}
+
+// Which shared terms the grey samples support: the radial model (as `base` says), then the flat field, then the
+// hotspot, each kept when the held-out fifth of the edges' samples costs `min_holdout_gain` less with it. Held-out
+// costs into `cost` (0 where not tried).
+Terms ChooseTerms(const std::vector<RadiometrySample>& grey, const std::unordered_map<int, int>& index, Terms base,
+                  const RadiometryOptions& o, std::array<double, 3>* cost, std::string* note) {
+  std::vector<RadiometrySample> train;
+  std::vector<RadiometrySample> held;
+  for (const auto& s : grey) {
+    const auto lo = static_cast<uint64_t>(std::min(s.a, s.b));
+    const auto hi = static_cast<uint64_t>(std::max(s.a, s.b));
+    ((lo * 2654435761u + hi * 40503u) % 5 == 0 ? held : train).push_back(s);
+  }
+  constexpr size_t kMinHeld = 300;
+  if (held.size() < kMinHeld || train.size() < 4 * kMinHeld || index.size() < 6) {
+    *note = "too few samples to test a flat field or a hotspot";
+    return base;
+  }
+  Terms chosen = base;
+  Fit fit = SolveRobust(train, index, 0, base, o.gain_prior_weight, o.huber_log);
+  (*cost)[0] = HeldOutCost(held, index, base, fit, o.huber_log);
+  double best = (*cost)[0];
+  if (o.flat_field) {
+    Terms flat = base;
+    flat.flat = true;
+    const Fit with = SolveRobust(train, index, 0, flat, o.gain_prior_weight, o.huber_log);
+    (*cost)[1] = HeldOutCost(held, index, flat, with, o.huber_log);
+    if ((*cost)[1] < best * (1 - o.min_holdout_gain)) {
+      chosen = flat;
+      best = (*cost)[1];
+      fit = with;
+    }
+  }
+  if (o.hotspot) {
+    Terms hot = chosen;
+    hot.hotspot = true;
+    const Fit with = FitHotspot(train, index, &hot, fit, o);
+    (*cost)[2] = HeldOutCost(held, index, hot, with, o.huber_log);
+    if ((*cost)[2] < best * (1 - o.min_holdout_gain) && PlausibleHotspot(HotspotOf(hot, with))) chosen = hot;
+  }
+  return chosen;
+}
+
+// The whole model for the chosen terms: the exposure (grey) with them and the gain prior, then each channel's
+// deviation from it (white balance, a tint of the radial falloff) with the stronger colour prior. A colour cast
+// drifting along a flight is more visible than a brightness drift, and real white balance moves less than exposure.
+struct ColourSolve {
+  std::array<std::vector<double>, 3> log_gain;
+  std::array<std::array<double, 2>, 3> radial{};
+  std::array<double, RadiometryModel::kFlatTerms> flat{};
+  Hotspot hotspot;
+  double rms_before = 0, rms_after = 0;
+};
+
+ColourSolve SolveColour(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index,
+                        Terms terms, const RadiometryOptions& o) {
+  const std::vector<RadiometrySample> grey = Grey(samples);
+  Fit exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o.huber_log);
+  if (terms.hotspot) {  // the point found on the training samples, refined on all of them
+    const cv::Point2d fine = SearchAntisolar(Thinned(grey, 6000), index, terms, exposure,
+                                             {terms.at.antisolar_u, terms.at.antisolar_v}, 0.04, 0.02);
+    terms.at.antisolar_u = fine.x;
+    terms.at.antisolar_v = fine.y;
+    exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o.huber_log);
+  }
+  ColourSolve out;
+  size_t j = 0;
+  std::array<double, 2> grey_radial{};
+  if (terms.radial) grey_radial = {exposure.shared[j], exposure.shared[j + 1]}, j += 2;
+  if (terms.flat)
+    for (double& f : out.flat) f = exposure.shared[j++];
+  if (terms.hotspot) out.hotspot = HotspotOf(terms, exposure);
+  Row row{};
+  auto explained = [&](int id, const ImagePoint& p) {
+    terms.Eval(p, row.data());
+    double e = exposure.log_gain[static_cast<size_t>(index.at(id))];
+    for (int k = 0; k < terms.Count(); ++k) e += exposure.shared[static_cast<size_t>(k)] * row[static_cast<size_t>(k)];
+    return static_cast<float>(e);
   };
   std::vector<RadiometrySample> colour = samples;
   for (auto& s : colour) {
-    s.log_a -= cv::Vec3f::all(explained(s.a, s.r2_a));
-    s.log_b -= cv::Vec3f::all(explained(s.b, s.r2_b));
+    s.log_a -= cv::Vec3f::all(explained(s.a, s.in_a));
+    s.log_b -= cv::Vec3f::all(explained(s.b, s.in_b));
   }
-  RadiometryOptions colour_options = options;
-  colour_options.gain_prior_weight = options.colour_prior_weight;
-  std::array<ChannelSolve, 3> out;
+  Terms tint;
+  tint.radial = terms.radial;
+  std::array<Fit, 3> channel;
   for (int c = 0; c < 3; ++c) {
-    ChannelSolve& cs = out[static_cast<size_t>(c)];
-    cs = SolveChannel(colour, index, c, fit_falloff, colour_options);
-    for (size_t i = 0; i < cs.log_gain.size(); ++i) cs.log_gain[i] += exposure.log_gain[i];
-    cs.c1 += exposure.c1;
-    cs.c2 += exposure.c2;
+    const auto cu = static_cast<size_t>(c);
+    channel[cu] = SolveRobust(colour, index, c, tint, o.colour_prior_weight, o.huber_log);
+    out.log_gain[cu] = channel[cu].log_gain;
+    for (size_t i = 0; i < out.log_gain[cu].size(); ++i) out.log_gain[cu][i] += exposure.log_gain[i];
+    if (terms.radial) out.radial[cu] = {grey_radial[0] + channel[cu].shared[0], grey_radial[1] + channel[cu].shared[1]};
   }
   // Both figures against the pairs' own differences, over the samples the model explains (within 3 loss widths).
   double before = 0, after = 0, count = 0;
-  for (const auto& s : samples)
+  for (size_t k = 0; k < samples.size(); ++k)
     for (int c = 0; c < 3; ++c) {
-      const ChannelSolve& cs = out[static_cast<size_t>(c)];
-      const auto model = [&](int id, double r2) {
-        return cs.log_gain[static_cast<size_t>(index.at(id))] + cs.c1 * r2 + cs.c2 * r2 * r2;
-      };
-      const double d = double(s.log_a[c]) - s.log_b[c];
-      const double r = d - (model(s.a, s.r2_a) - model(s.b, s.r2_b));
-      if (std::abs(r) > 3 * options.huber_log) continue;
+      const double d = PairDifference(samples[k], c);
+      const double r = PairDifference(colour[k], c) - Predicted(channel[static_cast<size_t>(c)], tint, index, colour[k]);
+      if (std::abs(r) > 3 * o.huber_log) continue;
       before += d * d;
       after += r * r;
       ++count;
     }
-  for (ChannelSolve& cs : out) {
-    cs.rms_before = std::sqrt(before / std::max(1.0, count));
-    cs.rms_after = std::sqrt(after / std::max(1.0, count));
-  }
+  out.rms_before = std::sqrt(before / std::max(1.0, count));
+  out.rms_after = std::sqrt(after / std::max(1.0, count));
   return out;
 }
 
 // A lens darkens its corners; it does not brighten them (what looks like it is the ground's reflectance changing
 // with the view direction, which a radial model must not absorb).
-bool PlausibleFalloff(const std::array<ChannelSolve, 3>& solved, const RadiometryOptions& options) {
-  for (const ChannelSolve& cs : solved) {
-    const double corner = std::exp(cs.c1 + cs.c2);
+bool PlausibleFalloff(const ColourSolve& solved, const RadiometryOptions& options) {
+  for (const auto& c : solved.radial) {
+    const double corner = std::exp(c[0] + c[1]);
     if (corner < 1.0 - options.max_corner_falloff || corner > 1.05) return false;
   }
   return true;
@@ -246,6 +447,7 @@ bool RadiometryOptions::Check(std::string* why) const {
   if (min_vignetting_samples < 0) return fail("radiometry.min_vignetting_samples must be >= 0");
   if (!(max_corner_falloff > 0 && max_corner_falloff < 1))
     return fail("radiometry.max_corner_falloff must be in (0, 1)");
+  if (!(min_holdout_gain >= 0 && min_holdout_gain < 1)) return fail("radiometry.min_holdout_gain must be in [0, 1)");
   return true;
 }
 
@@ -261,6 +463,53 @@ cv::Vec3d RadiometryModel::Gain(int id) const {
   return {std::exp(it->second[0]), std::exp(it->second[1]), std::exp(it->second[2])};
 }
 
+double RadiometryModel::LogShading(int channel, const ImagePoint& p) const {
+  double s = 0;
+  if (vignetting) {
+    const auto& c = log_falloff[static_cast<size_t>(channel)];
+    const double r2 = p.R2();
+    s += c[0] * r2 + c[1] * r2 * r2;
+  }
+  if (flat_field) {
+    std::array<double, kFlatTerms> basis{};
+    FlatBasis(p.u, p.v, basis.data());
+    for (size_t k = 0; k < basis.size(); ++k) s += log_flat[k] * basis[k];
+  }
+  if (hotspot.found) {
+    const cv::Point2d c = hotspot.Centre(p.heading);
+    s += hotspot.LogBoost((p.u - c.x) * (p.u - c.x) + (p.v - c.y) * (p.v - c.y));
+  }
+  return s;
+}
+
+cv::Point2d Hotspot::Centre(double heading) const {
+  // The antisolar direction is fixed on the ground; a frame turned by `heading` into the mosaic sees it turned back.
+  const double c = std::cos(heading);
+  const double s = std::sin(heading);
+  return {c * antisolar_u + s * antisolar_v, -s * antisolar_u + c * antisolar_v};
+}
+
+double Hotspot::LogBoost(double d2) const {
+  double b = 0;
+  for (size_t k = 0; k < kSigma.size(); ++k) b += weights[k] * std::exp(-d2 / (2 * kSigma[k] * kSigma[k]));
+  return b;
+}
+
+double Hotspot::CoreRadius() const {
+  const double half = 0.5 * LogBoost(0.0);
+  double d = 0;
+  while (d < 1.5 && LogBoost(d * d) > half) d += 0.005;
+  return d;
+}
+
+double HeadingOf(const Mat3& mosaic_from_work, cv::Size work_size) {
+  const Vec2 centre(0.5 * (work_size.width - 1), 0.5 * (work_size.height - 1));
+  const Vec2 c0 = Apply(mosaic_from_work, centre);
+  const Vec2 dx = Apply(mosaic_from_work, centre + Vec2(1, 0)) - c0;
+  const Vec2 dy = Apply(mosaic_from_work, centre + Vec2(0, 1)) - c0;
+  return std::atan2(dx.y() - dy.x(), dx.x() + dy.y());
+}
+
 cv::Mat MakeThumbnail(const cv::Mat& bgr, int long_side) {
   const double s = std::min(1.0, long_side / static_cast<double>(std::max(bgr.cols, bgr.rows)));
   cv::Mat thumb;
@@ -271,12 +520,15 @@ cv::Mat MakeThumbnail(const cv::Mat& bgr, int long_side) {
   return thumb;
 }
 
-void SampleOverlap(int a, int b, const cv::Mat& thumb_a, const cv::Mat& thumb_b, cv::Size work_a, cv::Size work_b,
-                   const Mat3& b_from_a, int max_samples, std::vector<RadiometrySample>* out) {
+void SampleOverlap(const OverlapView& a, const OverlapView& b, const Mat3& b_from_a, int max_samples,
+                   std::vector<RadiometrySample>* out) {
+  const cv::Mat& thumb_a = *a.thumb;
+  const cv::Mat& thumb_b = *b.thumb;
   const Mat3 work_from_thumb_a =
-      ResizeMap(double(thumb_a.cols) / work_a.width, double(thumb_a.rows) / work_a.height).inverse();
-  const Mat3 thumb_from_work_b = ResizeMap(double(thumb_b.cols) / work_b.width, double(thumb_b.rows) / work_b.height);
-  const RadiusOf radius_a(work_a), radius_b(work_b);
+      ResizeMap(double(thumb_a.cols) / a.work_size.width, double(thumb_a.rows) / a.work_size.height).inverse();
+  const Mat3 thumb_from_work_b =
+      ResizeMap(double(thumb_b.cols) / b.work_size.width, double(thumb_b.rows) / b.work_size.height);
+  const PlaceOf place_a(a.work_size), place_b(b.work_size);
   // A denser grid than max_samples: only the overlap's share of it lands in b.
   const int side = std::max(2, static_cast<int>(std::ceil(std::sqrt(4.0 * max_samples))));
   std::vector<RadiometrySample> found;
@@ -292,10 +544,10 @@ void SampleOverlap(int a, int b, const cv::Mat& thumb_a, const cv::Mat& thumb_b,
       if (tb.x() < 1 || tb.y() < 1 || tb.x() > thumb_b.cols - 2 || tb.y() > thumb_b.rows - 2) continue;
       if (!SampleBgr(thumb_a, ta.x(), ta.y(), &va) || !SampleBgr(thumb_b, tb.x(), tb.y(), &vb)) continue;
       if (!Usable(va) || !Usable(vb)) continue;
-      s.a = a;
-      s.b = b;
-      s.r2_a = static_cast<float>(radius_a.R2(wa.x(), wa.y()));
-      s.r2_b = static_cast<float>(radius_b.R2(wb.x(), wb.y()));
+      s.a = a.id;
+      s.b = b.id;
+      s.in_a = place_a.At(wa.x(), wa.y(), a.heading);
+      s.in_b = place_b.At(wb.x(), wb.y(), b.heading);
       s.log_a = Log(va);
       s.log_b = Log(vb);
       found.push_back(s);
@@ -324,21 +576,33 @@ RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples, co
     m.note = "no overlap samples";
     return m;
   }
-  m.vignetting = options.vignetting && m.samples >= options.min_vignetting_samples;
-  if (options.vignetting && !m.vignetting) m.note = "too few samples to determine the vignetting";
-  std::array<ChannelSolve, 3> solved = SolveColour(used, index, m.vignetting, options);
-  if (m.vignetting && !PlausibleFalloff(solved, options)) {
-    m.vignetting = false;
-    m.note = "fitted vignetting implausible (a corner outside [1 - max_corner_falloff, 1.05]); gains only";
-    solved = SolveColour(used, index, false, options);
+  Terms terms;
+  terms.radial = options.vignetting && m.samples >= options.min_vignetting_samples;
+  if (options.vignetting && !terms.radial) m.note = "too few samples to determine the vignetting";
+  if (options.flat_field || options.hotspot) {
+    std::string why;
+    terms = ChooseTerms(Grey(used), index, terms, options, &m.holdout_cost, &why);
+    if (!why.empty()) m.note += (m.note.empty() ? "" : "; ") + why;
   }
-  for (int c = 0; c < 3; ++c) {
-    const ChannelSolve& cs = solved[static_cast<size_t>(c)];
-    m.log_falloff[static_cast<size_t>(c)] = {cs.c1, cs.c2};
-    m.rms_log_before += cs.rms_before / 3;
-    m.rms_log_after += cs.rms_after / 3;
-    for (const auto& [id, i] : index) m.log_gain[id][c] = cs.log_gain[static_cast<size_t>(i)];
+  ColourSolve solved = SolveColour(used, index, terms, options);
+  if (terms.radial && !PlausibleFalloff(solved, options)) {
+    terms.radial = false;
+    m.note = "fitted vignetting implausible (a corner outside [1 - max_corner_falloff, 1.05]); no radial falloff";
+    solved = SolveColour(used, index, terms, options);
   }
+  if (terms.hotspot && !PlausibleHotspot(solved.hotspot)) {
+    terms.hotspot = false;
+    solved = SolveColour(used, index, terms, options);
+  }
+  m.vignetting = terms.radial;
+  m.flat_field = terms.flat;
+  m.log_flat = solved.flat;
+  m.hotspot = solved.hotspot;
+  m.log_falloff = solved.radial;
+  m.rms_log_before = solved.rms_before;
+  m.rms_log_after = solved.rms_after;
+  for (int c = 0; c < 3; ++c)
+    for (const auto& [id, i] : index) m.log_gain[id][c] = solved.log_gain[static_cast<size_t>(c)][static_cast<size_t>(i)];
   m.ok = true;
   return m;
 }
@@ -346,7 +610,7 @@ RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples, co
 LiveRadiometry::LiveRadiometry(const RadiometryOptions& options, int window, int solve_every)
     : options_(options), window_(static_cast<size_t>(std::max(2, window))), solve_every_(std::max(1, solve_every)) {}
 
-void LiveRadiometry::AddFrame(int id, const cv::Mat& thumb, cv::Size work_size) {
+void LiveRadiometry::AddFrame(int id, const cv::Mat& thumb, cv::Size work_size, double heading) {
   if (thumbs_.size() == window_) {
     const int oldest = thumbs_.front().id;
     thumbs_.erase(thumbs_.begin());
@@ -354,7 +618,7 @@ void LiveRadiometry::AddFrame(int id, const cv::Mat& thumb, cv::Size work_size) 
                                   [oldest](const RadiometrySample& s) { return s.a == oldest || s.b == oldest; }),
                    samples_.end());
   }
-  thumbs_.push_back({id, thumb, work_size});
+  thumbs_.push_back({id, thumb, work_size, heading});
   ++frames_since_solve_;
 }
 
@@ -368,8 +632,8 @@ void LiveRadiometry::AddEdge(int a, int b, const Mat3& b_from_a) {
   const Thumb* ta = Find(a);
   const Thumb* tb = Find(b);
   if (ta == nullptr || tb == nullptr) return;
-  SampleOverlap(a, b, ta->image, tb->image, ta->work_size, tb->work_size, b_from_a, options_.samples_per_edge,
-                &samples_);
+  SampleOverlap({a, &ta->image, ta->work_size, ta->heading}, {b, &tb->image, tb->work_size, tb->heading}, b_from_a,
+                options_.samples_per_edge, &samples_);
 }
 
 bool LiveRadiometry::MaybeSolve() {
@@ -378,30 +642,85 @@ bool LiveRadiometry::MaybeSolve() {
   std::vector<int> frames;
   for (const Thumb& t : thumbs_) frames.push_back(t.id);
   RadiometryModel m = SolveRadiometry(samples_, frames, options_);
-  if (!m.ok || !m.vignetting) return false;
-  m.log_gain.clear();  // vignetting only (see the class comment)
+  if (!m.ok || (!m.vignetting && !m.BeyondRadial())) return false;
+  m.log_gain.clear();  // no gains (see the class comment)
   model_ = std::move(m);
   return true;
 }
 
-void CorrectRadiometry(const RadiometryModel& model, int id, cv::Size full_size, cv::Point2d origin, cv::Mat* bgr) {
-  if (!model.ok || bgr->empty()) return;
+namespace {
+
+// Gain and radial falloff only: a table over r^2.
+void CorrectRadial(const RadiometryModel& model, int id, cv::Size full_size, cv::Point2d origin, cv::Mat* bgr) {
   const cv::Vec3d gain = model.Gain(id);
   std::array<std::array<float, kLutSize + 1>, 3> lut{};
   for (int c = 0; c < 3; ++c)
     for (int k = 0; k <= kLutSize; ++k)
       lut[static_cast<size_t>(c)][static_cast<size_t>(k)] =
           static_cast<float>(1.0 / (gain[c] * model.Falloff(c, static_cast<double>(k) / kLutSize)));
-  const RadiusOf radius(full_size);
+  const PlaceOf place(full_size);
   for (int r = 0; r < bgr->rows; ++r) {
     auto* p = bgr->ptr<cv::Vec3b>(r);
     const double y = origin.y + r;
     for (int col = 0; col < bgr->cols; ++col) {
-      const double r2 = std::min(1.0, radius.R2(origin.x + col, y));
+      const double r2 = std::min(1.0, double(place.At(origin.x + col, y, 0).R2()));
       const auto k = static_cast<size_t>(r2 * kLutSize + 0.5);
       for (int c = 0; c < 3; ++c) p[col][c] = cv::saturate_cast<uchar>(p[col][c] * lut[static_cast<size_t>(c)][k]);
     }
   }
+}
+
+// Any shading: the factor evaluated on a grid of nodes kNodeStep px apart over the part and interpolated bilinearly
+// between them (the shading is smooth: its narrowest term is a Gaussian of 0.07 half-diagonals).
+void CorrectShading(const RadiometryModel& model, int id, double heading, cv::Size full_size, cv::Point2d origin,
+                    cv::Mat* bgr) {
+  constexpr int kNodeStep = 8;
+  const cv::Vec3d gain = model.Gain(id);
+  const PlaceOf place(full_size);
+  const int nodes_x = (bgr->cols - 1) / kNodeStep + 2;
+  const int nodes_y = (bgr->rows - 1) / kNodeStep + 2;
+  cv::Mat factor(nodes_y, nodes_x, CV_32FC3);
+  for (int i = 0; i < nodes_y; ++i)
+    for (int j = 0; j < nodes_x; ++j) {
+      const ImagePoint p = place.At(origin.x + j * kNodeStep, origin.y + i * kNodeStep, heading);
+      for (int c = 0; c < 3; ++c)
+        factor.at<cv::Vec3f>(i, j)[c] = static_cast<float>(1.0 / (gain[c] * std::exp(model.LogShading(c, p))));
+    }
+  std::vector<cv::Vec3f> row_nodes(static_cast<size_t>(nodes_x));
+  for (int r = 0; r < bgr->rows; ++r) {
+    const int i = r / kNodeStep;
+    const float ty = static_cast<float>(r - i * kNodeStep) / kNodeStep;
+    const auto* f0 = factor.ptr<cv::Vec3f>(i);
+    const auto* f1 = factor.ptr<cv::Vec3f>(i + 1);
+    for (int j = 0; j < nodes_x; ++j) row_nodes[static_cast<size_t>(j)] = f0[j] * (1 - ty) + f1[j] * ty;
+    auto* p = bgr->ptr<cv::Vec3b>(r);
+    for (int col = 0; col < bgr->cols; ++col) {
+      const int j = col / kNodeStep;
+      const float tx = static_cast<float>(col - j * kNodeStep) / kNodeStep;
+      const cv::Vec3f f = row_nodes[static_cast<size_t>(j)] * (1 - tx) + row_nodes[static_cast<size_t>(j) + 1] * tx;
+      for (int c = 0; c < 3; ++c) p[col][c] = cv::saturate_cast<uchar>(p[col][c] * f[c]);
+    }
+  }
+}
+
+}  // namespace
+
+void CorrectRadiometry(const RadiometryModel& model, int id, double heading, cv::Size full_size, cv::Point2d origin,
+                       cv::Mat* bgr) {
+  if (!model.ok || bgr->empty()) return;
+  if (model.BeyondRadial())
+    CorrectShading(model, id, heading, full_size, origin, bgr);
+  else
+    CorrectRadial(model, id, full_size, origin, bgr);
+}
+
+AvoidDisc HotspotDisc(const RadiometryModel& model, double heading, cv::Size size) {
+  if (!model.ok || !model.hotspot.found) return {};
+  const PlaceOf place(size);
+  const cv::Point2d c = model.hotspot.Centre(heading);
+  // The drone's shadow sits at the centre whatever the bump's width: never less than 0.06 half-diagonals.
+  const double radius = std::clamp(model.hotspot.CoreRadius(), 0.06, 0.3);
+  return {cv::Point2d(place.cx + c.x / place.inv_hd, place.cy + c.y / place.inv_hd), radius / place.inv_hd};
 }
 
 }  // namespace uavm
