@@ -83,9 +83,9 @@ TEST(RadiometryTest, RecoversGainsAndFalloffFromPairs) {
 // heading), with an optional off-centre falloff. Samples at random places of both frames of each pair.
 struct SunFlight {
   double hotspot = 0.35;
-  double width = 0.22;                          // half-diagonals
-  cv::Point2d antisolar{0.12, 0.30};            // at heading 0
-  cv::Point2d falloff_centre{0.0, 0.0};         // the lens's falloff about this point
+  double width = 0.22;                   // half-diagonals
+  cv::Point2d antisolar{0.12, 0.30};     // at heading 0
+  cv::Point2d falloff_centre{0.0, 0.0};  // the lens's falloff about this point
   [[nodiscard]] double TrueLogShading(const ImagePoint& p) const {
     const double du = p.u - falloff_centre.x;
     const double dv = p.v - falloff_centre.y;
@@ -118,10 +118,10 @@ std::vector<RadiometrySample> SunFlightSamples(const SunFlight& flight, std::vec
         s.in_a = {static_cast<float>(u(*rng)), static_cast<float>(v(*rng)), heading(a)};
         s.in_b = {static_cast<float>(u(*rng)), static_cast<float>(v(*rng)), heading(b)};
         const double l = std::log(scene(*rng));
-        s.log_a = cv::Vec3f::all(static_cast<float>(l + (*log_gain)[static_cast<size_t>(a)] +
-                                                    flight.TrueLogShading(s.in_a) + n01(*rng)));
-        s.log_b = cv::Vec3f::all(static_cast<float>(l + (*log_gain)[static_cast<size_t>(b)] +
-                                                    flight.TrueLogShading(s.in_b) + n01(*rng)));
+        s.log_a = cv::Vec3f::all(
+            static_cast<float>(l + (*log_gain)[static_cast<size_t>(a)] + flight.TrueLogShading(s.in_a) + n01(*rng)));
+        s.log_b = cv::Vec3f::all(
+            static_cast<float>(l + (*log_gain)[static_cast<size_t>(b)] + flight.TrueLogShading(s.in_b) + n01(*rng)));
         samples.push_back(s);
       }
     }
@@ -296,7 +296,8 @@ TEST(RadiometryTest, OverlapSamplesAndCorrectionOfRenderedFrames) {
   ASSERT_GE(samples.size(), 32u);
   EXPECT_LE(samples.size(), 64u);
   for (const auto& s : samples) {
-    const double expected = std::log(truth.Falloff(0, s.in_a.R2())) - std::log(1.2) - std::log(truth.Falloff(0, s.in_b.R2()));
+    const double expected =
+        std::log(truth.Falloff(0, s.in_a.R2())) - std::log(1.2) - std::log(truth.Falloff(0, s.in_b.R2()));
     EXPECT_NEAR(s.log_a[1] - s.log_b[1], expected, 0.02);
   }
   // Correction of a part of frame 1 at half resolution: flat at 150 grey levels.

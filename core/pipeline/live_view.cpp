@@ -65,8 +65,7 @@ cv::Mat LiveView::CorrectedImage(const RegisteredFrame& frame) {
   const cv::Mat& work_bgr = *frame.work_bgr;
   const RadiometryOptions& radiometry = options_.radiometry;
   if (!radiometry.enabled || !(radiometry.vignetting || radiometry.flat_field || radiometry.hotspot) ||
-      frame.thumb->empty() ||
-      (options_.preview_every <= 0 && !tiles_))
+      frame.thumb->empty() || (options_.preview_every <= 0 && !tiles_))
     return work_bgr;
   if (!radiometry_) radiometry_.emplace(options_.radiometry);
   const double heading = HeadingOf(record_->engine().mosaic_from_work(frame.id), work_bgr.size());

@@ -410,7 +410,8 @@ ColourSolve SolveColour(const std::vector<RadiometrySample>& samples, const std:
   for (size_t k = 0; k < samples.size(); ++k)
     for (int c = 0; c < 3; ++c) {
       const double d = PairDifference(samples[k], c);
-      const double r = PairDifference(colour[k], c) - Predicted(channel[static_cast<size_t>(c)], tint, index, colour[k]);
+      const double r =
+          PairDifference(colour[k], c) - Predicted(channel[static_cast<size_t>(c)], tint, index, colour[k]);
       if (std::abs(r) > 3 * o.huber_log) continue;
       before += d * d;
       after += r * r;
@@ -602,7 +603,8 @@ RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples, co
   m.rms_log_before = solved.rms_before;
   m.rms_log_after = solved.rms_after;
   for (int c = 0; c < 3; ++c)
-    for (const auto& [id, i] : index) m.log_gain[id][c] = solved.log_gain[static_cast<size_t>(c)][static_cast<size_t>(i)];
+    for (const auto& [id, i] : index)
+      m.log_gain[id][c] = solved.log_gain[static_cast<size_t>(c)][static_cast<size_t>(i)];
   m.ok = true;
   return m;
 }

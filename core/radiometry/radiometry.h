@@ -64,9 +64,9 @@ struct Hotspot {
   double antisolar_u = 0, antisolar_v = 0;
   std::array<double, 3> weights{};
 
-  [[nodiscard]] cv::Point2d Centre(double heading) const;      // in a frame of that heading
-  [[nodiscard]] double LogBoost(double d2) const;              // at squared distance d2 from the centre
-  [[nodiscard]] double CoreRadius() const;                     // where the boost falls to half its peak
+  [[nodiscard]] cv::Point2d Centre(double heading) const;  // in a frame of that heading
+  [[nodiscard]] double LogBoost(double d2) const;          // at squared distance d2 from the centre
+  [[nodiscard]] double CoreRadius() const;                 // where the boost falls to half its peak
 };
 
 // recorded = gain[frame][c] * V_c(r) * F(u, v) * H(frame's heading, u, v) * scene, with log V_c(r) = c1 r^2 + c2 r^4
