@@ -84,7 +84,7 @@ double TileError(const Flight& f, const fs::path& dir, int z, int x, int y, int*
 }
 
 LiveTilePyramid::FrameReader PngReader() {
-  return [](const std::string& path, cv::Size, int) { return cv::imread(path, cv::IMREAD_COLOR); };
+  return [](int, const std::string& path, cv::Size, int, double) { return cv::imread(path, cv::IMREAD_COLOR); };
 }
 
 TEST(LiveTilePyramidTest, TilesShowTheGroundWhereTheFramesAre) {
@@ -95,7 +95,14 @@ TEST(LiveTilePyramidTest, TilesShowTheGroundWhereTheFramesAre) {
   o.queue_images = 2;  // the rest are read back from frames/
   std::vector<std::shared_ptr<const TileSetInfo>> published;
   std::mutex m;
-  LiveTilePyramid pyramid((dir / "tiles").string(), o, PngReader(), [&](std::shared_ptr<const TileSetInfo> i) {
+  // The reader is told which frame it reads and its heading (the live radiometry's hotspot turns with it).
+  std::vector<std::pair<int, double>> read_back;
+  auto reader = [&](int id, const std::string& path, cv::Size, int, double heading) {
+    std::lock_guard lock(m);
+    read_back.emplace_back(id, heading);
+    return cv::imread(path, cv::IMREAD_COLOR);
+  };
+  LiveTilePyramid pyramid((dir / "tiles").string(), o, reader, [&](std::shared_ptr<const TileSetInfo> i) {
     std::lock_guard lock(m);
     published.push_back(std::move(i));
   });
@@ -103,8 +110,17 @@ TEST(LiveTilePyramidTest, TilesShowTheGroundWhereTheFramesAre) {
   // A strip of 400x300 frames overlapping by half.
   int id = 0;
   for (int y = 0; y + 300 <= 700; y += 200)
-    for (int x = 0; x + 400 <= 1200; x += 200) ASSERT_TRUE(pyramid.Draw(FrameAt(f, id++, {x, y, 400, 300}, true)));
+    for (int x = 0; x + 400 <= 1200; x += 200) {
+      TileFrame frame = FrameAt(f, id, {x, y, 400, 300}, true);
+      frame.heading = 0.1 * id++;
+      ASSERT_TRUE(pyramid.Draw(std::move(frame)));
+    }
   pyramid.Drain();
+  {
+    std::lock_guard lock(m);
+    EXPECT_FALSE(read_back.empty());
+    for (const auto& [read_id, heading] : read_back) EXPECT_DOUBLE_EQ(heading, 0.1 * read_id) << read_id;
+  }
   const LiveTileStats s = pyramid.Stats();
   EXPECT_EQ(s.frames_drawn, id);
   EXPECT_GT(s.frames_reread, 0);  // past queue_images the pixels came from frames/

@@ -38,13 +38,28 @@ LiveTiles::LiveTiles(const PipelineOptions& options, SessionPaths paths, const F
     : options_(options), paths_(std::move(paths)), record_(record), georef_(georef) {
   // Frames redrawn from frames/ (moved by a solve) are undistorted like the new ones (the lens is chosen on the first
   // frame's preparation, before anything is drawn, and not changed again).
-  auto read = [lens](const std::string& path, cv::Size work_size, int decode_reduce) {
+  auto read = [this, lens](int id, const std::string& path, cv::Size work_size, int decode_reduce, double heading) {
     const cv::Mat recorded = LoadStoredFrame(path, work_size, decode_reduce);
-    return lens->work().UndistortImage(recorded);  // the recorded image itself when the sizes differ or no lens
+    cv::Mat ideal =
+        lens->work().UndistortImage(recorded);  // the recorded image itself when the sizes differ or no lens
+    std::shared_ptr<const RadiometryModel> radiometry;
+    {
+      const std::lock_guard<std::mutex> lock(radiometry_mutex_);
+      radiometry = radiometry_;
+    }
+    if (radiometry && !ideal.empty()) {
+      CorrectRadiometry(*radiometry, id, heading, ideal.size(), cv::Point2d(), &ideal);
+    }
+    return ideal;
   };
   pyramid_ = std::make_unique<LiveTilePyramid>(
       paths_.Join("live_tiles"), options_.live_tiles, read,
       [this](std::shared_ptr<const TileSetInfo> info) { tiles_published_.Emit(std::move(info)); });
+}
+
+void LiveTiles::SetRadiometry(std::shared_ptr<const RadiometryModel> model) {
+  const std::lock_guard<std::mutex> lock(radiometry_mutex_);
+  radiometry_ = std::move(model);
 }
 
 // The worker publishes through this object's signal: it stops before anything else goes.
@@ -168,6 +183,7 @@ void LiveTiles::Draw(int id, std::shared_ptr<const cv::Mat> image) {
   f.image = std::move(image);
   f.decode_reduce = DecodeReduce(st.original_size, size);
   f.registered_ns = registered_ns;
+  f.heading = HeadingOf(engine().mosaic_from_work(id), size);
   if (!pyramid_->Draw(std::move(f))) return;
   const bool is_new = lt.drawn.insert(id).second;
   const cv::Rect2d box = cv::boundingRect(Footprint(engine().mosaic_from_work(id), size.width, size.height));

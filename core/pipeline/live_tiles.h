@@ -2,6 +2,7 @@
 #include <array>
 #include <deque>
 #include <memory>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <string>
@@ -14,6 +15,7 @@
 #include "core/pipeline/flight_record.h"
 #include "core/pipeline/options.h"
 #include "core/pipeline/work_lens.h"
+#include "core/radiometry/radiometry.h"
 #include "core/session/session_dir.h"
 #include "core/tiles/live_tile_pyramid.h"
 #include "core/tiles/tile_set.h"
@@ -35,6 +37,8 @@ class LiveTiles {
 
   // Frame `id` registered (its ideal working copy `work_bgr`); `moved`: frames a solve or a merge moved meanwhile.
   void Update(int id, const cv::Mat& work_bgr, const std::vector<int>& moved);
+  // The live radiometry from now on (frames redrawn from frames/ are corrected with it; new frames come corrected).
+  void SetRadiometry(std::shared_ptr<const RadiometryModel> model);
   // The newest frames' outlines as GeoJSON to the footprint subscribers (with each live.jpg).
   void PublishFootprints();
 
@@ -85,6 +89,9 @@ class LiveTiles {
   nlohmann::json report_ = {{"enabled", false}};
   Signal<std::shared_ptr<const TileSetInfo>> tiles_published_;
   Signal<std::shared_ptr<const std::string>> footprints_published_;
+  // The live radiometry (LiveView's, replaced at each fit): frames read back from frames/ are corrected like new ones.
+  mutable std::mutex radiometry_mutex_;
+  std::shared_ptr<const RadiometryModel> radiometry_;
   std::unique_ptr<LiveTilePyramid> pyramid_;  // its worker publishes through tiles_published_; stopped first
 };
 

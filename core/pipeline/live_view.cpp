@@ -75,6 +75,7 @@ cv::Mat LiveView::CorrectedImage(const RegisteredFrame& frame) {
     radiometry_->AddEdge(edges[k].src, edges[k].tgt, edges[k].tgt_from_src);
   if (radiometry_->MaybeSolve()) {
     const RadiometryModel& m = radiometry_->model();
+    if (tiles_) tiles_->SetRadiometry(std::make_shared<const RadiometryModel>(m));
     spdlog::info("radiometry: live model from the last frames: corner {:.3f} {:.3f} {:.3f}, flat field {}, hotspot {}",
                  m.Falloff(0, 1.0), m.Falloff(1, 1.0), m.Falloff(2, 1.0), m.flat_field ? "kept" : "not kept",
                  m.hotspot.found ? fmt::format("{:+.0f} %", 100 * (std::exp(m.hotspot.LogBoost(0)) - 1)) : "not found");

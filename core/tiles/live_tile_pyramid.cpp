@@ -83,6 +83,7 @@ class LiveTilePyramid::Renderer {
     std::unordered_set<TileKey, TileKeyHash> dirty(r.tiles.begin(), r.tiles.end());
     Unindex(f.id, r);
     r.grid_from_work = f.grid_from_work;
+    r.heading = f.heading;
     r.tiles = TilesOf(f.grid_from_work, f.work_size);
     Index(f.id, r);
     dirty.insert(r.tiles.begin(), r.tiles.end());
@@ -128,6 +129,7 @@ class LiveTilePyramid::Renderer {
     cv::Size work_size;
     int decode_reduce = 1;
     Mat3 grid_from_work;
+    double heading = 0.0;
     std::vector<TileKey> tiles;  // max_zoom tiles it touches
   };
 
@@ -137,6 +139,7 @@ class LiveTilePyramid::Renderer {
     r.work_size = f.work_size;
     r.decode_reduce = f.decode_reduce;
     r.grid_from_work = f.grid_from_work;
+    r.heading = f.heading;
     r.tiles = TilesOf(f.grid_from_work, f.work_size);
     Index(f.id, r);
     const auto fp = Footprint(f.grid_from_work, f.work_size.width, f.work_size.height);
@@ -254,7 +257,7 @@ class LiveTilePyramid::Renderer {
   }
   const FramePixels* Pixels(int id, const Record& r, bool* reread) {
     if (const FramePixels* px = Cached(id)) return px;
-    const cv::Mat bgr = reader_ ? reader_(r.path, r.work_size, r.decode_reduce) : cv::Mat();
+    const cv::Mat bgr = reader_ ? reader_(id, r.path, r.work_size, r.decode_reduce, r.heading) : cv::Mat();
     if (bgr.empty()) {
       spdlog::warn("live tiles: cannot read {} again; its tiles miss it", r.path);
       return nullptr;

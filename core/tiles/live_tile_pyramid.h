@@ -60,6 +60,7 @@ struct TileFrame {
   std::shared_ptr<const cv::Mat> image;    // work-resolution BGR, or null
   int decode_reduce = 1;                   // JPEG DCT scaling (1, 2, 4, 8) that reads `path` no smaller than work size
   int64_t registered_ns = 0;               // monotonic: when the frame loop registered it (tile latency); 0: a redraw
+  double heading = 0.0;  // the frame's rotation into the mosaic, handed to the reader (whose shading turns with it)
 };
 
 struct LiveTileStats {
@@ -77,8 +78,10 @@ struct LiveTileStats {
 
 class LiveTilePyramid {
  public:
-  // Reads a stored frame at its work size (BGR); called on the worker thread, must be thread-safe.
-  using FrameReader = std::function<cv::Mat(const std::string& path, cv::Size work_size, int decode_reduce)>;
+  // Reads a stored frame at its work size (BGR), as drawn (e.g. its radiometry corrected: TileFrame's id and heading);
+  // called on the worker thread, must be thread-safe.
+  using FrameReader =
+      std::function<cv::Mat(int id, const std::string& path, cv::Size work_size, int decode_reduce, double heading)>;
   // Called on the worker thread after each batch of tiles is on disk; must not block.
   using Listener = std::function<void(std::shared_ptr<const TileSetInfo>)>;
 
