@@ -1,10 +1,15 @@
 #include "core/radiometry/radiometry.h"
 
+#include <Eigen/Dense>
 #include <Eigen/Sparse>
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <limits>
 #include <opencv2/imgproc.hpp>
+#include <string>
 #include <unordered_map>
+#include <vector>
 
 namespace uavm {
 
@@ -126,6 +131,31 @@ double Huber(double r, double width) {
   return a <= width ? 0.5 * r * r : width * (a - 0.5 * width);
 }
 
+// The summed normal equations as triplets (both halves of the symmetric matrix): the gains' diagonal, their pairs,
+// and the shared terms' dense rows; `pair_sum` is freed.
+std::vector<Eigen::Triplet<double>> NormalTriplets(const Eigen::VectorXd& diagonal, const Eigen::MatrixXd& shared_rows,
+                                                   std::unordered_map<uint64_t, double>* pair_sum) {
+  const auto n = static_cast<int>(diagonal.size());
+  const auto m = static_cast<int>(shared_rows.rows());
+  std::vector<Eigen::Triplet<double>> t;
+  t.reserve(static_cast<size_t>(n) + 2 * pair_sum->size() + 2 * static_cast<size_t>(shared_rows.size()));
+  for (int i = 0; i < n; ++i) t.emplace_back(i, i, diagonal[i]);
+  for (const auto& [key, v] : *pair_sum) {
+    const auto i = static_cast<int>(key >> 32);
+    const auto j = static_cast<int>(key & 0xffffffffu);
+    t.emplace_back(i, j, v);
+    t.emplace_back(j, i, v);
+  }
+  *pair_sum = {};
+  for (int j = 0; j < m; ++j)
+    for (int c = 0; c < n + m; ++c) {
+      if (shared_rows(j, c) == 0.0) continue;
+      t.emplace_back(n + j, c, shared_rows(j, c));
+      if (c < n) t.emplace_back(c, n + j, shared_rows(j, c));  // the gain rows' shared columns
+    }
+  return t;
+}
+
 // One weighted least-squares step: the normal equations with the gain prior (and a whisper of ridge on the shared
 // terms, which keeps the system definite when the samples barely tell them apart). False when the factorisation
 // fails. The normal equations are summed as they are made: a diagonal, one entry per pair of frames, and the shared
@@ -162,22 +192,7 @@ bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unor
       for (int l = 0; l < m; ++l) shared_rows(j, n + l) += wj * row[static_cast<size_t>(l)];
     }
   }
-  std::vector<Eigen::Triplet<double>> t;
-  t.reserve(static_cast<size_t>(n) + 2 * pair_sum.size() + 2 * static_cast<size_t>(shared_rows.size()));
-  for (int i = 0; i < n; ++i) t.emplace_back(i, i, diagonal[i]);
-  for (const auto& [key, v] : pair_sum) {
-    const auto i = static_cast<int>(key >> 32);
-    const auto j = static_cast<int>(key & 0xffffffffu);
-    t.emplace_back(i, j, v);
-    t.emplace_back(j, i, v);
-  }
-  pair_sum = {};
-  for (int j = 0; j < m; ++j)
-    for (int c = 0; c < unknowns; ++c) {
-      if (shared_rows(j, c) == 0.0) continue;
-      t.emplace_back(n + j, c, shared_rows(j, c));
-      if (c < n) t.emplace_back(c, n + j, shared_rows(j, c));  // the gain rows' shared columns
-    }
+  const std::vector<Eigen::Triplet<double>> t = NormalTriplets(diagonal, shared_rows, &pair_sum);
   Eigen::SparseMatrix<double> normal(unknowns, unknowns);
   normal.setFromTriplets(t.begin(), t.end());
   const Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(normal);
