@@ -123,8 +123,9 @@ void SampleOverlap(const OverlapView& a, const OverlapView& b, const Mat3& b_fro
 [[nodiscard]] RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples,
                                               const std::vector<int>& frames, const RadiometryOptions& options);
 
-// The vignetting during the flight, for the live view: the lens does not change, so a fit over the recent frames'
-// overlaps, refreshed every `solve_every` frames, removes the pattern that every frame repeats. Bounded: thumbnails of
+// The shading during the flight, for the live view (vignetting, flat field, the sun's hotspot): the lens does not
+// change and the sun moves slowly, so a fit over the recent frames' overlaps, refreshed every `solve_every` frames,
+// removes the pattern that every frame repeats. Bounded: thumbnails of
 // the last `window` frames and the samples of their edges; each solve sees only those (never the whole flight).
 // Frame gains are not applied live (a new frame's gain is only known at the next solve; a step between frames drawn
 // with and without one would be worse than none); the end-of-flight solve does both.
