@@ -128,6 +128,13 @@ std::vector<RadiometrySample> SunFlightSamples(const SunFlight& flight, std::vec
   return samples;
 }
 
+// The frames SunFlightSamples flies (3 strips of 20).
+std::vector<int> SunFlightFrames() {
+  std::vector<int> frames(60);
+  for (int i = 0; i < 60; ++i) frames[static_cast<size_t>(i)] = i;
+  return frames;
+}
+
 // RMS over the frame and both headings of the fitted shading against the truth, up to a constant (the gauge the gains
 // share).
 double ShadingError(const RadiometryModel& m, const SunFlight& flight) {
@@ -149,8 +156,7 @@ TEST(RadiometryTest, FindsTheHotspotWhereTheSunPutsIt) {
   const SunFlight flight;
   std::vector<double> log_gain;
   const auto samples = SunFlightSamples(flight, &log_gain, &rng);
-  std::vector<int> frames;
-  for (int i = 0; i < 60; ++i) frames.push_back(i);
+  const std::vector<int> frames = SunFlightFrames();
   const RadiometryModel m = SolveRadiometry(samples, frames, RadiometryOptions{});
   ASSERT_TRUE(m.ok) << m.note;
   ASSERT_TRUE(m.hotspot.found) << m.note;
@@ -181,8 +187,7 @@ TEST(RadiometryTest, OffCentreFalloffKeepsTheFlatField) {
   flight.falloff_centre = {0.12, -0.08};
   std::vector<double> log_gain;
   const auto samples = SunFlightSamples(flight, &log_gain, &rng);
-  std::vector<int> frames;
-  for (int i = 0; i < 60; ++i) frames.push_back(i);
+  const std::vector<int> frames = SunFlightFrames();
   const RadiometryModel m = SolveRadiometry(samples, frames, RadiometryOptions{});
   ASSERT_TRUE(m.ok) << m.note;
   EXPECT_TRUE(m.flat_field);
@@ -197,8 +202,7 @@ TEST(RadiometryTest, NoSunNoHotspot) {
   flight.hotspot = 0.0;
   std::vector<double> log_gain;
   const auto samples = SunFlightSamples(flight, &log_gain, &rng);
-  std::vector<int> frames;
-  for (int i = 0; i < 60; ++i) frames.push_back(i);
+  const std::vector<int> frames = SunFlightFrames();
   const RadiometryModel m = SolveRadiometry(samples, frames, RadiometryOptions{});
   ASSERT_TRUE(m.ok) << m.note;
   EXPECT_FALSE(m.flat_field);

@@ -521,9 +521,10 @@ double Hotspot::CoreRadius() const {
 double HeadingOf(const Mat3& mosaic_from_work, cv::Size work_size) {
   const Vec2 centre(0.5 * (work_size.width - 1), 0.5 * (work_size.height - 1));
   const Vec2 c0 = Apply(mosaic_from_work, centre);
-  const Vec2 dx = Apply(mosaic_from_work, centre + Vec2(1, 0)) - c0;
-  const Vec2 dy = Apply(mosaic_from_work, centre + Vec2(0, 1)) - c0;
-  return std::atan2(dx.y() - dy.x(), dx.x() + dy.y());
+  Mat3 local = Mat3::Identity();  // the map's linear part at the centre (exact for affine maps)
+  local.block<2, 1>(0, 0) = Apply(mosaic_from_work, centre + Vec2(1, 0)) - c0;
+  local.block<2, 1>(0, 1) = Apply(mosaic_from_work, centre + Vec2(0, 1)) - c0;
+  return Decompose(local).rotation;
 }
 
 cv::Mat MakeThumbnail(const cv::Mat& bgr, int long_side) {
