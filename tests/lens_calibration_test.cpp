@@ -99,8 +99,9 @@ PinholeCamera BarrelLens(double share) {
 }
 
 LensCalibration Calibrate(const Solved& s, const PinholeCamera& prepared,
-                          const LensCalibrationOptions& options = LensCalibrationOptions{}) {
-  return CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, RefineOptions{}, prepared, options, s.linear);
+                          const LensCalibrationOptions& options = LensCalibrationOptions{},
+                          const RefineOptions& refine = RefineOptions{}) {
+  return CalibrateLens(s.edges, s.variable, 0, s.half_diagonal, refine, prepared, options, s.linear);
 }
 
 TEST(LensCalibrationTest, FindsABarrelLensFromTheFlightAlone) {
@@ -143,6 +144,24 @@ TEST(LensCalibrationTest, FindsABarrelLensFromTheFlightAlone) {
   std::unordered_map<int, Mat3> again = s.linear;
   ASSERT_TRUE(AdjustAffine(s.edges, s.variable, s.half_diagonal, AdjustOptions{}, &again).ok);
   EXPECT_LT(TransferErrors(s.edges, again, true).rms, 0.8);
+}
+
+// A flight beyond max_frames_per_solve is refined iteratively (SolveTreeLm, the lens a block shared by every edge):
+// it finds the lens the factorisation (Ceres) finds.
+TEST(LensCalibrationTest, TheIterativeSolveFindsTheFactorisationsLens) {
+  const Flight f = MakeFlight(BarrelLens(-0.1), 0.3, 1);
+  const Solved s = SolveLinear(f);
+  const LensCalibration factored = Calibrate(s, Ideal());
+  RefineOptions iterative;
+  iterative.max_frames_per_solve = 4;
+  const LensCalibration cal = Calibrate(s, Ideal(), LensCalibrationOptions{}, iterative);
+  ASSERT_TRUE(factored.accepted) << factored.why;
+  ASSERT_TRUE(cal.accepted) << cal.why;
+  std::printf("at the half-diagonal: factored %.5f, iterative %.5f; held-out %.4f / %.4f px\n",
+              factored.distortion_at_half_diagonal, cal.distortion_at_half_diagonal, factored.holdout_with_px,
+              cal.holdout_with_px);
+  EXPECT_NEAR(cal.distortion_at_half_diagonal, factored.distortion_at_half_diagonal, 5e-4);
+  EXPECT_NEAR(cal.holdout_with_px, factored.holdout_with_px, 0.01 * factored.holdout_with_px);
 }
 
 TEST(LensCalibrationTest, AnIdealLensIsLeftAlone) {

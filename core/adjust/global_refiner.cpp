@@ -8,7 +8,9 @@
 #include <array>
 #include <cmath>
 #include <map>
+#include <optional>
 
+#include "core/adjust/tree_lm.h"
 #include "core/util/clock.h"
 
 namespace uavm {
@@ -204,6 +206,118 @@ struct RigidityPrior {
   double w, cx, cy;
 };
 
+// What stays constant of a frame and its priors (nadir, rigidity), for both solvers.
+struct FramePriors {
+  bool affine_constant = false;
+  bool perspective_constant = false;
+  std::optional<NadirPrior> nadir;
+  std::optional<RigidityPrior> rigidity;
+};
+
+// One edge of the iterative solve: its correspondences and its frames' dense indices.
+struct TermEdge {
+  const Edge* edge = nullptr;
+  const std::vector<uint32_t>* keep = nullptr;
+  size_t src = 0;
+  size_t tgt = 0;
+  bool in_tree = false;
+};
+
+// The refinement's problem for SolveTreeLm: the same residuals as the Ceres problem's (EdgeTransferCost and the
+// priors), differentiated by Ceres' jets.
+class RefineTerms final : public FrameGraphTerms {
+ public:
+  RefineTerms(std::vector<TermEdge> edges, std::vector<FramePriors> frames, double huber_px, const LensRefine* lens,
+              std::optional<LensPrior> lens_prior)
+      : edges_(std::move(edges)),
+        frames_(std::move(frames)),
+        huber_px_(huber_px),
+        lens_(lens),
+        lens_prior_(std::move(lens_prior)) {}
+
+  size_t NumFrames() const override { return frames_.size(); }
+  size_t NumEdges() const override { return edges_.size(); }
+  size_t EdgeSrc(size_t edge) const override { return edges_[edge].src; }
+  size_t EdgeTgt(size_t edge) const override { return edges_[edge].tgt; }
+  bool InTree(size_t edge) const override { return edges_[edge].in_tree; }
+  bool Free(size_t frame, int k) const override {
+    return k < 6 ? !frames_[frame].affine_constant : !frames_[frame].perspective_constant;
+  }
+  bool HasShared() const override { return lens_ != nullptr; }
+
+  void Edge(size_t edge, const double* src, const double* tgt, const double* shared, std::vector<double>* residuals,
+            std::vector<double>* jacobian) const override {
+    const TermEdge& t = edges_[edge];
+    const EdgeTransferCost cost(t.edge, *t.keep, huber_px_, lens_);
+    const size_t rows = 2 * t.keep->size();
+    const size_t at = residuals->size();
+    residuals->resize(at + rows);
+    if (jacobian == nullptr) {
+      const std::array<const double*, 5> blocks{src, src + 6, tgt, tgt + 6, shared};
+      cost(blocks.data(), residuals->data() + at);
+      return;
+    }
+    using EdgeJet = ceres::Jet<double, kEdgeColumns>;
+    std::array<EdgeJet, kEdgeColumns> x;
+    for (int k = 0; k < kFrameParams; ++k) {
+      x[k] = EdgeJet(src[k], k);
+      x[kFrameParams + k] = EdgeJet(tgt[k], kFrameParams + k);
+    }
+    for (int k = 0; k < kSharedParams; ++k)
+      x[2 * kFrameParams + k] = EdgeJet(shared != nullptr ? shared[k] : 0.0, 2 * kFrameParams + k);
+    const std::array<const EdgeJet*, 5> blocks{&x[0], &x[6], &x[kFrameParams], &x[kFrameParams + 6],
+                                               &x[2 * kFrameParams]};
+    std::vector<EdgeJet> r(rows);
+    cost(blocks.data(), r.data());
+    for (size_t i = 0; i < rows; ++i) {
+      (*residuals)[at + i] = r[i].a;
+      jacobian->insert(jacobian->end(), r[i].v.data(), r[i].v.data() + kEdgeColumns);
+    }
+  }
+
+  void FramePrior(size_t frame, const double* params, std::vector<double>* residuals,
+                  std::vector<double>* jacobian) const override {
+    const FramePriors& p = frames_[frame];
+    if (p.nadir)
+      Append<kFrameParams, 2>(params, residuals, jacobian, [&](const auto* x, auto* r) { (*p.nadir)(x + 6, r); });
+    if (p.rigidity)
+      Append<kFrameParams, 2>(params, residuals, jacobian, [&](const auto* x, auto* r) { (*p.rigidity)(x, x + 6, r); });
+  }
+
+  void SharedPrior(const double* shared, std::vector<double>* residuals, std::vector<double>* jacobian) const override {
+    if (lens_prior_)
+      Append<kSharedParams, 3>(shared, residuals, jacobian, [&](const auto* x, auto* r) { (*lens_prior_)(x, r); });
+  }
+
+ private:
+  // A prior of kRows residuals over N parameters: its values, and with `jacobian` its rows.
+  template <int N, int kRows, typename F>
+  static void Append(const double* params, std::vector<double>* residuals, std::vector<double>* jacobian,
+                     const F& prior) {
+    if (jacobian == nullptr) {
+      std::array<double, kRows> r{};
+      prior(params, r.data());
+      residuals->insert(residuals->end(), r.begin(), r.end());
+      return;
+    }
+    using PriorJet = ceres::Jet<double, N>;
+    std::array<PriorJet, N> x;
+    for (int k = 0; k < N; ++k) x[k] = PriorJet(params[k], k);
+    std::array<PriorJet, kRows> r;
+    prior(x.data(), r.data());
+    for (int i = 0; i < kRows; ++i) {
+      residuals->push_back(r[i].a);
+      jacobian->insert(jacobian->end(), r[i].v.data(), r[i].v.data() + N);
+    }
+  }
+
+  std::vector<TermEdge> edges_;
+  std::vector<FramePriors> frames_;
+  double huber_px_;
+  const LensRefine* lens_;
+  std::optional<LensPrior> lens_prior_;
+};
+
 double Median(std::vector<double> v) {
   if (v.empty()) return 0.0;
   std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
@@ -266,18 +380,56 @@ class RefineProblem {
     return used_points;
   }
 
-  // Solves the problem over the current `keep` lists (the parameters stay in `params_` between solves). Empty on
-  // success, else why.
-  std::string Solve(ceres::Solver::Options solver_options, int* iterations, bool log) {
+  // Solves the problem over the current `keep` lists by a factorisation (Ceres), the parameters staying in `params_`
+  // between solves. Empty on success, else why.
+  std::string Solve(const ceres::Solver::Options& solver_options, int* iterations, bool log) {
     ceres::Problem problem;
     Build(&problem);
-    if (solver_options.preconditioner_type == ceres::SUBSET)
-      solver_options.residual_blocks_for_subset_preconditioner = tree_blocks_;
     ceres::Solver::Summary summary;
     ceres::Solve(solver_options, &problem, &summary);
     if (log) spdlog::debug("refinement: {}", summary.BriefReport());
     *iterations += static_cast<int>(summary.iterations.size());
     return summary.IsSolutionUsable() ? std::string() : "refinement failed: " + summary.message;
+  }
+
+  // The same by SolveTreeLm: conjugate gradients preconditioned by the spanning tree, no Jacobian held.
+  std::string SolveIterative(const TreeLmOptions& lm_options, int* iterations, bool log) {
+    std::unordered_map<int, size_t> index;
+    std::vector<FrameParamVector> x;
+    std::vector<FramePriors> priors;
+    for (const auto& [id, p] : params_) {
+      index.emplace(id, x.size());
+      FrameParamVector v;
+      std::copy(p.affine.begin(), p.affine.end(), v.begin());
+      std::copy(p.perspective.begin(), p.perspective.end(), v.begin() + 6);
+      x.push_back(v);
+      priors.push_back(PriorsOf(id, p));
+    }
+    const std::vector<bool> in_tree = SpanningTree();
+    std::vector<TermEdge> edges;
+    for (size_t i = 0; i < used_.size(); ++i)
+      if (!keep_[i].empty())
+        edges.push_back({used_[i], &keep_[i], index.at(used_[i]->src), index.at(used_[i]->tgt), in_tree[i]});
+    const LensRefine* lens = edges.empty() ? nullptr : lens_;
+    std::optional<LensPrior> lens_prior;
+    if (lens != nullptr) lens_prior = MakeLensPrior();
+    const RefineTerms terms(std::move(edges), std::move(priors), options_.huber_px, lens, lens_prior);
+    SharedParamVector shared{};
+    if (lens != nullptr) shared = lens->undistortion;
+    const TreeLmSummary summary = SolveTreeLm(terms, lm_options, &x, &shared);
+    if (log)
+      spdlog::debug("refinement: tree-preconditioned LM, {} steps ({} linear), cost {:.6g} -> {:.6g}, stopped by {}",
+                    summary.iterations, summary.linear_iterations, summary.initial_cost, summary.final_cost,
+                    summary.message);
+    *iterations += summary.iterations;
+    if (!summary.usable) return "refinement failed: " + summary.message;
+    for (auto& [id, p] : params_) {
+      const FrameParamVector& v = x[index.at(id)];
+      std::copy(v.begin(), v.begin() + 6, p.affine.begin());
+      std::copy(v.begin() + 6, v.end(), p.perspective.begin());
+    }
+    if (lens_ != nullptr && lens != nullptr) lens_->undistortion = shared;
+    return {};
   }
 
   // Correspondences the refined maps put beyond the pairwise inlier threshold (moving water, parallax on relief, a
@@ -317,8 +469,6 @@ class RefineProblem {
   bool Homography() const { return options_.model == MotionModel::kHomography; }
 
   void Build(ceres::Problem* problem) {
-    tree_blocks_.clear();
-    const std::vector<bool> in_tree = SpanningTree();
     for (size_t i = 0; i < used_.size(); ++i) {
       if (keep_[i].empty()) continue;
       const Edge* e = used_[i];
@@ -336,20 +486,22 @@ class RefineProblem {
         blocks.push_back(lens_->undistortion.data());
       }
       cost->SetNumResiduals(static_cast<int>(2 * keep_[i].size()));
-      const ceres::ResidualBlockId block = problem->AddResidualBlock(cost, nullptr, blocks);
-      if (in_tree[i]) tree_blocks_.insert(block);
+      problem->AddResidualBlock(cost, nullptr, blocks);
     }
     for (auto& [id, p] : params_) AddFramePriors(id, &p, problem);
     if (lens_ != nullptr && problem->HasParameterBlock(lens_->undistortion.data())) AddLensPrior(problem);
   }
 
-  void AddLensPrior(ceres::Problem* problem) {
+  LensPrior MakeLensPrior() const {
     const PinholeCamera& c = lens_->prepared;
     const double hd_px = 0.5 * std::hypot(c.width, c.height);
     const double hd_rho = hd_px / c.focal_px;
-    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<LensPrior, 3, 3>(
-                                  new LensPrior(lens_->prior_weight, hd_rho * hd_rho, hd_px, lens_start_)),
-                              nullptr, lens_->undistortion.data());
+    return {lens_->prior_weight, hd_rho * hd_rho, hd_px, lens_start_};
+  }
+
+  void AddLensPrior(ceres::Problem* problem) {
+    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<LensPrior, 3, 3>(new LensPrior(MakeLensPrior())), nullptr,
+                              lens_->undistortion.data());
   }
 
   Vec2 Ideal(const Vec2& p) const { return lens_ != nullptr ? lens_->Ideal(p) : p; }
@@ -388,27 +540,36 @@ class RefineProblem {
   }
 
   // Which blocks stay constant, and the nadir and rigidity priors of a frame that moves.
-  void AddFramePriors(int id, FrameParams* p, ceres::Problem* problem) const {
+  FramePriors PriorsOf(int id, const FrameParams& p) const {
+    FramePriors priors;
     const bool is_variable = variable_.count(id) != 0;
     const bool is_anchor = id == anchor_;
     const auto hd_it = half_diagonal_.find(id);
     const double hd = hd_it != half_diagonal_.end() ? hd_it->second : 1.0;
-    if (!is_variable || is_anchor) problem->SetParameterBlockConstant(p->affine.data());
-    if (!Homography() || !(is_variable || is_anchor)) {
-      problem->SetParameterBlockConstant(p->perspective.data());
-    } else if (options_.nadir_weight > 0) {
-      problem->AddResidualBlock(
-          new ceres::AutoDiffCostFunction<NadirPrior, 2, 2>(new NadirPrior(options_.nadir_weight * hd * hd)), nullptr,
-          p->perspective.data());
-    }
+    priors.affine_constant = !is_variable || is_anchor;
+    priors.perspective_constant = !Homography() || !(is_variable || is_anchor);
+    if (!priors.perspective_constant && options_.nadir_weight > 0)
+      priors.nadir.emplace(options_.nadir_weight * hd * hd);
     if (is_variable && !is_anchor && options_.rigidity_weight > 0) {
       const auto c = frame_centre_.find(id);
-      const double scale = c != frame_centre_.end() ? LocalScale(FromParams(*p), c->second) : 0.0;
+      const double scale = c != frame_centre_.end() ? LocalScale(FromParams(p), c->second) : 0.0;
       if (scale > 0 && c != frame_centre_.end())
-        problem->AddResidualBlock(new ceres::AutoDiffCostFunction<RigidityPrior, 2, 6, 2>(
-                                      new RigidityPrior(options_.rigidity_weight * hd / scale, c->second)),
-                                  nullptr, p->affine.data(), p->perspective.data());
+        priors.rigidity.emplace(options_.rigidity_weight * hd / scale, c->second);
     }
+    return priors;
+  }
+
+  void AddFramePriors(int id, FrameParams* p, ceres::Problem* problem) const {
+    const FramePriors priors = PriorsOf(id, *p);
+    if (priors.affine_constant) problem->SetParameterBlockConstant(p->affine.data());
+    if (priors.perspective_constant) problem->SetParameterBlockConstant(p->perspective.data());
+    if (priors.nadir)
+      problem->AddResidualBlock(new ceres::AutoDiffCostFunction<NadirPrior, 2, 2>(new NadirPrior(*priors.nadir)),
+                                nullptr, p->perspective.data());
+    if (priors.rigidity)
+      problem->AddResidualBlock(
+          new ceres::AutoDiffCostFunction<RigidityPrior, 2, 6, 2>(new RigidityPrior(*priors.rigidity)), nullptr,
+          p->affine.data(), p->perspective.data());
   }
 
   // A drone camera is near nadir: the projective denominator may not vary much over the frame. A frame whose matches
@@ -440,30 +601,33 @@ class RefineProblem {
   std::map<int, FrameParams> params_;
   std::unordered_map<int, Vec2> frame_centre_;
   std::unordered_map<int, Eigen::AlignedBox2d> extent_;
-  std::unordered_set<ceres::ResidualBlockId> tree_blocks_;  // the preconditioner's subset (SpanningTree)
 };
 
-// A factorisation up to max_frames_per_solve variable frames; beyond, conjugate gradients on the normal equations
-// preconditioned by a spanning tree of the edges: no J^T J, no fill-in, memory linear in the correspondences (which
-// are capped) and the frames.
-ceres::Solver::Options SolverOptions(const RefineOptions& options, bool iterative) {
+// A factorisation (Ceres) up to max_frames_per_solve variable frames; beyond, SolveTreeLm: conjugate gradients on the
+// normal equations preconditioned by a spanning tree of the edges, no Jacobian held, no fill-in, memory linear in the
+// frames and edges.
+ceres::Solver::Options SolverOptions(const RefineOptions& options) {
   ceres::Solver::Options solver_options;
   solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
   solver_options.function_tolerance = 1e-9;
   solver_options.parameter_tolerance = 1e-10;
-  if (iterative) {
-    solver_options.linear_solver_type = ceres::CGNR;
-    solver_options.preconditioner_type = ceres::SUBSET;  // RefineProblem::SpanningTree
-    solver_options.max_linear_solver_iterations = options.max_linear_iterations;
-    // Truncated steps lower the cost a little on every iteration: a 1e-9 tolerance would run them to the cap
-    // (sim_long, 567 frames: 64 iterations at 1e-9, 22 at 1e-6, the same error against the truth).
-    solver_options.function_tolerance = 1e-6;
-  }
   solver_options.max_num_iterations = options.max_iterations;
   solver_options.num_threads = options.threads;
   if (options.max_seconds > 0) solver_options.max_solver_time_in_seconds = options.max_seconds;
   solver_options.logging_type = ceres::SILENT;
   return solver_options;
+}
+
+TreeLmOptions IterativeOptions(const RefineOptions& options) {
+  TreeLmOptions lm;
+  lm.max_iterations = options.max_iterations;
+  lm.max_linear_iterations = options.max_linear_iterations;
+  // Truncated steps lower the cost a little on every iteration: a 1e-9 tolerance would run them to the cap
+  // (sim_long, 567 frames: 64 iterations at 1e-9, 22 at 1e-6, the same error against the truth).
+  lm.function_tolerance = 1e-6;
+  lm.parameter_tolerance = 1e-10;
+  lm.max_seconds = options.max_seconds;
+  return lm;
 }
 
 }  // namespace
@@ -524,13 +688,18 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   }
   result.num_variables = num_variables;
   result.iterative = iterative;
-  const ceres::Solver::Options solver_options = SolverOptions(options, result.iterative);
-  result.failure = refine.Solve(solver_options, &result.iterations, /*log=*/true);
+  const ceres::Solver::Options solver_options = SolverOptions(options);
+  const TreeLmOptions lm_options = IterativeOptions(options);
+  const auto solve = [&](bool log) {
+    return result.iterative ? refine.SolveIterative(lm_options, &result.iterations, log)
+                            : refine.Solve(solver_options, &result.iterations, log);
+  };
+  result.failure = solve(/*log=*/true);
   if (!result.failure.empty()) return result;
   if (options.outlier_px > 0) {
     result.outliers = refine.DropOutliers();
     if (result.outliers > 0) {
-      result.failure = refine.Solve(solver_options, &result.iterations, /*log=*/false);
+      result.failure = solve(/*log=*/false);
       if (!result.failure.empty()) return result;
     }
   }

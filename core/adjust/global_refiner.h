@@ -95,9 +95,10 @@ struct LensRefine {
 // error does not change when all maps are scaled together, so the solution has no pull to shrink the mosaic towards
 // its anchor. `anchor` (may be -1) keeps its affine part fixed — the gauge — while its perspective row stays free;
 // other frames that edges touch but `variable` does not hold stay fixed. `half_diagonal` is per variable frame.
-// Memory: at most options.max_correspondences points; beyond max_frames_per_solve variable frames no factorisation
-// (conjugate gradients preconditioned by a spanning tree of the edges, factored without fill-in), so what the solve
-// holds grows with the points, which are capped, and only linearly with the frames.
+// Memory: at most options.max_correspondences points; beyond max_frames_per_solve variable frames no factorisation and
+// no Jacobian (SolveTreeLm: the normal equations as 8x8 blocks per frame and per edge, conjugate gradients
+// preconditioned by a spanning tree of the edges, factored without fill-in; one thread), so what the solve holds is
+// linear in the frames and edges and does not grow with the points.
 [[nodiscard]] RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                         int anchor, const std::unordered_map<int, double>& half_diagonal,
                                         const RefineOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame,
