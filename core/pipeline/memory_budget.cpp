@@ -21,7 +21,10 @@ constexpr double kBytesPerIndexedDescriptor = 128 + 512 + 160;
 // return, state OpenCV, GDAL and Ceres built on first use): measured 102-112 MiB at the end of the solves on the
 // bundled 12 MP flights and their 8-12 MP resizes, whatever the frame size. The compositor measures it again.
 constexpr double kFlightResidueMiB = 20.0;
-// Ceres per correspondence: residual block, cost functor, Jacobian blocks and their compressed-row copy.
+// Ceres per correspondence: residual block, cost functor, Jacobian blocks and their compressed-row copy. This is the
+// factorisation's (up to refine.max_frames_per_solve frames); beyond, the iterative solve (core/adjust/tree_lm) holds
+// no per-correspondence state, ~4.5 KiB per frame (five edges' 8x8 blocks and the frame's own): below this line up to
+// ~23 000 frames at the default cap.
 constexpr double kBytesPerSolverCorrespondence = 1100;
 // An edge's point pair held by the end's solves (two double 2-vectors), with its share of held-out pairs (a quarter).
 constexpr double kBytesPerEndPoint = 32 * 1.25;

@@ -14,8 +14,13 @@ class ResourceLog {
  public:
   void FlightStart();
   void FlightEnd();  // after the last frame
-  // The end of the flight's steps, in order (the engine's solves, radiometry, outputs, compositing, products).
-  void EnterPhase(const std::string& name) { watch_.Enter(name); }
+  // The end of the flight's steps, in order (the engine's solves, radiometry, outputs, compositing, products). Each
+  // starts with the pages the last one freed given back (TrimHeap): a phase's peak is its own working set on top of
+  // what stays, not the previous phase's holes.
+  void EnterPhase(const std::string& name) {
+    TrimHeap();
+    watch_.Enter(name);
+  }
   void ComposeEnd();  // after the mosaic is written
   // The run's peak RSS over every phase so far, MiB.
   [[nodiscard]] double PeakRssMiB() const { return watch_.PeakRssMiB(); }
