@@ -50,6 +50,8 @@ void AddReconstructionOptions(CLI::App* app, sfm::ReconstructionOptions* opts, s
       ->delimiter(',');
   app->add_option("--gcp-accuracy", opts->control.sigma_m, "GCP survey accuracy per axis, metres");
   app->add_option("--click-accuracy", opts->control.click_px, "GCP click accuracy, pixels");
+  app->add_flag("--gcp-horizontal-only", opts->control.horizontal_only,
+                "GCPs tie x and y only (heights from the flight's GPS); automatic when every GCP has the same height");
 }
 
 }  // namespace

@@ -141,6 +141,36 @@ void CheckGcpRun(const fs::path& tmp, const fs::path& session, const fs::path& f
   ASSERT_NE(ds->GetSpatialRef(), nullptr);
   EXPECT_STREQ(ds->GetSpatialRef()->GetAuthorityCode(nullptr), "26915");
   GDALClose(ds);
+  // The same targets with every height 0 (a handheld GPS's file): horizontal control only, said in the log and the
+  // summary, checkpoints still on the model horizontally.
+  {
+    std::ifstream in(gcp);
+    std::ofstream flat(tmp / "gcp_no_heights.txt");
+    std::string row;
+    std::getline(in, row);
+    flat << row << "\n";
+    while (std::getline(in, row)) {
+      std::istringstream fields(row);
+      std::string x, y, z, rest;
+      fields >> x >> y >> z;
+      std::getline(fields, rest);
+      flat << x << " " << y << " 0" << rest << "\n";
+    }
+  }
+  const fs::path flat_out = tmp / "ground_gcp_no_heights";
+  ASSERT_EQ(RunCommand(std::string(UAVM_GROUND_BIN) + " " + session.string() + " --out " + flat_out.string() +
+                       " --no-dense --gcp " + (tmp / "gcp_no_heights.txt").string() + " --checkpoints p4,p5" +
+                       GroundEmulationArgs() + " 2>" + (tmp / "stderr_gcp_flat.txt").string()),
+            0);
+  std::ifstream flat_in(flat_out / "summary.json");
+  const auto flat_js = nlohmann::json::parse(flat_in);
+  const auto& fg = flat_js["gcp"];
+  std::printf("gcp without heights: control %s, checkpoints %s\n", fg["control_rms"].dump().c_str(),
+              fg["checkpoint_rms"].dump().c_str());
+  EXPECT_TRUE(fg["horizontal_only"].get<bool>());
+  EXPECT_TRUE(fg["checkpoint_rms"]["z_m"].is_null());
+  EXPECT_LT(fg["checkpoint_rms"]["total_gsd"].get<double>(), 3.0);
+  EXPECT_NE(ReadText(tmp / "stderr_gcp_flat.txt").find("horizontal"), std::string::npos);
   // Bad files stop before the long stages, with their reason: an image that is not in the session, and the right
   // coordinates under the wrong CRS (zone 33 instead of 15: thousands of kilometres from the flight's GPS).
   std::string first_row;

@@ -205,7 +205,7 @@ TEST(GcpAdjustment, CheckpointsWithinClickNoise) {
   MeasureControl(rec, cps, &report);  // after the similarity alone: the bend is still there
   const double aligned_only = report.ToJson()["checkpoint_rms"]["total_m"].get<double>();
   BundleOptions bo;
-  bo.control = ControlConstraints(cps);
+  bo.control = ControlConstraints(cps, rec, copt);
   EXPECT_EQ(bo.control.size(), 8u);
   bo.control_sigma_m = copt.sigma_m;
   bo.control_click_px = click_px;
@@ -238,6 +238,91 @@ TEST(GcpAdjustment, CheckpointsWithinClickNoise) {
               worst_z, rec.camera.fx, truth.camera.fx);
   EXPECT_LT(worst_xy, 0.2);
   EXPECT_LT(worst_z, 0.2);
+}
+
+// Targets measured with a handheld GPS: a GCP file whose heights are all 0. The flight's own GPS places the model
+// (1.5 m off horizontally, 0.8 m in height, 0.3 m noise per camera). Tied in 3-D, the block is pulled down onto
+// height 0 and bends; as horizontal control the GCPs remove the horizontal offset and the heights stay the GPS's.
+TEST(GcpAdjustment, GcpsWithoutHeightsAreHorizontalControl) {
+  const Reconstruction truth = testing::MakeScene(0.3, 5);
+  PortableRandom rng(23);
+  std::vector<ControlPoint> cps;
+  std::vector<Eigen::Vector3d> true_points;
+  const double grid[][2] = {{-5, -5}, {20, -5}, {42, -5}, {-5, 33}, {20, 33}, {42, 33}, {8, 5}, {31, 24}, {20, 15}};
+  for (size_t k = 0; k < std::size(grid); ++k) {
+    ControlPoint cp;
+    const Eigen::Vector3d X(grid[k][0], grid[k][1], testing::Terrain(grid[k][0], grid[k][1]));
+    cp.name = Name(k);
+    cp.checkpoint = k >= 6;                         // the last three
+    cp.world = Eigen::Vector3d(X.x(), X.y(), 0.0);  // no height in the file
+    for (size_t i = 0; i < truth.images.size(); ++i) {
+      const double nx = rng.Normal(0.5), ny = rng.Normal(0.5);
+      const auto m = Project(truth.camera, truth.images[i].pose, X);
+      if (!m || m->x() < 0 || m->y() < 0 || m->x() > truth.camera.width - 1 || m->y() > truth.camera.height - 1) {
+        continue;
+      }
+      cp.observations.emplace_back(static_cast<int>(i), *m + Eigen::Vector2d(nx, ny));
+    }
+    ASSERT_GE(cp.observations.size(), 2u) << cp.name;
+    cps.push_back(cp);
+    true_points.push_back(X);
+  }
+  const Eigen::Vector3d gps_bias(1.2, -0.9, 0.8);
+  auto fly = [&](bool horizontal_only, Reconstruction* rec) {
+    *rec = truth;
+    std::vector<std::optional<Eigen::Vector3d>> priors;
+    PortableRandom noise(31);
+    for (auto& im : rec->images) {
+      const double nx = noise.Normal(0.3), ny = noise.Normal(0.3), nz = noise.Normal(0.3);
+      priors.emplace_back(im.pose.c + gps_bias + Eigen::Vector3d(nx, ny, nz));
+      im.pose.c += gps_bias;  // the model as the GPS placed it
+    }
+    ControlOptions copt;
+    copt.horizontal_only = horizontal_only;
+    ControlReport report;
+    std::string err;
+    EXPECT_TRUE(AlignToControl(cps, copt, rec, &priors, &report, &err)) << err;
+    BundleOptions bo;
+    bo.centre_priors = priors;
+    bo.control = ControlConstraints(cps, *rec, copt);
+    bo.control_sigma_m = copt.sigma_m;
+    if (horizontal_only) bo.control_sigma_z_m = copt.free_height_sigma_m;
+    BundleSummary bs;
+    EXPECT_TRUE(BundleAdjust(rec, bo, &bs, &err)) << err;
+    MeasureControl(*rec, cps, &report);
+    return report;
+  };
+  // Each checkpoint triangulated, against its true position.
+  auto check_errors = [&](const Reconstruction& rec, double* horizontal, double* vertical) {
+    double sh = 0, sv = 0;
+    for (size_t k = 6; k < cps.size(); ++k) {
+      const auto X = TriangulateClicks(rec, cps[k]);
+      ASSERT_TRUE(X.has_value());
+      sh += (X->head<2>() - true_points[k].head<2>()).squaredNorm();
+      sv += std::pow(X->z() - true_points[k].z() - gps_bias.z(), 2);  // the GPS's height reference is kept
+    }
+    *horizontal = std::sqrt(sh / 3);
+    *vertical = std::sqrt(sv / 3);
+  };
+  Reconstruction horizontal, in_3d;
+  const ControlReport report = fly(true, &horizontal);
+  double h_ours = 0, v_ours = 0, h_3d = 0, v_3d = 0;
+  check_errors(horizontal, &h_ours, &v_ours);
+  fly(false, &in_3d);
+  check_errors(in_3d, &h_3d, &v_3d);
+  std::printf(
+      "checkpoints: horizontal control %.3f m horizontally, %.3f m in height (about the GPS's); tied in 3-D "
+      "to height 0: %.3f m, %.3f m\n",
+      h_ours, v_ours, h_3d, v_3d);
+  EXPECT_LT(h_ours, 0.1);  // the 1.5 m GPS offset is gone
+  EXPECT_LT(v_ours, 0.5);  // the GPS's heights kept (its 0.3 m noise averaged over 12 cameras)
+  // The same file tied in 3-D pulls the block towards height 0 (1.2 m here) and bends it sideways (0.23 m).
+  EXPECT_GT(v_3d, 10 * v_ours);
+  EXPECT_GT(h_3d, 5 * h_ours);
+  const auto js = report.ToJson();
+  EXPECT_TRUE(js["horizontal_only"].get<bool>());
+  EXPECT_TRUE(js["checkpoint_rms"]["z_m"].is_null());
+  EXPECT_LT(js["checkpoint_rms"]["total_m"].get<double>(), 0.1);
 }
 
 TEST(GcpAdjustment, AMisclickedControlPointIsReported) {

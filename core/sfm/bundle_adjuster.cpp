@@ -13,7 +13,7 @@ bool BundleOptions::Check(std::string* why) const {
     *why = "bundle: loss_scale_px must be > 0";
     return false;
   }
-  if (!(control_sigma_m > 0.0) || !(control_click_px > 0.0)) {
+  if (!(control_sigma_m > 0.0) || !(control_click_px > 0.0) || !(control_sigma_z_m >= 0.0)) {
     *why = "bundle: control_sigma_m and control_click_px must be > 0";
     return false;
   }
@@ -88,9 +88,11 @@ int AddControl(const BundleOptions& options, double* intr, std::vector<std::arra
                                     new ReprojectionCost(pixel.x(), pixel.y(), 1.0 / options.control_click_px)),
                                 nullptr, intr, rot[i].data(), centre[i].data(), X);
     }
-    problem->AddResidualBlock(new ceres::AutoDiffCostFunction<CentrePrior, 3, 3>(
-                                  new CentrePrior(cp.world, options.control_sigma_m, options.control_sigma_m)),
-                              nullptr, X);
+    problem->AddResidualBlock(
+        new ceres::AutoDiffCostFunction<CentrePrior, 3, 3>(
+            new CentrePrior(cp.world, options.control_sigma_m,
+                            options.control_sigma_z_m > 0.0 ? options.control_sigma_z_m : options.control_sigma_m)),
+        nullptr, X);
     ++n;
   }
   return n;

@@ -13,6 +13,10 @@ bool ControlOptions::Check(std::string* why) const {
     *why = "GCP accuracy and click accuracy must be > 0";
     return false;
   }
+  if (!(free_height_sigma_m > 0.0)) {
+    *why = "the free heights' sigma must be > 0";
+    return false;
+  }
   return true;
 }
 
@@ -38,6 +42,25 @@ void Apply(const Similarity3& s, Reconstruction* rec, std::vector<std::optional<
   for (auto& c : *priors) {
     if (c) c = s.Apply(*c);
   }
+}
+
+// A similarity about the vertical from the points' x, y: the 2-D fit, heights scaled by it about their mean (the
+// flight's vertical reference kept).
+bool FitHorizontal(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst, Similarity3* out) {
+  std::vector<Eigen::Vector2d> src2, dst2;
+  double mean_z = 0.0;
+  for (size_t k = 0; k < src.size(); ++k) {
+    src2.push_back(src[k].head<2>());
+    dst2.push_back(dst[k].head<2>());
+    mean_z += src[k].z() / static_cast<double>(src.size());
+  }
+  Similarity2 s2;
+  if (!FitSimilarity<2>(src2, dst2, &s2)) return false;
+  out->scale = s2.scale;
+  out->rotation = Eigen::Matrix3d::Identity();
+  out->rotation.topLeftCorner<2, 2>() = s2.rotation;
+  out->translation << s2.translation, (1.0 - s2.scale) * mean_z;
+  return true;
 }
 
 double ClickRms(const Reconstruction& rec, const ControlPoint& cp, const Eigen::Vector3d& X) {
@@ -67,7 +90,10 @@ bool AlignToControl(const std::vector<ControlPoint>& cps, const ControlOptions& 
     dst.push_back(cp.world);
     names.push_back(cp.name);
   }
-  if (src.size() < 3 || !FitSimilarity<3>(src, dst, &report->alignment)) {
+  report->horizontal_only = options.horizontal_only;
+  const bool fitted = src.size() >= 3 && (options.horizontal_only ? FitHorizontal(src, dst, &report->alignment)
+                                                                  : FitSimilarity<3>(src, dst, &report->alignment));
+  if (!fitted) {
     *error = "the GCPs cannot place the reconstruction: " + std::to_string(src.size()) +
              " control points triangulate (3 not on one line are needed)";
     return false;
@@ -76,7 +102,8 @@ bool AlignToControl(const std::vector<ControlPoint>& cps, const ControlOptions& 
   const double suspicious = std::max(options.suspicious_m, options.suspicious_gsd * report->gsd_m);
   double sum = 0.0;
   for (size_t k = 0; k < src.size(); ++k) {
-    const double e = (report->alignment.Apply(src[k]) - dst[k]).norm();
+    const Eigen::Vector3d d = report->alignment.Apply(src[k]) - dst[k];
+    const double e = options.horizontal_only ? d.head<2>().norm() : d.norm();
     sum += e * e;
     if (e > suspicious) {
       char m[256];
@@ -92,10 +119,18 @@ bool AlignToControl(const std::vector<ControlPoint>& cps, const ControlOptions& 
   return true;
 }
 
-std::vector<BundleOptions::Control> ControlConstraints(const std::vector<ControlPoint>& cps) {
+std::vector<BundleOptions::Control> ControlConstraints(const std::vector<ControlPoint>& cps, const Reconstruction& rec,
+                                                       const ControlOptions& options) {
   std::vector<BundleOptions::Control> out;
   for (const auto& cp : cps) {
-    if (!cp.checkpoint) out.push_back({cp.world, cp.observations});
+    if (cp.checkpoint) continue;
+    Eigen::Vector3d world = cp.world;
+    if (options.horizontal_only) {
+      const auto X = TriangulateClicks(rec, cp);
+      if (!X) continue;  // said by AlignToControl
+      world.z() = X->z();
+    }
+    out.push_back({world, cp.observations});
   }
   return out;
 }
@@ -110,6 +145,7 @@ void MeasureControl(const Reconstruction& rec, const std::vector<ControlPoint>& 
     if (const auto X = TriangulateClicks(rec, cp)) {
       e.triangulated = true;
       e.error_m = *X - cp.world;
+      if (report->horizontal_only) e.error_m.z() = 0.0;  // the survey has no height to check
       e.reprojection_px = ClickRms(rec, cp, *X);
     }
     report->points.push_back(e);
@@ -126,7 +162,8 @@ nlohmann::json ControlReport::ToJson() const {
                         {"clicks", p.clicks},
                         {"triangulated", p.triangulated}};
     if (p.triangulated) {
-      j["error_m"] = {p.error_m.x(), p.error_m.y(), p.error_m.z()};
+      j["error_m"] = {p.error_m.x(), p.error_m.y(),
+                      horizontal_only ? nlohmann::json(nullptr) : nlohmann::json(p.error_m.z())};
       j["error_gsd"] = gsd_m > 0 ? p.error_m.norm() / gsd_m : 0.0;
       j["click_rms_px"] = p.reprojection_px;
       const int k = p.checkpoint ? 1 : 0;
@@ -139,8 +176,10 @@ nlohmann::json ControlReport::ToJson() const {
     if (n[k] == 0) return nlohmann::json(nullptr);
     const Eigen::Vector3d r = (sq[k] / n[k]).cwiseSqrt();
     const double total = std::sqrt(sq[k].sum() / n[k]);
-    return nlohmann::json{{"points", n[k]}, {"x_m", r.x()},     {"y_m", r.y()},
-                          {"z_m", r.z()},   {"total_m", total}, {"total_gsd", gsd_m > 0 ? total / gsd_m : 0.0}};
+    return nlohmann::json{
+        {"points", n[k]},   {"x_m", r.x()},
+        {"y_m", r.y()},     {"z_m", horizontal_only ? nlohmann::json(nullptr) : nlohmann::json(r.z())},
+        {"total_m", total}, {"total_gsd", gsd_m > 0 ? total / gsd_m : 0.0}};
   };
   return {{"points", pts},
           {"control_rms", rms(0)},
@@ -148,6 +187,7 @@ nlohmann::json ControlReport::ToJson() const {
           {"gsd_m", gsd_m},
           {"alignment", {{"scale", alignment.scale}, {"rms_m", alignment_rms_m}}},
           {"warnings", warnings},
+          {"horizontal_only", horizontal_only},
           {"errors_are", "point triangulated from its clicks with the adjusted cameras, minus its survey"}};
 }
 

@@ -22,6 +22,11 @@ struct ControlOptions {
   // wrong coordinate, or the wrong CRS): metres, and multiples of the ground sampling distance, whichever is larger.
   double suspicious_m = 1.0;
   double suspicious_gsd = 20.0;
+  // Horizontal control only (a GCP file without heights: every Z the same, often 0, as a handheld GPS gives): the
+  // points tie x and y; their heights stay where the flight's GPS put them, held there loosely (free_height_sigma_m)
+  // so that a flight without GPS heights cannot drift, and the report says no height was checked.
+  bool horizontal_only = false;
+  double free_height_sigma_m = 10.0;
   [[nodiscard]] bool Check(std::string* why) const;
 };
 
@@ -40,6 +45,7 @@ struct ControlReport {
   std::vector<std::string> warnings;
   std::vector<ControlPointError> points;  // after the adjustment
   double gsd_m = 0.0;
+  bool horizontal_only = false;  // the surveys have no height: errors and RMS are horizontal
   [[nodiscard]] nlohmann::json ToJson() const;
 };
 
@@ -47,13 +53,17 @@ struct ControlReport {
 // than two clicks or behind a camera.
 [[nodiscard]] std::optional<Eigen::Vector3d> TriangulateClicks(const Reconstruction& rec, const ControlPoint& cp);
 
-// Moves `rec` (and the centre priors, which live in its frame) onto the control points' surveyed positions.
+// Moves `rec` (and the centre priors, which live in its frame) onto the control points' surveyed positions; with
+// options.horizontal_only by a similarity about the vertical (x, y fitted; heights scaled about their mean).
 [[nodiscard]] bool AlignToControl(const std::vector<ControlPoint>& cps, const ControlOptions& options,
                                   Reconstruction* rec, std::vector<std::optional<Eigen::Vector3d>>* centre_priors,
                                   ControlReport* report, std::string* error);
 
-// The BundleOptions::control entries of the control points (checkpoints left out).
-[[nodiscard]] std::vector<BundleOptions::Control> ControlConstraints(const std::vector<ControlPoint>& cps);
+// The BundleOptions::control entries of the control points (checkpoints left out). With options.horizontal_only each
+// point's height is where `rec` (aligned) triangulates it from its clicks: the surveys have none.
+[[nodiscard]] std::vector<BundleOptions::Control> ControlConstraints(const std::vector<ControlPoint>& cps,
+                                                                     const Reconstruction& rec,
+                                                                     const ControlOptions& options);
 
 // Every point's error after the adjustment, from its clicks alone.
 void MeasureControl(const Reconstruction& rec, const std::vector<ControlPoint>& cps, ControlReport* report);

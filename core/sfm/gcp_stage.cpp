@@ -1,7 +1,9 @@
 #include "core/sfm/gcp_stage.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 
 namespace uavm::sfm {
@@ -65,6 +67,12 @@ bool LoadGcpInput(const std::string& path, const std::vector<std::string>& check
                   const std::vector<const SessionFrame*>& used, double max_distance_km, GcpInput* out,
                   nlohmann::json* js, std::string* error) {
   if (!ReadGcpList(path, &out->list, error)) return false;
+  double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
+  for (const auto& p : out->list.points) {
+    z_min = std::min(z_min, p.geo.z());
+    z_max = std::max(z_max, p.geo.z());
+  }
+  const bool no_heights = out->list.points.size() >= 2 && z_max - z_min < 1e-6 && !out->horizontal_only;
   std::vector<Eigen::Vector3d> world;
   for (const auto& p : out->list.points) world.push_back(p.geo);
   if (!out->crs.Init(out->list.crs_line, &world, error)) return false;
@@ -75,6 +83,14 @@ bool LoadGcpInput(const std::string& path, const std::vector<std::string>& check
   out->offset = Eigen::Vector2d(std::round(mean.x()), std::round(mean.y()));
   if (!BindGcps(out->list, world, out->offset, SessionImages(session, used), checkpoints, &out->binding, error)) {
     return false;
+  }
+  if (no_heights) {
+    out->horizontal_only = true;
+    char m[200];
+    std::snprintf(m, sizeof m,
+                  "every GCP has the height %.3f: taken as horizontal control only (heights from the flight's GPS)",
+                  z_min);
+    out->binding.warnings.emplace_back(m);
   }
   for (const auto& w : out->binding.warnings) std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
   return true;

@@ -17,6 +17,9 @@ struct GcpInput {
   GcpCrs crs;
   Eigen::Vector2d offset = Eigen::Vector2d::Zero();  // products' x, y = local + offset, in the GCP CRS
   GcpBinding binding;
+  // Horizontal control only: asked for (ControlOptions::horizontal_only), or every point's Z the same (all 0, or one
+  // value for all: a file without heights), which LoadGcpInput says in the log and the report.
+  bool horizontal_only = false;
 };
 
 // `used` are the reconstruction's frames in image-slot order. With GPS in the frames, GCPs far from the flight

@@ -667,7 +667,7 @@ void SetCrs(const InitialModel& init, const GcpInput* gcp, ReconstructionResult*
     js["crs"] = gcp->crs.name();
     js["crs_source"] =
         gcp->crs.converted_from_geographic() ? "GCP file (geographic, projected to its UTM zone)" : "GCP file";
-    js["z_reference"] = "the GCPs' heights";
+    js["z_reference"] = gcp->horizontal_only ? "the flight's GPS altitude (GCPs horizontal only)" : "the GCPs' heights";
   } else if (init.gps.projected) {
     result->crs_wkt = init.gps.crs_wkt;
     result->epsg = init.gps.epsg;
@@ -771,14 +771,17 @@ bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialM
   BundlePriors priors = MakeBundlePriors(frames, init, options, js);
   ControlReport report;
   const auto& cps = gcp->binding.points;
-  if (!AlignToControl(cps, options.control, rec, &priors.centres, &report, error)) return false;
+  ControlOptions control = options.control;
+  control.horizontal_only = control.horizontal_only || gcp->horizontal_only;
+  if (!AlignToControl(cps, control, rec, &priors.centres, &report, error)) return false;
   BundleOptions bo;
   bo.threads = options.threads;
   bo.focal_prior_sigma = priors.focal_sigma;
   bo.centre_priors = priors.centres;
   bo.refine_k3 = options.refine_k3;
-  bo.control = ControlConstraints(cps);
-  bo.control_sigma_m = options.control.sigma_m;
+  bo.control = ControlConstraints(cps, *rec, control);
+  bo.control_sigma_m = control.sigma_m;
+  if (control.horizontal_only) bo.control_sigma_z_m = control.free_height_sigma_m;
   bo.control_click_px = options.control.click_px;
   BundleSummary bs;
   if (!BundleAdjust(rec, bo, &bs, error)) return false;
@@ -819,6 +822,7 @@ bool RunReconstruction(const std::string& session_dir, const ReconstructionOptio
     if (!SelectFrames(session_dir, &sel, error)) return false;
     if (options.gcp_file.empty()) return true;
     gcp = std::make_unique<GcpInput>();  // read and checked before the long stages
+    gcp->horizontal_only = options.control.horizontal_only;
     return LoadGcpInput(options.gcp_file, options.checkpoints, sel.session, frames, options.gcp_max_distance_km,
                         gcp.get(), &js, error);
   }) && times.Run("features_s", [&] {
