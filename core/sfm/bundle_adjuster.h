@@ -39,7 +39,8 @@ struct BundleOptions {
   };
   std::vector<Control> control;
   double control_sigma_m = 0.03;
-  double control_sigma_z_m = 0.0;  // the heights' sigma when it differs (horizontal control: loose); 0 = control_sigma_m
+  double control_sigma_z_m =
+      0.0;  // the heights' sigma when it differs (horizontal control: loose); 0 = control_sigma_m
   double control_click_px = 1.0;
   [[nodiscard]] bool Check(std::string* why) const;
 };
