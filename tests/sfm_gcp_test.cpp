@@ -145,6 +145,17 @@ std::string Name(size_t k) {
   return name;
 }
 
+// The point's clicks in every frame that sees it, with click_px of noise on each coordinate.
+void AddClicks(const Reconstruction& truth, const Eigen::Vector3d& X, double click_px, PortableRandom* rng,
+               ControlPoint* cp) {
+  for (size_t i = 0; i < truth.images.size(); ++i) {
+    const double nx = rng->Normal(click_px), ny = rng->Normal(click_px);
+    const auto m = Project(truth.camera, truth.images[i].pose, X);
+    if (!m || m->x() < 0 || m->y() < 0 || m->x() > truth.camera.width - 1 || m->y() > truth.camera.height - 1) continue;
+    cp->observations.emplace_back(static_cast<int>(i), *m + Eigen::Vector2d(nx, ny));
+  }
+}
+
 // A survey with known truth: the reconstruction starts in an arbitrary frame (as without GPS), the control points'
 // clicks carry 0.5 px of noise, their surveys 1 cm. The checkpoints, which never enter the adjustment, must land
 // within the click noise on the ground.
@@ -162,14 +173,7 @@ TEST(GcpAdjustment, CheckpointsWithinClickNoise) {
     cp.checkpoint = k >= 8;  // the last three
     const double sx = rng.Normal(0.01), sy = rng.Normal(0.01), sz = rng.Normal(0.01);
     cp.world = X + Eigen::Vector3d(sx, sy, sz);  // the survey's error
-    for (size_t i = 0; i < truth.images.size(); ++i) {
-      const double nx = rng.Normal(click_px), ny = rng.Normal(click_px);
-      const auto m = Project(truth.camera, truth.images[i].pose, X);
-      if (!m || m->x() < 0 || m->y() < 0 || m->x() > truth.camera.width - 1 || m->y() > truth.camera.height - 1) {
-        continue;
-      }
-      cp.observations.emplace_back(static_cast<int>(i), *m + Eigen::Vector2d(nx, ny));
-    }
+    AddClicks(truth, X, click_px, &rng, &cp);
     ASSERT_GE(cp.observations.size(), 2u) << cp.name;
     cps.push_back(cp);
   }
@@ -255,14 +259,7 @@ TEST(GcpAdjustment, GcpsWithoutHeightsAreHorizontalControl) {
     cp.name = Name(k);
     cp.checkpoint = k >= 6;                         // the last three
     cp.world = Eigen::Vector3d(X.x(), X.y(), 0.0);  // no height in the file
-    for (size_t i = 0; i < truth.images.size(); ++i) {
-      const double nx = rng.Normal(0.5), ny = rng.Normal(0.5);
-      const auto m = Project(truth.camera, truth.images[i].pose, X);
-      if (!m || m->x() < 0 || m->y() < 0 || m->x() > truth.camera.width - 1 || m->y() > truth.camera.height - 1) {
-        continue;
-      }
-      cp.observations.emplace_back(static_cast<int>(i), *m + Eigen::Vector2d(nx, ny));
-    }
+    AddClicks(truth, X, 0.5, &rng, &cp);
     ASSERT_GE(cp.observations.size(), 2u) << cp.name;
     cps.push_back(cp);
     true_points.push_back(X);

@@ -267,11 +267,11 @@ class RefineTerms final : public FrameGraphTerms {
       x[2 * kFrameParams + k] = EdgeJet(shared != nullptr ? shared[k] : 0.0, 2 * kFrameParams + k);
     const std::array<const EdgeJet*, 5> blocks{&x[0], &x[6], &x[kFrameParams], &x[kFrameParams + 6],
                                                &x[2 * kFrameParams]};
-    std::vector<EdgeJet> r(rows);
-    cost(blocks.data(), r.data());
+    jets_.resize(rows);
+    cost(blocks.data(), jets_.data());
     for (size_t i = 0; i < rows; ++i) {
-      (*residuals)[at + i] = r[i].a;
-      jacobian->insert(jacobian->end(), r[i].v.data(), r[i].v.data() + kEdgeColumns);
+      (*residuals)[at + i] = jets_[i].a;
+      jacobian->insert(jacobian->end(), jets_[i].v.data(), jets_[i].v.data() + kEdgeColumns);
     }
   }
 
@@ -313,6 +313,8 @@ class RefineTerms final : public FrameGraphTerms {
 
   std::vector<TermEdge> edges_;
   std::vector<FramePriors> frames_;
+  // One edge's residuals as jets, reused from edge to edge (SolveTreeLm evaluates on one thread).
+  mutable std::vector<ceres::Jet<double, kEdgeColumns>> jets_;
   double huber_px_;
   const LensRefine* lens_;
   std::optional<LensPrior> lens_prior_;
