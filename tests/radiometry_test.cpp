@@ -18,7 +18,7 @@ double TrueLogFalloff(int c, double r2) {
 }
 
 std::vector<RadiometrySample> SyntheticSamples(const std::vector<cv::Vec3d>& log_gain, double noise, int outliers,
-                                               std::mt19937* rng) {
+                                               std::mt19937* rng, int per_edge = 64) {
   std::uniform_real_distribution<double> u(-0.8, 0.8), v(-0.6, 0.6), scene(30.0, 200.0);
   std::normal_distribution<double> n01(0.0, noise);
   std::vector<RadiometrySample> samples;
@@ -26,7 +26,7 @@ std::vector<RadiometrySample> SyntheticSamples(const std::vector<cv::Vec3d>& log
   for (int a = 0; a + 1 < frames; ++a)
     for (int b : {a + 1, a + 5}) {
       if (b >= frames) continue;
-      for (int k = 0; k < 64; ++k) {
+      for (int k = 0; k < per_edge; ++k) {
         RadiometrySample s;
         s.a = a;
         s.b = b;
@@ -45,6 +45,33 @@ std::vector<RadiometrySample> SyntheticSamples(const std::vector<cv::Vec3d>& log
   // Moving objects: a few samples that disagree wildly.
   for (int k = 0; k < outliers; ++k) samples[static_cast<size_t>(k * 7 % samples.size())].log_a += cv::Vec3f(1, 1, 1);
   return samples;
+}
+
+// A long flight's edges share max_samples (SolveEndRadiometry): down to one point per edge. Two per edge over 300
+// frames still tie every frame's gain and fit the falloff.
+TEST(RadiometryTest, AFewSamplesPerEdgeStillFindEveryGain) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> g(std::log(0.8), std::log(1.2));
+  constexpr int kFrames = 300;
+  std::vector<cv::Vec3d> log_gain(kFrames);
+  std::vector<int> frames;
+  for (int i = 0; i < kFrames; ++i) {
+    const double e = g(rng);
+    log_gain[static_cast<size_t>(i)] = {e, e, e};
+    frames.push_back(i);
+  }
+  const auto samples = SyntheticSamples(log_gain, 0.01, 0, &rng, 2);
+  ASSERT_LT(samples.size(), 1200u);
+  const RadiometryModel m = SolveRadiometry(samples, frames, RadiometryOptions{});
+  ASSERT_TRUE(m.ok);
+  ASSERT_TRUE(m.vignetting) << m.note;
+  EXPECT_NEAR(m.Falloff(1, 1.0), std::exp(TrueLogFalloff(1, 1.0)), 0.03);
+  double mean = 0;
+  for (const auto& lg : log_gain) mean += lg[1] / kFrames;
+  double worst = 0;
+  for (int i = 0; i < kFrames; ++i)
+    worst = std::max(worst, std::abs(std::log(m.Gain(i)[1]) - (log_gain[static_cast<size_t>(i)][1] - mean)));
+  EXPECT_LT(worst, 0.05);
 }
 
 TEST(RadiometryTest, RecoversGainsAndFalloffFromPairs) {

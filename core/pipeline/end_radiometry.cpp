@@ -8,6 +8,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <unordered_map>
 #include <unordered_set>
+#include <utility>
 
 #include "core/pipeline/session_stores.h"
 #include "core/util/clock.h"
@@ -35,14 +36,17 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
   std::vector<const Edge*> edges;
   for (const Edge& e : record.engine().edges())
     if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0) edges.push_back(&e);
-  // A long flight samples fewer points per edge (4 at least: the solve's memory grows with the frames and pairs, the
-  // samples' with their count).
-  const int per_edge =
-      std::clamp(options.max_samples / std::max<int>(1, static_cast<int>(edges.size())), 4, options.samples_per_edge);
+  // A long flight samples fewer points per edge: the edges share max_samples, each at least one point (a fractional
+  // share, accumulated in edge order), so the samples stop growing with the flight there.
+  const double share =
+      std::clamp(static_cast<double>(options.max_samples) / static_cast<double>(std::max<size_t>(1, edges.size())), 1.0,
+                 static_cast<double>(options.samples_per_edge));
   std::vector<RadiometrySample> samples;
-  samples.reserve(edges.size() * static_cast<size_t>(per_edge));
-  for (const Edge* edge : edges) {
-    const Edge& e = *edge;
+  samples.reserve(static_cast<size_t>(std::ceil(share * static_cast<double>(edges.size()))));
+  for (size_t k = 0; k < edges.size(); ++k) {
+    const Edge& e = *edges[k];
+    const int count =
+        static_cast<int>(std::floor(static_cast<double>(k + 1) * share) - std::floor(static_cast<double>(k) * share));
     const cv::Mat& a = thumb_of(e.src);
     const cv::Mat& b = thumb_of(e.tgt);
     if (a.empty() || b.empty()) continue;
@@ -50,9 +54,9 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
     const cv::Size work_b = record.frame(e.tgt).work_size;
     SampleOverlap({e.src, &a, work_a, HeadingOf(record.engine().mosaic_from_work(e.src), work_a)},
                   {e.tgt, &b, work_b, HeadingOf(record.engine().mosaic_from_work(e.tgt), work_b)}, e.tgt_from_src,
-                  per_edge, &samples);
+                  count, &samples);
   }
-  radiometry = SolveRadiometry(samples, component, options);
+  radiometry = SolveRadiometry(std::move(samples), component, options);
   out.ms = timer.ElapsedMs();
   if (!radiometry.ok) {
     spdlog::warn("radiometry: not corrected ({})", radiometry.note);

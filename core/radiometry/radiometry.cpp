@@ -547,7 +547,7 @@ void SampleOverlap(const OverlapView& a, const OverlapView& b, const Mat3& b_fro
       ResizeMap(double(thumb_b.cols) / b.work_size.width, double(thumb_b.rows) / b.work_size.height);
   const PlaceOf place_a(a.work_size), place_b(b.work_size);
   // A denser grid than max_samples: only the overlap's share of it lands in b.
-  const int side = std::max(2, static_cast<int>(std::ceil(std::sqrt(4.0 * max_samples))));
+  const int side = std::max(4, static_cast<int>(std::ceil(std::sqrt(4.0 * max_samples))));
   std::vector<RadiometrySample> found;
   for (int i = 0; i < side; ++i)
     for (int j = 0; j < side; ++j) {
@@ -569,23 +569,26 @@ void SampleOverlap(const OverlapView& a, const OverlapView& b, const Mat3& b_fro
       s.log_b = Log(vb);
       found.push_back(s);
     }
-  // Evenly thinned to the bound.
+  // Evenly thinned to the bound, each kept sample in the middle of its share (one sample: the overlap's middle one).
   const size_t keep = std::min(found.size(), static_cast<size_t>(max_samples));
-  for (size_t k = 0; k < keep; ++k) out->push_back(found[k * found.size() / keep]);
+  for (size_t k = 0; k < keep; ++k) out->push_back(found[(2 * k + 1) * found.size() / (2 * keep)]);
 }
 
-RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples, const std::vector<int>& frames,
+RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std::vector<int>& frames,
                                 const RadiometryOptions& options) {
   RadiometryModel m;
   std::unordered_map<int, int> index;
   for (int id : frames) index.emplace(id, static_cast<int>(index.size()));
-  std::vector<RadiometrySample> used;
-  std::vector<std::pair<int, int>> pairs;
-  for (const auto& s : samples)
-    if (index.count(s.a) != 0 && index.count(s.b) != 0) {
-      used.push_back(s);
-      pairs.emplace_back(std::min(s.a, s.b), std::max(s.a, s.b));
-    }
+  // Filtered in place: the samples are the solve's largest input, held once.
+  std::vector<RadiometrySample>& used = samples;
+  used.erase(std::remove_if(used.begin(), used.end(),
+                            [&](const RadiometrySample& s) { return index.count(s.a) == 0 || index.count(s.b) == 0; }),
+             used.end());
+  std::vector<std::pair<int, int>> pairs;  // an edge's samples are consecutive: one entry per run
+  for (const auto& s : used) {
+    const std::pair<int, int> pair(std::min(s.a, s.b), std::max(s.a, s.b));
+    if (pairs.empty() || pairs.back() != pair) pairs.push_back(pair);
+  }
   std::sort(pairs.begin(), pairs.end());
   m.edges = static_cast<int>(std::unique(pairs.begin(), pairs.end()) - pairs.begin());
   m.samples = static_cast<int>(used.size());

@@ -19,8 +19,9 @@ struct RadiometryOptions {
   bool vignetting = true;     // estimate the falloff (else gains only)
   int thumb_long_side = 128;  // per-frame thumbnail the overlaps are sampled on (low frequencies only)
   int samples_per_edge = 64;  // grid points sampled in each pair's overlap (bounded statistics per edge)
-  // All samples of the end-of-flight solve: a long flight samples fewer points per edge (4 at least) so that the
-  // solve's memory stays bounded (~0.3 KB per sample while it runs).
+  // All samples of the end-of-flight solve: a long flight samples fewer points per edge (its edges share this count,
+  // at least one point each, so every pair still ties its frames' gains) and the solve's memory stops growing there
+  // (~0.3 KB per sample while it runs) until a flight has more edges than this.
   int max_samples = 50000;
   // Pulls each log gain towards 0 (the mean exposure), as a share of an average frame's samples: fixes the gauge of
   // a flight whose pieces do not overlap and damps noise, while biasing a real gain by about this share.
@@ -120,8 +121,8 @@ void SampleOverlap(const OverlapView& a, const OverlapView& b, const Mat3& b_fro
 // a log gain per frame in `frames` (prior towards 0), the falloff when options.vignetting and the samples span enough
 // radii, the flat field and the hotspot when the held-out pairs keep them (the antisolar point searched on a grid,
 // then refined); then each channel's deviation (white balance, the falloff's tint).
-[[nodiscard]] RadiometryModel SolveRadiometry(const std::vector<RadiometrySample>& samples,
-                                              const std::vector<int>& frames, const RadiometryOptions& options);
+[[nodiscard]] RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std::vector<int>& frames,
+                                              const RadiometryOptions& options);
 
 // The shading during the flight, for the live view (vignetting, flat field, the sun's hotspot): the lens does not
 // change and the sun moves slowly, so a fit over the recent frames' overlaps, refreshed every `solve_every` frames,
