@@ -54,8 +54,8 @@ LoopScene MakeLoop(int n, double noise_px, unsigned seed) {
       const Vec2 p(rng.Uniform(0, kW - 1), rng.Uniform(0, kH - 1));
       const Vec2 q = Apply(tgt_from_src, p);
       if (q.x() < 0 || q.y() < 0 || q.x() > kW - 1 || q.y() > kH - 1) continue;
-      e.src_points.push_back(p);
-      e.tgt_points.push_back(q + Vec2(rng.Normal(noise_px), rng.Normal(noise_px)));
+      e.src_points.push_back(p.cast<float>());
+      e.tgt_points.push_back((q + Vec2(rng.Normal(noise_px), rng.Normal(noise_px))).cast<float>());
     }
     e.num_inliers = static_cast<int>(e.src_points.size());
     // The pair's own estimate, from its noisy points (what RANSAC would hand over).
@@ -63,7 +63,7 @@ LoopScene MakeLoop(int n, double noise_px, unsigned seed) {
     Eigen::VectorXd b(2 * e.src_points.size());
     A.setZero();
     for (size_t k = 0; k < e.src_points.size(); ++k) {
-      const Vec2& p = e.src_points[k];
+      const Vec2 p = e.src_points[k].cast<double>();
       A.row(static_cast<long>(2 * k)) << p.x(), p.y(), 1, 0, 0, 0;
       A.row(static_cast<long>(2 * k + 1)) << 0, 0, 0, p.x(), p.y(), 1;
       b(static_cast<long>(2 * k)) = e.tgt_points[k].x();
@@ -106,14 +106,18 @@ TEST(AffineAdjusterTest, ClosedLoopOf50FramesReturnsToItsStart) {
   for (const Edge& e : scene.edges) {
     const Mat3 est = T.at(e.tgt).inverse() * T.at(e.src);
     const Mat3 truth = scene.truth[static_cast<size_t>(e.tgt)].inverse() * scene.truth[static_cast<size_t>(e.src)];
-    for (const Vec2& p : e.src_points)
+    for (const Vec2f& pf : e.src_points) {
+      const Vec2 p = pf.cast<double>();
       worst_overlap = std::max(worst_overlap, (Apply(est, p) - Apply(truth, p)).norm());
+    }
   }
   double worst_pair_alone = 0;  // the pair's own least-squares estimate, for reference
   for (const Edge& e : scene.edges) {
     const Mat3 truth = scene.truth[static_cast<size_t>(e.tgt)].inverse() * scene.truth[static_cast<size_t>(e.src)];
-    for (const Vec2& p : e.src_points)
+    for (const Vec2f& pf : e.src_points) {
+      const Vec2 p = pf.cast<double>();
       worst_pair_alone = std::max(worst_pair_alone, (Apply(e.tgt_from_src, p) - Apply(truth, p)).norm());
+    }
   }
   // The loop is closed without making any seam worse than its own pair measured it (the noise floor).
   EXPECT_LT(worst_overlap, 1.1 * worst_pair_alone);
@@ -142,7 +146,7 @@ TEST(AffineAdjusterTest, ConjugateGradientsGiveTheFactorisationsSolution) {
     Edge e = scene.edges[static_cast<size_t>(i)];
     const Edge& next = scene.edges[static_cast<size_t>(i + 1)];
     e.tgt = i + 2;
-    for (Vec2& q : e.tgt_points) q = Apply(next.tgt_from_src, q);
+    for (Vec2f& q : e.tgt_points) q = Apply(next.tgt_from_src, q.cast<double>()).cast<float>();
     e.tgt_from_src = next.tgt_from_src * e.tgt_from_src;
     scene.edges.push_back(e);
   }

@@ -24,7 +24,6 @@ Edge RandomEdge(int src, int tgt, size_t n, size_t n_holdout, std::mt19937* rng)
     e.holdout_src_points.emplace_back(u(*rng), u(*rng));
     e.holdout_tgt_points.emplace_back(u(*rng), u(*rng));
   }
-  RoundToFloat(&e);
   return e;
 }
 
@@ -57,7 +56,7 @@ TEST(EdgeStoreTest, ReleasedPointsComeBackExactly) {
   for (auto& e : edges) ASSERT_TRUE(store.Append(&e, &err)) << err;
   size_t freed = 0;
   for (auto& e : edges) freed += store.Release(&e);
-  EXPECT_GE(freed, 50u * 160u * sizeof(Vec2));
+  EXPECT_GE(freed, 50u * 160u * sizeof(Vec2f));
   for (const auto& e : edges) {
     EXPECT_FALSE(e.points_resident);
     EXPECT_TRUE(e.src_points.empty());

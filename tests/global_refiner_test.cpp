@@ -82,8 +82,8 @@ Scene MakeScene(double tilt_deg, double noise_px, unsigned seed) {
         const Vec2 p(ux(rng), uy(rng));
         const Vec2 q = Apply(e.tgt_from_src, p);
         if (q.x() < 0 || q.y() < 0 || q.x() > kW - 1 || q.y() > kH - 1) continue;
-        e.src_points.push_back(p + Vec2(noise(rng), noise(rng)));
-        e.tgt_points.push_back(q + Vec2(noise(rng), noise(rng)));
+        e.src_points.push_back((p + Vec2(noise(rng), noise(rng))).cast<float>());
+        e.tgt_points.push_back((q + Vec2(noise(rng), noise(rng))).cast<float>());
       }
       if (e.src_points.size() >= 20) s.edges.push_back(std::move(e));
     }
@@ -243,7 +243,7 @@ TEST(GlobalRefiner, OutliersBeyondTheInlierThresholdAreDropped) {
     for (auto& q : e.tgt_points)
       if (u(rng) < 0.05) {
         const double a = 2 * M_PI * u(rng);
-        q += (6 + 6 * u(rng)) * Vec2(std::cos(a), std::sin(a));
+        q += ((6 + 6 * u(rng)) * Vec2(std::cos(a), std::sin(a))).cast<float>();
         ++injected;
       }
   auto T = AffineStart(s);

@@ -59,8 +59,8 @@ Flight MakeFlight(const PinholeCamera& lens, double noise_px, unsigned seed,
         // Recorded pixels must exist: the distorted positions inside the frame.
         if (!inside(q) || !inside(lens_of(i).DistortPixel(p)) || !inside(lens_of(j).DistortPixel(q))) continue;
         const bool kept = e.src_points.size() < 60;
-        (kept ? e.src_points : e.holdout_src_points).push_back(record(i, p));
-        (kept ? e.tgt_points : e.holdout_tgt_points).push_back(record(j, q));
+        (kept ? e.src_points : e.holdout_src_points).push_back(record(i, p).cast<float>());
+        (kept ? e.tgt_points : e.holdout_tgt_points).push_back(record(j, q).cast<float>());
       }
       e.num_inliers = static_cast<int>(e.src_points.size());
       if (e.src_points.size() == 60) f.edges.push_back(std::move(e));
@@ -186,7 +186,7 @@ TEST(LensCalibrationTest, APreparedLensIsRefinedFromItsStart) {
   prepared.distortion.k1 = 0.6 * truth.distortion.k1;
   for (auto& e : f.edges)
     for (auto* pts : {&e.src_points, &e.tgt_points, &e.holdout_src_points, &e.holdout_tgt_points})
-      for (Vec2& p : *pts) p = prepared.UndistortPixel(p);
+      for (Vec2f& p : *pts) p = prepared.UndistortPixel(p.cast<double>()).cast<float>();
   Solved s = SolveLinear(f);
   const LensCalibration cal = Calibrate(s, prepared);
   EXPECT_TRUE(cal.accepted) << cal.why;

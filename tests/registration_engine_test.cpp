@@ -89,7 +89,7 @@ class MemorySpill final : public EdgeSpill {
   }
   size_t Release(Edge* edge) override {
     if (!edge->points_resident || edge->stored_at < 0) return 0;
-    const size_t bytes = sizeof(Vec2) * (edge->src_points.size() + edge->tgt_points.size());
+    const size_t bytes = sizeof(Vec2f) * (edge->src_points.size() + edge->tgt_points.size());
     edge->src_points = {};
     edge->tgt_points = {};
     edge->holdout_src_points = {};

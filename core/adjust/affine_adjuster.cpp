@@ -290,7 +290,7 @@ void HuberWeights(const std::vector<const Edge*>& used, const std::unordered_map
     const Mat3& Ts = T.at(e->src);
     const Mat3& Tt = T.at(e->tgt);
     for (size_t k = 0; k < e->src_points.size(); ++k) {
-      const double r = (Apply(Ts, e->src_points[k]) - Apply(Tt, e->tgt_points[k])).norm();
+      const double r = (Apply(Ts, e->src_points[k].cast<double>()) - Apply(Tt, e->tgt_points[k].cast<double>())).norm();
       weights->push_back(static_cast<float>(r <= huber_px ? 1.0 : std::sqrt(huber_px / r)));
     }
   }
@@ -346,7 +346,9 @@ ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::un
     const auto tt = T.find(e->tgt);
     if (ts == T.end() || tt == T.end()) continue;
     for (size_t k = 0; k < e->src_points.size(); ++k)
-      r.push_back((Apply(ts->second, e->src_points[k]) - Apply(tt->second, e->tgt_points[k])).norm());
+      r.push_back(
+          (Apply(ts->second, e->src_points[k].cast<double>()) - Apply(tt->second, e->tgt_points[k].cast<double>()))
+              .norm());
   }
   s.count = r.size();
   if (r.empty()) return s;

@@ -85,8 +85,8 @@ struct EdgeTransferCost {
       : edge(e), index(std::move(keep)), delta(huber_px), lens(lens_refine) {
     if (lens == nullptr) return;
     for (uint32_t k : index) {
-      recorded.push_back(lens->prepared.DistortPixel(e->src_points[k]));
-      recorded.push_back(lens->prepared.DistortPixel(e->tgt_points[k]));
+      recorded.push_back(lens->prepared.DistortPixel(e->src_points[k].cast<double>()));
+      recorded.push_back(lens->prepared.DistortPixel(e->tgt_points[k].cast<double>()));
     }
   }
 
@@ -94,7 +94,7 @@ struct EdgeTransferCost {
   template <typename T>
   void Point(T const* const* blocks, size_t j, int which, T* x, T* y) const {
     if (lens == nullptr) {
-      const Vec2& p = which == 0 ? edge->src_points[index[j]] : edge->tgt_points[index[j]];
+      const Vec2f& p = which == 0 ? edge->src_points[index[j]] : edge->tgt_points[index[j]];
       *x = T(p.x());
       *y = T(p.y());
       return;
@@ -375,8 +375,8 @@ class RefineProblem {
     // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
     for (const Edge* e : used_)
       for (size_t k = 0; k < e->src_points.size(); ++k) {
-        extent_[e->src].extend(e->src_points[k]);
-        extent_[e->tgt].extend(e->tgt_points[k]);
+        extent_[e->src].extend(e->src_points[k].cast<double>());
+        extent_[e->tgt].extend(e->tgt_points[k].cast<double>());
       }
     for (const auto& [id, box] : extent_) frame_centre_[id] = box.center();
     return used_points;
@@ -444,7 +444,8 @@ class RefineProblem {
       const Mat3 tgt_from_src = FromParams(params_.at(e->tgt)).inverse() * FromParams(params_.at(e->src));
       std::vector<uint32_t> good;
       for (uint32_t k : keep_[i])
-        if ((Apply(tgt_from_src, Ideal(e->src_points[k])) - Ideal(e->tgt_points[k])).norm() <= options_.outlier_px)
+        if ((Apply(tgt_from_src, Ideal(e->src_points[k].cast<double>())) - Ideal(e->tgt_points[k].cast<double>()))
+                .norm() <= options_.outlier_px)
           good.push_back(k);
       const size_t bad = keep_[i].size() - good.size();
       if (bad > 0 && 2 * bad <= keep_[i].size()) {
@@ -654,8 +655,10 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
     const auto& src = holdout ? e->holdout_src_points : e->src_points;
     const auto& tgt = holdout ? e->holdout_tgt_points : e->tgt_points;
     for (size_t k = 0; k < src.size(); ++k) {
-      const double d = lens != nullptr ? (Apply(tgt_from_src, lens->Ideal(src[k])) - lens->Ideal(tgt[k])).norm()
-                                       : (Apply(tgt_from_src, src[k]) - tgt[k]).norm();
+      const Vec2 p = src[k].cast<double>();
+      const Vec2 q = tgt[k].cast<double>();
+      const double d = lens != nullptr ? (Apply(tgt_from_src, lens->Ideal(p)) - lens->Ideal(q)).norm()
+                                       : (Apply(tgt_from_src, p) - q).norm();
       if (max_px <= 0 || d <= max_px) r.push_back(d);
     }
   }

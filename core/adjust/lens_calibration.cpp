@@ -107,8 +107,8 @@ PairedGain HoldoutPairedGain(const std::vector<const Edge*>& edges, const std::u
     const Mat3 tgt_from_src1 = t1->second.inverse() * s1->second;
     double sum = 0.0;
     for (size_t k = 0; k < e->holdout_src_points.size(); ++k) {
-      const Vec2& p = e->holdout_src_points[k];
-      const Vec2& q = e->holdout_tgt_points[k];
+      const Vec2 p = e->holdout_src_points[k].cast<double>();
+      const Vec2 q = e->holdout_tgt_points[k].cast<double>();
       sum += (Apply(tgt_from_src0, p) - q).squaredNorm() -
              (Apply(tgt_from_src1, lens.Ideal(p)) - lens.Ideal(q)).squaredNorm();
     }
@@ -134,7 +134,7 @@ void ReprojectEdgePoints(const PinholeCamera& prepared, const LensDistortion& ca
   PinholeCamera to = prepared;
   to.distortion = calibrated;
   for (auto* points : {&edge->src_points, &edge->tgt_points, &edge->holdout_src_points, &edge->holdout_tgt_points})
-    for (Vec2& p : *points) p = to.UndistortPixel(prepared.DistortPixel(p));
+    for (Vec2f& p : *points) p = to.UndistortPixel(prepared.DistortPixel(p.cast<double>())).cast<float>();
 }
 
 namespace {

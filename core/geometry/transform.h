@@ -12,6 +12,7 @@ namespace uavm {
 // top-left pixel). Affine maps have a last row (0, 0, 1); the projective refinement fills the rest.
 using Mat3 = Eigen::Matrix3d;
 using Vec2 = Eigen::Vector2d;
+using Vec2f = Eigen::Vector2f;  // a stored point: what edges.bin keeps, half a Vec2's memory
 
 [[nodiscard]] Vec2 Apply(const Mat3& tgt_from_src, const Vec2& p);
 [[nodiscard]] bool IsAffine(const Mat3& m, double tol = 1e-12);

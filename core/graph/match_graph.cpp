@@ -83,10 +83,10 @@ std::vector<std::vector<int>> MatchGraph::ComponentsBySize(double relative, int 
 
 namespace {
 
-size_t ThinPair(std::vector<Vec2>* a, std::vector<Vec2>* b, size_t keep) {
+size_t ThinPair(std::vector<Vec2f>* a, std::vector<Vec2f>* b, size_t keep) {
   const size_t n = a->size();
   if (n <= keep) return 0;
-  std::vector<Vec2> ta, tb;
+  std::vector<Vec2f> ta, tb;
   ta.reserve(keep);
   tb.reserve(keep);
   for (size_t k = 0; k < keep; ++k) {
@@ -106,9 +106,11 @@ size_t ThinPoints(Edge* edge, size_t max_points, size_t max_holdout) {
          ThinPair(&edge->holdout_src_points, &edge->holdout_tgt_points, max_holdout);
 }
 
-void RoundToFloat(Edge* edge) {
-  for (auto* v : {&edge->src_points, &edge->tgt_points, &edge->holdout_src_points, &edge->holdout_tgt_points})
-    for (auto& p : *v) p = Vec2(static_cast<float>(p.x()), static_cast<float>(p.y()));
+std::vector<Vec2f> ToEdgePoints(const std::vector<Vec2>& points) {
+  std::vector<Vec2f> out;
+  out.reserve(points.size());
+  for (const Vec2& p : points) out.push_back(p.cast<float>());
+  return out;
 }
 
 }  // namespace uavm

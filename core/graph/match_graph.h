@@ -8,26 +8,26 @@
 
 namespace uavm {
 
-// A verified pair. Points are at working resolution of each frame.
+// A verified pair. Points are at working resolution of each frame, in float: the edges are the end of a long flight's
+// largest state, and float is what edges.bin keeps (an edge read back gives the same solution as one never spilled).
 struct Edge {
   int src = -1;
   int tgt = -1;
   int num_matches = 0;
   int num_inliers = 0;
   Mat3 tgt_from_src = Mat3::Identity();
-  std::vector<Vec2> src_points;
-  std::vector<Vec2> tgt_points;
-  std::vector<Vec2> holdout_src_points;  // inliers the adjustment does not use: a check of its result
-  std::vector<Vec2> holdout_tgt_points;
+  std::vector<Vec2f> src_points;
+  std::vector<Vec2f> tgt_points;
+  std::vector<Vec2f> holdout_src_points;  // inliers the adjustment does not use: a check of its result
+  std::vector<Vec2f> holdout_tgt_points;
   // Where the points live: an edge whose frames no longer move during the flight keeps them only on disk
   // (EdgeStore, edges.bin at byte stored_at) until the end of the flight reads them back.
   int64_t stored_at = -1;
   bool points_resident = true;
 };
 
-// Rounds the edge's points to float precision: what a spilled edge keeps (edges.bin), so that an edge read back gives
-// the same solution as one that never left memory.
-void RoundToFloat(Edge* edge);
+// Points in an edge's precision.
+[[nodiscard]] std::vector<Vec2f> ToEdgePoints(const std::vector<Vec2>& points);
 
 // Keeps at most `max_points` of the edge's points and `max_holdout` of its held-out points, evenly strided (the points
 // are grid-spread, so a stride keeps their spread); frees what it drops. Returns the points dropped.

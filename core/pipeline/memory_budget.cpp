@@ -26,8 +26,8 @@ constexpr double kFlightResidueMiB = 20.0;
 // no per-correspondence state, ~4.5 KiB per frame (five edges' 8x8 blocks and the frame's own): below this line up to
 // ~23 000 frames at the default cap.
 constexpr double kBytesPerSolverCorrespondence = 1100;
-// An edge's point pair held by the end's solves (two double 2-vectors), with its share of held-out pairs (a quarter).
-constexpr double kBytesPerEndPoint = 32 * 1.25;
+// An edge's point pair held by the end's solves (two float 2-vectors), with its share of held-out pairs (a quarter).
+constexpr double kBytesPerEndPoint = 16 * 1.25;
 // The compositor's largest fixed buffer besides its workers: the BGRA quick-look (2000 px long side, square canvas).
 double QuicklookMiB(const CompositorOptions& m) {
   return 4.0 * m.quicklook_long_side * m.quicklook_long_side / kMiB;
@@ -201,9 +201,9 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
       std::min(o.refine.max_correspondences,
                std::max(1000, static_cast<int>(0.8 * (avail - p.residue_mib) * kMiB / kBytesPerSolverCorrespondence)));
   p.refine_mib = p.refine_correspondences * kBytesPerSolverCorrespondence / kMiB;
-  // The edges' points at the end: 4 % of the budget (~260 000 at 256 MiB: every point of a ~1000-frame flight).
+  // The edges' points at the end: 2 % of the budget (~260 000 at 256 MiB: every point of a ~1000-frame flight).
   p.end_correspondences = std::min(o.end_correspondences > 0 ? o.end_correspondences : INT32_MAX,
-                                   static_cast<int>(0.04 * budget * kMiB / kBytesPerEndPoint));
+                                   static_cast<int>(0.02 * budget * kMiB / kBytesPerEndPoint));
   p.end_points_mib = p.end_correspondences * kBytesPerEndPoint / kMiB;
 
   o.queue_capacity = p.queue_capacity;

@@ -25,10 +25,10 @@ Edge EdgeFromPair(int src, int tgt, PairResult&& r) {
   e.num_matches = r.num_matches;
   e.num_inliers = r.num_inliers;
   e.tgt_from_src = r.tgt_from_src;
-  e.src_points = std::move(r.src_points);
-  e.tgt_points = std::move(r.tgt_points);
-  e.holdout_src_points = std::move(r.holdout_src_points);
-  e.holdout_tgt_points = std::move(r.holdout_tgt_points);
+  e.src_points = ToEdgePoints(r.src_points);
+  e.tgt_points = ToEdgePoints(r.tgt_points);
+  e.holdout_src_points = ToEdgePoints(r.holdout_src_points);
+  e.holdout_tgt_points = ToEdgePoints(r.holdout_tgt_points);
   return e;
 }
 
@@ -116,7 +116,6 @@ std::vector<const Edge*> RegistrationEngine::EdgesTouching(const std::unordered_
 
 void RegistrationEngine::AddEdge(Edge edge) {
   best_inliers_ = std::max(best_inliers_, edge.num_inliers);
-  RoundToFloat(&edge);  // what the spill keeps: a reloaded edge gives the same solution
   if (spill_ != nullptr) {
     std::string error;
     if (!spill_->Append(&edge, &error)) {
@@ -236,11 +235,10 @@ void RegistrationEngine::Place(int id) {
 }
 
 Edge RegistrationEngine::MakeEdge(int src, int tgt, PairResult&& r) {
-  Edge e = EdgeFromPair(src, tgt, std::move(r));
   if (refiner_ != nullptr)
-    (void)refiner_->RefinePair(src, tgt, e.tgt_from_src, {&e.src_points, &e.tgt_points},
-                               {&e.holdout_src_points, &e.holdout_tgt_points});  // false: kept as matched
-  return e;
+    (void)refiner_->RefinePair(src, tgt, r.tgt_from_src, {&r.src_points, &r.tgt_points},
+                               {&r.holdout_src_points, &r.holdout_tgt_points});  // false: kept as matched
+  return EdgeFromPair(src, tgt, std::move(r));
 }
 
 bool RegistrationEngine::Acceptable(const PairResult& r) const {
@@ -642,10 +640,10 @@ size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edge
     // points than the flight's first query may have).
     if (!Acceptable(r) || 2 * r.num_inliers < e->num_inliers) continue;
     auto* edge = const_cast<Edge*>(e);  // the engine's own edge (the const view is the solve's)
-    edge->src_points = std::move(r.src_points);
-    edge->tgt_points = std::move(r.tgt_points);
-    edge->holdout_src_points = std::move(r.holdout_src_points);
-    edge->holdout_tgt_points = std::move(r.holdout_tgt_points);
+    edge->src_points = ToEdgePoints(r.src_points);
+    edge->tgt_points = ToEdgePoints(r.tgt_points);
+    edge->holdout_src_points = ToEdgePoints(r.holdout_src_points);
+    edge->holdout_tgt_points = ToEdgePoints(r.holdout_tgt_points);
     if (max_points > 0) (void)ThinPoints(edge, max_points, std::max<size_t>(2, max_points / 4));
     (*at_lens)[i] = 1;
     ++rematched;

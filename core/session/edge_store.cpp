@@ -28,21 +28,21 @@ uint32_t Fnv1a(const void* data, size_t size) {
   return h;
 }
 
-void Pack(const std::vector<Vec2>& a, const std::vector<Vec2>& b, std::vector<float>* out) {
+void Pack(const std::vector<Vec2f>& a, const std::vector<Vec2f>& b, std::vector<float>* out) {
   for (size_t k = 0; k < a.size(); ++k) {
-    out->push_back(static_cast<float>(a[k].x()));
-    out->push_back(static_cast<float>(a[k].y()));
-    out->push_back(static_cast<float>(b[k].x()));
-    out->push_back(static_cast<float>(b[k].y()));
+    out->push_back(a[k].x());
+    out->push_back(a[k].y());
+    out->push_back(b[k].x());
+    out->push_back(b[k].y());
   }
 }
 
-void Unpack(const float* p, size_t n, std::vector<Vec2>* a, std::vector<Vec2>* b) {
+void Unpack(const float* p, size_t n, std::vector<Vec2f>* a, std::vector<Vec2f>* b) {
   a->resize(n);
   b->resize(n);
   for (size_t k = 0; k < n; ++k, p += 4) {
-    (*a)[k] = Vec2(p[0], p[1]);
-    (*b)[k] = Vec2(p[2], p[3]);
+    (*a)[k] = Vec2f(p[0], p[1]);
+    (*b)[k] = Vec2f(p[2], p[3]);
   }
 }
 
@@ -145,8 +145,8 @@ size_t EdgeStore::Release(Edge* edge) {
 }
 
 size_t PointBytes(const Edge& edge) {
-  return sizeof(Vec2) * (edge.src_points.capacity() + edge.tgt_points.capacity() + edge.holdout_src_points.capacity() +
-                         edge.holdout_tgt_points.capacity());
+  return sizeof(Vec2f) * (edge.src_points.capacity() + edge.tgt_points.capacity() + edge.holdout_src_points.capacity() +
+                          edge.holdout_tgt_points.capacity());
 }
 
 }  // namespace uavm

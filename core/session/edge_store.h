@@ -24,8 +24,8 @@ class EdgeStore {
   // Creates (truncates) the file. False with a reason when it cannot be written.
   [[nodiscard]] bool Open(const std::string& path, std::string* error);
   [[nodiscard]] bool is_open() const { return file_ != nullptr; }
-  // Appends the edge's points; sets edge->stored_at on success. The points must already be float-exact (see
-  // RoundToFloat) so that a reload gives the same numbers.
+  // Appends the edge's points (float, as the edge holds them: a reload gives the same numbers); sets edge->stored_at
+  // on success.
   [[nodiscard]] bool Append(Edge* edge, std::string* error);
   // Refills an edge's points from its record (no-op when they are resident).
   [[nodiscard]] bool Load(Edge* edge, std::string* error);
