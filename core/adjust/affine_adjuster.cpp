@@ -74,9 +74,40 @@ int VariableIndex(const ColumnOf& column, int id) {
   return it != column.end() ? it->second : -1;
 }
 
+// One edge's share of the normal equations: its frames' diagonal blocks and right-hand sides, and their coupling
+// I2 (x) st.
+struct EdgeBlocks {
+  Block ss = Block::Zero(), tt = Block::Zero();
+  Eigen::Matrix3d st = Eigen::Matrix3d::Zero();
+  Vec6 bs = Vec6::Zero(), bt = Vec6::Zero();
+};
+
+// Relative linear part: L_src - L_tgt * R = 0 with R the edge's measured linear part, as rows of the same edge. Row
+// (r, c): scale * (a_s(r, c) - sum_k R(k, c) a_t(r, k)) = 0; a fixed side (src_fixed, tgt_fixed) moves to the right.
+void AddRelativeLinear(const Edge& e, const Mat3& Ts, const Mat3& Tt, bool src_fixed, bool tgt_fixed, double scale,
+                       EdgeBlocks* blocks) {
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 2; ++c) {
+      Vec6 js = Vec6::Zero(), jt = Vec6::Zero();
+      js(3 * r + c) = scale;
+      for (int k = 0; k < 2; ++k) jt(3 * r + k) = -scale * e.tgt_from_src(k, c);
+      // The fixed side's value moves to the right-hand side: b = -(J_fixed x_fixed).
+      double b = 0.0;
+      if (src_fixed) b -= scale * Ts(r, c);
+      if (tgt_fixed)
+        for (int k = 0; k < 2; ++k) b -= jt(3 * r + k) * Tt(r, k);
+      blocks->ss += js * js.transpose();
+      blocks->tt += jt * jt.transpose();
+      // js * jt^T: rows 3r + c, columns 3r + k, the same for both r.
+      if (r == 0)
+        for (int k = 0; k < 2; ++k) blocks->st(c, k) += js(c) * jt(k);
+      blocks->bs += js * b;
+      blocks->bt += jt * b;
+    }
+}
+
 // Correspondence rows T_src p - T_tgt q = 0: per edge, the weighted sums S_pp, S_pq, S_qq of the homogeneous points
 // give its blocks (the same for both coordinate rows). A fixed side moves to the right-hand side.
-// Relative linear part: L_src - L_tgt * R = 0 with R the edge's measured linear part, as rows of the same edge.
 void AddEdge(const Edge& e, const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
              const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options, const float* weights,
              BlockSystem* sys) {
@@ -96,48 +127,28 @@ void AddEdge(const Edge& e, const ColumnOf& column, const std::unordered_map<int
   const int t = VariableIndex(column, e.tgt);
   const Mat3& Ts = T.at(e.src);
   const Mat3& Tt = T.at(e.tgt);
-  Block ss = Block::Zero(), tt = Block::Zero();
-  Eigen::Matrix3d st = -Spq;  // the off-diagonal block is I2 (x) st
-  Vec6 bs = Vec6::Zero(), bt = Vec6::Zero();
+  EdgeBlocks blocks;
+  blocks.st = -Spq;
   for (int r = 0; r < 2; ++r) {
-    ss.block<3, 3>(3 * r, 3 * r) = Spp;
-    tt.block<3, 3>(3 * r, 3 * r) = Sqq;
-    if (s < 0) bt.segment<3>(3 * r) += Spq.transpose() * Ts.row(r).transpose();
-    if (t < 0) bs.segment<3>(3 * r) += Spq * Tt.row(r).transpose();
+    blocks.ss.block<3, 3>(3 * r, 3 * r) = Spp;
+    blocks.tt.block<3, 3>(3 * r, 3 * r) = Sqq;
+    if (s < 0) blocks.bt.segment<3>(3 * r) += Spq.transpose() * Ts.row(r).transpose();
+    if (t < 0) blocks.bs.segment<3>(3 * r) += Spq * Tt.row(r).transpose();
   }
-  if (options.relative_linear_weight > 0) {
-    // Row (r, c): scale * (a_s(r, c) - sum_k R(k, c) a_t(r, k)) = 0.
-    const double scale = options.relative_linear_weight * HalfDiagonal(half_diagonal, s >= 0 ? e.src : e.tgt);
-    for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 2; ++c) {
-        Vec6 js = Vec6::Zero(), jt = Vec6::Zero();
-        js(3 * r + c) = scale;
-        for (int k = 0; k < 2; ++k) jt(3 * r + k) = -scale * e.tgt_from_src(k, c);
-        // The fixed side's value moves to the right-hand side: b = -(J_fixed x_fixed).
-        double b = 0.0;
-        if (s < 0) b -= scale * Ts(r, c);
-        if (t < 0)
-          for (int k = 0; k < 2; ++k) b -= jt(3 * r + k) * Tt(r, k);
-        ss += js * js.transpose();
-        tt += jt * jt.transpose();
-        // js * jt^T: rows 3r + c, columns 3r + k, the same for both r.
-        if (r == 0)
-          for (int k = 0; k < 2; ++k) st(c, k) += js(c) * jt(k);
-        bs += js * b;
-        bt += jt * b;
-      }
-  }
+  if (options.relative_linear_weight > 0)
+    AddRelativeLinear(e, Ts, Tt, s < 0, t < 0,
+                      options.relative_linear_weight * HalfDiagonal(half_diagonal, s >= 0 ? e.src : e.tgt), &blocks);
   if (s >= 0) {
-    sys->diagonal[static_cast<size_t>(s)] += ss;
-    sys->rhs[static_cast<size_t>(s)] += bs;
+    sys->diagonal[static_cast<size_t>(s)] += blocks.ss;
+    sys->rhs[static_cast<size_t>(s)] += blocks.bs;
   }
   if (t >= 0) {
-    sys->diagonal[static_cast<size_t>(t)] += tt;
-    sys->rhs[static_cast<size_t>(t)] += bt;
+    sys->diagonal[static_cast<size_t>(t)] += blocks.tt;
+    sys->rhs[static_cast<size_t>(t)] += blocks.bt;
   }
   if (s >= 0 && t >= 0) {
     sys->pairs.emplace_back(s, t);
-    sys->off_diagonal.push_back(st);
+    sys->off_diagonal.push_back(blocks.st);
   }
 }
 
