@@ -183,7 +183,7 @@ void AddFramePriors(const ColumnOf& column, const std::unordered_map<int, Mat3>&
 std::string SolveDirect(const BlockSystem& sys, Eigen::VectorXd* x) {
   const long n = static_cast<long>(sys.diagonal.size()) * kDof;
   std::vector<Eigen::Triplet<double>> triplets;
-  triplets.reserve((sys.diagonal.size() + 2 * sys.pairs.size()) * kDof * kDof);
+  triplets.reserve((sys.diagonal.size() + sys.pairs.size()) * kDof * kDof);  // an edge: 2 x (2 x 9)
   const auto add = [&](long r0, long c0, const auto& b, bool transpose) {
     for (int i = 0; i < b.rows(); ++i)
       for (int j = 0; j < b.cols(); ++j)

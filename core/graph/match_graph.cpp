@@ -106,7 +106,7 @@ size_t ThinPoints(Edge* edge, size_t max_points, size_t max_holdout) {
          ThinPair(&edge->holdout_src_points, &edge->holdout_tgt_points, max_holdout);
 }
 
-std::vector<Vec2f> ToEdgePoints(const std::vector<Vec2>& points) {
+std::vector<Vec2f> ToEdgePoints(std::vector<Vec2> points) {
   std::vector<Vec2f> out;
   out.reserve(points.size());
   for (const Vec2& p : points) out.push_back(p.cast<float>());

@@ -26,8 +26,8 @@ struct Edge {
   bool points_resident = true;
 };
 
-// Points in an edge's precision.
-[[nodiscard]] std::vector<Vec2f> ToEdgePoints(const std::vector<Vec2>& points);
+// Points in an edge's precision; the double ones are freed (taken by value: pass them moved).
+[[nodiscard]] std::vector<Vec2f> ToEdgePoints(std::vector<Vec2> points);
 
 // Keeps at most `max_points` of the edge's points and `max_holdout` of its held-out points, evenly strided (the points
 // are grid-spread, so a stride keeps their spread); frees what it drops. Returns the points dropped.

@@ -47,8 +47,9 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
     const Edge& e = *edges[k];
     const int count =
         static_cast<int>(std::floor(static_cast<double>(k + 1) * share) - std::floor(static_cast<double>(k) * share));
-    const cv::Mat& a = thumb_of(e.src);
-    const cv::Mat& b = thumb_of(e.tgt);
+    // Copies (a reference count each): thumb_of(e.tgt) may empty the cache that a's reference would point into.
+    const cv::Mat a = thumb_of(e.src);
+    const cv::Mat b = thumb_of(e.tgt);
     if (a.empty() || b.empty()) continue;
     const cv::Size work_a = record.frame(e.src).work_size;
     const cv::Size work_b = record.frame(e.tgt).work_size;

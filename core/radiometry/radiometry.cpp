@@ -569,7 +569,8 @@ void SampleOverlap(const OverlapView& a, const OverlapView& b, const Mat3& b_fro
       s.log_b = Log(vb);
       found.push_back(s);
     }
-  // Evenly thinned to the bound, each kept sample in the middle of its share (one sample: the overlap's middle one).
+  // Evenly thinned to the bound, each kept sample in the middle of its share of the grid's scan order (one sample: the
+  // middle one found).
   const size_t keep = std::min(found.size(), static_cast<size_t>(max_samples));
   for (size_t k = 0; k < keep; ++k) out->push_back(found[(2 * k + 1) * found.size() / (2 * keep)]);
 }

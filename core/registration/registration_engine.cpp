@@ -25,10 +25,10 @@ Edge EdgeFromPair(int src, int tgt, PairResult&& r) {
   e.num_matches = r.num_matches;
   e.num_inliers = r.num_inliers;
   e.tgt_from_src = r.tgt_from_src;
-  e.src_points = ToEdgePoints(r.src_points);
-  e.tgt_points = ToEdgePoints(r.tgt_points);
-  e.holdout_src_points = ToEdgePoints(r.holdout_src_points);
-  e.holdout_tgt_points = ToEdgePoints(r.holdout_tgt_points);
+  e.src_points = ToEdgePoints(std::move(r.src_points));
+  e.tgt_points = ToEdgePoints(std::move(r.tgt_points));
+  e.holdout_src_points = ToEdgePoints(std::move(r.holdout_src_points));
+  e.holdout_tgt_points = ToEdgePoints(std::move(r.holdout_tgt_points));
   return e;
 }
 
@@ -640,10 +640,10 @@ size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edge
     // points than the flight's first query may have).
     if (!Acceptable(r) || 2 * r.num_inliers < e->num_inliers) continue;
     auto* edge = const_cast<Edge*>(e);  // the engine's own edge (the const view is the solve's)
-    edge->src_points = ToEdgePoints(r.src_points);
-    edge->tgt_points = ToEdgePoints(r.tgt_points);
-    edge->holdout_src_points = ToEdgePoints(r.holdout_src_points);
-    edge->holdout_tgt_points = ToEdgePoints(r.holdout_tgt_points);
+    edge->src_points = ToEdgePoints(std::move(r.src_points));
+    edge->tgt_points = ToEdgePoints(std::move(r.tgt_points));
+    edge->holdout_src_points = ToEdgePoints(std::move(r.holdout_src_points));
+    edge->holdout_tgt_points = ToEdgePoints(std::move(r.holdout_tgt_points));
     if (max_points > 0) (void)ThinPoints(edge, max_points, std::max<size_t>(2, max_points / 4));
     (*at_lens)[i] = 1;
     ++rematched;
