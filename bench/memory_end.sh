@@ -9,14 +9,15 @@
 # run's (resumed and whole runs agreed within 9 MiB on every end phase at 5000 frames, 2026-11-27). Each phase's
 # peak against the same phase of the first FRAMES given (default: every sim_* in MEMORY_RUN_DIR, smallest first).
 #
-# Environment: BUDGET_MIB (default 256), EXTRA_ARGS (e.g. "--config exp.yaml"), UAVM_BUILD_DIR, TMPDIR (the copies).
+# Environment: BUDGET_MIB (default 256), EXTRA_ARGS (e.g. "--config exp.yaml"), UAVM_BUILD_DIR, TMPDIR (the copies),
+# REPORTS_DIR (keeps each run's report.json and log there as sim_FRAMES.report.json / .log).
 set -euo pipefail
 export LC_ALL=C
 
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 if [[ $# -lt 1 || $1 == -h || $1 == --help ]]; then
-  sed -n '2,12p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,13p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 # shellcheck source=bench/lib.sh
@@ -50,6 +51,11 @@ for n in "${FRAMES[@]}"; do
   run_phased "$WORK/r" "$OURS_BIN" --source "sim:$PLAN" --max-frames "$n" --no-tiff --out "$WORK/s" \
     --memory-budget "$BUDGET_MIB" --resume ${EXTRA_ARGS:-}
   ((W_RC == 0)) || { log "sim_$n: exit $W_RC"; tail -n 5 "$WORK/r.stdout" >&2; exit 1; }
+  if [[ -n ${REPORTS_DIR:-} ]]; then
+    mkdir -p "$REPORTS_DIR"
+    cp "$WORK/s/report.json" "$REPORTS_DIR/sim_$n.report.json"
+    cat "$WORK/r.stdout" "$WORK/r.stderr" >"$REPORTS_DIR/sim_$n.log"
+  fi
   while IFS=$'\t' read -r phase rss anon _n _first _last; do
     [[ " ${PHASES[*]} " == *" $phase "* ]] || PHASES+=("$phase")
     PEAK[$phase.$n]=$rss ANON[$phase.$n]=$anon

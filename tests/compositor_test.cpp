@@ -264,6 +264,12 @@ TEST(CompositorTest, CanvasWiderThan32767PxComposesCorrectly) {
   EXPECT_EQ(r.canvas.width, kWidth);
   EXPECT_EQ(r.frames_used, kFrames);
   EXPECT_LE(loads, 2 * kFrames);
+  // The cache (256 MiB, room for every frame) held only the frames about the tiles in progress: each frame left it
+  // when its last tile was made.
+  EXPECT_EQ(r.parts_released, kFrames);
+  const size_t every_frame = static_cast<size_t>(kFrames) * frame.area() * 3;
+  EXPECT_GT(r.cache_peak_bytes, 0u);
+  EXPECT_LT(r.cache_peak_bytes, every_frame / 4) << "peak " << r.cache_peak_bytes << " of " << every_frame;
 
   GDALAllRegister();
   GDALDataset* ds = static_cast<GDALDataset*>(GDALOpen(path.c_str(), GA_ReadOnly));

@@ -100,6 +100,8 @@ struct CompositeResult {
   int tiles_written = 0;
   int image_loads = 0;          // loads of stored frames, counting reloads after cache eviction
   int reloads_from_memory = 0;  // parts decoded again from the cache's in-memory JPEG instead
+  int parts_released = 0;       // frames dropped from the cache once no tile left needed them
+  size_t cache_peak_bytes = 0;  // the frame cache's high-water mark, both tiers
   double load_ms = 0.0;         // time in those decodes, summed over the workers
   double ms = 0.0;
   cv::Mat quicklook;  // BGRA, transparent outside the flown area

@@ -167,6 +167,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"radiometry", "flat_field", &o.radiometry.flat_field},
       {"radiometry", "hotspot", &o.radiometry.hotspot},
       {"radiometry", "min_holdout_gain", &o.radiometry.min_holdout_gain},
+      {"radiometry", "direct_max_frames", &o.radiometry.direct_max_frames},
       {"georef", "inlier_threshold_m", &o.georef.inlier_threshold_m},
       {"georef", "min_points", &o.georef.min_points},
       {"georef", "affine_min_points", &o.georef.affine_min_points},

@@ -131,45 +131,26 @@ double Huber(double r, double width) {
   return a <= width ? 0.5 * r * r : width * (a - 0.5 * width);
 }
 
-// The summed normal equations as triplets (both halves of the symmetric matrix): the gains' diagonal, their pairs,
-// and the shared terms' dense rows; `pair_sum` is freed.
-std::vector<Eigen::Triplet<double>> NormalTriplets(const Eigen::VectorXd& diagonal, const Eigen::MatrixXd& shared_rows,
-                                                   std::unordered_map<uint64_t, double>* pair_sum) {
-  const auto n = static_cast<int>(diagonal.size());
-  const auto m = static_cast<int>(shared_rows.rows());
-  std::vector<Eigen::Triplet<double>> t;
-  t.reserve(static_cast<size_t>(n) + 2 * pair_sum->size() + 2 * static_cast<size_t>(shared_rows.size()));
-  for (int i = 0; i < n; ++i) t.emplace_back(i, i, diagonal[i]);
-  for (const auto& [key, v] : *pair_sum) {
-    const auto i = static_cast<int>(key >> 32);
-    const auto j = static_cast<int>(key & 0xffffffffu);
-    t.emplace_back(i, j, v);
-    t.emplace_back(j, i, v);
-  }
-  *pair_sum = {};
-  for (int j = 0; j < m; ++j)
-    for (int c = 0; c < n + m; ++c) {
-      if (shared_rows(j, c) == 0.0) continue;
-      t.emplace_back(n + j, c, shared_rows(j, c));
-      if (c < n) t.emplace_back(c, n + j, shared_rows(j, c));  // the gain rows' shared columns
-    }
-  return t;
-}
+// One weighted step's normal equations, summed as they are made: a diagonal over the gains, one entry per pair of
+// frames and the shared terms' rows (dense, over every unknown). Their memory grows with the frames and pairs, not
+// with the samples: 16 bytes a pair (an edge's samples come in one run, so the pairs are summed in place).
+struct NormalEquations {
+  Eigen::VectorXd diagonal;
+  std::vector<std::pair<uint64_t, double>> pairs;  // key: lower index << 32 | higher index; sorted, distinct
+  Eigen::MatrixXd shared_rows;                     // row j: unknown n + j's row of the matrix
+  Eigen::VectorXd rhs;
+};
 
-// One weighted least-squares step: the normal equations with the gain prior (and a whisper of ridge on the shared
-// terms, which keeps the system definite when the samples barely tell them apart). False when the factorisation
-// fails. The normal equations are summed as they are made: a diagonal, one entry per pair of frames, and the shared
-// terms' rows (dense); their memory grows with the frames and pairs, not with the samples.
-bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
-                   const Terms& terms, double prior, const std::vector<double>& weight, Eigen::VectorXd* x) {
+NormalEquations SumNormalEquations(const std::vector<RadiometrySample>& samples,
+                                   const std::unordered_map<int, int>& index, int channel, const Terms& terms,
+                                   double prior, const std::vector<double>& weight) {
   const int n = static_cast<int>(index.size());
   const int m = terms.Count();
-  const int unknowns = n + m;
-  Eigen::VectorXd diagonal = Eigen::VectorXd::Constant(n, prior);
-  Eigen::MatrixXd shared_rows = Eigen::MatrixXd::Zero(m, unknowns);
-  for (int j = 0; j < m; ++j) shared_rows(j, n + j) = 1e-6 * static_cast<double>(samples.size());
-  std::unordered_map<uint64_t, double> pair_sum;  // key: lower index << 32 | higher index
-  Eigen::VectorXd rhs = Eigen::VectorXd::Zero(unknowns);
+  NormalEquations q;
+  q.diagonal = Eigen::VectorXd::Constant(n, prior);
+  q.shared_rows = Eigen::MatrixXd::Zero(m, n + m);
+  for (int j = 0; j < m; ++j) q.shared_rows(j, n + j) = 1e-6 * static_cast<double>(samples.size());
+  q.rhs = Eigen::VectorXd::Zero(n + m);
   Row row{};
   for (size_t k = 0; k < samples.size(); ++k) {
     const RadiometrySample& s = samples[k];
@@ -177,27 +158,138 @@ bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unor
     const int ib = index.at(s.b);
     const double w = weight[k];
     const double d = PairDifference(s, channel);
-    diagonal[ia] += w;
-    diagonal[ib] += w;
-    pair_sum[(static_cast<uint64_t>(std::min(ia, ib)) << 32) | static_cast<uint32_t>(std::max(ia, ib))] -= w;
-    rhs[ia] += w * d;
-    rhs[ib] -= w * d;
+    q.diagonal[ia] += w;
+    q.diagonal[ib] += w;
+    const uint64_t key = (static_cast<uint64_t>(std::min(ia, ib)) << 32) | static_cast<uint32_t>(std::max(ia, ib));
+    if (q.pairs.empty() || q.pairs.back().first != key) q.pairs.emplace_back(key, 0.0);
+    q.pairs.back().second -= w;
+    q.rhs[ia] += w * d;
+    q.rhs[ib] -= w * d;
     if (m == 0) continue;
     terms.Row(s, row.data());
     for (int j = 0; j < m; ++j) {
       const double wj = w * row[static_cast<size_t>(j)];
-      rhs[n + j] += wj * d;
-      shared_rows(j, ia) += wj;
-      shared_rows(j, ib) -= wj;
-      for (int l = 0; l < m; ++l) shared_rows(j, n + l) += wj * row[static_cast<size_t>(l)];
+      q.rhs[n + j] += wj * d;
+      q.shared_rows(j, ia) += wj;
+      q.shared_rows(j, ib) -= wj;
+      for (int l = 0; l < m; ++l) q.shared_rows(j, n + l) += wj * row[static_cast<size_t>(l)];
     }
   }
-  const std::vector<Eigen::Triplet<double>> t = NormalTriplets(diagonal, shared_rows, &pair_sum);
-  Eigen::SparseMatrix<double> normal(unknowns, unknowns);
+  // A pair sampled in two runs (the samples were filtered or reordered): merged.
+  std::sort(q.pairs.begin(), q.pairs.end());
+  size_t out = 0;
+  for (size_t k = 0; k < q.pairs.size(); ++k) {
+    if (out > 0 && q.pairs[out - 1].first == q.pairs[k].first)
+      q.pairs[out - 1].second += q.pairs[k].second;
+    else
+      q.pairs[out++] = q.pairs[k];
+  }
+  q.pairs.resize(out);
+  q.pairs.shrink_to_fit();
+  return q;
+}
+
+std::pair<int, int> PairOf(uint64_t key) {
+  return {static_cast<int>(key >> 32), static_cast<int>(key & 0xffffffffu)};
+}
+
+// The factorisation (up to direct_max_frames frames): exact, but its fill and its ordering's copies of the matrix
+// grew to ~10 MB at 5000 frames.
+bool SolveDirect(const NormalEquations& q, Eigen::VectorXd* x) {
+  const auto n = static_cast<int>(q.diagonal.size());
+  const auto m = static_cast<int>(q.shared_rows.rows());
+  std::vector<Eigen::Triplet<double>> t;
+  t.reserve(static_cast<size_t>(n) + 2 * q.pairs.size() + 2 * static_cast<size_t>(q.shared_rows.size()));
+  for (int i = 0; i < n; ++i) t.emplace_back(i, i, q.diagonal[i]);
+  for (const auto& [key, v] : q.pairs) {
+    const auto [i, j] = PairOf(key);
+    t.emplace_back(i, j, v);
+    t.emplace_back(j, i, v);
+  }
+  for (int j = 0; j < m; ++j)
+    for (int c = 0; c < n + m; ++c) {
+      if (q.shared_rows(j, c) == 0.0) continue;
+      t.emplace_back(n + j, c, q.shared_rows(j, c));
+      if (c < n) t.emplace_back(c, n + j, q.shared_rows(j, c));  // the gain rows' shared columns
+    }
+  Eigen::SparseMatrix<double> normal(n + m, n + m);
   normal.setFromTriplets(t.begin(), t.end());
+  t = {};
   const Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(normal);
   if (solver.info() != Eigen::Success) return false;
-  *x = solver.solve(rhs);
+  *x = solver.solve(q.rhs);
+  return true;
+}
+
+// y = N x, with N held as SumNormalEquations left it.
+void Multiply(const NormalEquations& q, const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+  const Eigen::Index n = q.diagonal.size();
+  const Eigen::Index m = q.shared_rows.rows();
+  y->resize(n + m);
+  y->head(n) = q.diagonal.cwiseProduct(x.head(n));
+  if (m > 0) {
+    y->tail(m).noalias() = q.shared_rows * x;
+    y->head(n).noalias() += q.shared_rows.leftCols(n).transpose() * x.tail(m);
+  }
+  for (const auto& [key, v] : q.pairs) {
+    const auto [i, j] = PairOf(key);
+    (*y)[i] += v * x[j];
+    (*y)[j] += v * x[i];
+  }
+}
+
+// Beyond direct_max_frames: conjugate gradients on the same matrix, held as it was summed, preconditioned by its
+// diagonal over the gains and its dense block over the shared terms; from `x` (the last reweighting's solution). The
+// gain prior bounds the condition number (~ an edge's weight over the prior's), so it converges in a few hundred
+// steps however long the flight. False when it does not reach the tolerance.
+bool SolveIterative(const NormalEquations& q, Eigen::VectorXd* x) {
+  const Eigen::Index n = q.diagonal.size();
+  const Eigen::Index m = q.shared_rows.rows();
+  const Eigen::LDLT<Eigen::MatrixXd> shared_block(q.shared_rows.rightCols(m));
+  const auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd* z) {
+    z->resize(n + m);
+    z->head(n) = r.head(n).cwiseQuotient(q.diagonal);
+    if (m > 0) z->tail(m) = shared_block.solve(r.tail(m));
+  };
+  constexpr double kTolerance = 1e-10;  // relative residual: the gains agree with the factorisation's to ~1e-8
+  constexpr int kMaxSteps = 5000;
+  if (x->size() != n + m) *x = Eigen::VectorXd::Zero(n + m);
+  Eigen::VectorXd r(n + m);
+  Eigen::VectorXd z(n + m);
+  Eigen::VectorXd p(n + m);
+  Eigen::VectorXd np(n + m);
+  Multiply(q, *x, &np);
+  r = q.rhs - np;
+  const double stop = kTolerance * std::max(q.rhs.norm(), std::numeric_limits<double>::min());
+  precondition(r, &z);
+  p = z;
+  double rz = r.dot(z);
+  for (int step = 0; step < kMaxSteps; ++step) {
+    if (r.norm() <= stop) return true;
+    Multiply(q, p, &np);
+    const double curvature = p.dot(np);
+    if (!(curvature > 0)) return false;
+    const double alpha = rz / curvature;
+    *x += alpha * p;
+    r -= alpha * np;
+    precondition(r, &z);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+  }
+  return r.norm() <= stop;
+}
+
+// One weighted least-squares step: the normal equations with the gain prior (and a whisper of ridge on the shared
+// terms, which keeps the system definite when the samples barely tell them apart). False when the solve fails.
+bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
+                   const Terms& terms, double prior, const std::vector<double>& weight, int direct_max_frames,
+                   Eigen::VectorXd* x) {
+  const NormalEquations q = SumNormalEquations(samples, index, channel, terms, prior, weight);
+  if (static_cast<int>(index.size()) <= direct_max_frames) return SolveDirect(q, x);
+  Eigen::VectorXd y = *x;  // a failed solve leaves the last solution
+  if (!SolveIterative(q, &y)) return false;
+  *x = std::move(y);
   return true;
 }
 
@@ -205,7 +297,7 @@ bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unor
 // an average frame's samples, so that it means the same on any flight. The log gains come back centred (the mean
 // frame keeps its brightness).
 Fit SolveRobust(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
-                const Terms& terms, double prior_share, double huber) {
+                const Terms& terms, double prior_share, double huber, int direct_max_frames) {
   const int n = static_cast<int>(index.size());
   const int m = terms.Count();
   Eigen::VectorXd x = Eigen::VectorXd::Zero(n + m);
@@ -213,7 +305,7 @@ Fit SolveRobust(const std::vector<RadiometrySample>& samples, const std::unorder
   fit.weight.assign(samples.size(), 1.0);
   const double prior = prior_share * static_cast<double>(samples.size()) / std::max(1, n);
   for (int iteration = 0; iteration < 5; ++iteration) {
-    if (!SolveWeighted(samples, index, channel, terms, prior, fit.weight, &x)) break;
+    if (!SolveWeighted(samples, index, channel, terms, prior, fit.weight, direct_max_frames, &x)) break;
     fit.log_gain.assign(x.data(), x.data() + n);
     fit.shared.assign(x.data() + n, x.data() + n + m);
     for (size_t k = 0; k < samples.size(); ++k) {
@@ -299,11 +391,11 @@ Fit FitHotspot(const std::vector<RadiometrySample>& grey, const std::unordered_m
   const cv::Point2d coarse = SearchAntisolar(few, index, *terms, without, {0, 0}, 0.96, 0.08);
   terms->at.antisolar_u = coarse.x;
   terms->at.antisolar_v = coarse.y;
-  const Fit first = SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o.huber_log);
+  const Fit first = SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
   const cv::Point2d fine = SearchAntisolar(few, index, *terms, first, coarse, 0.08, 0.02);
   terms->at.antisolar_u = fine.x;
   terms->at.antisolar_v = fine.y;
-  return SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o.huber_log);
+  return SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
 }
 
 double HeldOutCost(const std::vector<RadiometrySample>& held, const std::unordered_map<int, int>& index,
@@ -345,13 +437,13 @@ Terms ChooseTerms(const std::vector<RadiometrySample>& grey, const std::unordere
     return base;
   }
   Terms chosen = base;
-  Fit fit = SolveRobust(train, index, 0, base, o.gain_prior_weight, o.huber_log);
+  Fit fit = SolveRobust(train, index, 0, base, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
   (*cost)[0] = HeldOutCost(held, index, base, fit, o.huber_log);
   double best = (*cost)[0];
   if (o.flat_field) {
     Terms flat = base;
     flat.flat = true;
-    const Fit with = SolveRobust(train, index, 0, flat, o.gain_prior_weight, o.huber_log);
+    const Fit with = SolveRobust(train, index, 0, flat, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
     (*cost)[1] = HeldOutCost(held, index, flat, with, o.huber_log);
     if ((*cost)[1] < best * (1 - o.min_holdout_gain)) {
       chosen = flat;
@@ -383,13 +475,13 @@ struct ColourSolve {
 ColourSolve SolveColour(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index,
                         Terms terms, const RadiometryOptions& o) {
   const std::vector<RadiometrySample> grey = Grey(samples);
-  Fit exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o.huber_log);
+  Fit exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
   if (terms.hotspot) {  // the point found on the training samples, refined on all of them
     const cv::Point2d fine = SearchAntisolar(Thinned(grey, 6000), index, terms, exposure,
                                              {terms.at.antisolar_u, terms.at.antisolar_v}, 0.04, 0.02);
     terms.at.antisolar_u = fine.x;
     terms.at.antisolar_v = fine.y;
-    exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o.huber_log);
+    exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
   }
   ColourSolve out;
   size_t j = 0;
@@ -415,7 +507,7 @@ ColourSolve SolveColour(const std::vector<RadiometrySample>& samples, const std:
   std::array<Fit, 3> channel;
   for (int c = 0; c < 3; ++c) {
     const auto cu = static_cast<size_t>(c);
-    channel[cu] = SolveRobust(colour, index, c, tint, o.colour_prior_weight, o.huber_log);
+    channel[cu] = SolveRobust(colour, index, c, tint, o.colour_prior_weight, o.huber_log, o.direct_max_frames);
     out.log_gain[cu] = channel[cu].log_gain;
     for (size_t i = 0; i < out.log_gain[cu].size(); ++i) out.log_gain[cu][i] += exposure.log_gain[i];
     if (terms.radial) out.radial[cu] = {grey_radial[0] + channel[cu].shared[0], grey_radial[1] + channel[cu].shared[1]};
@@ -464,6 +556,7 @@ bool RadiometryOptions::Check(std::string* why) const {
   if (!(max_corner_falloff > 0 && max_corner_falloff < 1))
     return fail("radiometry.max_corner_falloff must be in (0, 1)");
   if (!(min_holdout_gain >= 0 && min_holdout_gain < 1)) return fail("radiometry.min_holdout_gain must be in [0, 1)");
+  if (direct_max_frames < 0) return fail("radiometry.direct_max_frames must be >= 0");
   return true;
 }
 

@@ -36,6 +36,9 @@ struct RadiometryOptions {
   bool flat_field = true;  // u, v, u^2 - v^2, uv, u r^2, v r^2 in the image (off-centre falloff, sensor shading)
   bool hotspot = true;     // a radial bump about the antisolar point, which turns with the frame's heading
   double min_holdout_gain = 0.03;
+  // Up to this many frames the gains are solved by a sparse factorisation; beyond, by conjugate gradients over the
+  // normal equations as they are summed (the same solution; the factorisation's fill grew ~10 MB at 5000 frames).
+  int direct_max_frames = 1000;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
