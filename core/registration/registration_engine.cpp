@@ -557,10 +557,12 @@ std::pair<size_t, size_t> RegistrationEngine::EndPointsPerEdge(const std::vector
 
 Solution RegistrationEngine::FinishSolve() {
   StageTimer t;
+  // The relocalisation index serves the flight only (Densify looks for partners among footprints): its memory goes
+  // before the last matching, not after it.
+  global_index_.Release();
   EnterPhase("end_match");
   Densify();
   // Nothing after this point matches features: their memory goes to the solves (and the caller's compositor).
-  global_index_.Release();
   features_->ReleaseAll();
   Solution s;
   // Largest component over edges that pass both thresholds against the final best pair.
