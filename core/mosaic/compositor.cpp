@@ -651,6 +651,29 @@ class TileSink {
   int tiles_written_ = 0;
 };
 
+// Each tile's frames, and per frame the tiles still to make that need it: when the last is made the frame's part
+// leaves the cache, so the cache holds the frames about the tiles in progress, not every frame it has met (a long
+// flight's cache otherwise filled to its cap with parts of tiles long written).
+struct TileFrames {
+  template <typename RoiOf>
+  TileFrames(const std::vector<cv::Rect>& tiles, const std::vector<FrameGeometry>& geometry, const RoiOf& roi_of)
+      : candidates(tiles.size()), tiles_left(geometry.size()) {
+    for (size_t t = 0; t < tiles.size(); ++t) {
+      const cv::Rect2d roi(roi_of(tiles[t]));
+      for (size_t i = 0; i < geometry.size(); ++i)
+        if ((geometry[i].bbox & roi).area() > 0) {
+          candidates[t].push_back(i);
+          tiles_left[i].fetch_add(1, std::memory_order_relaxed);
+        }
+    }
+  }
+  // A tile that needed frame i is made; true when it was the last.
+  bool Done(size_t i) { return tiles_left[i].fetch_sub(1, std::memory_order_acq_rel) == 1; }
+
+  std::vector<std::vector<size_t>> candidates;  // per tile, frames (indices into the used frames) in ascending order
+  std::vector<std::atomic<int>> tiles_left;     // per frame
+};
+
 }  // namespace
 
 CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas, const ImageLoadFn& load,
@@ -725,23 +748,12 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
   const auto roi_of = [&](const cv::Rect& tile) {
     return cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & canvas_rect;
   };
-  // Each tile's frames, and per frame the tiles still to make that need it: when the last is made its part leaves the
-  // cache, so the cache holds the frames about the tiles in progress, not every frame it has met.
-  std::vector<std::vector<size_t>> candidates_of(tiles.size());
-  std::vector<std::atomic<int>> tiles_left(used.size());
-  for (size_t t = 0; t < tiles.size(); ++t) {
-    const cv::Rect2d roi(roi_of(tiles[t]));
-    for (size_t i = 0; i < geometry.size(); ++i)
-      if ((geometry[i].bbox & roi).area() > 0) {
-        candidates_of[t].push_back(i);
-        tiles_left[i].fetch_add(1, std::memory_order_relaxed);
-      }
-  }
+  TileFrames frames_of(tiles, geometry, roi_of);
   ParallelFor(tiles.size(), memory.threads, [&](size_t t) {
     if (sink.failed()) return;
     const cv::Rect tile = tiles[t];
     const cv::Rect roi = roi_of(tile);
-    const std::vector<size_t>& candidates = candidates_of[t];
+    const std::vector<size_t>& candidates = frames_of.candidates[t];
     cv::Mat image;
     cv::Mat mask;
     if (!candidates.empty() && BlendRoi(geometry, candidates, image_of, roi, options.num_bands, &image, &mask)) {
@@ -749,7 +761,7 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
       if (cv::countNonZero(mask(inner)) > 0) sink.Put(tile, image(inner), mask(inner));
     }
     for (size_t i : candidates)
-      if (tiles_left[i].fetch_sub(1, std::memory_order_acq_rel) == 1) cache.Release(used[i].id);
+      if (frames_of.Done(i)) cache.Release(used[i].id);
     // A tile's pyramids and warps are freed in pieces the next tile does not fit back exactly: without a trim the
     // workers' arenas kept ~37 MiB of free pages by the end of a 5000-frame flight's mosaic (heaptrack against RSS).
     if (options.memory_budget_mib > 0) TrimHeap();
