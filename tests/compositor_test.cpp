@@ -2,8 +2,10 @@
 
 #include <gdal_priv.h>
 #include <gtest/gtest.h>
+
 #include <unistd.h>
 
+#include <atomic>
 #include <filesystem>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -251,7 +253,7 @@ TEST(CompositorTest, CanvasWiderThan32767PxComposesCorrectly) {
   std::string err;
   const cv::Size canvas(kWidth, frame.height);
   ASSERT_TRUE(tiff.Open(path.string(), canvas, o.tiff_block, o.tile_size, true, 16, &err)) << err;
-  int loads = 0;
+  std::atomic<int> loads = 0;
   const auto r = Composite(
       inputs, canvas,
       [&](int id) {
@@ -263,7 +265,10 @@ TEST(CompositorTest, CanvasWiderThan32767PxComposesCorrectly) {
   ASSERT_TRUE(tiff.Close(&err)) << err;
   EXPECT_EQ(r.canvas.width, kWidth);
   EXPECT_EQ(r.frames_used, kFrames);
-  EXPECT_LE(loads, 2 * kFrames);
+  // Each frame decoded once: its part stays cached until its last tile (two workers that miss the same frame at the
+  // same moment may both decode it, which happens about once a run).
+  EXPECT_GE(loads.load(), kFrames);
+  EXPECT_LE(loads.load(), kFrames + 2);
   // The cache (256 MiB, room for every frame) held only the frames about the tiles in progress: each frame left it
   // when its last tile was made.
   EXPECT_EQ(r.parts_released, kFrames);

@@ -97,6 +97,11 @@ TEST(RadiometryTest, IterativeSolveMatchesTheFactorisation) {
   const RadiometryModel a = SolveRadiometry(samples, frames, direct);
   const RadiometryModel b = SolveRadiometry(samples, frames, iterative);
   ASSERT_TRUE(a.ok && b.ok);
+  EXPECT_FALSE(a.iterative);
+  ASSERT_TRUE(b.iterative) << "above direct_max_frames the gains are solved by conjugate gradients";
+  EXPECT_GT(b.most_iterative_steps, 1);
+  EXPECT_LT(b.most_iterative_steps, iterative.max_iterative_steps);
+  EXPECT_EQ(b.failed_solves, 0);
   ASSERT_TRUE(a.vignetting && b.vignetting);
   EXPECT_EQ(a.flat_field, b.flat_field);
   EXPECT_EQ(a.hotspot.found, b.hotspot.found);
@@ -113,6 +118,34 @@ TEST(RadiometryTest, IterativeSolveMatchesTheFactorisation) {
   for (int i = 0; i < kFrames; ++i)
     off = std::max(off, std::abs(std::log(b.Gain(i)[1]) - (log_gain[static_cast<size_t>(i)][1] - mean)));
   EXPECT_LT(off, 0.05);
+}
+
+// Conjugate gradients that do not converge refuse the model (no correction, saying why) instead of handing on gains
+// the solve never reached.
+TEST(RadiometryTest, AnUnconvergedIterativeSolveRefusesTheModel) {
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<double> g(std::log(0.8), std::log(1.2));
+  constexpr int kFrames = 300;
+  std::vector<cv::Vec3d> log_gain(kFrames);
+  std::vector<int> frames;
+  for (int i = 0; i < kFrames; ++i) {
+    const double e = g(rng);
+    log_gain[static_cast<size_t>(i)] = {e, e, e};
+    frames.push_back(i);
+  }
+  const auto samples = SyntheticSamples(log_gain, 0.01, 0, &rng, 16);
+  RadiometryOptions o;
+  o.direct_max_frames = 0;
+  const RadiometryModel enough = SolveRadiometry(samples, frames, o);
+  ASSERT_TRUE(enough.ok) << enough.note;
+  ASSERT_GT(enough.most_iterative_steps, 3);
+  o.max_iterative_steps = 3;
+  const RadiometryModel cut = SolveRadiometry(samples, frames, o);
+  EXPECT_FALSE(cut.ok);
+  EXPECT_TRUE(cut.iterative);
+  EXPECT_GT(cut.failed_solves, 0);
+  EXPECT_NE(cut.note.find("did not converge in 3 steps"), std::string::npos) << cut.note;
+  EXPECT_EQ(cut.Gain(7), cv::Vec3d(1, 1, 1)) << "a refused model corrects nothing";
 }
 
 TEST(RadiometryTest, RecoversGainsAndFalloffFromPairs) {
@@ -425,6 +458,13 @@ TEST(RadiometryTest, OptionsAreChecked) {
   EXPECT_FALSE(o.Check(&why));
   o = {};
   o.max_corner_falloff = 1.5;
+  EXPECT_FALSE(o.Check(&why));
+  o = {};
+  o.max_iterative_steps = 0;
+  EXPECT_FALSE(o.Check(&why));
+  EXPECT_NE(why.find("max_iterative_steps"), std::string::npos);
+  o = {};
+  o.iterative_tolerance = 0;
   EXPECT_FALSE(o.Check(&why));
 }
 

@@ -63,6 +63,10 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
     spdlog::warn("radiometry: not corrected ({})", radiometry.note);
     return out;
   }
+  if (radiometry.failed_solves > 0)
+    spdlog::warn("radiometry: {} reweighting(s) of the gains did not converge in {} conjugate-gradient steps; each kept "
+                 "the pass before",
+                 radiometry.failed_solves, options.max_iterative_steps);
   // Each frame's gains beside transforms.csv: what the mosaic divided out (a reader can compare them with the
   // camera's recorded exposure, or undo them).
   std::string csv = "frame,name,gain_b,gain_g,gain_r\n";
@@ -120,6 +124,11 @@ nlohmann::json RadiometryJson(const EndRadiometry& end, const RadiometryOptions&
   j["holdout_cost_radial_flat_hotspot"] = radiometry.holdout_cost;
   if (!radiometry.log_gain.empty()) j["gain_range"] = {min_gain, max_gain};
   j["note"] = radiometry.note;
+  // Conjugate gradients beyond radiometry.direct_max_frames: the most steps one solve took, and the reweightings whose
+  // solve did not converge (each kept the pass before).
+  j["iterative"] = radiometry.iterative;
+  j["most_iterative_steps"] = radiometry.most_iterative_steps;
+  j["failed_solves"] = radiometry.failed_solves;
   j["solve_ms"] = end.ms;
   return j;
 }

@@ -168,6 +168,8 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"radiometry", "hotspot", &o.radiometry.hotspot},
       {"radiometry", "min_holdout_gain", &o.radiometry.min_holdout_gain},
       {"radiometry", "direct_max_frames", &o.radiometry.direct_max_frames},
+      {"radiometry", "iterative_tolerance", &o.radiometry.iterative_tolerance},
+      {"radiometry", "max_iterative_steps", &o.radiometry.max_iterative_steps},
       {"georef", "inlier_threshold_m", &o.georef.inlier_threshold_m},
       {"georef", "min_points", &o.georef.min_points},
       {"georef", "affine_min_points", &o.georef.affine_min_points},

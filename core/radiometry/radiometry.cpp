@@ -111,6 +111,10 @@ struct Fit {
   std::vector<double> log_gain;
   std::vector<double> shared;
   std::vector<double> weight;  // each sample's robust weight at the last iteration
+  bool solved = false;         // the first reweighting's solve succeeded (else the gains are 0: no correction)
+  bool iterative = false;
+  int most_steps = 0;          // of one conjugate-gradient solve
+  int failed_solves = 0;       // reweightings whose solve failed (the fit kept the one before)
 };
 
 double PairDifference(const RadiometrySample& s, int channel) {
@@ -241,8 +245,8 @@ void Multiply(const NormalEquations& q, const Eigen::VectorXd& x, Eigen::VectorX
 // Beyond direct_max_frames: conjugate gradients on the same matrix, held as it was summed, preconditioned by its
 // diagonal over the gains and its dense block over the shared terms; from `x` (the last reweighting's solution). The
 // gain prior bounds the condition number (~ an edge's weight over the prior's), so it converges in a few hundred
-// steps however long the flight. False when it does not reach the tolerance.
-bool SolveIterative(const NormalEquations& q, Eigen::VectorXd* x) {
+// steps however long the flight. False when it does not reach the tolerance in max_iterative_steps; `steps` taken.
+bool SolveIterative(const NormalEquations& q, const RadiometryOptions& o, Eigen::VectorXd* x, int* steps) {
   const Eigen::Index n = q.diagonal.size();
   const Eigen::Index m = q.shared_rows.rows();
   const Eigen::LDLT<Eigen::MatrixXd> shared_block(q.shared_rows.rightCols(m));
@@ -251,8 +255,6 @@ bool SolveIterative(const NormalEquations& q, Eigen::VectorXd* x) {
     z->head(n) = r.head(n).cwiseQuotient(q.diagonal);
     if (m > 0) z->tail(m) = shared_block.solve(r.tail(m));
   };
-  constexpr double kTolerance = 1e-10;  // relative residual: the gains agree with the factorisation's to ~1e-8
-  constexpr int kMaxSteps = 5000;
   if (x->size() != n + m) *x = Eigen::VectorXd::Zero(n + m);
   Eigen::VectorXd r(n + m);
   Eigen::VectorXd z(n + m);
@@ -260,11 +262,11 @@ bool SolveIterative(const NormalEquations& q, Eigen::VectorXd* x) {
   Eigen::VectorXd np(n + m);
   Multiply(q, *x, &np);
   r = q.rhs - np;
-  const double stop = kTolerance * std::max(q.rhs.norm(), std::numeric_limits<double>::min());
+  const double stop = o.iterative_tolerance * std::max(q.rhs.norm(), std::numeric_limits<double>::min());
   precondition(r, &z);
   p = z;
   double rz = r.dot(z);
-  for (int step = 0; step < kMaxSteps; ++step) {
+  for (*steps = 0; *steps < o.max_iterative_steps; ++*steps) {
     if (r.norm() <= stop) return true;
     Multiply(q, p, &np);
     const double curvature = p.dot(np);
@@ -281,14 +283,18 @@ bool SolveIterative(const NormalEquations& q, Eigen::VectorXd* x) {
 }
 
 // One weighted least-squares step: the normal equations with the gain prior (and a whisper of ridge on the shared
-// terms, which keeps the system definite when the samples barely tell them apart). False when the solve fails.
+// terms, which keeps the system definite when the samples barely tell them apart). False when the solve fails (`x`
+// unchanged); the iterative path and its steps into `fit`.
 bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
-                   const Terms& terms, double prior, const std::vector<double>& weight, int direct_max_frames,
-                   Eigen::VectorXd* x) {
-  const NormalEquations q = SumNormalEquations(samples, index, channel, terms, prior, weight);
-  if (static_cast<int>(index.size()) <= direct_max_frames) return SolveDirect(q, x);
-  Eigen::VectorXd y = *x;  // a failed solve leaves the last solution
-  if (!SolveIterative(q, &y)) return false;
+                   const Terms& terms, double prior, const RadiometryOptions& o, Fit* fit, Eigen::VectorXd* x) {
+  const NormalEquations q = SumNormalEquations(samples, index, channel, terms, prior, fit->weight);
+  if (static_cast<int>(index.size()) <= o.direct_max_frames) return SolveDirect(q, x);
+  Eigen::VectorXd y = *x;
+  int steps = 0;
+  const bool converged = SolveIterative(q, o, &y, &steps);
+  fit->iterative = true;
+  fit->most_steps = std::max(fit->most_steps, steps);
+  if (!converged) return false;
   *x = std::move(y);
   return true;
 }
@@ -297,7 +303,7 @@ bool SolveWeighted(const std::vector<RadiometrySample>& samples, const std::unor
 // an average frame's samples, so that it means the same on any flight. The log gains come back centred (the mean
 // frame keeps its brightness).
 Fit SolveRobust(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index, int channel,
-                const Terms& terms, double prior_share, double huber, int direct_max_frames) {
+                const Terms& terms, double prior_share, const RadiometryOptions& o) {
   const int n = static_cast<int>(index.size());
   const int m = terms.Count();
   Eigen::VectorXd x = Eigen::VectorXd::Zero(n + m);
@@ -305,12 +311,16 @@ Fit SolveRobust(const std::vector<RadiometrySample>& samples, const std::unorder
   fit.weight.assign(samples.size(), 1.0);
   const double prior = prior_share * static_cast<double>(samples.size()) / std::max(1, n);
   for (int iteration = 0; iteration < 5; ++iteration) {
-    if (!SolveWeighted(samples, index, channel, terms, prior, fit.weight, direct_max_frames, &x)) break;
+    if (!SolveWeighted(samples, index, channel, terms, prior, o, &fit, &x)) {
+      ++fit.failed_solves;
+      break;
+    }
+    fit.solved = true;
     fit.log_gain.assign(x.data(), x.data() + n);
     fit.shared.assign(x.data() + n, x.data() + n + m);
     for (size_t k = 0; k < samples.size(); ++k) {
       const double r = std::abs(PairDifference(samples[k], channel) - Predicted(fit, terms, index, samples[k]));
-      fit.weight[k] = r <= huber ? 1.0 : huber / r;
+      fit.weight[k] = r <= o.huber_log ? 1.0 : o.huber_log / r;
     }
   }
   fit.log_gain.assign(x.data(), x.data() + n);
@@ -391,11 +401,11 @@ Fit FitHotspot(const std::vector<RadiometrySample>& grey, const std::unordered_m
   const cv::Point2d coarse = SearchAntisolar(few, index, *terms, without, {0, 0}, 0.96, 0.08);
   terms->at.antisolar_u = coarse.x;
   terms->at.antisolar_v = coarse.y;
-  const Fit first = SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
+  const Fit first = SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o);
   const cv::Point2d fine = SearchAntisolar(few, index, *terms, first, coarse, 0.08, 0.02);
   terms->at.antisolar_u = fine.x;
   terms->at.antisolar_v = fine.y;
-  return SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
+  return SolveRobust(grey, index, 0, *terms, o.gain_prior_weight, o);
 }
 
 double HeldOutCost(const std::vector<RadiometrySample>& held, const std::unordered_map<int, int>& index,
@@ -437,15 +447,15 @@ Terms ChooseTerms(const std::vector<RadiometrySample>& grey, const std::unordere
     return base;
   }
   Terms chosen = base;
-  Fit fit = SolveRobust(train, index, 0, base, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
+  Fit fit = SolveRobust(train, index, 0, base, o.gain_prior_weight, o);
   (*cost)[0] = HeldOutCost(held, index, base, fit, o.huber_log);
   double best = (*cost)[0];
   if (o.flat_field) {
     Terms flat = base;
     flat.flat = true;
-    const Fit with = SolveRobust(train, index, 0, flat, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
+    const Fit with = SolveRobust(train, index, 0, flat, o.gain_prior_weight, o);
     (*cost)[1] = HeldOutCost(held, index, flat, with, o.huber_log);
-    if ((*cost)[1] < best * (1 - o.min_holdout_gain)) {
+    if (with.solved && (*cost)[1] < best * (1 - o.min_holdout_gain)) {
       chosen = flat;
       best = (*cost)[1];
       fit = with;
@@ -456,7 +466,8 @@ Terms ChooseTerms(const std::vector<RadiometrySample>& grey, const std::unordere
     hot.hotspot = true;
     const Fit with = FitHotspot(train, index, &hot, fit, o);
     (*cost)[2] = HeldOutCost(held, index, hot, with, o.huber_log);
-    if ((*cost)[2] < best * (1 - o.min_holdout_gain) && PlausibleHotspot(HotspotOf(hot, with))) chosen = hot;
+    if (with.solved && (*cost)[2] < best * (1 - o.min_holdout_gain) && PlausibleHotspot(HotspotOf(hot, with)))
+      chosen = hot;
   }
   return chosen;
 }
@@ -470,20 +481,33 @@ struct ColourSolve {
   std::array<double, RadiometryModel::kFlatTerms> flat{};
   Hotspot hotspot;
   double rms_before = 0, rms_after = 0;
+  // Over the exposure's and the channels' fits.
+  bool solved = true;
+  bool iterative = false;
+  int most_steps = 0;
+  int failed_solves = 0;
+
+  void Tally(const Fit& fit) {
+    solved = solved && fit.solved;
+    iterative = iterative || fit.iterative;
+    most_steps = std::max(most_steps, fit.most_steps);
+    failed_solves += fit.failed_solves;
+  }
 };
 
 ColourSolve SolveColour(const std::vector<RadiometrySample>& samples, const std::unordered_map<int, int>& index,
                         Terms terms, const RadiometryOptions& o) {
   const std::vector<RadiometrySample> grey = Grey(samples);
-  Fit exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
+  Fit exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o);
   if (terms.hotspot) {  // the point found on the training samples, refined on all of them
     const cv::Point2d fine = SearchAntisolar(Thinned(grey, 6000), index, terms, exposure,
                                              {terms.at.antisolar_u, terms.at.antisolar_v}, 0.04, 0.02);
     terms.at.antisolar_u = fine.x;
     terms.at.antisolar_v = fine.y;
-    exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o.huber_log, o.direct_max_frames);
+    exposure = SolveRobust(grey, index, 0, terms, o.gain_prior_weight, o);
   }
   ColourSolve out;
+  out.Tally(exposure);
   size_t j = 0;
   std::array<double, 2> grey_radial{};
   if (terms.radial) grey_radial = {exposure.shared[j], exposure.shared[j + 1]}, j += 2;
@@ -507,7 +531,8 @@ ColourSolve SolveColour(const std::vector<RadiometrySample>& samples, const std:
   std::array<Fit, 3> channel;
   for (int c = 0; c < 3; ++c) {
     const auto cu = static_cast<size_t>(c);
-    channel[cu] = SolveRobust(colour, index, c, tint, o.colour_prior_weight, o.huber_log, o.direct_max_frames);
+    channel[cu] = SolveRobust(colour, index, c, tint, o.colour_prior_weight, o);
+    out.Tally(channel[cu]);
     out.log_gain[cu] = channel[cu].log_gain;
     for (size_t i = 0; i < out.log_gain[cu].size(); ++i) out.log_gain[cu][i] += exposure.log_gain[i];
     if (terms.radial) out.radial[cu] = {grey_radial[0] + channel[cu].shared[0], grey_radial[1] + channel[cu].shared[1]};
@@ -557,6 +582,9 @@ bool RadiometryOptions::Check(std::string* why) const {
     return fail("radiometry.max_corner_falloff must be in (0, 1)");
   if (!(min_holdout_gain >= 0 && min_holdout_gain < 1)) return fail("radiometry.min_holdout_gain must be in [0, 1)");
   if (direct_max_frames < 0) return fail("radiometry.direct_max_frames must be >= 0");
+  if (!(iterative_tolerance > 0 && iterative_tolerance < 1))
+    return fail("radiometry.iterative_tolerance must be in (0, 1)");
+  if (max_iterative_steps < 1) return fail("radiometry.max_iterative_steps must be >= 1");
   return true;
 }
 
@@ -707,6 +735,15 @@ RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std
   if (terms.hotspot && !PlausibleHotspot(solved.hotspot)) {
     terms.hotspot = false;
     solved = SolveColour(used, index, terms, options);
+  }
+  m.iterative = solved.iterative;
+  m.most_iterative_steps = solved.most_steps;
+  m.failed_solves = solved.failed_solves;
+  if (!solved.solved) {
+    m.note = solved.iterative ? "the gains' conjugate gradients did not converge in " +
+                                  std::to_string(options.max_iterative_steps) + " steps"
+                              : "the gains' factorisation failed";
+    return m;
   }
   m.vignetting = terms.radial;
   m.flat_field = terms.flat;

@@ -39,6 +39,8 @@ struct RadiometryOptions {
   // Up to this many frames the gains are solved by a sparse factorisation; beyond, by conjugate gradients over the
   // normal equations as they are summed (the same solution; the factorisation's fill grew ~10 MB at 5000 frames).
   int direct_max_frames = 1000;
+  double iterative_tolerance = 1e-10;  // relative residual |N x - b| / |b|: the gains agree with the factorisation's
+  int max_iterative_steps = 5000;      // a solve that needs more fails (the model is refused or keeps an earlier pass)
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
@@ -92,6 +94,12 @@ struct RadiometryModel {
   // what chose the terms kept.
   std::array<double, 3> holdout_cost{};
   std::string note;  // why the falloff or the whole model was refused, if it was
+  // How the final model's gains were solved (its exposure and colour fits, every reweighting): by conjugate gradients
+  // (more frames than direct_max_frames), the most steps one solve took, and the reweightings whose solve failed
+  // (the fit kept the pass before; a failed first pass refuses the model).
+  bool iterative = false;
+  int most_iterative_steps = 0;
+  int failed_solves = 0;
 
   [[nodiscard]] double Falloff(int channel, double r2) const;  // V_c
   [[nodiscard]] cv::Vec3d Gain(int id) const;                  // 1 for a frame the solve did not see
