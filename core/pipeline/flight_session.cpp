@@ -266,17 +266,20 @@ void FlightSession::MarkFinished() {
 
 // graph.csv and correspondences.csv (original-resolution pixels, so the ground tool needs no working sizes).
 bool FlightSession::WriteEdgeTables(const std::unordered_set<int>& in_component, std::string* error) {
-  // correspondences.csv grows with the flight (~5 kB per edge): it is streamed to disk, edge by edge, and an edge
-  // whose points are only in edges.bin is read, written and given back.
-  std::ostringstream graph_csv;
-  graph_csv << "src,tgt,src_file,tgt_file,matches,inliers,used\n";
+  // Both grow with the flight (correspondences.csv ~5 kB per edge, graph.csv ~70 bytes): streamed to disk edge by
+  // edge, and an edge whose points are only in edges.bin is read, written and given back.
+  AtomicFileWriter graph_csv;
+  if (!graph_csv.Open(paths_.Join("graph.csv"), error)) return false;
+  graph_csv.Write("src,tgt,src_file,tgt_file,matches,inliers,used\n");
   AtomicFileWriter corr_csv;
   if (!corr_csv.Open(paths_.Join("correspondences.csv"), error)) return false;
   corr_csv.Write("src,tgt,x_src,y_src,x_tgt,y_tgt\n");
+  std::string row;
   for (Edge& e : engine_.mutable_edges()) {
     const bool used = in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 && engine_.EdgeCounts(e);
-    graph_csv << e.src << ',' << e.tgt << ',' << record_.frame(e.src).name << ',' << record_.frame(e.tgt).name << ','
-              << e.num_matches << ',' << e.num_inliers << ',' << (used ? 1 : 0) << '\n';
+    row = fmt::format("{},{},{},{},{},{},{}\n", e.src, e.tgt, record_.frame(e.src).name, record_.frame(e.tgt).name,
+                      e.num_matches, e.num_inliers, used ? 1 : 0);
+    graph_csv.Write(row);
     std::string load_error;
     const bool was_resident = e.points_resident;
     if (!stores_.edges().Load(&e, &load_error)) {
@@ -297,8 +300,7 @@ bool FlightSession::WriteEdgeTables(const std::unordered_set<int>& in_component,
     // The solves are done: the compositor gets the memory (the points stay in edges.bin).
     stores_.edges().Release(&e);
   }
-  if (!corr_csv.Commit(error)) return false;
-  return WriteFileAtomic(paths_.Join("graph.csv"), graph_csv.str(), error);
+  return corr_csv.Commit(error) && graph_csv.Commit(error);
 }
 
 namespace {

@@ -1,8 +1,9 @@
 #include "core/pipeline/session_tables.h"
 
+#include <fmt/format.h>
+
 #include <filesystem>
 #include <optional>
-#include <sstream>
 
 #include "core/session/session_dir.h"
 #include "core/util/memory.h"
@@ -27,26 +28,23 @@ bool WriteTransformsCsv(const std::string& path, const FlightRecord& record, con
 
 bool WriteFramesCsv(const std::string& path, const FlightRecord& record, const std::unordered_set<int>& in_map,
                     std::string* error) {
-  std::ostringstream frames_csv;
-  frames_csv.precision(12);
-  frames_csv << "index,filename,stored_file,width,height,timestamp_ns,registered,latitude_deg,longitude_deg,"
-                "altitude_m,relative_altitude_m,flight_yaw_deg,gimbal_yaw_deg,gimbal_pitch_deg,focal_length_mm\n";
-  const auto cell = [](const std::optional<double>& v) {
-    std::ostringstream c;
-    c.precision(12);
-    if (v) c << *v;
-    return c.str();
-  };
+  // Streamed row by row: the table grows with the flight.
+  AtomicFileWriter frames_csv;
+  if (!frames_csv.Open(path, error)) return false;
+  frames_csv.Write(
+      "index,filename,stored_file,width,height,timestamp_ns,registered,latitude_deg,longitude_deg,altitude_m,"
+      "relative_altitude_m,flight_yaw_deg,gimbal_yaw_deg,gimbal_pitch_deg,focal_length_mm\n");
+  const auto cell = [](const std::optional<double>& v) { return v ? fmt::format("{:.12g}", *v) : std::string(); };
   for (const auto& f : record.frames()) {
     const auto& m = f.metadata;
-    frames_csv << f.id << ',' << f.name << ',' << std::filesystem::path(f.stored_file).filename().string() << ','
-               << f.original_size.width << ',' << f.original_size.height << ',' << f.timestamp_ns << ','
-               << (in_map.count(f.id) != 0 ? 1 : 0) << ',' << cell(m.latitude_deg) << ',' << cell(m.longitude_deg)
-               << ',' << cell(m.altitude_m) << ',' << cell(m.relative_altitude_m) << ',' << cell(m.flight_yaw_deg)
-               << ',' << cell(m.gimbal_yaw_deg) << ',' << cell(m.gimbal_pitch_deg) << ',' << cell(m.focal_length_mm)
-               << '\n';
+    frames_csv.Write(fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.id, f.name,
+                                 std::filesystem::path(f.stored_file).filename().string(), f.original_size.width,
+                                 f.original_size.height, f.timestamp_ns, in_map.count(f.id) != 0 ? 1 : 0,
+                                 cell(m.latitude_deg), cell(m.longitude_deg), cell(m.altitude_m),
+                                 cell(m.relative_altitude_m), cell(m.flight_yaw_deg), cell(m.gimbal_yaw_deg),
+                                 cell(m.gimbal_pitch_deg), cell(m.focal_length_mm)));
   }
-  return WriteFileAtomic(path, frames_csv.str(), error);
+  return frames_csv.Commit(error);
 }
 
 }  // namespace uavm
