@@ -31,10 +31,10 @@ void OnStopSignal(int sig) {
   g_stop_signal = sig;
 }
 
-// The source opened, the telemetry started (with --telemetry) and the session directory prepared. kExitOk, or the
-// exit code.
+// The source opened, the telemetry started (with --telemetry) and the session directory prepared and locked (one run
+// per session). kExitOk, or the exit code.
 int OpenSourceAndSession(const RunConfig& config, std::unique_ptr<hal::FrameSource>* source,
-                         std::unique_ptr<hal::TelemetrySource>* telemetry, SessionPaths* paths) {
+                         std::unique_ptr<hal::TelemetrySource>* telemetry, SessionPaths* paths, SessionLock* lock) {
   std::string error;
   *source = MakeSource(config, &error);
   if (!*source) {
@@ -49,6 +49,10 @@ int OpenSourceAndSession(const RunConfig& config, std::unique_ptr<hal::FrameSour
   *telemetry = StartTelemetry(config, &telemetry_failed);
   if (telemetry_failed) return kExitUsage;
   if (!PrepareSessionDir(config.out_dir, paths, &error)) {
+    spdlog::error("{}", error);
+    return kExitOutputError;
+  }
+  if (!lock->Acquire(*paths, &error)) {
     spdlog::error("{}", error);
     return kExitOutputError;
   }
@@ -195,7 +199,8 @@ int Run(const RunConfig& config) {
   std::unique_ptr<hal::FrameSource> source;
   std::unique_ptr<hal::TelemetrySource> telemetry;
   SessionPaths paths;
-  if (const int rc = OpenSourceAndSession(config, &source, &telemetry, &paths); rc != kExitOk) return rc;
+  SessionLock lock;  // held until the run returns
+  if (const int rc = OpenSourceAndSession(config, &source, &telemetry, &paths, &lock); rc != kExitOk) return rc;
   std::string error;
   const auto session = FlightSession::Create(config.pipeline, paths, &error);
   if (!session) {

@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <random>
@@ -90,6 +91,31 @@ TEST(SessionTest, UnwritableOutputIsReported) {
   std::string err;
   EXPECT_FALSE(PrepareSessionDir("/proc/uavm_cannot_be_here", &paths, &err));
   EXPECT_NE(err.find("/proc/uavm_cannot_be_here"), std::string::npos);
+}
+
+// One run per session directory: a second lock on it is refused, naming the holder's PID, until the first is
+// released (the kernel releases it too when its process ends).
+TEST(SessionTest, ASessionDirectoryHasOneWriter) {
+  const fs::path root = fs::temp_directory_path() / ("uavm_lock_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  SessionPaths paths;
+  std::string err;
+  ASSERT_TRUE(PrepareSessionDir(root.string(), &paths, &err)) << err;
+  {
+    SessionLock first;
+    ASSERT_TRUE(first.Acquire(paths, &err)) << err;
+    EXPECT_TRUE(first.held());
+    SessionLock second;
+    EXPECT_FALSE(second.Acquire(paths, &err));
+    EXPECT_FALSE(second.held());
+    EXPECT_NE(err.find("in use by process " + std::to_string(::getpid())), std::string::npos) << err;
+    SessionLock moved = std::move(first);
+    EXPECT_TRUE(moved.held());
+    EXPECT_FALSE(second.Acquire(paths, &err)) << "a moved lock is still held";
+  }
+  SessionLock again;
+  EXPECT_TRUE(again.Acquire(paths, &err)) << err;
+  fs::remove_all(root);
 }
 
 }  // namespace

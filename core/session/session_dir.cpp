@@ -1,6 +1,12 @@
 #include "core/session/session_dir.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -25,6 +31,54 @@ bool PrepareSessionDir(const std::string& root, SessionPaths* paths, std::string
     return false;
   }
   fs::remove(probe, ec);
+  return true;
+}
+
+SessionLock::~SessionLock() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+SessionLock::SessionLock(SessionLock&& other) noexcept : fd_(other.fd_) {
+  other.fd_ = -1;
+}
+
+SessionLock& SessionLock::operator=(SessionLock&& other) noexcept {
+  if (this != &other) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = other.fd_;
+    other.fd_ = -1;
+  }
+  return *this;
+}
+
+bool SessionLock::Acquire(const SessionPaths& paths, std::string* error) {
+  const std::string path = paths.Join(".lock");
+  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    *error = "cannot create " + path + ": " + std::strerror(errno);
+    return false;
+  }
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    const int why = errno;
+    char owner[32] = {};
+    const ssize_t n = ::pread(fd, owner, sizeof(owner) - 1, 0);
+    ::close(fd);
+    if (why == EWOULDBLOCK) {
+      std::string pid = n > 0 ? std::string(owner, static_cast<size_t>(n)) : std::string("?");
+      while (!pid.empty() && (pid.back() == '\n' || pid.back() == ' ')) pid.pop_back();
+      *error = "session directory " + paths.root + " is in use by process " + pid +
+               " (one run per session; wait for it to end, or choose another --out)";
+    } else {
+      *error = "cannot lock " + path + ": " + std::strerror(why);
+    }
+    return false;
+  }
+  const std::string pid = std::to_string(::getpid()) + "\n";
+  // Without the PID written the lock still holds: only a refused second run's message is poorer.
+  [[maybe_unused]] const bool pid_written =
+      ::ftruncate(fd, 0) == 0 && ::pwrite(fd, pid.data(), pid.size(), 0) == static_cast<ssize_t>(pid.size());
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = fd;
   return true;
 }
 

@@ -23,6 +23,26 @@ struct SessionPaths {
 // Creates the directory tree and proves it is writable. On failure: false and a one-line reason.
 [[nodiscard]] bool PrepareSessionDir(const std::string& root, SessionPaths* paths, std::string* error);
 
+// One writer per session directory: an exclusive advisory lock (flock) on "<root>/.lock", which holds the owner's PID.
+// Two runs on one directory would truncate each other's edges.bin and journal; the second is refused instead. The
+// kernel drops the lock when its process ends, however it ends (a kill leaves nothing to clean up for --resume).
+// Owns the lock file's descriptor; movable, not copyable.
+class SessionLock {
+ public:
+  SessionLock() = default;
+  ~SessionLock();
+  SessionLock(SessionLock&& other) noexcept;
+  SessionLock& operator=(SessionLock&& other) noexcept;
+  SessionLock(const SessionLock&) = delete;
+  SessionLock& operator=(const SessionLock&) = delete;
+  // False, with "session directory ... is in use by process N" or the system's reason, when it cannot be taken.
+  [[nodiscard]] bool Acquire(const SessionPaths& paths, std::string* error);
+  [[nodiscard]] bool held() const { return fd_ >= 0; }
+
+ private:
+  int fd_ = -1;
+};
+
 // Writes via a temp file and rename, so a reader never sees a half-written file.
 [[nodiscard]] bool WriteFileAtomic(const std::string& path, const std::string& contents, std::string* error);
 

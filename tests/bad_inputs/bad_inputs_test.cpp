@@ -20,6 +20,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -64,6 +65,7 @@ struct Env {
   int good = static_cast<int>(kGood.size());  // frames expected registered besides the bad one
   rlim_t fsize_limit = 0;                     // RLIMIT_FSIZE of the program (0 = none): a full disk
   bool remove_source_mid_run = false;
+  std::shared_ptr<SessionLock> held;  // a lock on `out` held by the test during the run (another run's)
 };
 
 struct Case {
@@ -429,6 +431,13 @@ std::vector<Case> Cases() {
   c.push_back({"OutputUnderAFile", O::kExit, 4, "cannot create output directory", [](Env& e) {
                  WriteText(e.root / "out_file", "x");
                  e.out = e.root / "out_file" / "session";
+               }});
+  c.push_back({"OutputInUseByAnotherRun", O::kExit, 4, "is in use by process", [](Env& e) {
+                 SessionPaths paths;
+                 std::string err;
+                 ASSERT_TRUE(PrepareSessionDir(e.out.string(), &paths, &err)) << err;
+                 e.held = std::make_shared<SessionLock>();
+                 ASSERT_TRUE(e.held->Acquire(paths, &err)) << err;
                }});
   c.push_back({"OutputInReadOnlyFilesystem", O::kExit, 4, "output", [](Env& e) { e.out = "/proc/uavm_session"; }});
   c.push_back({"DiskFullAtFirstFrame", O::kExit, 4, "disk full", [](Env& e) { e.fsize_limit = 64 << 10; }});
