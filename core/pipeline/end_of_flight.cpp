@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <future>
 #include <opencv2/imgcodecs.hpp>
+#include <string_view>
 #include <unordered_map>
 
 #include "core/mosaic/gdal_writer.h"
@@ -107,7 +108,8 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
   in_.session->ComposeEnd();
   std::vector<uchar> png;
   if (!cv::imencode(".png", composite->quicklook, png) ||
-      !WriteFileAtomic(paths_.Join("mosaic.png"), std::string(png.begin(), png.end()), error))
+      !WriteFileAtomic(paths_.Join("mosaic.png"),
+                       std::string_view(reinterpret_cast<const char*>(png.data()), png.size()), error))
     return false;
   spdlog::info(
       "mosaic {}x{} px (scale {:.3f}), {} frames blended, {} dropped by overlap, {} tiles, {} frame loads ({:.0f} ms), "

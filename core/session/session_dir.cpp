@@ -82,7 +82,7 @@ bool SessionLock::Acquire(const SessionPaths& paths, std::string* error) {
   return true;
 }
 
-bool WriteFileAtomic(const std::string& path, const std::string& contents, std::string* error) {
+bool WriteFileAtomic(const std::string& path, std::string_view contents, std::string* error) {
   const std::string tmp = path + ".tmp";
   FILE* f = std::fopen(tmp.c_str(), "wb");
   if (f == nullptr) {

@@ -44,7 +44,7 @@ class SessionLock {
 };
 
 // Writes via a temp file and rename, so a reader never sees a half-written file.
-[[nodiscard]] bool WriteFileAtomic(const std::string& path, const std::string& contents, std::string* error);
+[[nodiscard]] bool WriteFileAtomic(const std::string& path, std::string_view contents, std::string* error);
 
 // A file written in pieces that appears whole or not at all: data goes to "<path>.tmp", Commit() renames it.
 // Dropped without Commit(), the temp file is removed.
