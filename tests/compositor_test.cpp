@@ -2,7 +2,6 @@
 
 #include <gdal_priv.h>
 #include <gtest/gtest.h>
-
 #include <unistd.h>
 
 #include <atomic>

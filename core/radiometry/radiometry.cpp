@@ -113,8 +113,8 @@ struct Fit {
   std::vector<double> weight;  // each sample's robust weight at the last iteration
   bool solved = false;         // the first reweighting's solve succeeded (else the gains are 0: no correction)
   bool iterative = false;
-  int most_steps = 0;          // of one conjugate-gradient solve
-  int failed_solves = 0;       // reweightings whose solve failed (the fit kept the one before)
+  int most_steps = 0;     // of one conjugate-gradient solve
+  int failed_solves = 0;  // reweightings whose solve failed (the fit kept the one before)
 };
 
 double PairDifference(const RadiometrySample& s, int channel) {
@@ -741,7 +741,7 @@ RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std
   m.failed_solves = solved.failed_solves;
   if (!solved.solved) {
     m.note = solved.iterative ? "the gains' conjugate gradients did not converge in " +
-                                  std::to_string(options.max_iterative_steps) + " steps"
+                                    std::to_string(options.max_iterative_steps) + " steps"
                               : "the gains' factorisation failed";
     return m;
   }
