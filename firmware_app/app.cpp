@@ -36,6 +36,16 @@ void OnStopSignal(int sig) {
 int OpenSourceAndSession(const RunConfig& config, std::unique_ptr<hal::FrameSource>* source,
                          std::unique_ptr<hal::TelemetrySource>* telemetry, SessionPaths* paths, SessionLock* lock) {
   std::string error;
+  // The session first: a second run on the same --out is refused before it touches the first one's camera or
+  // telemetry link.
+  if (!PrepareSessionDir(config.out_dir, paths, &error)) {
+    spdlog::error("{}", error);
+    return kExitOutputError;
+  }
+  if (!lock->Acquire(*paths, &error)) {
+    spdlog::error("{}", error);
+    return kExitOutputError;
+  }
   *source = MakeSource(config, &error);
   if (!*source) {
     spdlog::error("{}", error);
@@ -48,14 +58,6 @@ int OpenSourceAndSession(const RunConfig& config, std::unique_ptr<hal::FrameSour
   bool telemetry_failed = false;
   *telemetry = StartTelemetry(config, &telemetry_failed);
   if (telemetry_failed) return kExitUsage;
-  if (!PrepareSessionDir(config.out_dir, paths, &error)) {
-    spdlog::error("{}", error);
-    return kExitOutputError;
-  }
-  if (!lock->Acquire(*paths, &error)) {
-    spdlog::error("{}", error);
-    return kExitOutputError;
-  }
   // Decode no more than the working resolution needs (JPEG DCT scaling); the compositor re-reads at its own scale.
   (*source)->SetDecodeHint({config.pipeline.work_long_side});
   spdlog::info("source {}, output {}", (*source)->Describe(), config.out_dir);
