@@ -47,20 +47,25 @@ std::vector<RadiometrySample> SyntheticSamples(const std::vector<cv::Vec3d>& log
   return samples;
 }
 
+// Frames 0..count-1 with grey exposures within +-20 % (one draw each, in frame order).
+void GreyExposures(int count, std::mt19937* rng, std::vector<cv::Vec3d>* log_gain, std::vector<int>* frames) {
+  std::uniform_real_distribution<double> g(std::log(0.8), std::log(1.2));
+  for (int i = 0; i < count; ++i) {
+    const double e = g(*rng);
+    log_gain->push_back({e, e, e});
+    frames->push_back(i);
+  }
+}
+
 // A long flight's edges share max_samples (SolveEndRadiometry): down to one point per edge. One per edge over 1000
 // frames (~2000 edges: enough for the held-out fifth that chooses the terms) still ties every frame's gain and fits
 // the falloff.
 TEST(RadiometryTest, OneSamplePerEdgeStillFindsEveryGain) {
   std::mt19937 rng(5);
-  std::uniform_real_distribution<double> g(std::log(0.8), std::log(1.2));
   constexpr int kFrames = 1000;
-  std::vector<cv::Vec3d> log_gain(kFrames);
+  std::vector<cv::Vec3d> log_gain;
   std::vector<int> frames;
-  for (int i = 0; i < kFrames; ++i) {
-    const double e = g(rng);
-    log_gain[static_cast<size_t>(i)] = {e, e, e};
-    frames.push_back(i);
-  }
+  GreyExposures(kFrames, &rng, &log_gain, &frames);
   const auto samples = SyntheticSamples(log_gain, 0.01, 0, &rng, 1);
   ASSERT_LT(samples.size(), 2000u);
   const RadiometryModel m = SolveRadiometry(samples, frames, RadiometryOptions{});
@@ -124,15 +129,10 @@ TEST(RadiometryTest, IterativeSolveMatchesTheFactorisation) {
 // the solve never reached.
 TEST(RadiometryTest, AnUnconvergedIterativeSolveRefusesTheModel) {
   std::mt19937 rng(13);
-  std::uniform_real_distribution<double> g(std::log(0.8), std::log(1.2));
   constexpr int kFrames = 300;
-  std::vector<cv::Vec3d> log_gain(kFrames);
+  std::vector<cv::Vec3d> log_gain;
   std::vector<int> frames;
-  for (int i = 0; i < kFrames; ++i) {
-    const double e = g(rng);
-    log_gain[static_cast<size_t>(i)] = {e, e, e};
-    frames.push_back(i);
-  }
+  GreyExposures(kFrames, &rng, &log_gain, &frames);
   const auto samples = SyntheticSamples(log_gain, 0.01, 0, &rng, 16);
   RadiometryOptions o;
   o.direct_max_frames = 0;
