@@ -46,6 +46,7 @@ int OpenSourceAndSession(const RunConfig& config, std::unique_ptr<hal::FrameSour
     spdlog::error("{}", error);
     return kExitOutputError;
   }
+  if (!lock->held()) spdlog::warn("{}: a second run on this --out would not be refused", lock->unlocked_reason());
   *source = MakeSource(config, &error);
   if (!*source) {
     spdlog::error("{}", error);

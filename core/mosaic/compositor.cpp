@@ -357,8 +357,10 @@ class PartCache {
         origin = hit->origin;
       }
     }
-    FramePart part = jpeg.empty() ? Load(id, need) : FramePart{cv::imdecode(jpeg, cv::IMREAD_COLOR), origin};
-    if (part.image.empty()) return part;
+    bool loaded_meanwhile = false;
+    FramePart part =
+        jpeg.empty() ? Load(id, need, &loaded_meanwhile) : FramePart{cv::imdecode(jpeg, cv::IMREAD_COLOR), origin};
+    if (part.image.empty() || loaded_meanwhile) return part;
     if (jpeg.empty()) Compress(id, part);
     std::lock_guard<std::mutex> lock(mutex_);
     const size_t bytes = part.image.total() * part.image.elemSize();
@@ -438,9 +440,17 @@ class PartCache {
     std::unordered_map<int, Entry> entries_;
   };
 
-  FramePart Load(int id, const cv::Rect& need) {
+  // `*loaded_meanwhile`: another worker loaded the frame while this one waited for the serial load; its part, shared.
+  FramePart Load(int id, const cv::Rect& need, bool* loaded_meanwhile) {
     std::unique_lock<std::mutex> serial(load_mutex_, std::defer_lock);
-    if (!parallel_loads_) serial.lock();
+    if (!parallel_loads_) {
+      serial.lock();
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (const FramePart* hit = decoded_.Find(id)) {
+        *loaded_meanwhile = true;
+        return *hit;
+      }
+    }
     const StageTimer timer;
     FramePart part = Trim(load_(id, need), need);
     const double ms = timer.ElapsedMs();

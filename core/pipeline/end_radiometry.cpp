@@ -65,8 +65,8 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
   }
   if (radiometry.failed_solves > 0)
     spdlog::warn(
-        "radiometry: {} reweighting(s) of the gains did not converge in {} conjugate-gradient steps; each kept "
-        "the pass before",
+        "radiometry: {} reweighting(s) of the gains did not reach the conjugate gradients' tolerance (in at most {} "
+        "steps); each kept the pass before",
         radiometry.failed_solves, options.max_iterative_steps);
   // Each frame's gains beside transforms.csv: what the mosaic divided out (a reader can compare them with the
   // camera's recorded exposure, or undo them).

@@ -740,8 +740,10 @@ RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std
   m.most_iterative_steps = solved.most_steps;
   m.failed_solves = solved.failed_solves;
   if (!solved.solved) {
-    m.note = solved.iterative ? "the gains' conjugate gradients did not converge in " +
-                                    std::to_string(options.max_iterative_steps) + " steps"
+    // A breakdown (no positive curvature left) stops the gradients before their step cap, so both are said.
+    m.note = solved.iterative ? "the gains' conjugate gradients did not reach their tolerance (stopped after " +
+                                    std::to_string(solved.most_steps) + " of at most " +
+                                    std::to_string(options.max_iterative_steps) + " steps)"
                               : "the gains' factorisation failed";
     return m;
   }

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <utility>
 
 namespace uavm {
 
@@ -38,7 +39,8 @@ SessionLock::~SessionLock() {
   if (fd_ >= 0) ::close(fd_);
 }
 
-SessionLock::SessionLock(SessionLock&& other) noexcept : fd_(other.fd_) {
+SessionLock::SessionLock(SessionLock&& other) noexcept
+    : fd_(other.fd_), unlocked_reason_(std::move(other.unlocked_reason_)) {
   other.fd_ = -1;
 }
 
@@ -46,6 +48,7 @@ SessionLock& SessionLock::operator=(SessionLock&& other) noexcept {
   if (this != &other) {
     if (fd_ >= 0) ::close(fd_);
     fd_ = other.fd_;
+    unlocked_reason_ = std::move(other.unlocked_reason_);
     other.fd_ = -1;
   }
   return *this;
@@ -53,31 +56,38 @@ SessionLock& SessionLock::operator=(SessionLock&& other) noexcept {
 
 bool SessionLock::Acquire(const SessionPaths& paths, std::string* error) {
   const std::string path = paths.Join(".lock");
-  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  // A lock file another user left (read-only to us) still locks: flock needs no write access.
+  if (fd < 0 && errno == EACCES) fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) {
     *error = "cannot create " + path + ": " + std::strerror(errno);
     return false;
   }
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+  unlocked_reason_.clear();
   if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
     const int why = errno;
+    if (why != EWOULDBLOCK) {
+      // A filesystem without locks (some network and FUSE mounts): the run goes on unguarded, and says so.
+      ::close(fd);
+      unlocked_reason_ = "cannot lock " + path + ": " + std::strerror(why);
+      return true;
+    }
     char owner[32] = {};
     const ssize_t n = ::pread(fd, owner, sizeof(owner) - 1, 0);
     ::close(fd);
-    if (why == EWOULDBLOCK) {
-      std::string pid = n > 0 ? std::string(owner, static_cast<size_t>(n)) : std::string("?");
-      while (!pid.empty() && (pid.back() == '\n' || pid.back() == ' ')) pid.pop_back();
-      *error = "session directory " + paths.root + " is in use by process " + pid +
-               " (one run per session; wait for it to end, or choose another --out)";
-    } else {
-      *error = "cannot lock " + path + ": " + std::strerror(why);
-    }
+    std::string pid = n > 0 ? std::string(owner, static_cast<size_t>(n)) : std::string("?");
+    while (!pid.empty() && (pid.back() == '\n' || pid.back() == ' ')) pid.pop_back();
+    *error = "session directory " + paths.root + " is in use by process " + pid +
+             " (one run per session; wait for it to end, or choose another --out)";
     return false;
   }
   const std::string pid = std::to_string(::getpid()) + "\n";
-  // Without the PID written the lock still holds: only a refused second run's message is poorer.
+  // Without the PID written (a read-only lock file) the lock still holds: only a refused second run's message is
+  // poorer.
   [[maybe_unused]] const bool pid_written =
       ::ftruncate(fd, 0) == 0 && ::pwrite(fd, pid.data(), pid.size(), 0) == static_cast<ssize_t>(pid.size());
-  if (fd_ >= 0) ::close(fd_);
   fd_ = fd;
   return true;
 }

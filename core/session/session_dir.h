@@ -35,12 +35,15 @@ class SessionLock {
   SessionLock& operator=(SessionLock&& other) noexcept;
   SessionLock(const SessionLock&) = delete;
   SessionLock& operator=(const SessionLock&) = delete;
-  // False, with "session directory ... is in use by process N" or the system's reason, when it cannot be taken.
+  // False, with "session directory ... is in use by process N" or the system's reason, when another run holds it or
+  // the lock file cannot be made. True but not held() where the filesystem has no locks: unlocked_reason() says why.
   [[nodiscard]] bool Acquire(const SessionPaths& paths, std::string* error);
   [[nodiscard]] bool held() const { return fd_ >= 0; }
+  [[nodiscard]] const std::string& unlocked_reason() const { return unlocked_reason_; }
 
  private:
   int fd_ = -1;
+  std::string unlocked_reason_;
 };
 
 // Writes via a temp file and rename, so a reader never sees a half-written file.
