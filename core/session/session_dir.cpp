@@ -63,8 +63,6 @@ bool SessionLock::Acquire(const SessionPaths& paths, std::string* error) {
     *error = "cannot create " + path + ": " + std::strerror(errno);
     return false;
   }
-  if (fd_ >= 0) ::close(fd_);
-  fd_ = -1;
   unlocked_reason_.clear();
   if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
     const int why = errno;
@@ -88,6 +86,7 @@ bool SessionLock::Acquire(const SessionPaths& paths, std::string* error) {
   // poorer.
   [[maybe_unused]] const bool pid_written =
       ::ftruncate(fd, 0) == 0 && ::pwrite(fd, pid.data(), pid.size(), 0) == static_cast<ssize_t>(pid.size());
+  if (fd_ >= 0) ::close(fd_);
   fd_ = fd;
   return true;
 }
