@@ -57,6 +57,38 @@ TEST(ParallelForTest, WorkerCountIsMinOfThreadsAndItems) {
   }
 }
 
+// A worker's number is its own: never in use by two threads at once, one thread per number, all in range.
+TEST(ParallelForTest, WorkerNumbersBelongToOneThreadEach) {
+  for (int threads : {1, 2, 4}) {
+    const size_t n = 200;
+    std::mutex m;
+    std::vector<std::set<std::thread::id>> threads_of(static_cast<size_t>(threads));
+    std::vector<std::atomic<int>> busy(static_cast<size_t>(threads));
+    std::atomic<bool> overlapped{false};
+    std::atomic<bool> out_of_range{false};
+    ParallelForOnWorkers(n, threads, [&](size_t, size_t worker) {
+      if (worker >= static_cast<size_t>(threads)) {
+        out_of_range = true;
+        return;
+      }
+      if (++busy[worker] != 1) overlapped = true;
+      std::this_thread::sleep_for(std::chrono::microseconds(200));
+      {
+        std::lock_guard<std::mutex> lock(m);
+        threads_of[worker].insert(std::this_thread::get_id());
+      }
+      --busy[worker];
+    });
+    EXPECT_FALSE(out_of_range);
+    EXPECT_FALSE(overlapped) << threads << " threads";
+    std::set<std::thread::id> all;
+    for (const auto& ids : threads_of) {
+      EXPECT_LE(ids.size(), 1u);
+      for (const auto& id : ids) EXPECT_TRUE(all.insert(id).second) << "a thread under two numbers";
+    }
+  }
+}
+
 TEST(ParallelForTest, IndicesStartInIncreasingOrder) {
   std::mutex m;
   std::vector<size_t> order;

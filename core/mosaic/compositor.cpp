@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 #include <unordered_map>
 
+#include "core/buffers/image_buffer.h"
 #include "core/mosaic/gdal_writer.h"
 #include "core/mosaic/selection.h"
 #include "core/mosaic/tile_blender.h"
@@ -190,22 +191,27 @@ void BorderDistance(const FrameGeometry& g, const cv::Mat& map_x, const cv::Mat&
   }
 }
 
-// Blends one ROI from the frames listed in `candidates` (indices into geometry / images).
-bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size_t>& candidates,
-              const std::function<cv::Mat(size_t, cv::Point2d*)>& image_of, const cv::Rect& roi, int num_bands,
-              cv::Mat* out_image, cv::Mat* out_mask) {
-  const int cx0 = roi.x / kSeamStep;
-  const int cy0 = roi.y / kSeamStep;
-  const cv::Size cells((roi.x + roi.width + kSeamStep - 1) / kSeamStep - cx0,
-                       (roi.y + roi.height + kSeamStep - 1) / kSeamStep - cy0);
-  cv::Mat best_dist(cells, CV_32F, cv::Scalar(kSeamMargin));
-  cv::Mat cell_owner(cells, CV_16S, cv::Scalar(-1));
-  cv::Mat map_x;
-  cv::Mat map_y;
-  cv::Mat dist;
+// One worker's buffers, reused for every tile it blends (core/buffers/image_buffer.h): a worker's working set is
+// that of its largest tile, however many tiles and frames the mosaic has.
+struct TileWork {
+  explicit TileWork(int num_bands) : blender(num_bands > 0 ? MakeMultiBandBlender(num_bands) : MakeSeamOnlyBlender()) {}
+  std::unique_ptr<TileBlender> blender;
+  ImageBuffer best_dist, cell_owner, map_x, map_y, dist, owner, mask, warped, image, image_mask;
+};
+
+// Each cell's owner among `candidates`: the frame whose border is farthest (-1: none reaches kSeamMargin).
+cv::Mat SeamCellOwners(const std::vector<FrameGeometry>& geometry, const std::vector<size_t>& candidates,
+                       cv::Point cell0, cv::Size cells, TileWork* work) {
+  cv::Mat best_dist = work->best_dist.View(cells, CV_32F);
+  best_dist.setTo(kSeamMargin);
+  cv::Mat cell_owner = work->cell_owner.View(cells, CV_16S);
+  cell_owner.setTo(-1);
+  cv::Mat map_x = work->map_x.View(cells, CV_32F);
+  cv::Mat map_y = work->map_y.View(cells, CV_32F);
+  cv::Mat dist = work->dist.View(cells, CV_32F);
   for (size_t k = 0; k < candidates.size(); ++k) {
-    ComputeMapsGrid(geometry[candidates[k]], cx0 * kSeamStep, cy0 * kSeamStep, cells, kSeamStep, 0.5 * (kSeamStep - 1),
-                    &map_x, &map_y);
+    ComputeMapsGrid(geometry[candidates[k]], cell0.x * kSeamStep, cell0.y * kSeamStep, cells, kSeamStep,
+                    0.5 * (kSeamStep - 1), &map_x, &map_y);
     BorderDistance(geometry[candidates[k]], map_x, map_y, &dist);
     for (int r = 0; r < cells.height; ++r) {
       const auto* d = dist.ptr<float>(r);
@@ -219,17 +225,28 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
       }
     }
   }
-  cv::Mat owner(roi.size(), CV_16S);
+  return cell_owner;
+}
+
+// Blends one ROI from the frames listed in `candidates` (indices into geometry / images) with `work`'s buffers.
+// *out_image and *out_mask are views into them: valid until the worker's next tile.
+bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size_t>& candidates,
+              const std::function<cv::Mat(size_t, cv::Point2d*)>& image_of, const cv::Rect& roi, int num_bands,
+              TileWork* work, cv::Mat* out_image, cv::Mat* out_mask) {
+  const cv::Point cell0(roi.x / kSeamStep, roi.y / kSeamStep);
+  const cv::Size cells((roi.x + roi.width + kSeamStep - 1) / kSeamStep - cell0.x,
+                       (roi.y + roi.height + kSeamStep - 1) / kSeamStep - cell0.y);
+  const cv::Mat cell_owner = SeamCellOwners(geometry, candidates, cell0, cells, work);
+  cv::Mat owner = work->owner.View(roi.size(), CV_16S);
   for (int r = 0; r < roi.height; ++r) {
-    const auto* o = cell_owner.ptr<int16_t>((roi.y + r) / kSeamStep - cy0);
+    const auto* o = cell_owner.ptr<int16_t>((roi.y + r) / kSeamStep - cell0.y);
     auto* dst = owner.ptr<int16_t>(r);
-    for (int c = 0; c < roi.width; ++c) dst[c] = o[(roi.x + c) / kSeamStep - cx0];
+    for (int c = 0; c < roi.width; ++c) dst[c] = o[(roi.x + c) / kSeamStep - cell0.x];
   }
-  auto blender = num_bands > 0 ? MakeMultiBandBlender(num_bands) : MakeSeamOnlyBlender();
-  blender->Prepare(roi);
+  TileBlender& blender = *work->blender;
+  blender.Prepare(roi);
   bool fed = false;
-  cv::Mat warped;
-  cv::Mat mask;
+  cv::Mat mask = work->mask.View(roi.size(), CV_8U);
   for (size_t k = 0; k < candidates.size(); ++k) {
     cv::compare(owner, cv::Scalar(static_cast<double>(k)), mask, cv::CMP_EQ);
     if (cv::countNonZero(mask) == 0) continue;
@@ -244,23 +261,27 @@ bool BlendRoi(const std::vector<FrameGeometry>& geometry, const std::vector<size
     owned = cv::Rect(owned.x - reach, owned.y - reach, owned.width + 2 * reach, owned.height + 2 * reach) &
             cv::Rect(0, 0, roi.width, roi.height);
     const cv::Rect sub(roi.x + owned.x, roi.y + owned.y, owned.width, owned.height);
+    cv::Mat map_x = work->map_x.View(sub.size(), CV_32F);
+    cv::Mat map_y = work->map_y.View(sub.size(), CV_32F);
     ComputeMaps(geometry[candidates[k]], sub, &map_x, &map_y);
     if (crop_tl != cv::Point2d()) {
       map_x -= static_cast<float>(crop_tl.x);
       map_y -= static_cast<float>(crop_tl.y);
     }
     // Reflect beyond the frame edge: the pyramid then sees image texture, not black, next to the seam.
+    cv::Mat warped = work->warped.View(sub.size(), img.type());
     cv::remap(img, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REFLECT);
-    blender->Feed(warped, mask(owned), sub.tl());
+    blender.Feed(warped, mask(owned), sub.tl());
     fed = true;
   }
   if (!fed) return false;
-  blender->Blend(out_image, out_mask);
+  *out_image = work->image.View(roi.size(), CV_8UC3);
+  *out_mask = work->image_mask.View(roi.size(), CV_8U);
+  blender.Blend(out_image, out_mask);
   // The blender's mask is the union of fed masks; pixels no frame owns stay transparent.
-  cv::Mat covered;
-  cv::compare(owner, cv::Scalar(0), covered, cv::CMP_GE);
-  out_mask->setTo(0, ~covered);
-  out_image->setTo(cv::Scalar::all(0), ~covered);
+  cv::compare(owner, cv::Scalar(0), mask, cv::CMP_LT);
+  out_mask->setTo(0, mask);
+  out_image->setTo(cv::Scalar::all(0), mask);
   return true;
 }
 
@@ -544,8 +565,16 @@ bool RenderRoi(const std::vector<CompositeInput>& frames, const std::vector<cv::
     geometry.push_back(MakeGeometry(frames[i]));
     if ((geometry.back().bbox & cv::Rect2d(roi)).area() > 0) candidates.push_back(i);
   }
-  return BlendRoi(
-      geometry, candidates, [&](size_t i, cv::Point2d*) { return images[i]; }, roi, num_bands, image, mask);
+  TileWork work(num_bands);
+  cv::Mat blended_image;
+  cv::Mat blended_mask;
+  if (!BlendRoi(
+          geometry, candidates, [&](size_t i, cv::Point2d*) { return images[i]; }, roi, num_bands, &work,
+          &blended_image, &blended_mask))
+    return false;
+  *image = blended_image.clone();  // the views die with `work`
+  *mask = blended_mask.clone();
+  return true;
 }
 
 std::vector<cv::Rect> TilesAlongHilbertCurve(cv::Size canvas, int tile_size) {
@@ -759,14 +788,17 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
     return cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & canvas_rect;
   };
   TileFrames frames_of(tiles, geometry, roi_of);
-  ParallelFor(tiles.size(), memory.threads, [&](size_t t) {
+  std::vector<TileWork> works;
+  for (int w = 0; w < memory.threads; ++w) works.emplace_back(options.num_bands);
+  ParallelForOnWorkers(tiles.size(), memory.threads, [&](size_t t, size_t worker) {
     if (sink.failed()) return;
     const cv::Rect tile = tiles[t];
     const cv::Rect roi = roi_of(tile);
     const std::vector<size_t>& candidates = frames_of.candidates[t];
     cv::Mat image;
     cv::Mat mask;
-    if (!candidates.empty() && BlendRoi(geometry, candidates, image_of, roi, options.num_bands, &image, &mask)) {
+    if (!candidates.empty() &&
+        BlendRoi(geometry, candidates, image_of, roi, options.num_bands, &works[worker], &image, &mask)) {
       const cv::Rect inner(tile.x - roi.x, tile.y - roi.y, tile.width, tile.height);
       if (cv::countNonZero(mask(inner)) > 0) sink.Put(tile, image(inner), mask(inner));
     }
