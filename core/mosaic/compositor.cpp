@@ -42,7 +42,10 @@ bool CompositorOptions::Check(std::string* why) const {
 namespace {
 
 constexpr double kMiB = 1024.0 * 1024.0;
-// Per tile pixel (tile + margin) and worker, measured (bench/memory.sh, 1 vs 2 workers: ~30 MiB for 704x704).
+// Per tile pixel (tile + margin) and worker: the worker's own buffers (TileWork) at their largest, ~55 bytes (the
+// blender's 16-bit sums and float weights, the fed piece's pyramids, each 4/3 of a level: 27; its bordered copy,
+// mask and expanded level: 10; owner, mask, maps, warp, blended image and mask: 18), and the quick-look's share of a
+// tile and what OpenCV allocates inside its calls. Measured as 1 vs 2 workers: ~30 MiB for 704x704 (bench/memory.sh).
 constexpr double kBytesPerBlendPixel = 64;
 // GDAL/libtiff beyond the block cache while tiles are written (1 MiB RGB/RGBA copies of a tile, compression state,
 // the driver): measured as --no-tiff vs TIFF minus the cache on 12 MP flights.
