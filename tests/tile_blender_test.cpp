@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/stitching/detail/blenders.hpp>
@@ -22,18 +23,23 @@ struct Piece {
 // compositor feeds them: the owned area plus a margin, edges of the ROI included.
 std::vector<Piece> MakePieces(const cv::Mat& ground, const cv::Rect& roi, int count, std::mt19937* rng) {
   std::vector<Piece> pieces;
-  std::uniform_int_distribution<int> side(8, std::min(roi.width, roi.height));
+  std::uniform_int_distribution<int> side(8, std::min({roi.width, roi.height, ground.cols - 20, ground.rows - 20}));
   for (int k = 0; k < count; ++k) {
     const int w = side(*rng);
     const int h = side(*rng);
     std::uniform_int_distribution<int> px(0, roi.width - w);
     std::uniform_int_distribution<int> py(0, roi.height - h);
     const cv::Point at(px(*rng), py(*rng));
-    std::uniform_int_distribution<int> gx(0, ground.cols - w);
-    std::uniform_int_distribution<int> gy(0, ground.rows - h);
+    // Parts of larger Mats, as the compositor feeds them: the blender must border the fed pixels alone, not read
+    // their surroundings (the ground around the image, a mask of 255 around the mask).
+    constexpr int kAround = 10;
+    std::uniform_int_distribution<int> gx(kAround, ground.cols - w - kAround);
+    std::uniform_int_distribution<int> gy(kAround, ground.rows - h - kAround);
     Piece p;
-    p.image = ground(cv::Rect(gx(*rng), gy(*rng), w, h)).clone();
-    p.mask = cv::Mat::zeros(h, w, CV_8U);
+    p.image = ground(cv::Rect(gx(*rng), gy(*rng), w, h));
+    cv::Mat around(h + 2 * kAround, w + 2 * kAround, CV_8U, cv::Scalar(255));
+    p.mask = around(cv::Rect(kAround, kAround, w, h));
+    p.mask.setTo(0);
     cv::ellipse(p.mask, cv::Point(w / 2, h / 2), cv::Size(std::max(1, w / 3), std::max(1, h / 3)), 30.0 * k, 0, 360,
                 cv::Scalar(255), cv::FILLED);
     p.top_left = roi.tl() + at;
@@ -108,6 +114,30 @@ TEST(TileBlenderTest, MultiBandSmoothsAStepAcrossTheSeam) {
   EXPECT_NEAR(at(2), 60, 2);
   EXPECT_NEAR(at(253), 160, 2);
   for (int x = 1; x < 256; ++x) EXPECT_LE(std::abs(at(x) - at(x - 1)), 12) << "at x = " << x;
+}
+
+// Hard seams: each pixel from the piece that owns it, nothing where no piece does, tile after tile.
+TEST(TileBlenderTest, SeamOnlyTakesEachPixelFromItsOwner) {
+  auto blender = MakeSeamOnlyBlender();
+  for (const cv::Rect& roi : {cv::Rect(10, 20, 100, 50), cv::Rect(0, 0, 40, 30)}) {
+    blender->Prepare(roi);
+    cv::Mat a(roi.size(), CV_8UC3, cv::Scalar(10, 20, 30));
+    cv::Mat b(roi.size(), CV_8UC3, cv::Scalar(200, 100, 50));
+    cv::Mat a_mask = cv::Mat::zeros(roi.size(), CV_8U);
+    a_mask.colRange(0, roi.width / 2).setTo(255);
+    cv::Mat b_mask = cv::Mat::zeros(roi.size(), CV_8U);
+    b_mask(cv::Rect(roi.width / 2, 0, roi.width / 2, roi.height / 2)).setTo(255);
+    blender->Feed(a, a_mask, roi.tl());
+    blender->Feed(b, b_mask, roi.tl());
+    cv::Mat image;
+    cv::Mat mask;
+    blender->Blend(&image, &mask);
+    ASSERT_EQ(image.size(), roi.size());
+    EXPECT_EQ(image.at<cv::Vec3b>(1, 1), cv::Vec3b(10, 20, 30));
+    EXPECT_EQ(image.at<cv::Vec3b>(1, roi.width - 1), cv::Vec3b(200, 100, 50));
+    EXPECT_EQ(mask.at<uchar>(roi.height - 1, roi.width - 1), 0);
+    EXPECT_EQ(cv::countNonZero(mask), cv::countNonZero(a_mask) + cv::countNonZero(b_mask));
+  }
 }
 
 }  // namespace

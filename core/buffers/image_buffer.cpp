@@ -14,7 +14,8 @@ void ImageBuffer::Reserve(size_t bytes) {
 }
 
 cv::Mat ImageBuffer::View(cv::Size size, int type) {
-  const size_t bytes = static_cast<size_t>(size.area()) * CV_ELEM_SIZE(type);
+  CV_Assert(size.width >= 0 && size.height >= 0);
+  const size_t bytes = static_cast<size_t>(size.width) * static_cast<size_t>(size.height) * CV_ELEM_SIZE(type);
   Reserve(bytes);
   return cv::Mat(size, type, block_.data);
 }

@@ -807,8 +807,8 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
     }
     for (size_t i : candidates)
       if (frames_of.Done(i)) cache.Release(used[i].id);
-    // A tile's pyramids and warps are freed in pieces the next tile does not fit back exactly: without a trim the
-    // workers' arenas kept ~37 MiB of free pages by the end of a 5000-frame flight's mosaic (heaptrack against RSS).
+    // The workers' own buffers stay; what goes back is what OpenCV allocates inside its calls, the quick-look's
+    // share of the tile and the parts the cache released.
     if (options.memory_budget_mib > 0) TrimHeap();
   });
   sink.Finish(&result);

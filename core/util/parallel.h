@@ -7,8 +7,9 @@
 
 namespace uavm {
 
-// As ParallelFor (below), calling fn(i, worker) with the number of the worker that runs it, in [0, min(threads, n)): a
-// worker's calls run one after another, so fn may use state of its own per worker (e.g. buffers reused for every item).
+// As ParallelFor (below), calling fn(i, worker) with the number of the worker that runs it, in [0, min(max(1, threads),
+// n)): a worker's calls run one after another, so fn may use state of its own per worker (e.g. buffers reused for every
+// item).
 template <typename Fn>
 void ParallelForOnWorkers(size_t n, int threads, Fn&& fn) {
   if (n == 0) return;
