@@ -30,15 +30,20 @@ class MultiBand final : public TileBlender {
   void BuildPiecePyramids(const cv::Mat& image, const cv::Mat& mask, const cv::Rect& piece, cv::Point border);
   void AddPieceToSums(const cv::Rect& piece);
 
+  // One level of the pyramids: views (valid for the current tile and piece) into the level's buffers.
+  struct Level {
+    cv::Mat sum;           // sum of weighted Laplacian pieces, CV_16SC3
+    cv::Mat weight_sum;    // sum of weights, CV_32F
+    cv::Mat piece;         // the fed piece's level, CV_16SC3
+    cv::Mat piece_weight;  // its weights' Gaussian level, CV_32F
+    ImageBuffer sum_buffer, weight_sum_buffer, piece_buffer, piece_weight_buffer;
+  };
+
   int max_bands_;
   int bands_ = 0;
-  cv::Rect roi_;                       // canvas pixels asked for
-  cv::Rect padded_;                    // roi_ grown at its bottom right to a multiple of 2^bands_
-  std::vector<cv::Mat> sums_;          // per level: sum of weighted Laplacian pieces, CV_16SC3 (views)
-  std::vector<cv::Mat> weight_sums_;   // per level: sum of weights, CV_32F (views)
-  std::vector<cv::Mat> piece_;         // per level: the fed piece's pyramid, CV_16SC3 (views)
-  std::vector<cv::Mat> piece_weight_;  // per level: its weights' Gaussian pyramid, CV_32F (views)
-  std::vector<ImageBuffer> sum_buffers_, weight_sum_buffers_, piece_buffers_, piece_weight_buffers_;
+  cv::Rect roi_;                 // canvas pixels asked for
+  cv::Rect padded_;              // roi_ grown at its bottom right to a multiple of 2^bands_
+  std::vector<Level> levels_;    // bands_ + 1 in use; more kept from a larger tile
   ImageBuffer bordered_buffer_;  // the fed image with its border, before the conversion to 16 bits
   ImageBuffer mask_buffer_;      // the fed mask with its border
   ImageBuffer up_buffer_;        // a level expanded to the one below
@@ -52,25 +57,20 @@ void MultiBand::Prepare(const cv::Rect& roi) {
   bands_ = std::max(0, std::min(max_bands_, static_cast<int>(std::ceil(std::log(longest) / std::log(2.0)))));
   const int step = 1 << bands_;
   padded_ = cv::Rect(roi.x, roi.y, (roi.width + step - 1) / step * step, (roi.height + step - 1) / step * step);
-  const auto levels = static_cast<size_t>(bands_ + 1);
-  for (auto* buffers : {&sum_buffers_, &weight_sum_buffers_, &piece_buffers_, &piece_weight_buffers_})
-    if (buffers->size() < levels) buffers->resize(levels);
-  sums_.resize(levels);
-  weight_sums_.resize(levels);
-  piece_.resize(levels);
-  piece_weight_.resize(levels);
+  if (levels_.size() < static_cast<size_t>(bands_ + 1)) levels_.resize(static_cast<size_t>(bands_ + 1));
   cv::Size size = padded_.size();
-  for (size_t i = 0; i < levels; ++i) {
-    sums_[i] = sum_buffers_[i].View(size, CV_16SC3);
-    weight_sums_[i] = weight_sum_buffers_[i].View(size, CV_32F);
-    sums_[i].setTo(cv::Scalar::all(0));
-    weight_sums_[i].setTo(0);
+  for (int i = 0; i <= bands_; ++i) {
+    Level& level = levels_[static_cast<size_t>(i)];
+    level.sum = level.sum_buffer.View(size, CV_16SC3);
+    level.weight_sum = level.weight_sum_buffer.View(size, CV_32F);
+    level.sum.setTo(cv::Scalar::all(0));
+    level.weight_sum.setTo(0);
     size = cv::Size((size.width + 1) / 2, (size.height + 1) / 2);
   }
 }
 
 void MultiBand::Feed(const cv::Mat& image, const cv::Mat& mask, cv::Point top_left) {
-  CV_Assert(image.type() == CV_8UC3 || image.type() == CV_16SC3);
+  CV_Assert(image.type() == CV_8UC3);
   CV_Assert(mask.type() == CV_8U && mask.size() == image.size());
   // The piece reaches the pyramid's support beyond the image, is aligned to the coarsest level's grid (so each level
   // is exactly half the one below) and stays inside the padded ROI.
@@ -94,42 +94,43 @@ void MultiBand::BuildPiecePyramids(const cv::Mat& image, const cv::Mat& mask, co
   const int left = border.x;
   const int bottom = piece.height - top - image.rows;
   const int right = piece.width - left - image.cols;
-  piece_[0] = piece_buffers_[0].View(piece.size(), CV_16SC3);
-  if (image.type() == CV_16SC3) {
-    cv::copyMakeBorder(image, piece_[0], top, bottom, left, right, cv::BORDER_REFLECT | cv::BORDER_ISOLATED);
-  } else {
-    cv::Mat bordered = bordered_buffer_.View(piece.size(), image.type());
-    cv::copyMakeBorder(image, bordered, top, bottom, left, right, cv::BORDER_REFLECT | cv::BORDER_ISOLATED);
-    bordered.convertTo(piece_[0], CV_16S);
-  }
+  Level& base = levels_[0];
+  base.piece = base.piece_buffer.View(piece.size(), CV_16SC3);
+  cv::Mat bordered = bordered_buffer_.View(piece.size(), CV_8UC3);
+  cv::copyMakeBorder(image, bordered, top, bottom, left, right, cv::BORDER_REFLECT | cv::BORDER_ISOLATED);
+  bordered.convertTo(base.piece, CV_16S);
   cv::Mat bordered_mask = mask_buffer_.View(piece.size(), CV_8U);
   cv::copyMakeBorder(mask, bordered_mask, top, bottom, left, right, cv::BORDER_CONSTANT | cv::BORDER_ISOLATED,
                      cv::Scalar(0));
-  piece_weight_[0] = piece_weight_buffers_[0].View(piece.size(), CV_32F);
-  bordered_mask.convertTo(piece_weight_[0], CV_32F, 1.0 / 255.0);
+  base.piece_weight = base.piece_weight_buffer.View(piece.size(), CV_32F);
+  bordered_mask.convertTo(base.piece_weight, CV_32F, 1.0 / 255.0);
   for (size_t i = 1; i <= static_cast<size_t>(bands_); ++i) {
-    const cv::Size size((piece_[i - 1].cols + 1) / 2, (piece_[i - 1].rows + 1) / 2);
-    piece_[i] = piece_buffers_[i].View(size, CV_16SC3);
-    piece_weight_[i] = piece_weight_buffers_[i].View(size, CV_32F);
-    cv::pyrDown(piece_[i - 1], piece_[i], size);
-    cv::pyrDown(piece_weight_[i - 1], piece_weight_[i], size);
+    const Level& finer = levels_[i - 1];
+    Level& level = levels_[i];
+    const cv::Size size((finer.piece.cols + 1) / 2, (finer.piece.rows + 1) / 2);
+    level.piece = level.piece_buffer.View(size, CV_16SC3);
+    level.piece_weight = level.piece_weight_buffer.View(size, CV_32F);
+    cv::pyrDown(finer.piece, level.piece, size);
+    cv::pyrDown(finer.piece_weight, level.piece_weight, size);
   }
   // Gaussian -> Laplacian from the finest level up: level i still holds its Gaussian when level i - 1 needs it.
   for (size_t i = 0; i < static_cast<size_t>(bands_); ++i) {
-    cv::Mat up = up_buffer_.View(piece_[i].size(), CV_16SC3);
-    cv::pyrUp(piece_[i + 1], up, piece_[i].size());
-    cv::subtract(piece_[i], up, piece_[i]);
+    Level& level = levels_[i];
+    cv::Mat up = up_buffer_.View(level.piece.size(), CV_16SC3);
+    cv::pyrUp(levels_[i + 1].piece, up, level.piece.size());
+    cv::subtract(level.piece, up, level.piece);
   }
 }
 
 void MultiBand::AddPieceToSums(const cv::Rect& piece) {
   cv::Rect at = piece;
   for (size_t i = 0; i <= static_cast<size_t>(bands_); ++i) {
+    Level& level = levels_[i];
     for (int y = 0; y < at.height; ++y) {
-      const auto* src = piece_[i].ptr<cv::Vec3s>(y);
-      const auto* w = piece_weight_[i].ptr<float>(y);
-      auto* dst = sums_[i].ptr<cv::Vec3s>(at.y + y) + at.x;
-      auto* dst_w = weight_sums_[i].ptr<float>(at.y + y) + at.x;
+      const auto* src = level.piece.ptr<cv::Vec3s>(y);
+      const auto* w = level.piece_weight.ptr<float>(y);
+      auto* dst = level.sum.ptr<cv::Vec3s>(at.y + y) + at.x;
+      auto* dst_w = level.weight_sum.ptr<float>(at.y + y) + at.x;
       for (int x = 0; x < at.width; ++x) {
         for (int c = 0; c < 3; ++c) dst[x][c] = static_cast<short>(dst[x][c] + static_cast<short>(src[x][c] * w[x]));
         dst_w[x] += w[x];
@@ -140,24 +141,26 @@ void MultiBand::AddPieceToSums(const cv::Rect& piece) {
 }
 
 void MultiBand::Blend(cv::Mat* image, cv::Mat* mask) {
-  for (size_t i = 0; i < sums_.size(); ++i) {
-    for (int y = 0; y < sums_[i].rows; ++y) {
-      auto* row = sums_[i].ptr<cv::Vec3s>(y);
-      const auto* w = weight_sums_[i].ptr<float>(y);
-      for (int x = 0; x < sums_[i].cols; ++x)
+  for (int i = 0; i <= bands_; ++i) {
+    Level& level = levels_[static_cast<size_t>(i)];
+    for (int y = 0; y < level.sum.rows; ++y) {
+      auto* row = level.sum.ptr<cv::Vec3s>(y);
+      const auto* w = level.weight_sum.ptr<float>(y);
+      for (int x = 0; x < level.sum.cols; ++x)
         for (int c = 0; c < 3; ++c) row[x][c] = static_cast<short>(row[x][c] / (w[x] + kWeightEps));
     }
   }
-  for (size_t i = sums_.size() - 1; i > 0; --i) {
-    cv::Mat up = up_buffer_.View(sums_[i - 1].size(), CV_16SC3);
-    cv::pyrUp(sums_[i], up, sums_[i - 1].size());
-    cv::add(up, sums_[i - 1], sums_[i - 1]);
+  for (auto i = static_cast<size_t>(bands_); i > 0; --i) {
+    cv::Mat& finer = levels_[i - 1].sum;
+    cv::Mat up = up_buffer_.View(finer.size(), CV_16SC3);
+    cv::pyrUp(levels_[i].sum, up, finer.size());
+    cv::add(up, finer, finer);
   }
   const cv::Rect inside(0, 0, roi_.width, roi_.height);
-  cv::compare(weight_sums_[0](inside), kWeightEps, *mask, cv::CMP_GT);
-  sums_[0](inside).convertTo(*image, CV_8UC3);
+  cv::compare(levels_[0].weight_sum(inside), kWeightEps, *mask, cv::CMP_GT);
+  levels_[0].sum(inside).convertTo(*image, CV_8UC3);
   cv::Mat uncovered = mask_buffer_.View(inside.size(), CV_8U);
-  cv::compare(weight_sums_[0](inside), kWeightEps, uncovered, cv::CMP_LE);
+  cv::bitwise_not(*mask, uncovered);
   image->setTo(cv::Scalar::all(0), uncovered);
 }
 
