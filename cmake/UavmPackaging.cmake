@@ -50,7 +50,7 @@ set(CPACK_DEBIAN_PACKAGE_SECTION science)
 set(CPACK_DEBIAN_PACKAGE_DEPENDS
     "libc6 (>= 2.36), libstdc++6 (>= 12), libgcc-s1, libopencv-core406, libopencv-imgproc406, libopencv-imgcodecs406, \
 libopencv-features2d406, libopencv-flann406, libopencv-calib3d406, libopencv-video406, libopencv-videoio406, libopencv-stitching406, \
-libgdal32, libexiv2-27, libjpeg62-turbo, libdeflate0, libyaml-cpp0.7, libspdlog1.10, libfmt9, libsystemd0, \
+libgdal32, libexiv2-27, libjpeg62-turbo, libdeflate0, zlib1g, libyaml-cpp0.7, libspdlog1.10, libfmt9, libsystemd0, \
 libgoogle-glog0v6, libcholmod3, libcxsparse3, libatlas3-base")
 if(UAVM_WITH_LIBCAMERA)  # the libcamera capture back-end (hal/libcamera) is built in
   string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libcamera0.0.3")

@@ -50,19 +50,41 @@ CompositorOptions SceneOptions() {
   return o;
 }
 
+// Composite() with the quick-look written to a PNG in the temporary directory, read back (BGRA) by OpenCV's decoder
+// into `quicklook` and the file removed.
+template <typename Load>
+CompositeResult ComposeWithQuicklook(const std::vector<CompositeInput>& inputs, cv::Size canvas, Load&& load,
+                                     CompositorOptions o, cv::Mat* quicklook) {
+  static std::atomic<int> serial{0};
+  const auto path = std::filesystem::temp_directory_path() /
+                    ("uavm_quicklook_" + std::to_string(::getpid()) + "_" + std::to_string(serial++) + ".png");
+  o.quicklook_path = path.string();
+  CompositeResult r = Composite(inputs, canvas, std::forward<Load>(load), o, nullptr);
+  *quicklook = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
+  std::filesystem::remove(path);
+  EXPECT_FALSE(std::filesystem::exists(path.string() + ".raw.tmp")) << "the raw quick-look is removed";
+  EXPECT_FALSE(std::filesystem::exists(path.string() + ".tmp"));
+  if (r.ok) {
+    EXPECT_EQ(quicklook->size(), r.quicklook_size);
+  }
+  return r;
+}
+
 TEST(CompositorTest, RebuildsTheGroundFromCrops) {
   Scene s = MakeScene();
   ASSERT_FALSE(s.ground.empty());
   CompositorOptions o = SceneOptions();
   const cv::Size canvas(s.ground.cols, s.ground.rows);
-  const auto r = Composite(
-      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  cv::Mat quicklook;
+  const auto r = ComposeWithQuicklook(
+      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, &quicklook);
   ASSERT_TRUE(r.ok) << r.error;
-  ASSERT_EQ(r.quicklook.size(), canvas);
+  ASSERT_EQ(quicklook.type(), CV_8UC4);
+  ASSERT_EQ(quicklook.size(), canvas);
   cv::Mat bgr;
   cv::Mat alpha;
-  cv::cvtColor(r.quicklook, bgr, cv::COLOR_BGRA2BGR);
-  cv::extractChannel(r.quicklook, alpha, 3);
+  cv::cvtColor(quicklook, bgr, cv::COLOR_BGRA2BGR);
+  cv::extractChannel(quicklook, alpha, 3);
   // Covered area = union of the crops; outside it stays transparent.
   EXPECT_EQ(alpha.at<uchar>(10, 10), 255);
   EXPECT_EQ(alpha.at<uchar>(740, 990), 0);
@@ -73,13 +95,28 @@ TEST(CompositorTest, RebuildsTheGroundFromCrops) {
   EXPECT_LT((mean_err[0] + mean_err[1] + mean_err[2]) / 3, 2.5);
   // With hard seams the crops must come back bit for bit: the geometry and the seams are exact.
   o.num_bands = 0;
-  const auto hard = Composite(
-      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  cv::Mat hard_quicklook;
+  const auto hard = ComposeWithQuicklook(
+      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, &hard_quicklook);
   ASSERT_TRUE(hard.ok);
-  cv::cvtColor(hard.quicklook, bgr, cv::COLOR_BGRA2BGR);
+  cv::cvtColor(hard_quicklook, bgr, cv::COLOR_BGRA2BGR);
   cv::absdiff(bgr, s.ground, diff);
   const cv::Scalar hard_err = cv::mean(diff, alpha);
   EXPECT_LT(hard_err[0] + hard_err[1] + hard_err[2], 0.01);
+}
+
+// A quick-look that cannot be written stops the composite with the reason and the path, and leaves no file behind.
+TEST(CompositorTest, AnUnwritableQuicklookIsAnErrorNamingIt) {
+  Scene s = MakeScene();
+  CompositorOptions o = SceneOptions();
+  const auto dir = std::filesystem::temp_directory_path() / ("uavm_quicklook_gone_" + std::to_string(::getpid()));
+  o.quicklook_path = (dir / "mosaic.png").string();  // a directory that does not exist
+  const auto r = Composite(
+      s.inputs, cv::Size(s.ground.cols, s.ground.rows), [&](int id) { return s.images[static_cast<size_t>(id)]; }, o,
+      nullptr);
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.error.find(o.quicklook_path), std::string::npos) << r.error;
+  EXPECT_FALSE(std::filesystem::exists(dir));
 }
 
 // A frame's avoid disc (the sun's hotspot and the drone's shadow): the ground under it is taken from another frame
@@ -93,11 +130,12 @@ TEST(CompositorTest, SeamsKeepOutOfAnAvoidDisc) {
   o.num_bands = 0;
   const cv::Size canvas(s.ground.cols, s.ground.rows);
   auto error_at_shadow = [&](const std::vector<CompositeInput>& inputs) {
-    const auto r = Composite(
-        inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+    cv::Mat quicklook;
+    const auto r = ComposeWithQuicklook(
+        inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, &quicklook);
     EXPECT_TRUE(r.ok) << r.error;
     cv::Mat bgr;
-    cv::cvtColor(r.quicklook, bgr, cv::COLOR_BGRA2BGR);
+    cv::cvtColor(quicklook, bgr, cv::COLOR_BGRA2BGR);
     const cv::Rect window(470, 290, 21, 21);
     cv::Mat diff;
     cv::absdiff(bgr(window), s.ground(window), diff);
@@ -111,10 +149,11 @@ TEST(CompositorTest, SeamsKeepOutOfAnAvoidDisc) {
   EXPECT_LT(error_at_shadow(avoiding), 0.01);  // frame 0's pixels, exactly
   // Ground only the disc's frame sees stays its own: a disc at frame 1's far corner changes nothing there.
   avoiding[1].avoid_centre = cv::Point2d(480, 380);
-  const auto r = Composite(
-      avoiding, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  cv::Mat quicklook;
+  const auto r = ComposeWithQuicklook(
+      avoiding, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, &quicklook);
   ASSERT_TRUE(r.ok);
-  EXPECT_EQ(r.quicklook.at<cv::Vec4b>(480, 860)[3], 255);
+  EXPECT_EQ(quicklook.at<cv::Vec4b>(480, 860)[3], 255);
 }
 
 TEST(CompositorTest, TilesMatchAWholeCanvasBlend) {
@@ -123,15 +162,16 @@ TEST(CompositorTest, TilesMatchAWholeCanvasBlend) {
   s.images[1].convertTo(s.images[1], -1, 1.15, 12);
   CompositorOptions o = SceneOptions();
   const cv::Size canvas(s.ground.cols, s.ground.rows);
-  const auto tiled = Composite(
-      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  cv::Mat tiled_quicklook;
+  const auto tiled = ComposeWithQuicklook(
+      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, &tiled_quicklook);
   ASSERT_TRUE(tiled.ok);
   cv::Mat whole;
   cv::Mat whole_mask;
   ASSERT_TRUE(
       RenderRoi(s.inputs, s.images, cv::Rect(0, 0, canvas.width, canvas.height), o.num_bands, &whole, &whole_mask));
   cv::Mat tiled_bgr;
-  cv::cvtColor(tiled.quicklook, tiled_bgr, cv::COLOR_BGRA2BGR);
+  cv::cvtColor(tiled_quicklook, tiled_bgr, cv::COLOR_BGRA2BGR);
   cv::Mat diff;
   cv::absdiff(tiled_bgr, whole, diff);
   diff = diff.reshape(1);
@@ -147,12 +187,14 @@ TEST(CompositorTest, PartLoadsComposeLikeWholeFrames) {
   s.images[1].convertTo(s.images[1], -1, 1.15, 12);
   CompositorOptions o = SceneOptions();
   const cv::Size canvas(s.ground.cols, s.ground.rows);
-  const auto whole = Composite(
-      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, nullptr);
+  cv::Mat whole_quicklook;
+  const auto whole = ComposeWithQuicklook(
+      s.inputs, canvas, [&](int id) { return s.images[static_cast<size_t>(id)]; }, o, &whole_quicklook);
   ASSERT_TRUE(whole.ok);
   for (auto& in : s.inputs) in.region_loads = true;
   int smaller = 0;
-  const auto parts = Composite(
+  cv::Mat parts_quicklook;
+  const auto parts = ComposeWithQuicklook(
       s.inputs, canvas,
       [&](int id, const cv::Rect& need) {
         const cv::Mat& img = s.images[static_cast<size_t>(id)];
@@ -162,11 +204,11 @@ TEST(CompositorTest, PartLoadsComposeLikeWholeFrames) {
             cv::Rect(need.x - 8, need.y, need.width + 8, need.height) & cv::Rect(cv::Point(), img.size());
         return FramePart{img(part).clone(), cv::Point2d(part.tl())};
       },
-      o, nullptr);
+      o, &parts_quicklook);
   ASSERT_TRUE(parts.ok);
   EXPECT_GT(smaller, 0) << "a frame partly covered by others is needed only in part";
   cv::Mat diff;
-  cv::absdiff(whole.quicklook, parts.quicklook, diff);
+  cv::absdiff(whole_quicklook, parts_quicklook, diff);
   EXPECT_EQ(cv::countNonZero(diff.reshape(1)), 0);
 }
 
@@ -182,36 +224,37 @@ TEST(CompositorTest, EvictedPartsComeBackFromMemory) {
   o.max_covered_fraction = 1.0;
   o.quicklook_long_side = 4096;
   const cv::Size canvas(s.ground.cols, s.ground.rows);
-  const size_t quicklook = static_cast<size_t>(canvas.area()) * 4;
   const size_t part = 520 * 420 * 3;
   for (auto& in : s.inputs) in.load_bytes = part;
-  o.image_cache_bytes = quicklook + part + part + part / 2;  // one load in flight, one decoded part and a half
+  o.image_cache_bytes = part + part + part / 2;  // one load in flight, one decoded part and a half
   int loads_decoded_only = 0;
   o.compressed_share = 0.0;
-  const auto decoded_only = Composite(
+  cv::Mat decoded_only_quicklook;
+  const auto decoded_only = ComposeWithQuicklook(
       s.inputs, canvas,
       [&](int id) {
         ++loads_decoded_only;
         return s.images[static_cast<size_t>(id)];
       },
-      o, nullptr);
+      o, &decoded_only_quicklook);
   ASSERT_TRUE(decoded_only.ok);
   ASSERT_GT(loads_decoded_only, 3) << "the test needs a cache too small for every frame";
   int loads = 0;
   o.compressed_share = 1.0;
-  const auto two_tiers = Composite(
+  cv::Mat two_tiers_quicklook;
+  const auto two_tiers = ComposeWithQuicklook(
       s.inputs, canvas,
       [&](int id) {
         ++loads;
         return s.images[static_cast<size_t>(id)];
       },
-      o, nullptr);
+      o, &two_tiers_quicklook);
   ASSERT_TRUE(two_tiers.ok);
   EXPECT_EQ(loads, 3);
   EXPECT_EQ(two_tiers.image_loads, 3);
   EXPECT_EQ(two_tiers.reloads_from_memory, loads_decoded_only - 3);
   cv::Mat diff;
-  cv::absdiff(decoded_only.quicklook, two_tiers.quicklook, diff);
+  cv::absdiff(decoded_only_quicklook, two_tiers_quicklook, diff);
   const cv::Scalar mean = cv::mean(diff);
   EXPECT_LT((mean[0] + mean[1] + mean[2]) / 3, 1.0);
 }

@@ -3,7 +3,11 @@
 #include "core/imageio/png_writer.h"
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
@@ -54,6 +58,75 @@ TEST(PngWriterTest, CompressesASmoothTileAndRefusesOtherTypes) {
   EXPECT_FALSE(writer.Encode(cv::Mat(8, 8, CV_8UC3, cv::Scalar(1, 2, 3)), &png));
   EXPECT_TRUE(png.empty());
   EXPECT_FALSE(writer.Encode(cv::Mat(), &png));
+}
+
+std::string TempPng(const char* name) {
+  return (std::filesystem::temp_directory_path() /
+          ("uavm_png_" + std::to_string(::getpid()) + "_" + std::string(name) + ".png"))
+      .string();
+}
+
+// The row writer (zlib, streamed) against the same independent decoder: every pixel back, from one pixel to rows
+// longer than the compressor's 64 KiB output buffer (20000 px: 80 KB a row), over several IDAT chunks.
+TEST(PngRowWriterTest, LibpngReadsBackEveryRowWritten) {
+  const std::string path = TempPng("rows");
+  for (const cv::Size size :
+       {cv::Size(1, 1), cv::Size(257, 3), cv::Size(3, 300), cv::Size(2000, 90), cv::Size(20000, 3)}) {
+    const cv::Mat bgra = RandomBgra(size, static_cast<uint32_t>(size.area()));
+    PngRowWriter writer(1);
+    std::string error;
+    ASSERT_TRUE(writer.Open(path, size.width, size.height, &error)) << error;
+    for (int y = 0; y < size.height; ++y) ASSERT_TRUE(writer.WriteRow(bgra.ptr(y), &error)) << error;
+    ASSERT_TRUE(writer.Finish(&error)) << error;
+    const cv::Mat back = cv::imread(path, cv::IMREAD_UNCHANGED);
+    ASSERT_EQ(back.type(), CV_8UC4);
+    ASSERT_EQ(back.size(), size);
+    EXPECT_EQ(cv::norm(back, bgra, cv::NORM_INF), 0.0) << size;
+  }
+  std::filesystem::remove(path);
+}
+
+// A file cut short is an error, never a PNG that looks whole: missing rows fail Finish, an extra row fails WriteRow
+// and then Finish, and a directory that cannot be written fails Open with its path named.
+TEST(PngRowWriterTest, RefusesMissingRowsExtraRowsAndUnwritablePaths) {
+  const std::string path = TempPng("short");
+  const cv::Mat bgra = RandomBgra({16, 4}, 7);
+  std::string error;
+  {
+    PngRowWriter writer;
+    ASSERT_TRUE(writer.Open(path, 16, 4, &error));
+    for (int y = 0; y < 3; ++y) ASSERT_TRUE(writer.WriteRow(bgra.ptr(y), &error));
+    EXPECT_FALSE(writer.Finish(&error));
+    EXPECT_NE(error.find("3 of 4 rows"), std::string::npos) << error;
+  }
+  {
+    PngRowWriter writer;
+    ASSERT_TRUE(writer.Open(path, 16, 1, &error));
+    ASSERT_TRUE(writer.WriteRow(bgra.ptr(0), &error));
+    EXPECT_FALSE(writer.WriteRow(bgra.ptr(1), &error));
+    EXPECT_FALSE(writer.Finish(&error)) << "a writer that refused a call stays failed";
+    EXPECT_NE(error.find("a row beyond"), std::string::npos) << error;
+  }
+  PngRowWriter writer;
+  const std::string nowhere = "/nonexistent_dir_uavm/q.png";
+  EXPECT_FALSE(writer.Open(nowhere, 16, 4, &error));
+  EXPECT_NE(error.find(nowhere), std::string::npos) << error;
+  EXPECT_FALSE(writer.Finish(&error));
+  EXPECT_NE(error.find(nowhere), std::string::npos) << "the first failure's reason is kept: " << error;
+  std::filesystem::remove(path);
+}
+
+// A full disk (/dev/full: every write fails with ENOSPC) is an error that says so, at the latest when the file is
+// finished, whatever the buffering; never a success.
+TEST(PngRowWriterTest, AFullDiskFailsWithItsReason) {
+  if (!std::filesystem::exists("/dev/full")) GTEST_SKIP() << "no /dev/full";
+  const cv::Mat bgra = RandomBgra({300, 200}, 11);
+  PngRowWriter writer;
+  std::string error;
+  bool ok = writer.Open("/dev/full", bgra.cols, bgra.rows, &error);
+  for (int y = 0; ok && y < bgra.rows; ++y) ok = writer.WriteRow(bgra.ptr(y), &error);
+  EXPECT_FALSE(writer.Finish(&error));
+  EXPECT_NE(error.find(std::strerror(ENOSPC)), std::string::npos) << error;
 }
 
 }  // namespace

@@ -1,17 +1,24 @@
 #include "core/mosaic/compositor.h"
 
+#include <fcntl.h>
 #include <spdlog/spdlog.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <list>
+#include <memory>
 #include <mutex>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <unordered_map>
 
 #include "core/buffers/image_buffer.h"
+#include "core/imageio/png_writer.h"
 #include "core/mosaic/gdal_writer.h"
 #include "core/mosaic/selection.h"
 #include "core/mosaic/tile_blender.h"
@@ -68,14 +75,13 @@ double CompositorOptions::WriterMiB() const {
   return gdal_cache_mib + kWriterOverheadMiB;
 }
 
-CompositorMemory FitCompositorMemory(size_t pixel_bytes, size_t quicklook_bytes, size_t largest_load,
-                                     size_t largest_crop, int threads, size_t blend_bytes_per_worker) {
+CompositorMemory FitCompositorMemory(size_t pixel_bytes, size_t largest_load, size_t largest_crop, int threads,
+                                     size_t blend_bytes_per_worker) {
   CompositorMemory m;
   m.threads = std::max(1, threads);
   m.largest_part = largest_crop;
   for (;;) {
-    const size_t fixed = quicklook_bytes + largest_load;
-    const size_t cache = pixel_bytes > fixed ? pixel_bytes - fixed : 0;
+    const size_t cache = pixel_bytes > largest_load ? pixel_bytes - largest_load : 0;
     const size_t floor = static_cast<size_t>(m.threads) * largest_crop;
     if (cache >= floor) {
       m.cache_bytes = cache;
@@ -598,11 +604,11 @@ std::vector<cv::Rect> TilesAlongHilbertCurve(cv::Size canvas, int tile_size) {
 
 namespace {
 
-// Frame pixels are the quick-look, the loads in flight and the cache of needed parts. Under a budget they are also
+// Frame pixels are the loads in flight and the cache of needed parts. Under a budget they are also
 // held to what the budget leaves once the flight's remains (measured, not assumed: they vary with the flight), the TIFF
 // writer and the workers are counted; frames too large for that then cost a worker rather than the budget.
 CompositorMemory PlanMemory(const std::vector<CompositeInput>& used, const std::vector<cv::Rect>& need,
-                            size_t quicklook_bytes, bool parallel_loads, bool with_tiff, double resident_mib,
+                            bool parallel_loads, bool with_tiff, double resident_mib,
                             const CompositorOptions& options) {
   size_t largest_part = 0;
   size_t largest_load = 0;
@@ -626,13 +632,11 @@ CompositorMemory PlanMemory(const std::vector<CompositeInput>& used, const std::
   parallel_loads =
       parallel_loads && largest_load * static_cast<size_t>(std::max(1, options.threads)) * 4 <= pixel_bytes;
   const size_t in_flight = largest_load * static_cast<size_t>(parallel_loads ? std::max(1, options.threads) : 1);
-  CompositorMemory memory =
-      FitCompositorMemory(pixel_bytes, quicklook_bytes, in_flight, largest_part, options.threads, blend_bytes);
+  CompositorMemory memory = FitCompositorMemory(pixel_bytes, in_flight, largest_part, options.threads, blend_bytes);
   memory.parallel_loads = parallel_loads;
   const auto mib = [](size_t bytes) { return static_cast<double>(bytes) / kMiB; };
-  spdlog::info("composite: {} worker(s), frame cache {:.0f} MiB, loads {:.0f} MiB{}, quick-look {:.0f} MiB{}",
-               memory.threads, mib(memory.cache_bytes), mib(in_flight), parallel_loads ? " (parts, in parallel)" : "",
-               mib(quicklook_bytes),
+  spdlog::info("composite: {} worker(s), frame cache {:.0f} MiB, loads {:.0f} MiB{}{}", memory.threads,
+               mib(memory.cache_bytes), mib(in_flight), parallel_loads ? " (parts, in parallel)" : "",
                options.memory_budget_mib > 0 ? fmt::format(" ({:.0f} MiB resident at the start)", resident_mib) : "");
   if (!memory.fits)
     spdlog::warn(
@@ -642,25 +646,116 @@ CompositorMemory PlanMemory(const std::vector<CompositeInput>& used, const std::
   return memory;
 }
 
-// Where finished tiles go: the TIFF (may be null) and the quick-look. Thread-safe; the first write error stops it.
+// The quick-look, made on disk: tiles arrive in any order (along a Hilbert curve), so their reduced pieces go into a
+// raw BGRA file of the quick-look's size, sparse (what no tile wrote reads back as transparent zeros), which Finish
+// streams into the PNG row by row. Memory: one row and the PNG compressor, whatever the canvas (held whole, the
+// quick-look was 9 MiB of a 5000-frame flight's compose phase against 3 at 200 frames); disk: the raw image (16 MB
+// at most at 2000 px) until the PNG is written, then removed. Put is safe from several threads for disjoint pieces.
+class QuicklookFile {
+ public:
+  QuicklookFile() = default;
+  QuicklookFile(const QuicklookFile&) = delete;
+  QuicklookFile& operator=(const QuicklookFile&) = delete;
+  ~QuicklookFile() {
+    if (fd_ >= 0) ::close(fd_);
+    if (!raw_path_.empty()) std::remove(raw_path_.c_str());
+  }
+
+  bool Open(const std::string& png_path, cv::Size size, std::string* error) {
+    png_path_ = png_path;
+    raw_path_ = png_path + ".raw.tmp";
+    size_ = size;
+    fd_ = ::open(raw_path_.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd_ < 0 || ::ftruncate(fd_, static_cast<off_t>(RowBytes() * static_cast<size_t>(size.height))) != 0)
+      return Fail(raw_path_, error);
+    return true;
+  }
+
+  bool Put(cv::Point at, const cv::Mat& bgra, std::string* error) {
+    for (int y = 0; y < bgra.rows; ++y) {
+      const size_t offset = RowBytes() * static_cast<size_t>(at.y + y) + 4 * static_cast<size_t>(at.x);
+      if (!Transfer(::pwrite, const_cast<uchar*>(bgra.ptr(y)), static_cast<size_t>(bgra.cols) * 4, offset))
+        return Fail(raw_path_, error);
+    }
+    return true;
+  }
+
+  // The PNG at png_path (written beside it and renamed: a reader never sees half of one); the raw file removed.
+  bool Finish(std::string* error) {
+    const std::string tmp = png_path_ + ".tmp";
+    PngRowWriter png;
+    std::vector<uint8_t> row(RowBytes());
+    bool ok = png.Open(tmp, size_.width, size_.height, error);
+    for (int y = 0; ok && y < size_.height; ++y) {
+      ok = Transfer(::pread, row.data(), row.size(), RowBytes() * static_cast<size_t>(y)) || Fail(raw_path_, error);
+      ok = ok && png.WriteRow(row.data(), error);
+    }
+    std::string finish_error;  // the first failure's reason is the one to keep
+    if (!png.Finish(&finish_error) && ok) {
+      *error = finish_error;
+      ok = false;
+    }
+    if (ok && std::rename(tmp.c_str(), png_path_.c_str()) != 0) ok = Fail(png_path_, error);
+    if (!ok) std::remove(tmp.c_str());
+    return ok;
+  }
+
+ private:
+  [[nodiscard]] size_t RowBytes() const { return static_cast<size_t>(size_.width) * 4; }
+  // All `bytes` through pread or pwrite, retried where the call moved fewer or was interrupted; a short count that
+  // makes no progress is a full disk (it sets no errno of its own).
+  template <typename Call>
+  bool Transfer(Call call, uchar* data, size_t bytes, size_t offset) const {
+    while (bytes > 0) {
+      const ssize_t n = call(fd_, data, bytes, static_cast<off_t>(offset));
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) {
+        if (n == 0) errno = ENOSPC;
+        return false;
+      }
+      data += n;
+      bytes -= static_cast<size_t>(n);
+      offset += static_cast<size_t>(n);
+    }
+    return true;
+  }
+  static bool Fail(const std::string& path, std::string* error) {
+    *error = "quick-look: " + path + ": " + std::strerror(errno);
+    return false;
+  }
+
+  int fd_ = -1;
+  std::string png_path_;
+  std::string raw_path_;
+  cv::Size size_;
+};
+
+// Where finished tiles go: the TIFF (may be null) and the quick-look (none without a path). Thread-safe; the first
+// write error stops it.
 class TileSink {
  public:
   TileSink(cv::Size canvas, int quicklook_long_side, GdalTiffWriter* tiff) : tiff_(tiff) {
     q_ = std::min(1.0, quicklook_long_side / static_cast<double>(std::max(canvas.width, canvas.height)));
-    quicklook_ = cv::Mat(std::max(1, static_cast<int>(std::lround(canvas.height * q_))),
-                         std::max(1, static_cast<int>(std::lround(canvas.width * q_))), CV_8UC4, cv::Scalar::all(0));
+    quicklook_size_ = cv::Size(std::max(1, static_cast<int>(std::lround(canvas.width * q_))),
+                               std::max(1, static_cast<int>(std::lround(canvas.height * q_))));
   }
-  [[nodiscard]] size_t quicklook_bytes() const { return quicklook_.total() * quicklook_.elemSize(); }
+  [[nodiscard]] bool OpenQuicklook(const std::string& path) {
+    if (path.empty()) return true;
+    quicklook_ = std::make_unique<QuicklookFile>();
+    if (quicklook_->Open(path, quicklook_size_, &error_)) return true;
+    failed_ = true;
+    return false;
+  }
   [[nodiscard]] bool failed() const { return failed_; }
 
   void Put(const cv::Rect& tile, const cv::Mat& image, const cv::Mat& mask) {
     // Quick-look share of this tile, made outside the lock.
     const int x0 = static_cast<int>(std::lround(tile.x * q_));
     const int y0 = static_cast<int>(std::lround(tile.y * q_));
-    const int x1 = std::min(quicklook_.cols, static_cast<int>(std::lround((tile.x + tile.width) * q_)));
-    const int y1 = std::min(quicklook_.rows, static_cast<int>(std::lround((tile.y + tile.height) * q_)));
+    const int x1 = std::min(quicklook_size_.width, static_cast<int>(std::lround((tile.x + tile.width) * q_)));
+    const int y1 = std::min(quicklook_size_.height, static_cast<int>(std::lround((tile.y + tile.height) * q_)));
     cv::Mat small;
-    if (x1 > x0 && y1 > y0) {
+    if (quicklook_ && x1 > x0 && y1 > y0) {
       cv::Mat bgra;
       cv::cvtColor(image, bgra, cv::COLOR_BGR2BGRA);
       cv::insertChannel(mask, bgra, 3);
@@ -669,24 +764,27 @@ class TileSink {
     std::lock_guard<std::mutex> lock(mutex_);
     if (failed_) return;
     std::string err;
-    if (tiff_ != nullptr && !tiff_->Write(image, mask, tile.tl(), &err)) {
+    if ((tiff_ != nullptr && !tiff_->Write(image, mask, tile.tl(), &err)) ||
+        (!small.empty() && !quicklook_->Put({x0, y0}, small, &err))) {
       error_ = err;
       failed_ = true;
       return;
     }
     ++tiles_written_;
-    if (!small.empty()) small.copyTo(quicklook_(cv::Rect(x0, y0, x1 - x0, y1 - y0)));
   }
   void Finish(CompositeResult* result) {
     result->tiles_written = tiles_written_;
+    if (!failed_ && quicklook_ && !quicklook_->Finish(&error_)) failed_ = true;
     result->error = error_;
-    result->quicklook = std::move(quicklook_);
+    result->quicklook_size = quicklook_size_;
+    quicklook_.reset();
   }
 
  private:
   GdalTiffWriter* tiff_;
   double q_ = 1.0;
-  cv::Mat quicklook_;  // BGRA
+  cv::Size quicklook_size_;
+  std::unique_ptr<QuicklookFile> quicklook_;  // null: no quick-look asked for
   std::mutex mutex_;
   std::atomic<bool> failed_{false};
   std::string error_;
@@ -753,11 +851,14 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
   for (const auto& f : used) geometry.push_back(MakeGeometry(f));
   const std::vector<cv::Rect> need = NeededParts(geometry, canvas, options.num_bands);
   TileSink sink(canvas, options.quicklook_long_side, tiff);
+  if (!sink.OpenQuicklook(options.quicklook_path)) {
+    sink.Finish(&result);
+    return result;
+  }
   // Parts may be loaded in parallel (see PlanMemory); a whole-frame load, the largest transient buffer, one at a time.
   const bool parallel_loads =
       !used.empty() && std::all_of(used.begin(), used.end(), [](const CompositeInput& in) { return in.region_loads; });
-  const CompositorMemory memory =
-      PlanMemory(used, need, sink.quicklook_bytes(), parallel_loads, tiff != nullptr, resident_mib, options);
+  const CompositorMemory memory = PlanMemory(used, need, parallel_loads, tiff != nullptr, resident_mib, options);
   // The decoded tier keeps at least one part per worker; the second tier a share of the rest.
   const size_t floor = static_cast<size_t>(memory.threads) * memory.largest_part;
   const auto compressed = static_cast<size_t>(
@@ -808,7 +909,7 @@ CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size ca
     for (size_t i : candidates)
       if (frames_of.Done(i)) cache.Release(used[i].id);
     // The workers' own buffers stay; what goes back is what OpenCV allocates inside its calls, the quick-look's
-    // share of the tile and the parts the cache released.
+    // piece of the tile and the parts the cache released.
     if (options.memory_budget_mib > 0) TrimHeap();
   });
   sink.Finish(&result);

@@ -23,7 +23,10 @@ struct CompositorOptions {
   int num_bands = 5;                  // multi-band levels; 0 = hard seams only
   double max_covered_fraction = 0.9;  // overlap-based frame selection (see SelectByOverlap)
   int quicklook_long_side = 2000;
-  // All frame pixels: the quick-look, the loads in flight and the decoded frame parts kept between tiles.
+  // Where the quick-look PNG goes (empty: none; set by the caller, not a config key). It is made on disk as the
+  // tiles arrive (see Composite), so it costs no memory whatever the canvas.
+  std::string quicklook_path;
+  // All frame pixels: the loads in flight and the decoded frame parts kept between tiles.
   size_t image_cache_bytes = size_t{256} << 20;
   // Share of the frame cache, beyond one decoded part per worker, that keeps parts as in-memory JPEG (reloaded by a
   // small decode instead of the stored frame's); 0 = decoded parts only.
@@ -55,12 +58,12 @@ struct CompositorMemory {
   bool parallel_loads = false;  // workers load frame parts at the same time (set by the compositor)
 };
 
-// Splits `pixel_bytes`, all the memory for frame pixels (the quick-look, the loads in flight, the cache), when the
-// loads in flight hold `largest_load` bytes at most and the largest cached crop is `largest_crop` bytes. Each of
-// `threads` workers holds at least one cached crop; while that does not fit, a worker is dropped and its
-// `blend_bytes_per_worker` go to frame pixels.
-[[nodiscard]] CompositorMemory FitCompositorMemory(size_t pixel_bytes, size_t quicklook_bytes, size_t largest_load,
-                                                   size_t largest_crop, int threads, size_t blend_bytes_per_worker);
+// Splits `pixel_bytes`, all the memory for frame pixels (the loads in flight, the cache), when the loads in flight
+// hold `largest_load` bytes at most and the largest cached crop is `largest_crop` bytes. Each of `threads` workers
+// holds at least one cached crop; while that does not fit, a worker is dropped and its `blend_bytes_per_worker` go to
+// frame pixels.
+[[nodiscard]] CompositorMemory FitCompositorMemory(size_t pixel_bytes, size_t largest_load, size_t largest_crop,
+                                                   int threads, size_t blend_bytes_per_worker);
 
 // A frame to composite: canvas_from_image acts on the pixel grid of the image that `load` returns.
 struct CompositeInput {
@@ -104,7 +107,7 @@ struct CompositeResult {
   size_t cache_peak_bytes = 0;  // the frame cache's high-water mark, both tiers
   double load_ms = 0.0;         // time in those decodes, summed over the workers
   double ms = 0.0;
-  cv::Mat quicklook;  // BGRA, transparent outside the flown area
+  cv::Size quicklook_size;  // of the PNG at options.quicklook_path (RGBA, transparent outside the flown area)
 };
 
 // The canvas's tiles of tile_size (clipped at its edges) in the order the compositor makes them: along a Hilbert curve
@@ -113,7 +116,8 @@ struct CompositeResult {
 
 // Composites `frames` onto a canvas of size `canvas` tile by tile: per tile, each pixel is owned by the frame whose
 // border is farthest (distance-to-border seams, in canvas pixels), owners are warped and blended with multi-band
-// blending over the tile plus a margin, and the tile goes to `tiff` (may be null) and the quick-look.
+// blending over the tile plus a margin, and the tile goes to `tiff` (may be null) and the quick-look. A write error
+// (a full disk) stops it with the error in the result; what was written is removed or left incomplete for a retry.
 [[nodiscard]] CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas,
                                         const PartLoadFn& load, const CompositorOptions& options, GdalTiffWriter* tiff);
 // The same with a loader of whole frames.

@@ -7,8 +7,6 @@
 #include <cmath>
 #include <filesystem>
 #include <future>
-#include <opencv2/imgcodecs.hpp>
-#include <string_view>
 #include <unordered_map>
 
 #include "core/mosaic/gdal_writer.h"
@@ -98,7 +96,9 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
       !tiff.Open(paths_.Join("mosaic.tiled.tif"), canvas, options_.mosaic.tiff_block, options_.mosaic.tile_size,
                  options_.mosaic.build_overviews, options_.mosaic.gdal_cache_mib, error))
     return false;
-  *composite = Composite(inputs, canvas, load, options_.mosaic, write_tiff ? &tiff : nullptr);
+  CompositorOptions mosaic = options_.mosaic;
+  mosaic.quicklook_path = paths_.Join("mosaic.png");
+  *composite = Composite(inputs, canvas, load, mosaic, write_tiff ? &tiff : nullptr);
   if (!composite->ok) {
     *error = "composite failed: " + composite->error;
     return false;
@@ -106,11 +106,6 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
   if (write_tiff && georef.ok) tiff.SetGeoreference(GdalGeoTransform(georef.world_from_pixel), georef.crs_wkt);
   if (write_tiff && !tiff.Close(error)) return false;
   in_.session->ComposeEnd();
-  std::vector<uchar> png;
-  if (!cv::imencode(".png", composite->quicklook, png) ||
-      !WriteFileAtomic(paths_.Join("mosaic.png"),
-                       std::string_view(reinterpret_cast<const char*>(png.data()), png.size()), error))
-    return false;
   spdlog::info(
       "mosaic {}x{} px (scale {:.3f}), {} frames blended, {} dropped by overlap, {} tiles, {} frame loads ({:.0f} ms), "
       "{} parts again from memory, {:.0f} ms",

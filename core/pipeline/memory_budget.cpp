@@ -28,11 +28,6 @@ constexpr double kFlightResidueMiB = 20.0;
 constexpr double kBytesPerSolverCorrespondence = 1100;
 // An edge's point pair held by the end's solves (two float 2-vectors), with its share of held-out pairs (a quarter).
 constexpr double kBytesPerEndPoint = 16 * 1.25;
-// The compositor's largest fixed buffer besides its workers: the BGRA quick-look (2000 px long side, square canvas).
-double QuicklookMiB(const CompositorOptions& m) {
-  return 4.0 * m.quicklook_long_side * m.quicklook_long_side / kMiB;
-}
-
 double BlendMiB(const CompositorOptions& m) {
   return m.threads * m.BlendMiBPerWorker();
 }
@@ -180,9 +175,10 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
       (sift.height + p.sift_bands - 1) / p.sift_bands + (p.sift_bands > 1 ? 2 * features.band_margin : 0);
   p.sift_mib = SiftScaleSpaceMiB(sift.width, std::min(sift.height, band_rows));
 
-  // End of flight: what the flight leaves, then the TIFF writer, the tile workers and frame pixels (the quick-look,
-  // one load, the cache). The plan cannot know the frames' size (the compositor loads them at the canvas's scale):
-  // the compositor fits its pixels into what is left when it starts, dropping a worker for frames too large.
+  // End of flight: what the flight leaves, then the TIFF writer, the tile workers and frame pixels (one load, the
+  // cache; the quick-look is made on disk). The plan cannot know the frames' size (the compositor loads them at the
+  // canvas's scale): the compositor fits its pixels into what is left when it starts, dropping a worker for frames too
+  // large.
   p.residue_mib = kFlightResidueMiB;
   CompositorOptions mosaic = o.mosaic;
   mosaic.gdal_cache_mib =
@@ -190,12 +186,13 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   mosaic.memory_budget_mib = o.memory_budget_mib;
   p.gdal_cache_mib = mosaic.WriterMiB();
   const double end_avail = avail - p.residue_mib - p.gdal_cache_mib;
-  // Workers get at most half of it: frame pixels need the quick-look, a load and a cached frame per worker.
+  // Workers get at most half of it: frame pixels need a load and a cached frame per worker (the quick-look is made
+  // on disk).
   while (BlendMiB(mosaic) > 0.5 * end_avail && mosaic.tile_size > mosaic.tiff_block) mosaic.tile_size /= 2;
   while (BlendMiB(mosaic) > 0.5 * end_avail && mosaic.threads > 1) --mosaic.threads;
   p.blend_mib = BlendMiB(mosaic);
   p.image_cache_mib = std::min(static_cast<double>(o.mosaic.image_cache_bytes) / kMiB, end_avail - p.blend_mib);
-  if (p.image_cache_mib < QuicklookMiB(mosaic) + 8)
+  if (p.image_cache_mib < 8)
     return fail("memory_budget_mib " + std::to_string(o.memory_budget_mib) + " leaves no room for the compositor");
   p.refine_correspondences =
       std::min(o.refine.max_correspondences,

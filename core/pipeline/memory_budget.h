@@ -9,8 +9,8 @@ namespace uavm {
 // budget minus what lives through both (the process itself, the match graph):
 //   flight: baseline + SIFT scale space + frames in the queue + feature cache + relocalisation index + graph
 //           + the sub-pixel refinement's grey images
-//   end:    baseline + graph + what the flight leaves + max(refinement solver, compositor: frame pixels (quick-look,
-//           one load, decoded-frame cache) + tile blenders + TIFF writer)
+//   end:    baseline + graph + what the flight leaves + max(refinement solver, compositor: frame pixels (one load,
+//           decoded-frame cache) + tile blenders + TIFF writer; the quick-look is made on disk)
 // The compositor refits its frame pixels and workers to the real frame and canvas sizes (FitCompositorMemory).
 // Every figure is MiB. Estimates come from the sizes of the buffers involved; the benchmark measures the outcome.
 struct MemoryPlan {

@@ -442,8 +442,9 @@ std::vector<Case> Cases() {
   c.push_back({"OutputInReadOnlyFilesystem", O::kExit, 4, "output", [](Env& e) { e.out = "/proc/uavm_session"; }});
   c.push_back({"DiskFullAtFirstFrame", O::kExit, 4, "disk full", [](Env& e) { e.fsize_limit = 64 << 10; }});
   c.push_back({"DiskFullWritingTheMosaic", O::kExit, 4, "output not writable or disk full", [](Env& e) {
-                 // Frames and features fit, the 3-frame mosaic.tif (about 1.3 MB) does not; under emulation the
-                 // 2-frame mosaic at the smaller working size is 0.6 MB, its frames up to 0.3 MB.
+                 // Frames and features fit, the 3-frame mosaic does not: mosaic.tif (about 1.3 MB) and the quick-look's
+                 // raw file made beside mosaic.png (~3 MB, the first to fail); under emulation the 2-frame mosaic at
+                 // the smaller working size is 0.6 MB, its frames up to 0.3 MB.
                  e.fsize_limit = test::Emulated() ? 400 << 10 : 700 << 10;
                  std::erase(e.args, std::string("--no-tiff"));
                }});
