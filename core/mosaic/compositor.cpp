@@ -674,8 +674,7 @@ class QuicklookFile {
   bool Put(cv::Point at, const cv::Mat& bgra, std::string* error) {
     for (int y = 0; y < bgra.rows; ++y) {
       const size_t offset = RowBytes() * static_cast<size_t>(at.y + y) + 4 * static_cast<size_t>(at.x);
-      if (!Transfer(::pwrite, const_cast<uchar*>(bgra.ptr(y)), static_cast<size_t>(bgra.cols) * 4, offset))
-        return Fail(raw_path_, error);
+      if (!Transfer(::pwrite, bgra.ptr(y), static_cast<size_t>(bgra.cols) * 4, offset)) return Fail(raw_path_, error);
     }
     return true;
   }
@@ -704,8 +703,8 @@ class QuicklookFile {
   [[nodiscard]] size_t RowBytes() const { return static_cast<size_t>(size_.width) * 4; }
   // All `bytes` through pread or pwrite, retried where the call moved fewer or was interrupted; a short count that
   // makes no progress is a full disk (it sets no errno of its own).
-  template <typename Call>
-  bool Transfer(Call call, uchar* data, size_t bytes, size_t offset) const {
+  template <typename Call, typename Byte>  // Byte: const uchar for pwrite, uchar for pread
+  bool Transfer(Call call, Byte* data, size_t bytes, size_t offset) const {
     while (bytes > 0) {
       const ssize_t n = call(fd_, data, bytes, static_cast<off_t>(offset));
       if (n < 0 && errno == EINTR) continue;
