@@ -79,8 +79,8 @@ ci_tier() {
   step "function size" bash "$ROOT/scripts/lint.sh" --function-size
   step "native suite" native_suite
   step "accuracy gate" bash "$ROOT/scripts/accuracy_gate.sh"
-  step "fuzzing" bash "$ROOT/scripts/fuzz.sh" --runs 20000
-  step "aarch64 build" bash "$ROOT/scripts/test_aarch64.sh" build
+  step "fuzzing" bash "$ROOT/scripts/fuzz.sh" --runs 20000 --quick-build
+  step "aarch64 build" bash "$ROOT/scripts/test_aarch64.sh" build ci
   step "aarch64 package" bash "$ROOT/scripts/test_aarch64.sh" package
   step "aarch64 parity" bash "$ROOT/scripts/test_aarch64.sh" parity
   step "aarch64 suite" bash "$ROOT/scripts/test_aarch64.sh" suite ci
@@ -95,7 +95,7 @@ long_flight_memory() {
 
 full_extras() {
   step "long flight memory" long_flight_memory
-  step "aarch64 suite, e2e" bash "$ROOT/scripts/test_aarch64.sh" suite rest
+  step "aarch64 suite, e2e" bash "$ROOT/scripts/test_aarch64.sh" build suite rest
   step "asan build" bash "$ROOT/scripts/test_asan.sh" build
   step "asan suite" bash "$ROOT/scripts/test_asan.sh" suite
   step "long fuzzing" bash "$ROOT/scripts/fuzz.sh" --seconds "${UAVM_LONG_FUZZ_SECONDS:-120}"

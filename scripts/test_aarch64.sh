@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # test_aarch64.sh [STAGE...]: the aarch64 cross build, tested on this x86 host under qemu-aarch64. Stages, in order
 # (all of them when none is named; scripts/test.sh runs them one by one as timed steps):
-#   build        the arm64 sysroot (scripts/make_sysroot.sh: made once, then reused from the cache) and the
-#                aarch64-release preset built in build-aarch64/ (UAVM_AARCH64_BUILD_DIR);
+#   build [ci]   the arm64 sysroot (scripts/make_sysroot.sh: made once, then reused from the cache) and the
+#                aarch64-release preset built in build-aarch64/ (UAVM_AARCH64_BUILD_DIR); `build ci` builds only
+#                what the CI tier runs (the target ci_tier_tests: the programs and the tests of `suite ci`, not the
+#                end-to-end tests only `suite rest` runs, which the full tier builds);
 #   package      the arm64 .deb installed into a scratch root, its unit verified, its program run (tests/package/);
 #   parity       the aarch64 uavmosaic-onboard on the bundled brighton_beach_small flight must register every frame,
 #                with transforms within 0.5 px of the native build's (scripts/compare_sessions.py). Both runs use the
@@ -21,14 +23,18 @@ LOG_DIR="${UAVM_CI_LOG_DIR:-$BUILD}"
 sysroot() { bash "$ROOT/scripts/make_sysroot.sh" | tail -n 1; }
 
 stage_build() {
-  local sysroot_dir t0 stripped
+  local selection="$1" sysroot_dir t0 stripped target=()
   sysroot_dir=$(sysroot)
   if [ ! -f "$BUILD/CMakeCache.txt" ]; then
+    # The package installs what is built, not `all` first (a CI-tier tree has no end-to-end tests).
     cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release -DUAVM_BUILD_BENCH=OFF \
+      -DCMAKE_SKIP_INSTALL_ALL_DEPENDENCY=ON \
       -DCMAKE_TOOLCHAIN_FILE="$ROOT/toolchains/aarch64-linux-gnu.cmake" -DUAVM_SYSROOT="$sysroot_dir" >/dev/null
   fi
+  [ "$selection" = ci ] && target=(--target ci_tier_tests)
   t0=$(date +%s)
-  cmake --build "$BUILD" -j "$(nproc)" >"$BUILD/aarch64-build.log" 2>&1 || { tail -40 "$BUILD/aarch64-build.log"; exit 1; }
+  cmake --build "$BUILD" -j "$(nproc)" "${target[@]}" >"$BUILD/aarch64-build.log" 2>&1 ||
+    { tail -40 "$BUILD/aarch64-build.log"; exit 1; }
   echo "aarch64: build $(($(date +%s) - t0)) s"
   stripped=$(mktemp)
   for b in firmware_app/uavmosaic-onboard ground_app/uavmosaic-ground tools/uavmosaic-sim tools/uavmosaic-eval; do
@@ -94,7 +100,14 @@ stages=("$@")
 i=0
 while [ $i -lt ${#stages[@]} ]; do
   case "${stages[$i]}" in
-    build) stage_build ;;
+    build)
+      if [ "${stages[$((i + 1))]:-}" = ci ]; then
+        i=$((i + 1))
+        stage_build ci
+      else
+        stage_build all
+      fi
+      ;;
     package) stage_package ;;
     parity) stage_parity ;;
     suite)
