@@ -43,10 +43,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (error.empty()) std::abort();
     return 0;
   }
-  if (edge.src_points.size() != edge.tgt_points.size() ||
-      edge.holdout_src_points.size() != edge.holdout_tgt_points.size())
-    std::abort();
-  const size_t points = edge.src_points.size() + edge.holdout_src_points.size();
+  if (edge.points.float_count() != 4 * (edge.points.size() + edge.points.holdout_size())) std::abort();
+  const size_t points = edge.points.size() + edge.points.holdout_size();
   if (24 + 16 * points > size) std::abort();
   return 0;
 }

@@ -7,6 +7,7 @@
 #include <random>
 
 #include "core/util/portable_random.h"
+#include "tests/edge_lists.h"
 
 namespace uavm {
 namespace {
@@ -50,24 +51,26 @@ LoopScene MakeLoop(int n, double noise_px, unsigned seed) {
     e.src = i;
     e.tgt = j;
     const Mat3 tgt_from_src = scene.truth[static_cast<size_t>(j)].inverse() * scene.truth[static_cast<size_t>(i)];
-    while (e.src_points.size() < 40) {
+    test::EdgeLists lists;
+    while (lists.src.size() < 40) {
       const Vec2 p(rng.Uniform(0, kW - 1), rng.Uniform(0, kH - 1));
       const Vec2 q = Apply(tgt_from_src, p);
       if (q.x() < 0 || q.y() < 0 || q.x() > kW - 1 || q.y() > kH - 1) continue;
-      e.src_points.push_back(p.cast<float>());
-      e.tgt_points.push_back((q + Vec2(rng.Normal(noise_px), rng.Normal(noise_px))).cast<float>());
+      lists.src.push_back(p.cast<float>());
+      lists.tgt.push_back((q + Vec2(rng.Normal(noise_px), rng.Normal(noise_px))).cast<float>());
     }
-    e.num_inliers = static_cast<int>(e.src_points.size());
+    e.points = lists.Build();
+    e.num_inliers = static_cast<int>(e.points.size());
     // The pair's own estimate, from its noisy points (what RANSAC would hand over).
-    Eigen::MatrixXd A(2 * e.src_points.size(), 6);
-    Eigen::VectorXd b(2 * e.src_points.size());
+    Eigen::MatrixXd A(2 * e.points.size(), 6);
+    Eigen::VectorXd b(2 * e.points.size());
     A.setZero();
-    for (size_t k = 0; k < e.src_points.size(); ++k) {
-      const Vec2 p = e.src_points[k].cast<double>();
+    for (size_t k = 0; k < e.points.size(); ++k) {
+      const Vec2 p = e.points.src(k).cast<double>();
       A.row(static_cast<long>(2 * k)) << p.x(), p.y(), 1, 0, 0, 0;
       A.row(static_cast<long>(2 * k + 1)) << 0, 0, 0, p.x(), p.y(), 1;
-      b(static_cast<long>(2 * k)) = e.tgt_points[k].x();
-      b(static_cast<long>(2 * k + 1)) = e.tgt_points[k].y();
+      b(static_cast<long>(2 * k)) = e.points.tgt(k).x();
+      b(static_cast<long>(2 * k + 1)) = e.points.tgt(k).y();
     }
     const Eigen::VectorXd x = A.colPivHouseholderQr().solve(b);
     e.tgt_from_src << x(0), x(1), x(2), x(3), x(4), x(5), 0, 0, 1;
@@ -106,16 +109,16 @@ TEST(AffineAdjusterTest, ClosedLoopOf50FramesReturnsToItsStart) {
   for (const Edge& e : scene.edges) {
     const Mat3 est = T.at(e.tgt).inverse() * T.at(e.src);
     const Mat3 truth = scene.truth[static_cast<size_t>(e.tgt)].inverse() * scene.truth[static_cast<size_t>(e.src)];
-    for (const Vec2f& pf : e.src_points) {
-      const Vec2 p = pf.cast<double>();
+    for (size_t k = 0; k < e.points.size(); ++k) {
+      const Vec2 p = e.points.src(k).cast<double>();
       worst_overlap = std::max(worst_overlap, (Apply(est, p) - Apply(truth, p)).norm());
     }
   }
   double worst_pair_alone = 0;  // the pair's own least-squares estimate, for reference
   for (const Edge& e : scene.edges) {
     const Mat3 truth = scene.truth[static_cast<size_t>(e.tgt)].inverse() * scene.truth[static_cast<size_t>(e.src)];
-    for (const Vec2f& pf : e.src_points) {
-      const Vec2 p = pf.cast<double>();
+    for (size_t k = 0; k < e.points.size(); ++k) {
+      const Vec2 p = e.points.src(k).cast<double>();
       worst_pair_alone = std::max(worst_pair_alone, (Apply(e.tgt_from_src, p) - Apply(truth, p)).norm());
     }
   }
@@ -146,7 +149,9 @@ TEST(AffineAdjusterTest, ConjugateGradientsGiveTheFactorisationsSolution) {
     Edge e = scene.edges[static_cast<size_t>(i)];
     const Edge& next = scene.edges[static_cast<size_t>(i + 1)];
     e.tgt = i + 2;
-    for (Vec2f& q : e.tgt_points) q = Apply(next.tgt_from_src, q.cast<double>()).cast<float>();
+    test::EdgeLists lists = test::ListsOf(e.points);
+    for (Vec2f& q : lists.tgt) q = Apply(next.tgt_from_src, q.cast<double>()).cast<float>();
+    e.points = lists.Build();
     e.tgt_from_src = next.tgt_from_src * e.tgt_from_src;
     scene.edges.push_back(e);
   }

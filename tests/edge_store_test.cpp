@@ -16,14 +16,16 @@ Edge RandomEdge(int src, int tgt, size_t n, size_t n_holdout, std::mt19937* rng)
   Edge e;
   e.src = src;
   e.tgt = tgt;
+  std::vector<Vec2f> from, to, held_from, held_to;
   for (size_t k = 0; k < n; ++k) {
-    e.src_points.emplace_back(u(*rng), u(*rng));
-    e.tgt_points.emplace_back(u(*rng), u(*rng));
+    from.emplace_back(u(*rng), u(*rng));
+    to.emplace_back(u(*rng), u(*rng));
   }
   for (size_t k = 0; k < n_holdout; ++k) {
-    e.holdout_src_points.emplace_back(u(*rng), u(*rng));
-    e.holdout_tgt_points.emplace_back(u(*rng), u(*rng));
+    held_from.emplace_back(u(*rng), u(*rng));
+    held_to.emplace_back(u(*rng), u(*rng));
   }
+  e.points = EdgePoints(from, to, held_from, held_to);
   return e;
 }
 
@@ -59,20 +61,24 @@ TEST(EdgeStoreTest, ReleasedPointsComeBackExactly) {
   EXPECT_GE(freed, 50u * 160u * sizeof(Vec2f));
   for (const auto& e : edges) {
     EXPECT_FALSE(e.points_resident);
-    EXPECT_TRUE(e.src_points.empty());
-    EXPECT_EQ(e.src_points.capacity(), 0u);  // given back, not just cleared
+    EXPECT_EQ(e.points.size() + e.points.holdout_size(), 0u);
+    EXPECT_EQ(e.points.bytes(), 0u);  // given back, not just cleared
   }
   // Out of order, as a solve that needs an old edge would.
   for (size_t i = edges.size(); i-- > 0;) {
     ASSERT_TRUE(store.Load(&edges[i], &err)) << err;
-    ASSERT_EQ(edges[i].src_points.size(), original[i].src_points.size());
-    ASSERT_EQ(edges[i].holdout_tgt_points.size(), original[i].holdout_tgt_points.size());
-    for (size_t k = 0; k < original[i].src_points.size(); ++k) {
-      EXPECT_EQ(edges[i].src_points[k], original[i].src_points[k]);
-      EXPECT_EQ(edges[i].tgt_points[k], original[i].tgt_points[k]);
+    const EdgePoints& read = edges[i].points;
+    const EdgePoints& written = original[i].points;
+    ASSERT_EQ(read.size(), written.size());
+    ASSERT_EQ(read.holdout_size(), written.holdout_size());
+    for (size_t k = 0; k < written.size(); ++k) {
+      EXPECT_EQ(read.src(k), written.src(k));
+      EXPECT_EQ(read.tgt(k), written.tgt(k));
     }
-    for (size_t k = 0; k < original[i].holdout_src_points.size(); ++k)
-      EXPECT_EQ(edges[i].holdout_tgt_points[k], original[i].holdout_tgt_points[k]);
+    for (size_t k = 0; k < written.holdout_size(); ++k) {
+      EXPECT_EQ(read.holdout_src(k), written.holdout_src(k));
+      EXPECT_EQ(read.holdout_tgt(k), written.holdout_tgt(k));
+    }
   }
   // Appending after reads still goes to the end.
   Edge late = RandomEdge(60, 61, 8, 2, &rng);
@@ -80,7 +86,8 @@ TEST(EdgeStoreTest, ReleasedPointsComeBackExactly) {
   EXPECT_GT(late.stored_at, edges.back().stored_at);
   ASSERT_GT(store.Release(&late), 0u);
   ASSERT_TRUE(store.Load(&late, &err)) << err;
-  EXPECT_EQ(late.src_points.size(), 8u);
+  EXPECT_EQ(late.points.size(), 8u);
+  EXPECT_EQ(late.points.holdout_size(), 2u);
 }
 
 TEST(EdgeStoreTest, CorruptRecordIsRefusedNotTrusted) {

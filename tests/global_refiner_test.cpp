@@ -9,6 +9,7 @@
 #include <random>
 
 #include "core/adjust/affine_adjuster.h"
+#include "tests/edge_lists.h"
 
 namespace uavm {
 namespace {
@@ -78,14 +79,16 @@ Scene MakeScene(double tilt_deg, double noise_px, unsigned seed) {
       e.src = i;
       e.tgt = j;
       e.tgt_from_src = tj.inverse() * ti;
-      for (int tries = 0; e.src_points.size() < 40 && tries < 4000; ++tries) {
+      test::EdgeLists lists;
+      for (int tries = 0; lists.src.size() < 40 && tries < 4000; ++tries) {
         const Vec2 p(ux(rng), uy(rng));
         const Vec2 q = Apply(e.tgt_from_src, p);
         if (q.x() < 0 || q.y() < 0 || q.x() > kW - 1 || q.y() > kH - 1) continue;
-        e.src_points.push_back((p + Vec2(noise(rng), noise(rng))).cast<float>());
-        e.tgt_points.push_back((q + Vec2(noise(rng), noise(rng))).cast<float>());
+        lists.src.push_back((p + Vec2(noise(rng), noise(rng))).cast<float>());
+        lists.tgt.push_back((q + Vec2(noise(rng), noise(rng))).cast<float>());
       }
-      if (e.src_points.size() >= 20) s.edges.push_back(std::move(e));
+      e.points = lists.Build();
+      if (e.points.size() >= 20) s.edges.push_back(std::move(e));
     }
   return s;
 }
@@ -239,13 +242,16 @@ TEST(GlobalRefiner, OutliersBeyondTheInlierThresholdAreDropped) {
   std::mt19937 rng(4);
   std::uniform_real_distribution<double> u(0, 1);
   size_t injected = 0;
-  for (auto& e : s.edges)
-    for (auto& q : e.tgt_points)
+  for (auto& e : s.edges) {
+    test::EdgeLists lists = test::ListsOf(e.points);
+    for (auto& q : lists.tgt)
       if (u(rng) < 0.05) {
         const double a = 2 * M_PI * u(rng);
         q += ((6 + 6 * u(rng)) * Vec2(std::cos(a), std::sin(a))).cast<float>();
         ++injected;
       }
+    e.points = lists.Build();
+  }
   auto T = AffineStart(s);
   RefineOptions o;
   const RefineResult r =
@@ -353,7 +359,7 @@ TEST(GlobalRefiner, ACapThatLeavesEdgesThreePointsStillRefinesIteratively) {
   size_t total = 0;
   for (Edge& e : s.edges) {
     ThinPoints(&e, 12, 0);
-    total += e.src_points.size();
+    total += e.points.size();
   }
   const auto start = AffineStart(s);
   RefineOptions o;

@@ -8,6 +8,7 @@
 #include <random>
 
 #include "core/adjust/affine_adjuster.h"
+#include "tests/edge_lists.h"
 
 namespace uavm {
 namespace {
@@ -53,17 +54,19 @@ Flight MakeFlight(const PinholeCamera& lens, double noise_px, unsigned seed,
       Edge e;
       e.src = i;
       e.tgt = j;
-      for (int tries = 0; e.holdout_src_points.size() < 20 && tries < 20000; ++tries) {
+      test::EdgeLists lists;
+      for (int tries = 0; lists.holdout_src.size() < 20 && tries < 20000; ++tries) {
         const Vec2 p(ux(rng), uy(rng));
         const Vec2 q = Apply(tgt_from_src, p);
         // Recorded pixels must exist: the distorted positions inside the frame.
         if (!inside(q) || !inside(lens_of(i).DistortPixel(p)) || !inside(lens_of(j).DistortPixel(q))) continue;
-        const bool kept = e.src_points.size() < 60;
-        (kept ? e.src_points : e.holdout_src_points).push_back(record(i, p).cast<float>());
-        (kept ? e.tgt_points : e.holdout_tgt_points).push_back(record(j, q).cast<float>());
+        const bool kept = lists.src.size() < 60;
+        (kept ? lists.src : lists.holdout_src).push_back(record(i, p).cast<float>());
+        (kept ? lists.tgt : lists.holdout_tgt).push_back(record(j, q).cast<float>());
       }
-      e.num_inliers = static_cast<int>(e.src_points.size());
-      if (e.src_points.size() == 60) f.edges.push_back(std::move(e));
+      e.points = lists.Build();
+      e.num_inliers = static_cast<int>(e.points.size());
+      if (e.points.size() == 60) f.edges.push_back(std::move(e));
     }
   return f;
 }
@@ -185,8 +188,7 @@ TEST(LensCalibrationTest, APreparedLensIsRefinedFromItsStart) {
   PinholeCamera prepared = Ideal();
   prepared.distortion.k1 = 0.6 * truth.distortion.k1;
   for (auto& e : f.edges)
-    for (auto* pts : {&e.src_points, &e.tgt_points, &e.holdout_src_points, &e.holdout_tgt_points})
-      for (Vec2f& p : *pts) p = prepared.UndistortPixel(p.cast<double>()).cast<float>();
+    for (Vec2f& p : e.points.all()) p = prepared.UndistortPixel(p.cast<double>()).cast<float>();
   Solved s = SolveLinear(f);
   const LensCalibration cal = Calibrate(s, prepared);
   EXPECT_TRUE(cal.accepted) << cal.why;
@@ -213,10 +215,12 @@ TEST(LensCalibrationTest, HoldoutPairedGainIsThePerEdgeTStatistic) {
   for (int i = 0; i < 4; ++i) {
     edges[static_cast<size_t>(i)].src = i + 1;
     edges[static_cast<size_t>(i)].tgt = 0;
+    test::EdgeLists lists;
     for (int k = 0; k < 5 + i; ++k) {
-      edges[static_cast<size_t>(i)].holdout_src_points.emplace_back(100.0 + 10 * k, 50.0 + 7 * k);
-      edges[static_cast<size_t>(i)].holdout_tgt_points.emplace_back(100.0 + 10 * k, 50.0 + 7 * k);
+      lists.holdout_src.emplace_back(100.0 + 10 * k, 50.0 + 7 * k);
+      lists.holdout_tgt.emplace_back(100.0 + 10 * k, 50.0 + 7 * k);
     }
+    edges[static_cast<size_t>(i)].points = lists.Build();
     without[i + 1] = Translation(a[i], 0.0);
     with[i + 1] = Translation(0.0, 1.0);  // 1 px with the lens: drop a^2 - 1
   }

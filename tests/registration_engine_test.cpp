@@ -79,21 +79,15 @@ class MemorySpill final : public EdgeSpill {
   }
   bool Load(Edge* edge, std::string*) override {
     const Edge& s = stored_.at(static_cast<size_t>(edge->stored_at));
-    edge->src_points = s.src_points;
-    edge->tgt_points = s.tgt_points;
-    edge->holdout_src_points = s.holdout_src_points;
-    edge->holdout_tgt_points = s.holdout_tgt_points;
+    edge->points = s.points;
     edge->points_resident = true;
     ++loads;
     return true;
   }
   size_t Release(Edge* edge) override {
     if (!edge->points_resident || edge->stored_at < 0) return 0;
-    const size_t bytes = sizeof(Vec2f) * (edge->src_points.size() + edge->tgt_points.size());
-    edge->src_points = {};
-    edge->tgt_points = {};
-    edge->holdout_src_points = {};
-    edge->holdout_tgt_points = {};
+    const size_t bytes = edge->points.bytes();
+    edge->points.Free();
     edge->points_resident = false;
     return bytes;
   }

@@ -114,10 +114,10 @@ void AddEdge(const Edge& e, const ColumnOf& column, const std::unordered_map<int
   Eigen::Matrix3d Spp = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d Spq = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d Sqq = Eigen::Matrix3d::Zero();
-  for (size_t k = 0; k < e.src_points.size(); ++k) {
+  for (size_t k = 0; k < e.points.size(); ++k) {
     const double w = weights == nullptr ? 1.0 : static_cast<double>(weights[k]);
-    const Eigen::Vector3d p(e.src_points[k].x(), e.src_points[k].y(), 1.0);
-    const Eigen::Vector3d q(e.tgt_points[k].x(), e.tgt_points[k].y(), 1.0);
+    const Eigen::Vector3d p(e.points.src(k).x(), e.points.src(k).y(), 1.0);
+    const Eigen::Vector3d q(e.points.tgt(k).x(), e.points.tgt(k).y(), 1.0);
     const double w2 = w * w;
     Spp.noalias() += w2 * p * p.transpose();
     Spq.noalias() += w2 * p * q.transpose();
@@ -270,7 +270,7 @@ std::string SolvePass(const std::vector<const Edge*>& used, const ColumnOf& colu
   size_t corr_index = 0;
   for (const Edge* e : used) {
     AddEdge(*e, column, T, half_diagonal, options, weights == nullptr ? nullptr : weights->data() + corr_index, &sys);
-    corr_index += e->src_points.size();
+    corr_index += e->points.size();
   }
   AddFramePriors(column, T, half_diagonal, options, &sys);
   Eigen::VectorXd x(static_cast<long>(column.size()) * kDof);
@@ -300,8 +300,8 @@ void HuberWeights(const std::vector<const Edge*>& used, const std::unordered_map
   for (const Edge* e : used) {
     const Mat3& Ts = T.at(e->src);
     const Mat3& Tt = T.at(e->tgt);
-    for (size_t k = 0; k < e->src_points.size(); ++k) {
-      const double r = (Apply(Ts, e->src_points[k].cast<double>()) - Apply(Tt, e->tgt_points[k].cast<double>())).norm();
+    for (size_t k = 0; k < e->points.size(); ++k) {
+      const double r = (Apply(Ts, e->points.src(k).cast<double>()) - Apply(Tt, e->points.tgt(k).cast<double>())).norm();
       weights->push_back(static_cast<float>(r <= huber_px ? 1.0 : std::sqrt(huber_px / r)));
     }
   }
@@ -356,9 +356,9 @@ ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::un
     const auto ts = T.find(e->src);
     const auto tt = T.find(e->tgt);
     if (ts == T.end() || tt == T.end()) continue;
-    for (size_t k = 0; k < e->src_points.size(); ++k)
+    for (size_t k = 0; k < e->points.size(); ++k)
       r.push_back(
-          (Apply(ts->second, e->src_points[k].cast<double>()) - Apply(tt->second, e->tgt_points[k].cast<double>()))
+          (Apply(ts->second, e->points.src(k).cast<double>()) - Apply(tt->second, e->points.tgt(k).cast<double>()))
               .norm());
   }
   s.count = r.size();

@@ -85,8 +85,8 @@ struct EdgeTransferCost {
       : edge(e), index(std::move(keep)), delta(huber_px), lens(lens_refine) {
     if (lens == nullptr) return;
     for (uint32_t k : index) {
-      recorded.push_back(lens->prepared.DistortPixel(e->src_points[k].cast<double>()));
-      recorded.push_back(lens->prepared.DistortPixel(e->tgt_points[k].cast<double>()));
+      recorded.push_back(lens->prepared.DistortPixel(e->points.src(k).cast<double>()));
+      recorded.push_back(lens->prepared.DistortPixel(e->points.tgt(k).cast<double>()));
     }
   }
 
@@ -94,7 +94,7 @@ struct EdgeTransferCost {
   template <typename T>
   void Point(T const* const* blocks, size_t j, int which, T* x, T* y) const {
     if (lens == nullptr) {
-      const Vec2f& p = which == 0 ? edge->src_points[index[j]] : edge->tgt_points[index[j]];
+      const Vec2f& p = which == 0 ? edge->points.src(index[j]) : edge->points.tgt(index[j]);
       *x = T(p.x());
       *y = T(p.y());
       return;
@@ -337,7 +337,7 @@ class RefineProblem {
       if (T.count(e->src) == 0 || T.count(e->tgt) == 0) continue;
       const bool touches =
           variable.count(e->src) != 0 || variable.count(e->tgt) != 0 || e->src == anchor || e->tgt == anchor;
-      if (touches && !e->src_points.empty()) used_.push_back(e);
+      if (touches && e->points.size() != 0) used_.push_back(e);
     }
   }
 
@@ -361,7 +361,7 @@ class RefineProblem {
     // stride leaves an edge fewer (a flight beyond ~5000 frames at the defaults: 12 points an edge, stride 4), the
     // edges of a tree over the full point counts keep that many, at most a point more per frame than the cap.
     std::vector<size_t> full(used_.size());
-    for (size_t i = 0; i < used_.size(); ++i) full[i] = used_[i]->src_points.size();
+    for (size_t i = 0; i < used_.size(); ++i) full[i] = used_[i]->points.size();
     const std::vector<bool> tree =
         iterative && stride > 1 ? SpanningTreeBy(full) : std::vector<bool>(used_.size(), false);
     for (size_t i = 0; i < used_.size(); ++i) {
@@ -374,9 +374,9 @@ class RefineProblem {
     }
     // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
     for (const Edge* e : used_)
-      for (size_t k = 0; k < e->src_points.size(); ++k) {
-        extent_[e->src].extend(e->src_points[k].cast<double>());
-        extent_[e->tgt].extend(e->tgt_points[k].cast<double>());
+      for (size_t k = 0; k < e->points.size(); ++k) {
+        extent_[e->src].extend(e->points.src(k).cast<double>());
+        extent_[e->tgt].extend(e->points.tgt(k).cast<double>());
       }
     for (const auto& [id, box] : extent_) frame_centre_[id] = box.center();
     return used_points;
@@ -444,7 +444,7 @@ class RefineProblem {
       const Mat3 tgt_from_src = FromParams(params_.at(e->tgt)).inverse() * FromParams(params_.at(e->src));
       std::vector<uint32_t> good;
       for (uint32_t k : keep_[i])
-        if ((Apply(tgt_from_src, Ideal(e->src_points[k].cast<double>())) - Ideal(e->tgt_points[k].cast<double>()))
+        if ((Apply(tgt_from_src, Ideal(e->points.src(k).cast<double>())) - Ideal(e->points.tgt(k).cast<double>()))
                 .norm() <= options_.outlier_px)
           good.push_back(k);
       const size_t bad = keep_[i].size() - good.size();
@@ -652,11 +652,11 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
     const auto tt = mosaic_from_frame.find(e->tgt);
     if (ts == mosaic_from_frame.end() || tt == mosaic_from_frame.end()) continue;
     const Mat3 tgt_from_src = tt->second.inverse() * ts->second;
-    const auto& src = holdout ? e->holdout_src_points : e->src_points;
-    const auto& tgt = holdout ? e->holdout_tgt_points : e->tgt_points;
-    for (size_t k = 0; k < src.size(); ++k) {
-      const Vec2 p = src[k].cast<double>();
-      const Vec2 q = tgt[k].cast<double>();
+    const EdgePoints& points = e->points;
+    const size_t n = holdout ? points.holdout_size() : points.size();
+    for (size_t k = 0; k < n; ++k) {
+      const Vec2 p = (holdout ? points.holdout_src(k) : points.src(k)).cast<double>();
+      const Vec2 q = (holdout ? points.holdout_tgt(k) : points.tgt(k)).cast<double>();
       const double d = lens != nullptr ? (Apply(tgt_from_src, lens->Ideal(p)) - lens->Ideal(q)).norm()
                                        : (Apply(tgt_from_src, p) - q).norm();
       if (max_px <= 0 || d <= max_px) r.push_back(d);

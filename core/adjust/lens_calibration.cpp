@@ -100,19 +100,19 @@ PairedGain HoldoutPairedGain(const std::vector<const Edge*>& edges, const std::u
     const auto t0 = without.find(e->tgt);
     const auto s1 = with.find(e->src);
     const auto t1 = with.find(e->tgt);
-    if (e->holdout_src_points.empty() || s0 == without.end() || t0 == without.end() || s1 == with.end() ||
+    if (e->points.holdout_size() == 0 || s0 == without.end() || t0 == without.end() || s1 == with.end() ||
         t1 == with.end())
       continue;
     const Mat3 tgt_from_src0 = t0->second.inverse() * s0->second;
     const Mat3 tgt_from_src1 = t1->second.inverse() * s1->second;
     double sum = 0.0;
-    for (size_t k = 0; k < e->holdout_src_points.size(); ++k) {
-      const Vec2 p = e->holdout_src_points[k].cast<double>();
-      const Vec2 q = e->holdout_tgt_points[k].cast<double>();
+    for (size_t k = 0; k < e->points.holdout_size(); ++k) {
+      const Vec2 p = e->points.holdout_src(k).cast<double>();
+      const Vec2 q = e->points.holdout_tgt(k).cast<double>();
       sum += (Apply(tgt_from_src0, p) - q).squaredNorm() -
              (Apply(tgt_from_src1, lens.Ideal(p)) - lens.Ideal(q)).squaredNorm();
     }
-    drops.push_back(sum / static_cast<double>(e->holdout_src_points.size()));
+    drops.push_back(sum / static_cast<double>(e->points.holdout_size()));
   }
   PairedGain gain;
   gain.edges = drops.size();
@@ -133,8 +133,7 @@ PairedGain HoldoutPairedGain(const std::vector<const Edge*>& edges, const std::u
 void ReprojectEdgePoints(const PinholeCamera& prepared, const LensDistortion& calibrated, Edge* edge) {
   PinholeCamera to = prepared;
   to.distortion = calibrated;
-  for (auto* points : {&edge->src_points, &edge->tgt_points, &edge->holdout_src_points, &edge->holdout_tgt_points})
-    for (Vec2f& p : *points) p = to.UndistortPixel(prepared.DistortPixel(p.cast<double>())).cast<float>();
+  for (Vec2f& p : edge->points.all()) p = to.UndistortPixel(prepared.DistortPixel(p.cast<double>())).cast<float>();
 }
 
 namespace {

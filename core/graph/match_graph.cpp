@@ -81,36 +81,54 @@ std::vector<std::vector<int>> MatchGraph::ComponentsBySize(double relative, int 
   return out;
 }
 
-namespace {
-
-size_t ThinPair(std::vector<Vec2f>* a, std::vector<Vec2f>* b, size_t keep) {
-  const size_t n = a->size();
-  if (n <= keep) return 0;
-  std::vector<Vec2f> ta, tb;
-  ta.reserve(keep);
-  tb.reserve(keep);
-  for (size_t k = 0; k < keep; ++k) {
-    const size_t i = k * n / keep;  // evenly spread over the whole list
-    ta.push_back((*a)[i]);
-    tb.push_back((*b)[i]);
-  }
-  a->swap(ta);
-  b->swap(tb);
-  return n - keep;
+EdgePoints EdgePoints::Combine(const EdgePoints& pairs, const EdgePoints& holdout) {
+  EdgePoints out;
+  const auto first = pairs.block_.begin();
+  const auto held = holdout.block_.begin() + 2 * static_cast<std::ptrdiff_t>(holdout.pairs_);
+  out.block_.reserve(2 * pairs.pairs_ + (holdout.block_.end() - held));
+  out.block_.insert(out.block_.end(), first, first + 2 * static_cast<std::ptrdiff_t>(pairs.pairs_));
+  out.block_.insert(out.block_.end(), held, holdout.block_.end());
+  out.pairs_ = pairs.pairs_;
+  return out;
 }
 
-}  // namespace
+float* EdgePoints::Reset(size_t pairs, size_t holdout) {
+  std::vector<Vec2f> block(2 * (pairs + holdout));
+  block_.swap(block);
+  pairs_ = static_cast<uint32_t>(pairs);
+  return reinterpret_cast<float*>(block_.data());
+}
+
+size_t EdgePoints::Thin(size_t max_pairs, size_t max_holdout) {
+  const size_t n = size();
+  const size_t m = holdout_size();
+  const size_t keep_n = std::min(n, max_pairs);
+  const size_t keep_m = std::min(m, max_holdout);
+  if (keep_n == n && keep_m == m) return 0;
+  std::vector<Vec2f> kept;
+  kept.reserve(2 * (keep_n + keep_m));
+  for (size_t k = 0; k < keep_n; ++k) {
+    const size_t i = k * n / keep_n;  // evenly spread over the whole list
+    kept.push_back(src(i));
+    kept.push_back(tgt(i));
+  }
+  for (size_t k = 0; k < keep_m; ++k) {
+    const size_t i = k * m / keep_m;
+    kept.push_back(holdout_src(i));
+    kept.push_back(holdout_tgt(i));
+  }
+  block_.swap(kept);
+  pairs_ = static_cast<uint32_t>(keep_n);
+  return (n - keep_n) + (m - keep_m);
+}
+
+void EdgePoints::Free() {
+  std::vector<Vec2f>().swap(block_);
+  pairs_ = 0;
+}
 
 size_t ThinPoints(Edge* edge, size_t max_points, size_t max_holdout) {
-  return ThinPair(&edge->src_points, &edge->tgt_points, max_points) +
-         ThinPair(&edge->holdout_src_points, &edge->holdout_tgt_points, max_holdout);
-}
-
-std::vector<Vec2f> ToEdgePoints(std::vector<Vec2> points) {
-  std::vector<Vec2f> out;
-  out.reserve(points.size());
-  for (const Vec2& p : points) out.push_back(p.cast<float>());
-  return out;
+  return edge->points.Thin(max_points, max_holdout);
 }
 
 }  // namespace uavm

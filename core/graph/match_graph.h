@@ -1,36 +1,86 @@
 #pragma once
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <deque>
+#include <span>
 #include <vector>
 
 #include "core/geometry/transform.h"
 
 namespace uavm {
 
-// A verified pair. Points are at working resolution of each frame, in float: the edges are the end of a long flight's
-// largest state, and float is what edges.bin keeps (an edge read back gives the same solution as one never spilled).
+// An edge's correspondences in one block, laid out as edges.bin stores them: the pairs the adjustment uses, then the
+// held-out pairs, each pair its source point then its target point, at working resolution, in float. One allocation
+// an edge instead of four: the edges are a long flight's largest state, and the end of the flight holds them all.
+class EdgePoints {
+ public:
+  EdgePoints() = default;
+  // The pairs (src[k], tgt[k]) and the held-out pairs (holdout_src[k], holdout_tgt[k]); each list of a pair of lists
+  // as long as the other (the shorter one's length is taken).
+  template <typename Point>
+  EdgePoints(const std::vector<Point>& src, const std::vector<Point>& tgt, const std::vector<Point>& holdout_src,
+             const std::vector<Point>& holdout_tgt) {
+    const size_t n = std::min(src.size(), tgt.size());
+    const size_t m = std::min(holdout_src.size(), holdout_tgt.size());
+    block_.reserve(2 * (n + m));
+    for (size_t k = 0; k < n; ++k) Append(src[k], tgt[k]);
+    for (size_t k = 0; k < m; ++k) Append(holdout_src[k], holdout_tgt[k]);
+    pairs_ = static_cast<uint32_t>(n);
+  }
+  // `pairs`' adjustment pairs with `holdout`'s held-out pairs.
+  [[nodiscard]] static EdgePoints Combine(const EdgePoints& pairs, const EdgePoints& holdout);
+
+  [[nodiscard]] size_t size() const { return pairs_; }  // pairs the adjustment uses
+  [[nodiscard]] size_t holdout_size() const { return block_.size() / 2 - pairs_; }
+  [[nodiscard]] const Vec2f& src(size_t k) const { return block_[2 * k]; }
+  [[nodiscard]] const Vec2f& tgt(size_t k) const { return block_[2 * k + 1]; }
+  [[nodiscard]] const Vec2f& holdout_src(size_t k) const { return block_[2 * (pairs_ + k)]; }
+  [[nodiscard]] const Vec2f& holdout_tgt(size_t k) const { return block_[2 * (pairs_ + k) + 1]; }
+  // Every point, pairs and held-out pairs alike (to move them all, e.g. into another lens).
+  [[nodiscard]] std::span<Vec2f> all() { return block_; }
+
+  // The block as edges.bin's payload: (size() + holdout_size()) x {x_src, y_src, x_tgt, y_tgt}.
+  [[nodiscard]] const float* floats() const { return reinterpret_cast<const float*>(block_.data()); }
+  [[nodiscard]] size_t float_count() const { return 2 * block_.size(); }
+  // Room for `pairs` and `holdout` pairs, returned to be filled in that layout.
+  [[nodiscard]] float* Reset(size_t pairs, size_t holdout);
+
+  // Keeps at most `max_pairs` pairs and `max_holdout` held-out pairs, evenly strided (the points are grid-spread, so a
+  // stride keeps their spread); frees what it drops. Returns the pairs dropped.
+  size_t Thin(size_t max_pairs, size_t max_holdout);
+  void Free();
+  [[nodiscard]] size_t bytes() const { return block_.capacity() * sizeof(Vec2f); }
+
+ private:
+  template <typename Point>
+  void Append(const Point& a, const Point& b) {
+    block_.push_back(a.template cast<float>());
+    block_.push_back(b.template cast<float>());
+  }
+
+  std::vector<Vec2f> block_;
+  uint32_t pairs_ = 0;
+};
+static_assert(sizeof(Vec2f) == 2 * sizeof(float), "EdgePoints reads its block as floats");
+
+// A verified pair. Its points are in float: float is what edges.bin keeps (an edge read back gives the same solution as
+// one never spilled).
 struct Edge {
   int src = -1;
   int tgt = -1;
   int num_matches = 0;
   int num_inliers = 0;
   Mat3 tgt_from_src = Mat3::Identity();
-  std::vector<Vec2f> src_points;
-  std::vector<Vec2f> tgt_points;
-  std::vector<Vec2f> holdout_src_points;  // inliers the adjustment does not use: a check of its result
-  std::vector<Vec2f> holdout_tgt_points;
+  EdgePoints points;
   // Where the points live: an edge whose frames no longer move during the flight keeps them only on disk
   // (EdgeStore, edges.bin at byte stored_at) until the end of the flight reads them back.
   int64_t stored_at = -1;
   bool points_resident = true;
 };
 
-// Points in an edge's precision; the double ones are freed (taken by value: pass them moved).
-[[nodiscard]] std::vector<Vec2f> ToEdgePoints(std::vector<Vec2> points);
-
-// Keeps at most `max_points` of the edge's points and `max_holdout` of its held-out points, evenly strided (the points
-// are grid-spread, so a stride keeps their spread); frees what it drops. Returns the points dropped.
+// Keeps at most `max_points` of the edge's pairs and `max_holdout` of its held-out pairs (EdgePoints::Thin). Returns
+// the pairs dropped.
 size_t ThinPoints(Edge* edge, size_t max_points, size_t max_holdout);
 
 class UnionFind {

@@ -290,9 +290,9 @@ bool FlightSession::WriteEdgeTables(const std::unordered_set<int>& in_component,
     const Mat3 src_orig = record_.frame(e.src).work_from_original.inverse();
     const Mat3 tgt_orig = record_.frame(e.tgt).work_from_original.inverse();
     char line[160];
-    for (size_t k = 0; k < e.src_points.size(); ++k) {
-      const Vec2 a = Apply(src_orig, e.src_points[k].cast<double>());
-      const Vec2 b = Apply(tgt_orig, e.tgt_points[k].cast<double>());
+    for (size_t k = 0; k < e.points.size(); ++k) {
+      const Vec2 a = Apply(src_orig, e.points.src(k).cast<double>());
+      const Vec2 b = Apply(tgt_orig, e.points.tgt(k).cast<double>());
       const int n =
           std::snprintf(line, sizeof(line), "%d,%d,%.7g,%.7g,%.7g,%.7g\n", e.src, e.tgt, a.x(), a.y(), b.x(), b.y());
       corr_csv.Write(std::string_view(line, static_cast<size_t>(std::max(0, n))));

@@ -25,10 +25,7 @@ Edge EdgeFromPair(int src, int tgt, PairResult&& r) {
   e.num_matches = r.num_matches;
   e.num_inliers = r.num_inliers;
   e.tgt_from_src = r.tgt_from_src;
-  e.src_points = ToEdgePoints(std::move(r.src_points));
-  e.tgt_points = ToEdgePoints(std::move(r.tgt_points));
-  e.holdout_src_points = ToEdgePoints(std::move(r.holdout_src_points));
-  e.holdout_tgt_points = ToEdgePoints(std::move(r.holdout_tgt_points));
+  e.points = EdgePoints(r.src_points, r.tgt_points, r.holdout_src_points, r.holdout_tgt_points);
   return e;
 }
 
@@ -642,10 +639,7 @@ size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edge
     // points than the flight's first query may have).
     if (!Acceptable(r) || 2 * r.num_inliers < e->num_inliers) continue;
     auto* edge = const_cast<Edge*>(e);  // the engine's own edge (the const view is the solve's)
-    edge->src_points = ToEdgePoints(std::move(r.src_points));
-    edge->tgt_points = ToEdgePoints(std::move(r.tgt_points));
-    edge->holdout_src_points = ToEdgePoints(std::move(r.holdout_src_points));
-    edge->holdout_tgt_points = ToEdgePoints(std::move(r.holdout_tgt_points));
+    edge->points = EdgePoints(r.src_points, r.tgt_points, r.holdout_src_points, r.holdout_tgt_points);
     if (max_points > 0) (void)ThinPoints(edge, max_points, std::max<size_t>(2, max_points / 4));
     (*at_lens)[i] = 1;
     ++rematched;
@@ -671,10 +665,7 @@ double HoldoutOfRefinement(const std::vector<const Edge*>& fit, const std::vecto
     copies[i].num_matches = fit[i]->num_matches;
     copies[i].num_inliers = fit[i]->num_inliers;
     copies[i].tgt_from_src = fit[i]->tgt_from_src;
-    copies[i].src_points = fit[i]->src_points;
-    copies[i].tgt_points = fit[i]->tgt_points;
-    copies[i].holdout_src_points = holdout[i].holdout_src_points;
-    copies[i].holdout_tgt_points = holdout[i].holdout_tgt_points;
+    copies[i].points = EdgePoints::Combine(fit[i]->points, holdout[i].points);
     ReprojectEdgePoints(prepared, lens, &copies[i]);
     view.push_back(&copies[i]);
   }
@@ -763,8 +754,7 @@ void RegistrationEngine::KeepBetterPoints(const std::vector<const Edge*>& edges,
       *edge = std::move((*own)[i]);
       continue;
     }
-    edge->holdout_src_points = std::move((*own)[i].holdout_src_points);
-    edge->holdout_tgt_points = std::move((*own)[i].holdout_tgt_points);
+    edge->points = EdgePoints::Combine(edge->points, (*own)[i].points);
   }
 }
 

@@ -28,29 +28,6 @@ uint32_t Fnv1a(const void* data, size_t size) {
   return h;
 }
 
-void Pack(const std::vector<Vec2f>& a, const std::vector<Vec2f>& b, std::vector<float>* out) {
-  for (size_t k = 0; k < a.size(); ++k) {
-    out->push_back(a[k].x());
-    out->push_back(a[k].y());
-    out->push_back(b[k].x());
-    out->push_back(b[k].y());
-  }
-}
-
-void Unpack(const float* p, size_t n, std::vector<Vec2f>* a, std::vector<Vec2f>* b) {
-  a->resize(n);
-  b->resize(n);
-  for (size_t k = 0; k < n; ++k, p += 4) {
-    (*a)[k] = Vec2f(p[0], p[1]);
-    (*b)[k] = Vec2f(p[2], p[3]);
-  }
-}
-
-template <typename T>
-void FreeVector(std::vector<T>* v) {
-  std::vector<T>().swap(*v);
-}
-
 }  // namespace
 
 EdgeStore::~EdgeStore() {
@@ -79,31 +56,29 @@ bool EdgeStore::Append(Edge* edge, std::string* error) {
     *error = "edge store not open";
     return false;
   }
-  std::vector<float> payload;
-  payload.reserve(4 * (edge->src_points.size() + edge->holdout_src_points.size()));
-  Pack(edge->src_points, edge->tgt_points, &payload);
-  Pack(edge->holdout_src_points, edge->holdout_tgt_points, &payload);
+  // The edge's block is the record's payload as it is: nothing is copied to be written.
+  const EdgePoints& points = edge->points;
+  const size_t floats = points.float_count();
   RecordHeader h{kMagic,
                  edge->src,
                  edge->tgt,
-                 static_cast<uint32_t>(edge->src_points.size()),
-                 static_cast<uint32_t>(edge->holdout_src_points.size()),
-                 Fnv1a(payload.data(), payload.size() * sizeof(float))};
+                 static_cast<uint32_t>(points.size()),
+                 static_cast<uint32_t>(points.holdout_size()),
+                 Fnv1a(points.floats(), floats * sizeof(float))};
   // Reads seek elsewhere: every append goes to the end explicitly.
   if (std::fseek(file_, 0, SEEK_END) != 0) {
     *error = "seek failed: " + path_;
     return false;
   }
   const long offset = std::ftell(file_);
-  const bool ok =
-      offset >= 0 && std::fwrite(&h, sizeof(h), 1, file_) == 1 &&
-      (payload.empty() || std::fwrite(payload.data(), sizeof(float), payload.size(), file_) == payload.size());
+  const bool ok = offset >= 0 && std::fwrite(&h, sizeof(h), 1, file_) == 1 &&
+                  (floats == 0 || std::fwrite(points.floats(), sizeof(float), floats, file_) == floats);
   if (!ok || std::fflush(file_) != 0) {
     *error = "write failed (disk full?): " + path_;
     return false;
   }
   edge->stored_at = offset;
-  bytes_written_ += sizeof(h) + payload.size() * sizeof(float);
+  bytes_written_ += sizeof(h) + floats * sizeof(float);
   return true;
 }
 
@@ -120,15 +95,15 @@ bool EdgeStore::Load(Edge* edge, std::string* error) {
     *error = "edges.bin: bad record at " + std::to_string(edge->stored_at);
     return false;
   }
-  std::vector<float> payload(4 * (static_cast<size_t>(h.n) + h.n_holdout));
-  if ((!payload.empty() && std::fread(payload.data(), sizeof(float), payload.size(), file_) != payload.size()) ||
-      Fnv1a(payload.data(), payload.size() * sizeof(float)) != h.checksum) {
+  // Read straight into the edge's block; a record that does not verify leaves the edge without points.
+  const size_t floats = 4 * (static_cast<size_t>(h.n) + h.n_holdout);
+  float* payload = edge->points.Reset(h.n, h.n_holdout);
+  if ((floats != 0 && std::fread(payload, sizeof(float), floats, file_) != floats) ||
+      Fnv1a(payload, floats * sizeof(float)) != h.checksum) {
+    edge->points.Free();
     *error = "edges.bin: corrupt record at " + std::to_string(edge->stored_at);
     return false;
   }
-  Unpack(payload.data(), h.n, &edge->src_points, &edge->tgt_points);
-  Unpack(payload.data() + 4 * static_cast<size_t>(h.n), h.n_holdout, &edge->holdout_src_points,
-         &edge->holdout_tgt_points);
   edge->points_resident = true;
   return true;
 }
@@ -136,17 +111,13 @@ bool EdgeStore::Load(Edge* edge, std::string* error) {
 size_t EdgeStore::Release(Edge* edge) {
   if (!edge->points_resident || edge->stored_at < 0) return 0;
   const size_t bytes = PointBytes(*edge);
-  FreeVector(&edge->src_points);
-  FreeVector(&edge->tgt_points);
-  FreeVector(&edge->holdout_src_points);
-  FreeVector(&edge->holdout_tgt_points);
+  edge->points.Free();
   edge->points_resident = false;
   return bytes;
 }
 
 size_t PointBytes(const Edge& edge) {
-  return sizeof(Vec2f) * (edge.src_points.capacity() + edge.tgt_points.capacity() + edge.holdout_src_points.capacity() +
-                          edge.holdout_tgt_points.capacity());
+  return edge.points.bytes();
 }
 
 }  // namespace uavm
