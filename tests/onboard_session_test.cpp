@@ -123,6 +123,34 @@ class DirectoryFrames final : public StoredFrameReader {
   size_t next_ = 0;
 };
 
+// Every frame of a flight keeps its record to the end: it derives its resize and holds metadata only when there is
+// some.
+TEST(SessionFrameTest, DerivesItsResizeAndHoldsMetadataOnlyWhenTheFrameHadSome) {
+  SessionFrame f;
+  f.original_size = cv::Size(4000, 3000);
+  f.work_size = cv::Size(1000, 750);
+  // Pixel centres: the images' outer edges meet.
+  EXPECT_LT((Apply(f.work_from_original(), Vec2(3999.5, 2999.5)) - Vec2(999.5, 749.5)).norm(), 1e-12);
+  EXPECT_LT((Apply(f.work_from_original(), Vec2(-0.5, -0.5)) - Vec2(-0.5, -0.5)).norm(), 1e-12);
+  f.set_metadata(FrameMetadata{});
+  EXPECT_TRUE(f.metadata().Empty());
+  FrameMetadata gps;
+  gps.latitude_deg = 50.8;
+  gps.longitude_deg = -0.14;
+  f.set_metadata(gps);
+  ASSERT_TRUE(f.metadata().HasGps());
+  EXPECT_EQ(*f.metadata().latitude_deg, 50.8);
+  FrameMetadata camera_only;
+  camera_only.model = "FC6310";
+  f.set_metadata(camera_only);
+  EXPECT_FALSE(f.metadata().HasGps());
+  EXPECT_EQ(f.metadata().model, "FC6310");
+  f.set_metadata(FrameMetadata{});
+  EXPECT_TRUE(f.metadata().Empty());
+  // Two names, two sizes, a time and a pointer: no 3x3 map, no 240-byte metadata in every frame's record.
+  EXPECT_LE(sizeof(SessionFrame), 112u);
+}
+
 TEST(FlightSessionTest, StoresJournalsAndRegistersAFlightWhoseSolveMatchesTheTruth) {
   const PhotoFlight flight;
   ASSERT_TRUE(flight.ok());
@@ -141,7 +169,10 @@ TEST(FlightSessionTest, StoresJournalsAndRegistersAFlightWhoseSolveMatchesTheTru
   EXPECT_TRUE(session->storage_failure().empty());
   // Every frame's bytes and its journal line are in the session (what a resumed run reads).
   ASSERT_EQ(session->record().size(), 10u);
-  for (const SessionFrame& f : session->record().frames()) EXPECT_TRUE(fs::exists(f.stored_file)) << f.stored_file;
+  for (const SessionFrame& f : session->record().frames()) {
+    EXPECT_TRUE(fs::exists(f.stored_file)) << f.stored_file;
+    EXPECT_TRUE(f.metadata().Empty());  // frames without GPS or EXIF
+  }
   JournalContents journal;
   ASSERT_TRUE(ReadJournal(dir.paths().Join("journal.jsonl"), &journal, &error)) << error;
   EXPECT_EQ(journal.frames.size(), 10u);

@@ -23,6 +23,11 @@ struct FrameMetadata {
   std::string datetime_original;
 
   [[nodiscard]] bool HasGps() const { return latitude_deg.has_value() && longitude_deg.has_value(); }
+  [[nodiscard]] bool Empty() const {
+    return !latitude_deg && !longitude_deg && !altitude_m && !relative_altitude_m && !flight_yaw_deg &&
+           !gimbal_yaw_deg && !gimbal_pitch_deg && !focal_length_mm && !focal_length_35mm && make.empty() &&
+           model.empty() && datetime_original.empty();
+  }
 };
 
 struct Frame {

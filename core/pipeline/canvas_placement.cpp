@@ -33,7 +33,7 @@ double CanvasPlacement::PlaceComponent(const std::vector<int>& component) {
   for (int id : component) {
     const SessionFrame& f = record_->frame(id);
     const Mat3 ref_from_original =
-        ref.work_from_original.inverse() * record_->engine().mosaic_from_work(id) * f.work_from_original;
+        ref.work_from_original().inverse() * record_->engine().mosaic_from_work(id) * f.work_from_original();
     ref_px_per_px.push_back(
         LocalScale(ref_from_original, Vec2(0.5 * (f.original_size.width - 1), 0.5 * (f.original_size.height - 1))));
   }
@@ -44,10 +44,10 @@ double CanvasPlacement::PlaceComponent(const std::vector<int>& component) {
   // Placement on the canvas; `pre` (linear) turns the canvas, e.g. north-up once the flight is georeferenced.
   const auto place = [&](const Mat3& pre) {
     for (int attempt = 0; attempt < 2; ++attempt) {
-      const Mat3 out_from_mosaic_work = pre * ResizeMap(scale, scale) * ref.work_from_original.inverse();
+      const Mat3 out_from_mosaic_work = pre * ResizeMap(scale, scale) * ref.work_from_original().inverse();
       for (int id : component)
         canvas_from_original_[static_cast<size_t>(id)] =
-            out_from_mosaic_work * record_->engine().mosaic_from_work(id) * record_->frame(id).work_from_original;
+            out_from_mosaic_work * record_->engine().mosaic_from_work(id) * record_->frame(id).work_from_original();
       const Bounds2 box = FootprintBounds(component, canvas_from_original_,
                                           [this](int id) { return record_->frame(id).original_size; });
       const double w = std::ceil(box.maxx) - std::floor(box.minx) + 1;
@@ -80,7 +80,7 @@ GeorefFit CanvasPlacement::GeorefCanvas(const std::vector<int>& component,
   };
   std::vector<GeoPoint> points;
   for (int id : component) {
-    const auto& m = record_->frame(id).metadata;
+    const auto& m = record_->frame(id).metadata();
     if (!m.latitude_deg || !m.longitude_deg) continue;
     if (*m.latitude_deg == 0 && *m.longitude_deg == 0) continue;  // "no fix" as some cameras write it
     points.push_back({id, centre(id), *m.latitude_deg, *m.longitude_deg});
@@ -182,9 +182,9 @@ std::vector<BridgeFrame> CanvasPlacement::BridgeInputs(int* candidates) const {
       const auto it = piece_of.find(f.id);
       b.piece = it != piece_of.end() && record_->engine().placed(f.id) ? it->second : f.id;
       if (record_->engine().placed(f.id))
-        b.piece_from_frame = record_->engine().mosaic_from_work(f.id) * f.work_from_original;
+        b.piece_from_frame = record_->engine().mosaic_from_work(f.id) * f.work_from_original();
     }
-    const auto& m = f.metadata;
+    const auto& m = f.metadata();
     b.height_m = m.relative_altitude_m;
     b.altitude_m = m.altitude_m;
     b.heading_deg = m.flight_yaw_deg;

@@ -1,5 +1,6 @@
 #pragma once
 #include <deque>
+#include <memory>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
@@ -10,16 +11,31 @@
 
 namespace uavm {
 
-// The session's record of one frame (the engine keeps the registration's, under the same id).
+// The session's record of one frame (the engine keeps the registration's, under the same id). Every frame of the
+// flight has one until its end, so it holds nothing it can derive, and no metadata where the frame has none.
 struct SessionFrame {
   int id = -1;
   std::string name;
   std::string stored_file;  // path inside the session's frames/
   cv::Size original_size;
   int64_t timestamp_ns = 0;
-  Mat3 work_from_original = Mat3::Identity();
   cv::Size work_size;
-  FrameMetadata metadata;
+
+  // The working copy's pixels from the original's: the resize between the two sizes.
+  [[nodiscard]] Mat3 work_from_original() const {
+    return ResizeMap(static_cast<double>(work_size.width) / original_size.width,
+                     static_cast<double>(work_size.height) / original_size.height);
+  }
+  // What the frame carried (position, attitude, camera); empty for a simulated or a bare camera frame, which holds
+  // none (~240 bytes a frame).
+  [[nodiscard]] const FrameMetadata& metadata() const { return metadata_ != nullptr ? *metadata_ : kNone; }
+  void set_metadata(const FrameMetadata& metadata) {
+    metadata_ = metadata.Empty() ? nullptr : std::make_unique<const FrameMetadata>(metadata);
+  }
+
+ private:
+  static inline const FrameMetadata kNone{};
+  std::unique_ptr<const FrameMetadata> metadata_;
 };
 
 struct SkippedInput {

@@ -172,10 +172,10 @@ bool FlightSession::StoreFrame(int id, const PreparedFrame& prepared, SessionFra
                     st->timestamp_ns,
                     st->original_size.width,
                     st->original_size.height};
-    jf.latitude_deg = st->metadata.latitude_deg;
-    jf.longitude_deg = st->metadata.longitude_deg;
-    jf.relative_altitude_m = st->metadata.relative_altitude_m;
-    jf.yaw_deg = st->metadata.flight_yaw_deg;
+    jf.latitude_deg = st->metadata().latitude_deg;
+    jf.longitude_deg = st->metadata().longitude_deg;
+    jf.relative_altitude_m = st->metadata().relative_altitude_m;
+    jf.yaw_deg = st->metadata().flight_yaw_deg;
     if (journal_.is_open() && !journal_.AddFrame(jf, &error)) {
       // The frame itself is stored, but a journal that cannot grow means the disk is full: stop here.
       spdlog::error("{}; a resumed run would take this frame from the source again", error);
@@ -195,9 +195,7 @@ SessionFrame& FlightSession::RecordFrame(int id, const PreparedFrame& prepared) 
   st.name = frame.source_name;
   st.original_size = frame.original_size;
   st.timestamp_ns = frame.timestamp_ns;
-  st.metadata = frame.metadata;
-  st.work_from_original = ResizeMap(static_cast<double>(prepared.work_bgr.cols) / frame.original_size.width,
-                                    static_cast<double>(prepared.work_bgr.rows) / frame.original_size.height);
+  st.set_metadata(frame.metadata);
   st.work_size = prepared.work_bgr.size();
   return st;
 }
@@ -230,7 +228,7 @@ FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
   // Match on the 8-bit values, exactly what later queries from the store will see.
   feats.descriptors = DequantizeDescriptors(QuantizeDescriptors(feats.descriptors));
   RegisterTiming timing;
-  HintRequest hint{&st.metadata, std::nullopt};
+  HintRequest hint{&st.metadata(), std::nullopt};
   events_.hint_request.Emit(hint);
   const size_t edges_before = engine_.edges().size();
   if (options_.subpixel.enabled) refiner_.Put(id, preparer_.IdealGray(prepared));
@@ -287,8 +285,8 @@ bool FlightSession::WriteEdgeTables(const std::unordered_set<int>& in_component,
       continue;
     }
     if (!was_resident && used) engine_.AsSolved(&e);  // the pixels the final solves used (a calibrated lens)
-    const Mat3 src_orig = record_.frame(e.src).work_from_original.inverse();
-    const Mat3 tgt_orig = record_.frame(e.tgt).work_from_original.inverse();
+    const Mat3 src_orig = record_.frame(e.src).work_from_original().inverse();
+    const Mat3 tgt_orig = record_.frame(e.tgt).work_from_original().inverse();
     char line[160];
     for (size_t k = 0; k < e.points.size(); ++k) {
       const Vec2 a = Apply(src_orig, e.points.src(k).cast<double>());

@@ -105,13 +105,13 @@ double LiveTiles::TilesGsd(int id) const {
   const cv::Size work = engine().frame(id).work_size;
   const Vec2 centre(0.5 * (work.width - 1), 0.5 * (work.height - 1));
   const double work_gsd = grid_.fit.gsd_m * LocalScale(engine().mosaic_from_work(id), centre);
-  const double work_per_original = std::sqrt(std::abs(st.work_from_original.topLeftCorner<2, 2>().determinant()));
+  const double work_per_original = std::sqrt(std::abs(st.work_from_original().topLeftCorner<2, 2>().determinant()));
   return std::max(work_gsd, work_gsd * work_per_original / options_.mosaic_scale);
 }
 
 bool LiveTiles::StartGrid(int id) {
   Grid& lt = grid_;
-  const FrameMetadata& m = record_->frame(id).metadata;
+  const FrameMetadata& m = record_->frame(id).metadata();
   const bool has_position = m.latitude_deg && m.longitude_deg;
   if (georef_->ok()) {
     lt.fit = georef_->fit();

@@ -108,7 +108,7 @@ void LiveView::UpdatePreview(int id, const cv::Mat& work_bgr) {
 // The live picture's georeference during the flight (core/georef/live_georef.h): each drawn frame's point, the refit
 // when due, live.jgw and live.jpg.aux.xml beside live.jpg, and the live view's "georef".
 void LiveView::AddGeorefPoint(int id) {
-  const FrameMetadata& m = record_->frame(id).metadata;
+  const FrameMetadata& m = record_->frame(id).metadata();
   if (!m.latitude_deg || !m.longitude_deg) {
     georef_.AddFrame(std::nullopt);
     return;

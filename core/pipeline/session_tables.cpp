@@ -36,7 +36,7 @@ bool WriteFramesCsv(const std::string& path, const FlightRecord& record, const s
       "relative_altitude_m,flight_yaw_deg,gimbal_yaw_deg,gimbal_pitch_deg,focal_length_mm\n");
   const auto cell = [](const std::optional<double>& v) { return v ? fmt::format("{:.12g}", *v) : std::string(); };
   for (const auto& f : record.frames()) {
-    const auto& m = f.metadata;
+    const auto& m = f.metadata();
     frames_csv.Write(fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.id, f.name,
                                  std::filesystem::path(f.stored_file).filename().string(), f.original_size.width,
                                  f.original_size.height, f.timestamp_ns, in_map.count(f.id) != 0 ? 1 : 0,
