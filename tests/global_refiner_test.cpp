@@ -358,7 +358,7 @@ TEST(GlobalRefiner, ACapThatLeavesEdgesThreePointsStillRefinesIteratively) {
   Scene s = MakeScene(1.0, 0.3, 5);
   size_t total = 0;
   for (Edge& e : s.edges) {
-    ThinPoints(&e, 12, 0);
+    e.points.Thin(12, 0);
     total += e.points.size();
   }
   const auto start = AffineStart(s);

@@ -68,7 +68,7 @@ TEST(EdgePointsTest, ThinKeepsAnEvenStrideOfEachListAndFreesTheRest) {
   Edge e;
   e.points = EdgePoints(Line(100, 0.0f), Line(100, 1000.0f), Line(10, 5000.0f), Line(10, 6000.0f));
   const size_t before = e.points.bytes();
-  EXPECT_EQ(ThinPoints(&e, 10, 4), 90u + 6u);
+  EXPECT_EQ(e.points.Thin(10, 4), 90u + 6u);
   ASSERT_EQ(e.points.size(), 10u);
   ASSERT_EQ(e.points.holdout_size(), 4u);
   for (size_t k = 0; k < 10; ++k) {
@@ -78,7 +78,7 @@ TEST(EdgePointsTest, ThinKeepsAnEvenStrideOfEachListAndFreesTheRest) {
   EXPECT_EQ(e.points.holdout_src(3).x(), 5007.0f);  // 3 * 10 / 4
   EXPECT_EQ(e.points.holdout_tgt(3).x(), 6007.0f);
   EXPECT_LT(e.points.bytes(), before / 5);
-  EXPECT_EQ(ThinPoints(&e, 10, 4), 0u);  // already within: nothing dropped
+  EXPECT_EQ(e.points.Thin(10, 4), 0u);  // already within: nothing dropped
 }
 
 TEST(EdgePointsTest, CombineTakesOnesPairsAndTheOthersHeldOutPairs) {

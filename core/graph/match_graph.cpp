@@ -107,16 +107,16 @@ size_t EdgePoints::Thin(size_t max_pairs, size_t max_holdout) {
   if (keep_n == n && keep_m == m) return 0;
   std::vector<Vec2f> kept;
   kept.reserve(2 * (keep_n + keep_m));
-  for (size_t k = 0; k < keep_n; ++k) {
-    const size_t i = k * n / keep_n;  // evenly spread over the whole list
-    kept.push_back(src(i));
-    kept.push_back(tgt(i));
-  }
-  for (size_t k = 0; k < keep_m; ++k) {
-    const size_t i = k * m / keep_m;
-    kept.push_back(holdout_src(i));
-    kept.push_back(holdout_tgt(i));
-  }
+  // `keep` of the `count` pairs from pair `first` on, evenly spread over the whole list.
+  const auto keep_strided = [&](size_t first, size_t count, size_t keep) {
+    for (size_t k = 0; k < keep; ++k) {
+      const size_t i = first + k * count / keep;
+      kept.push_back(block_[2 * i]);
+      kept.push_back(block_[2 * i + 1]);
+    }
+  };
+  keep_strided(0, n, keep_n);
+  keep_strided(n, m, keep_m);
   block_.swap(kept);
   pairs_ = static_cast<uint32_t>(keep_n);
   return (n - keep_n) + (m - keep_m);
@@ -125,10 +125,6 @@ size_t EdgePoints::Thin(size_t max_pairs, size_t max_holdout) {
 void EdgePoints::Free() {
   std::vector<Vec2f>().swap(block_);
   pairs_ = 0;
-}
-
-size_t ThinPoints(Edge* edge, size_t max_points, size_t max_holdout) {
-  return edge->points.Thin(max_points, max_holdout);
 }
 
 }  // namespace uavm

@@ -79,10 +79,6 @@ struct Edge {
   bool points_resident = true;
 };
 
-// Keeps at most `max_points` of the edge's pairs and `max_holdout` of its held-out pairs (EdgePoints::Thin). Returns
-// the pairs dropped.
-size_t ThinPoints(Edge* edge, size_t max_points, size_t max_holdout);
-
 class UnionFind {
  public:
   int Add();  // returns the new element's id (ids are dense, 0..n-1)

@@ -158,7 +158,7 @@ bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, s
     }
     // Thinned only where the spill keeps every point: a writer reads them back from it (ReleaseAllEdges).
     if (max_points > 0 && spill_ != nullptr && edge.stored_at >= 0) {
-      const size_t dropped = ThinPoints(&edge, max_points, max_holdout);
+      const size_t dropped = edge.points.Thin(max_points, max_holdout);
       counters_.end_points_thinned += dropped;
       if (dropped > 0) thinned_ = true;
     }
@@ -640,7 +640,7 @@ size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edge
     if (!Acceptable(r) || 2 * r.num_inliers < e->num_inliers) continue;
     auto* edge = const_cast<Edge*>(e);  // the engine's own edge (the const view is the solve's)
     edge->points = EdgePoints(r.src_points, r.tgt_points, r.holdout_src_points, r.holdout_tgt_points);
-    if (max_points > 0) (void)ThinPoints(edge, max_points, std::max<size_t>(2, max_points / 4));
+    if (max_points > 0) (void)edge->points.Thin(max_points, std::max<size_t>(2, max_points / 4));
     (*at_lens)[i] = 1;
     ++rematched;
   }
