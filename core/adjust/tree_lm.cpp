@@ -26,6 +26,10 @@ bool TreeLmOptions::Check(std::string* why) const {
 namespace {
 
 using Block = Eigen::Matrix<double, kFrameParams, kFrameParams>;
+// An edge's coupling block, rounded to float: the edges' blocks are most of the solver's memory (five an edge per
+// frame), and the rounding (a relative 6e-8) is far below what each step's conjugate gradients leave
+// (linear_tolerance), while the gradient and the cost, which decide where the iteration stops, stay in double.
+using CouplingBlock = Eigen::Matrix<float, kFrameParams, kFrameParams>;
 using SharedBlock = Eigen::Matrix<double, kSharedParams, kFrameParams>;
 using SharedSquare = Eigen::Matrix<double, kSharedParams, kSharedParams>;
 using Vec = Eigen::VectorXd;
@@ -51,8 +55,8 @@ auto FrameSegment(const Vec& v, size_t frame) {
 struct NormalEquations {
   NormalEquations(size_t frames, size_t edges, bool shared)
       : frame(frames), edge(edges), shared_frame(shared ? frames : 0) {}
-  std::vector<Block> frame;  // per frame
-  std::vector<Block> edge;   // per edge: source rows, target columns
+  std::vector<Block> frame;         // per frame
+  std::vector<CouplingBlock> edge;  // per edge: source rows, target columns
   std::vector<SharedBlock> shared_frame;
   SharedSquare shared = SharedSquare::Zero();
   Vec gradient;
@@ -127,7 +131,7 @@ class Evaluator {
         jac.middleCols<kFrameParams>(kFrameParams) * mask_[b].asDiagonal();
     normal->frame[a].noalias() += ja.transpose() * ja;
     normal->frame[b].noalias() += jb.transpose() * jb;
-    normal->edge[e].noalias() = ja.transpose() * jb;
+    normal->edge[e] = (ja.transpose() * jb).cast<float>();
     FrameSegment(normal->gradient, a).noalias() += ja.transpose() * r;
     FrameSegment(normal->gradient, b).noalias() += jb.transpose() * r;
     if (!shared) return;
@@ -180,8 +184,9 @@ void Multiply(const FrameGraphTerms& terms, const NormalEquations& h, double mu,
   for (size_t e = 0; e < h.edge.size(); ++e) {
     const size_t a = terms.EdgeSrc(e);
     const size_t b = terms.EdgeTgt(e);
-    FrameSegment(*y, a).noalias() += h.edge[e] * FrameSegment(v, b);
-    FrameSegment(*y, b).noalias() += h.edge[e].transpose() * FrameSegment(v, a);
+    const Block coupling = h.edge[e].cast<double>();
+    FrameSegment(*y, a).noalias() += coupling * FrameSegment(v, b);
+    FrameSegment(*y, b).noalias() += coupling.transpose() * FrameSegment(v, a);
   }
   if (h.shared_frame.empty()) return;
   y->tail<kSharedParams>().noalias() += h.shared * v.tail<kSharedParams>();
@@ -226,19 +231,20 @@ class TreePreconditioner {
   }
 
   void Factor(const NormalEquations& h, double mu) {
-    std::vector<Block> schur(h.frame.size());
-    for (size_t f = 0; f < schur.size(); ++f)
-      schur[f] = h.frame[f] + mu * FrameSegment(h.diagonal, f).asDiagonal().toDenseMatrix();
+    // Each frame's Schur complement is built and factored in the one block it keeps (no second copy per frame).
+    for (size_t f = 0; f < factor_.size(); ++f)
+      factor_[f] = h.frame[f] + mu * FrameSegment(h.diagonal, f).asDiagonal().toDenseMatrix();
     for (auto it = order_.rbegin(); it != order_.rend(); ++it) {  // children before their parents
       const size_t f = *it;
-      factor_[f].compute(schur[f]);
-      if (factor_[f].info() != Eigen::Success) {  // not positive definite: its diagonal alone
-        const Block d = schur[f].diagonal().cwiseMax(kMinDiagonal).asDiagonal();
-        factor_[f].compute(d);
+      const Eigen::Matrix<double, kFrameParams, 1> diagonal = factor_[f].diagonal();
+      Eigen::LLT<Eigen::Ref<Block>> in_place(factor_[f]);
+      if (in_place.info() != Eigen::Success) {  // not positive definite: its diagonal alone
+        factor_[f].setZero();
+        factor_[f].diagonal() = diagonal.cwiseMax(kMinDiagonal).cwiseSqrt();
       }
       if (parent_[f] == kRoot) continue;
       const Block coupling = Coupling(h, f);
-      schur[parent_[f]].noalias() -= coupling.transpose() * factor_[f].solve(coupling);
+      factor_[parent_[f]].noalias() -= coupling.transpose() * Solve(f, coupling);
     }
     if (!h.shared_frame.empty()) {
       SharedSquare s = h.shared;
@@ -252,16 +258,16 @@ class TreePreconditioner {
     for (auto it = order_.rbegin(); it != order_.rend(); ++it) {
       const size_t f = *it;
       if (parent_[f] == kRoot) continue;
-      FrameSegment(y, parent_[f]).noalias() -= Coupling(h, f).transpose() * factor_[f].solve(FrameSegment(y, f));
+      FrameSegment(y, parent_[f]).noalias() -= Coupling(h, f).transpose() * Solve(f, FrameSegment(y, f));
     }
     z->resize(r.size());
     for (const size_t f : order_) {
       if (parent_[f] == kRoot) {
-        FrameSegment(*z, f) = factor_[f].solve(FrameSegment(y, f));
+        FrameSegment(*z, f) = Solve(f, FrameSegment(y, f));
       } else {
         const Eigen::Matrix<double, kFrameParams, 1> rhs =
             FrameSegment(y, f) - Coupling(h, f) * FrameSegment(*z, parent_[f]);
-        FrameSegment(*z, f) = factor_[f].solve(rhs);
+        FrameSegment(*z, f) = Solve(f, rhs);
       }
     }
     if (!h.shared_frame.empty()) z->tail<kSharedParams>() = shared_.solve(r.tail<kSharedParams>());
@@ -273,14 +279,23 @@ class TreePreconditioner {
   // The block coupling frame f (rows) to its parent (columns).
   Block Coupling(const NormalEquations& h, size_t f) const {
     const size_t e = parent_edge_[f];
-    return terms_.EdgeSrc(e) == f ? h.edge[e] : Block(h.edge[e].transpose());
+    const Block coupling = h.edge[e].cast<double>();
+    return terms_.EdgeSrc(e) == f ? coupling : Block(coupling.transpose());
+  }
+
+  // (L L^T)^-1 b with frame f's factor L (the lower triangle of its block).
+  template <typename Rhs>
+  Eigen::Matrix<double, kFrameParams, Rhs::ColsAtCompileTime> Solve(size_t f, const Rhs& b) const {
+    const auto lower = factor_[f].triangularView<Eigen::Lower>();
+    return lower.transpose().solve(lower.solve(b));
   }
 
   const FrameGraphTerms& terms_;
   std::vector<size_t> order_;  // breadth first over each tree of the forest: parents before children
   std::vector<size_t> parent_;
   std::vector<size_t> parent_edge_;
-  std::vector<Eigen::LLT<Block>> factor_;  // per frame: its Schur complement's Cholesky factor
+  // Per frame: its Schur complement's Cholesky factor L in the lower triangle (the upper one is left over).
+  std::vector<Block> factor_;
   Eigen::LDLT<SharedSquare> shared_;
 };
 
