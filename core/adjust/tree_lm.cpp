@@ -26,9 +26,10 @@ bool TreeLmOptions::Check(std::string* why) const {
 namespace {
 
 using Block = Eigen::Matrix<double, kFrameParams, kFrameParams>;
-// An edge's coupling block, rounded to float: the edges' blocks are most of the solver's memory (five an edge per
-// frame), and the rounding (a relative 6e-8) is far below what each step's conjugate gradients leave
-// (linear_tolerance), while the gradient and the cost, which decide where the iteration stops, stay in double.
+// An edge's coupling block, rounded to float: the edges' blocks are most of the solver's memory (about five edges a
+// frame). The rounding (6e-8 of each entry) only makes each step less exact, as the conjugate gradients already do;
+// the gradient and the cost, which decide where the iteration stops, stay in double, and the conjugate gradients stop
+// where the rounded system is not positive definite.
 using CouplingBlock = Eigen::Matrix<float, kFrameParams, kFrameParams>;
 using SharedBlock = Eigen::Matrix<double, kSharedParams, kFrameParams>;
 using SharedSquare = Eigen::Matrix<double, kSharedParams, kSharedParams>;
