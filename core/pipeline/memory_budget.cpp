@@ -23,8 +23,8 @@ constexpr double kBytesPerIndexedDescriptor = 128 + 512 + 160;
 constexpr double kFlightResidueMiB = 20.0;
 // Ceres per correspondence: residual block, cost functor, Jacobian blocks and their compressed-row copy. This is the
 // factorisation's (up to refine.max_frames_per_solve frames); beyond, the iterative solve (core/adjust/tree_lm) holds
-// no per-correspondence state, ~3.1 KiB per frame (five edges' 8x8 float blocks, the frame's own and its tree factor):
-// below this line up to ~35 000 frames at the default cap.
+// no per-correspondence state, only per-frame and per-edge blocks (their figure is stated once, in tree_lm.h): below
+// this line up to ~35 000 frames at the default cap.
 constexpr double kBytesPerSolverCorrespondence = 1100;
 // An edge's point pair held by the end's solves (two float 2-vectors), with its share of held-out pairs (a quarter).
 constexpr double kBytesPerEndPoint = 16 * 1.25;
