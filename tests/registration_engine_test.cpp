@@ -85,13 +85,14 @@ class MemorySpill final : public EdgeSpill {
     return true;
   }
   size_t Release(Edge* edge) override {
-    if (!edge->points_resident || edge->stored_at < 0) return 0;
+    if (keep_resident || !edge->points_resident || edge->stored_at < 0) return 0;
     const size_t bytes = edge->points.bytes();
     edge->points.Free();
     edge->points_resident = false;
     return bytes;
   }
   int loads = 0;
+  bool keep_resident = false;  // stores, never gives back: every edge stays resident
 
  private:
   std::vector<Edge> stored_;
@@ -247,6 +248,36 @@ TEST(RegistrationEngineTest, WindowedSolvesSpillColdEdgesAndTheFinalSolveReadsTh
   EXPECT_GT(spill.loads, 0);  // the final solve needed the given-back points
   for (const Edge& e : f.engine->edges()) EXPECT_TRUE(e.points_resident);
   EXPECT_LT(f.CornerRms(s), 2.0);
+}
+
+// Beyond end_correspondences the final solves read each given-back edge's share from the spill whenever they need it
+// instead of holding all of them: the same solution as the same shares held in memory, to the last bit.
+TEST(RegistrationEngineTest, AnEndBeyondItsCorrespondenceCapReadsEdgesBackAsTheSolvesNeedThem) {
+  const auto fly = [](MemorySpill* spill) {
+    auto f = std::make_unique<Flight>();
+    f->options.solve_window = 6;
+    f->options.full_solve_every = 3;
+    f->options.end_correspondences = 300;  // a share of each edge's points (at least min_end_points)
+    for (int i = 0; i < 24; ++i) f->poses.push_back(Pose(300 + 100.0 * (i % 12), 400 + 150.0 * (i / 12), 0));
+    const Solution s = f->Run(spill);
+    EXPECT_TRUE(s.ok) << s.failure;
+    EXPECT_EQ(s.component.size(), 24u);
+    EXPECT_GT(f->engine->counters().end_points_thinned, 0u);
+    EXPECT_LT(f->CornerRms(s), 2.0);
+    return f;
+  };
+  MemorySpill streamed;
+  const auto a = fly(&streamed);
+  MemorySpill resident;
+  resident.keep_resident = true;
+  const auto b = fly(&resident);
+  const int released = static_cast<int>(a->engine->counters().edges_released);
+  ASSERT_GT(released, 10);
+  // The solves' passes each read the released edges again (a handful of passes), the resident run never reads.
+  EXPECT_GT(streamed.loads, 4 * released);
+  EXPECT_EQ(resident.loads, 0);
+  for (int id = 0; id < 24; ++id)
+    EXPECT_EQ(a->engine->mosaic_from_work(id), b->engine->mosaic_from_work(id)) << "frame " << id;
 }
 
 TEST(RegistrationEngineTest, AFrameThatCouldNotBeStoredStaysOutWithItsReason) {

@@ -108,16 +108,16 @@ void AddRelativeLinear(const Edge& e, const Mat3& Ts, const Mat3& Tt, bool src_f
 
 // Correspondence rows T_src p - T_tgt q = 0: per edge, the weighted sums S_pp, S_pq, S_qq of the homogeneous points
 // give its blocks (the same for both coordinate rows). A fixed side moves to the right-hand side.
-void AddEdge(const Edge& e, const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
+void AddEdge(const Edge& e, const EdgePoints& points, const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
              const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options, const float* weights,
              BlockSystem* sys) {
   Eigen::Matrix3d Spp = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d Spq = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d Sqq = Eigen::Matrix3d::Zero();
-  for (size_t k = 0; k < e.points.size(); ++k) {
+  for (size_t k = 0; k < points.size(); ++k) {
     const double w = weights == nullptr ? 1.0 : static_cast<double>(weights[k]);
-    const Eigen::Vector3d p(e.points.src(k).x(), e.points.src(k).y(), 1.0);
-    const Eigen::Vector3d q(e.points.tgt(k).x(), e.points.tgt(k).y(), 1.0);
+    const Eigen::Vector3d p(points.src(k).x(), points.src(k).y(), 1.0);
+    const Eigen::Vector3d q(points.tgt(k).x(), points.tgt(k).y(), 1.0);
     const double w2 = w * w;
     Spp.noalias() += w2 * p * p.transpose();
     Spq.noalias() += w2 * p * q.transpose();
@@ -259,7 +259,7 @@ std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options,
 }
 
 // One weighted least-squares pass over every variable frame. Empty on success, else why.
-std::string SolvePass(const std::vector<const Edge*>& used, const ColumnOf& column,
+std::string SolvePass(const std::vector<const Edge*>& used, EdgePointSource* points, const ColumnOf& column,
                       const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
                       const std::vector<float>* weights, std::unordered_map<int, Mat3>* mosaic_from_frame,
                       AdjustResult* result) {
@@ -269,8 +269,10 @@ std::string SolvePass(const std::vector<const Edge*>& used, const ColumnOf& colu
   sys.off_diagonal.reserve(used.size());
   size_t corr_index = 0;
   for (const Edge* e : used) {
-    AddEdge(*e, column, T, half_diagonal, options, weights == nullptr ? nullptr : weights->data() + corr_index, &sys);
-    corr_index += e->points.size();
+    const EdgePoints& p = PointsOf(*e, points);
+    AddEdge(*e, p, column, T, half_diagonal, options, weights == nullptr ? nullptr : weights->data() + corr_index,
+            &sys);
+    corr_index += p.size();
   }
   AddFramePriors(column, T, half_diagonal, options, &sys);
   Eigen::VectorXd x(static_cast<long>(column.size()) * kDof);
@@ -294,14 +296,15 @@ std::string SolvePass(const std::vector<const Edge*>& used, const ColumnOf& colu
 
 // Huber weights per correspondence of `used`, in order, for the next pass (sqrt of the IRLS weight, since rows are
 // scaled, not squared). float: the only per-correspondence state, so the solve's memory grows with edges, not points.
-void HuberWeights(const std::vector<const Edge*>& used, const std::unordered_map<int, Mat3>& T, double huber_px,
-                  std::vector<float>* weights) {
+void HuberWeights(const std::vector<const Edge*>& used, EdgePointSource* points, const std::unordered_map<int, Mat3>& T,
+                  double huber_px, std::vector<float>* weights) {
   weights->clear();
   for (const Edge* e : used) {
     const Mat3& Ts = T.at(e->src);
     const Mat3& Tt = T.at(e->tgt);
-    for (size_t k = 0; k < e->points.size(); ++k) {
-      const double r = (Apply(Ts, e->points.src(k).cast<double>()) - Apply(Tt, e->points.tgt(k).cast<double>())).norm();
+    const EdgePoints& p = PointsOf(*e, points);
+    for (size_t k = 0; k < p.size(); ++k) {
+      const double r = (Apply(Ts, p.src(k).cast<double>()) - Apply(Tt, p.tgt(k).cast<double>())).norm();
       weights->push_back(static_cast<float>(r <= huber_px ? 1.0 : std::sqrt(huber_px / r)));
     }
   }
@@ -311,7 +314,7 @@ void HuberWeights(const std::vector<const Edge*>& used, const std::unordered_map
 
 AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                           const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
-                          std::unordered_map<int, Mat3>* mosaic_from_frame) {
+                          std::unordered_map<int, Mat3>* mosaic_from_frame, EdgePointSource* points) {
   AdjustResult result;
   auto& T = *mosaic_from_frame;
   ColumnOf column;
@@ -337,11 +340,12 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
   }
   std::vector<float> weights;  // IRLS, from the previous pass
   for (int iteration = 0; iteration <= options.robust_iterations; ++iteration) {
-    result.failure = SolvePass(used, column, half_diagonal, options, iteration == 0 ? nullptr : &weights, &T, &result);
+    result.failure =
+        SolvePass(used, points, column, half_diagonal, options, iteration == 0 ? nullptr : &weights, &T, &result);
     if (!result.failure.empty()) return result;
-    HuberWeights(used, T, options.huber_px, &weights);
+    HuberWeights(used, points, T, options.huber_px, &weights);
   }
-  const ResidualStats stats = EdgeResiduals(used, T);
+  const ResidualStats stats = EdgeResiduals(used, T, points);
   result.num_residuals = stats.count;
   result.rms_px = stats.rms;
   result.median_px = stats.median;
@@ -349,17 +353,17 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
   return result;
 }
 
-ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::unordered_map<int, Mat3>& T) {
+ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::unordered_map<int, Mat3>& T,
+                            EdgePointSource* points) {
   ResidualStats s;
   std::vector<double> r;
   for (const Edge* e : edges) {
     const auto ts = T.find(e->src);
     const auto tt = T.find(e->tgt);
     if (ts == T.end() || tt == T.end()) continue;
-    for (size_t k = 0; k < e->points.size(); ++k)
-      r.push_back(
-          (Apply(ts->second, e->points.src(k).cast<double>()) - Apply(tt->second, e->points.tgt(k).cast<double>()))
-              .norm());
+    const EdgePoints& p = PointsOf(*e, points);
+    for (size_t k = 0; k < p.size(); ++k)
+      r.push_back((Apply(ts->second, p.src(k).cast<double>()) - Apply(tt->second, p.tgt(k).cast<double>())).norm());
   }
   s.count = r.size();
   if (r.empty()) return s;

@@ -49,13 +49,16 @@ struct ResidualStats {
 // Global affine adjustment: one sparse linear least-squares problem over the 2x3 mosaic_from_frame of every frame in
 // `variable`; frames not in `variable` (the reference, or everything else in a local update) stay fixed.
 // `mosaic_from_frame` must hold every frame that an edge touches; only variable frames are written.
-// `half_diagonal` gives each variable frame's half-diagonal in pixels (weights the rigidity terms).
+// `half_diagonal` gives each variable frame's half-diagonal in pixels (weights the rigidity terms). The edges' points
+// come from `points` (null: the edges' own).
 [[nodiscard]] AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                         const std::unordered_map<int, double>& half_diagonal,
-                                        const AdjustOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame);
+                                        const AdjustOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame,
+                                        EdgePointSource* points = nullptr);
 
 // Residuals |T_src p - T_tgt q| over all edge correspondences whose frames both have transforms.
 [[nodiscard]] ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges,
-                                          const std::unordered_map<int, Mat3>& mosaic_from_frame);
+                                          const std::unordered_map<int, Mat3>& mosaic_from_frame,
+                                          EdgePointSource* points = nullptr);
 
 }  // namespace uavm

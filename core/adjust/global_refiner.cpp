@@ -73,20 +73,20 @@ Mat3 FromParams(const FrameParams& p) {
   return m;
 }
 
-// Transfer errors of one edge's correspondences (those in `keep`): each source point through mosaic_from_src, then
-// back through the inverse of mosaic_from_tgt (its adjugate: the determinant cancels in the projective division),
-// minus the target point. One residual block per edge, not per point: Ceres' per-block bookkeeping was most of the
-// solve's memory (1.3 kB per correspondence measured, now ~0.6). Each point keeps its own Huber loss: its residual
-// is scaled so that its squared norm is rho(s) (the same cost and gradient as a per-point HuberLoss).
-// With a LensRefine, a fifth block holds its (u1, u2, u3): each point is taken to its recorded pixel (precomputed) and
-// through the undistortion.
+// Transfer errors of one edge's correspondences (the problem's own copy of those it keeps): each source point through
+// mosaic_from_src, then back through the inverse of mosaic_from_tgt (its adjugate: the determinant cancels in the
+// projective division), minus the target point. One residual block per edge, not per point: Ceres' per-block
+// bookkeeping was most of the solve's memory (1.3 kB per correspondence measured, now ~0.6). Each point keeps its own
+// Huber loss: its residual is scaled so that its squared norm is rho(s) (the same cost and gradient as a per-point
+// HuberLoss). With a LensRefine, a fifth block holds its (u1, u2, u3): each point is taken to its recorded pixel
+// (precomputed) and through the undistortion.
 struct EdgeTransferCost {
-  EdgeTransferCost(const Edge* e, std::vector<uint32_t> keep, double huber_px, const LensRefine* lens_refine)
-      : edge(e), index(std::move(keep)), delta(huber_px), lens(lens_refine) {
+  EdgeTransferCost(const EdgePoints* kept, double huber_px, const LensRefine* lens_refine)
+      : points(kept), delta(huber_px), lens(lens_refine) {
     if (lens == nullptr) return;
-    for (uint32_t k : index) {
-      recorded.push_back(lens->prepared.DistortPixel(e->points.src(k).cast<double>()));
-      recorded.push_back(lens->prepared.DistortPixel(e->points.tgt(k).cast<double>()));
+    for (size_t k = 0; k < points->size(); ++k) {
+      recorded.push_back(lens->prepared.DistortPixel(points->src(k).cast<double>()));
+      recorded.push_back(lens->prepared.DistortPixel(points->tgt(k).cast<double>()));
     }
   }
 
@@ -94,7 +94,7 @@ struct EdgeTransferCost {
   template <typename T>
   void Point(T const* const* blocks, size_t j, int which, T* x, T* y) const {
     if (lens == nullptr) {
-      const Vec2f& p = which == 0 ? edge->points.src(index[j]) : edge->points.tgt(index[j]);
+      const Vec2f& p = which == 0 ? points->src(j) : points->tgt(j);
       *x = T(p.x());
       *y = T(p.y());
       return;
@@ -126,7 +126,7 @@ struct EdgeTransferCost {
     const T r10 = f * g - d, r11 = a - c * g, r12 = c * d - a * f;
     const T r20 = d * h - e * g, r21 = b * g - a * h, r22 = a * e - b * d;
     const double d2 = delta * delta;
-    for (size_t j = 0; j < index.size(); ++j) {
+    for (size_t j = 0; j < points->size(); ++j) {
       T px, py, qx, qy;
       Point(blocks, j, 0, &px, &py);
       Point(blocks, j, 1, &qx, &qy);
@@ -151,8 +151,7 @@ struct EdgeTransferCost {
     return true;
   }
 
-  const Edge* edge;
-  std::vector<uint32_t> index;
+  const EdgePoints* points;  // borrowed: the RefineProblem's
   double delta;
   const LensRefine* lens;
   std::vector<Vec2> recorded;  // with a lens: per kept point, source then target recorded pixel
@@ -216,8 +215,7 @@ struct FramePriors {
 
 // One edge of the iterative solve: its correspondences and its frames' dense indices.
 struct TermEdge {
-  const Edge* edge = nullptr;
-  const std::vector<uint32_t>* keep = nullptr;
+  const EdgePoints* points = nullptr;  // borrowed: the RefineProblem's
   size_t src = 0;
   size_t tgt = 0;
   bool in_tree = false;
@@ -248,8 +246,8 @@ class RefineTerms final : public FrameGraphTerms {
   void Edge(size_t edge, const double* src, const double* tgt, const double* shared, std::vector<double>* residuals,
             std::vector<double>* jacobian) const override {
     const TermEdge& t = edges_[edge];
-    const EdgeTransferCost cost(t.edge, *t.keep, huber_px_, lens_);
-    const size_t rows = 2 * t.keep->size();
+    const EdgeTransferCost cost(t.points, huber_px_, lens_);
+    const size_t rows = 2 * t.points->size();
     const size_t at = residuals->size();
     residuals->resize(at + rows);
     if (jacobian == nullptr) {
@@ -326,18 +324,28 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-// The refinement's problem: the edges used, the correspondences each contributes (`keep`), the frames' parameters.
+// The refinement's problem: the edges used, a copy of the correspondences each contributes (`kept`: the edges' own
+// points may be read back one edge at a time, see EdgePointSource), the frames' parameters.
 class RefineProblem {
  public:
   RefineProblem(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
                 const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
-                const std::unordered_map<int, Mat3>& T, LensRefine* lens)
-      : variable_(variable), anchor_(anchor), half_diagonal_(half_diagonal), options_(options), lens_(lens) {
+                const std::unordered_map<int, Mat3>& T, LensRefine* lens, EdgePointSource* points)
+      : variable_(variable),
+        anchor_(anchor),
+        half_diagonal_(half_diagonal),
+        options_(options),
+        lens_(lens),
+        points_(points) {
     for (const Edge* e : edges) {
       if (T.count(e->src) == 0 || T.count(e->tgt) == 0) continue;
       const bool touches =
           variable.count(e->src) != 0 || variable.count(e->tgt) != 0 || e->src == anchor || e->tgt == anchor;
-      if (touches && e->points.size() != 0) used_.push_back(e);
+      if (!touches) continue;
+      const size_t n = PointsOf(*e, points_).size();
+      if (n == 0) continue;
+      used_.push_back(e);
+      full_.push_back(static_cast<uint32_t>(n));
     }
   }
 
@@ -356,28 +364,33 @@ class RefineProblem {
   // particular order, so a stride keeps the spread); the parameters of the frames they touch. Returns how many.
   size_t Select(size_t stride, bool iterative, const std::unordered_map<int, Mat3>& T) {
     size_t used_points = 0;
-    keep_.assign(used_.size(), {});
+    kept_.assign(used_.size(), {});
     // The iterative solve's preconditioner is a spanning tree of edges of kTreeMinPoints points at least: where the
     // stride leaves an edge fewer (a flight beyond ~5000 frames at the defaults: 12 points an edge, stride 4), the
     // edges of a tree over the full point counts keep that many, at most a point more per frame than the cap.
-    std::vector<size_t> full(used_.size());
-    for (size_t i = 0; i < used_.size(); ++i) full[i] = used_[i]->points.size();
+    const std::vector<size_t> full(full_.begin(), full_.end());
     const std::vector<bool> tree =
         iterative && stride > 1 ? SpanningTreeBy(full) : std::vector<bool>(used_.size(), false);
     for (size_t i = 0; i < used_.size(); ++i) {
+      const Edge* e = used_[i];
+      const EdgePoints& points = PointsOf(*e, points_);
+      const size_t n = std::min<size_t>(full[i], points.size());  // a read that failed now keeps nothing
       size_t step = stride;
       if (tree[i] && (full[i] + step - 1) / step < kTreeMinPoints) step = std::max<size_t>(1, full[i] / kTreeMinPoints);
-      for (size_t k = 0; k < full[i]; k += step) keep_[i].push_back(static_cast<uint32_t>(k));
-      used_points += keep_[i].size();
-      for (int id : {used_[i]->src, used_[i]->tgt})
-        if (params_.find(id) == params_.end()) params_.emplace(id, ToParams(T.at(id)));
-    }
-    // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
-    for (const Edge* e : used_)
-      for (size_t k = 0; k < e->points.size(); ++k) {
-        extent_[e->src].extend(e->points.src(k).cast<double>());
-        extent_[e->tgt].extend(e->points.tgt(k).cast<double>());
+      auto* kept = reinterpret_cast<Vec2f*>(kept_[i].Reset((n + step - 1) / step, 0));
+      for (size_t k = 0; k < n; k += step) {
+        *kept++ = points.src(k);
+        *kept++ = points.tgt(k);
       }
+      used_points += kept_[i].size();
+      for (int id : {e->src, e->tgt})
+        if (params_.find(id) == params_.end()) params_.emplace(id, ToParams(T.at(id)));
+      // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
+      for (size_t k = 0; k < n; ++k) {
+        extent_[e->src].extend(points.src(k).cast<double>());
+        extent_[e->tgt].extend(points.tgt(k).cast<double>());
+      }
+    }
     for (const auto& [id, box] : extent_) frame_centre_[id] = box.center();
     return used_points;
   }
@@ -410,8 +423,8 @@ class RefineProblem {
     const std::vector<bool> in_tree = SpanningTree();
     std::vector<TermEdge> edges;
     for (size_t i = 0; i < used_.size(); ++i)
-      if (!keep_[i].empty())
-        edges.push_back({used_[i], &keep_[i], index.at(used_[i]->src), index.at(used_[i]->tgt), in_tree[i]});
+      if (kept_[i].size() != 0)
+        edges.push_back({&kept_[i], index.at(used_[i]->src), index.at(used_[i]->tgt), in_tree[i]});
     const LensRefine* lens = edges.empty() ? nullptr : lens_;
     std::optional<LensPrior> lens_prior;
     if (lens != nullptr) lens_prior = MakeLensPrior();
@@ -442,15 +455,20 @@ class RefineProblem {
     for (size_t i = 0; i < used_.size(); ++i) {
       const Edge* e = used_[i];
       const Mat3 tgt_from_src = FromParams(params_.at(e->tgt)).inverse() * FromParams(params_.at(e->src));
-      std::vector<uint32_t> good;
-      for (uint32_t k : keep_[i])
-        if ((Apply(tgt_from_src, Ideal(e->points.src(k).cast<double>())) - Ideal(e->points.tgt(k).cast<double>()))
-                .norm() <= options_.outlier_px)
-          good.push_back(k);
-      const size_t bad = keep_[i].size() - good.size();
-      if (bad > 0 && 2 * bad <= keep_[i].size()) {
+      const EdgePoints& kept = kept_[i];
+      std::vector<Vec2f> good;
+      for (size_t k = 0; k < kept.size(); ++k)
+        if ((Apply(tgt_from_src, Ideal(kept.src(k).cast<double>())) - Ideal(kept.tgt(k).cast<double>())).norm() <=
+            options_.outlier_px) {
+          good.push_back(kept.src(k));
+          good.push_back(kept.tgt(k));
+        }
+      const size_t bad = kept.size() - good.size() / 2;
+      if (bad > 0 && 2 * bad <= kept.size()) {
         removed += bad;
-        keep_[i] = std::move(good);
+        EdgePoints fewer;
+        std::copy(good.begin(), good.end(), reinterpret_cast<Vec2f*>(fewer.Reset(good.size() / 2, 0)));
+        kept_[i] = std::move(fewer);
       }
     }
     return removed;
@@ -473,12 +491,12 @@ class RefineProblem {
 
   void Build(ceres::Problem* problem) {
     for (size_t i = 0; i < used_.size(); ++i) {
-      if (keep_[i].empty()) continue;
+      if (kept_[i].size() == 0) continue;
       const Edge* e = used_[i];
       FrameParams& s = params_.at(e->src);
       FrameParams& t = params_.at(e->tgt);
       auto* cost = new ceres::DynamicAutoDiffCostFunction<EdgeTransferCost, 8>(
-          new EdgeTransferCost(e, keep_[i], options_.huber_px, lens_));
+          new EdgeTransferCost(&kept_[i], options_.huber_px, lens_));
       cost->AddParameterBlock(6);
       cost->AddParameterBlock(2);
       cost->AddParameterBlock(6);
@@ -488,7 +506,7 @@ class RefineProblem {
         cost->AddParameterBlock(3);
         blocks.push_back(lens_->undistortion.data());
       }
-      cost->SetNumResiduals(static_cast<int>(2 * keep_[i].size()));
+      cost->SetNumResiduals(static_cast<int>(2 * kept_[i].size()));
       problem->AddResidualBlock(cost, nullptr, blocks);
     }
     for (auto& [id, p] : params_) AddFramePriors(id, &p, problem);
@@ -515,7 +533,7 @@ class RefineProblem {
   // preconditioner leaves to hundreds of steps. Kruskal over the edges, heaviest first.
   std::vector<bool> SpanningTree() const {
     std::vector<size_t> kept(used_.size());
-    for (size_t i = 0; i < kept.size(); ++i) kept[i] = keep_[i].size();
+    for (size_t i = 0; i < kept.size(); ++i) kept[i] = kept_[i].size();
     return SpanningTreeBy(kept);
   }
   // The same over `points` per edge.
@@ -598,8 +616,10 @@ class RefineProblem {
   const RefineOptions& options_;
   LensRefine* lens_;
   std::array<double, 3> lens_start_ = lens_ != nullptr ? lens_->undistortion : std::array<double, 3>{};
+  EdgePointSource* points_;  // borrowed; null: the edges' own
   std::vector<const Edge*> used_;
-  std::vector<std::vector<uint32_t>> keep_;
+  std::vector<uint32_t> full_;    // each used edge's correspondences
+  std::vector<EdgePoints> kept_;  // the correspondences each contributes, copied
   // Ordered map: the parameter blocks' addresses must stay put while the problem holds them.
   std::map<int, FrameParams> params_;
   std::unordered_map<int, Vec2> frame_centre_;
@@ -644,7 +664,7 @@ Vec2 LensRefine::Ideal(const Vec2& prepared_point) const {
 
 TransferStats TransferErrors(const std::vector<const Edge*>& edges,
                              const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout, double max_px,
-                             const LensRefine* lens) {
+                             const LensRefine* lens, EdgePointSource* source) {
   TransferStats s;
   std::vector<double> r;
   for (const Edge* e : edges) {
@@ -652,7 +672,7 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
     const auto tt = mosaic_from_frame.find(e->tgt);
     if (ts == mosaic_from_frame.end() || tt == mosaic_from_frame.end()) continue;
     const Mat3 tgt_from_src = tt->second.inverse() * ts->second;
-    const EdgePoints& points = e->points;
+    const EdgePoints& points = PointsOf(*e, source);
     const size_t n = holdout ? points.holdout_size() : points.size();
     for (size_t k = 0; k < n; ++k) {
       const Vec2 p = (holdout ? points.holdout_src(k) : points.src(k)).cast<double>();
@@ -673,12 +693,12 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
 
 RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable, int anchor,
                           const std::unordered_map<int, double>& half_diagonal, const RefineOptions& options,
-                          std::unordered_map<int, Mat3>* mosaic_from_frame, LensRefine* lens) {
+                          std::unordered_map<int, Mat3>* mosaic_from_frame, LensRefine* lens, EdgePointSource* points) {
   RefineResult result;
   StageTimer timer;
   auto& T = *mosaic_from_frame;
-  RefineProblem refine(edges, variable, anchor, half_diagonal, options, T, lens);
-  const TransferStats before = TransferErrors(refine.used(), T, false, 0.0, lens);
+  RefineProblem refine(edges, variable, anchor, half_diagonal, options, T, lens, points);
+  const TransferStats before = TransferErrors(refine.used(), T, false, 0.0, lens, points);
   result.initial_rms_px = before.rms;
   result.num_residuals = before.count;
   const auto max_correspondences = static_cast<size_t>(options.max_correspondences);
@@ -714,8 +734,8 @@ RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unor
   // Ceres only returns a step that lowered the robust cost; the plain statistics are for the report.
   std::unordered_map<int, Mat3> trial = T;
   for (const auto& [id, m] : refined) trial[id] = m;
-  const TransferStats after = TransferErrors(refine.used(), trial, false, 0.0, lens);
-  const TransferStats inliers = TransferErrors(refine.used(), trial, false, options.outlier_px, lens);
+  const TransferStats after = TransferErrors(refine.used(), trial, false, 0.0, lens, points);
+  const TransferStats inliers = TransferErrors(refine.used(), trial, false, options.outlier_px, lens, points);
   for (const auto& [id, m] : refined) T[id] = m;
   result.final_all_rms_px = after.rms;
   result.final_rms_px = options.outlier_px > 0 ? inliers.rms : after.rms;

@@ -98,11 +98,12 @@ struct LensRefine {
 // Memory: at most options.max_correspondences points; beyond max_frames_per_solve variable frames no factorisation and
 // no Jacobian (SolveTreeLm: the normal equations as 8x8 blocks per frame and per edge, conjugate gradients
 // preconditioned by a spanning tree of the edges, factored without fill-in; one thread), so what the solve holds is
-// linear in the frames and edges and does not grow with the points.
+// linear in the frames and edges and does not grow with the points. The edges' points come from `points` (null: the
+// edges' own); the solve holds a copy of the ones it uses.
 [[nodiscard]] RefineResult RefineGlobal(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
                                         int anchor, const std::unordered_map<int, double>& half_diagonal,
                                         const RefineOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame,
-                                        LensRefine* lens = nullptr);
+                                        LensRefine* lens = nullptr, EdgePointSource* points = nullptr);
 
 struct TransferStats {
   size_t count = 0;
@@ -111,9 +112,10 @@ struct TransferStats {
 };
 // Transfer errors |proj(T_tgt^-1 T_src p) - q| over all correspondences of `edges` whose frames have maps (with
 // `holdout`: over the held-out points instead); with max_px > 0, only errors up to max_px count (inliers). With
-// `lens`, the points are first taken through its Ideal().
+// `lens`, the points are first taken through its Ideal(). The points come from `points` (null: the edges' own).
 [[nodiscard]] TransferStats TransferErrors(const std::vector<const Edge*>& edges,
                                            const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout = false,
-                                           double max_px = 0.0, const LensRefine* lens = nullptr);
+                                           double max_px = 0.0, const LensRefine* lens = nullptr,
+                                           EdgePointSource* points = nullptr);
 
 }  // namespace uavm

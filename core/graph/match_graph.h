@@ -79,6 +79,20 @@ struct Edge {
   bool points_resident = true;
 };
 
+// Where a solve reads each edge's points. Without one (null) a solve reads the edges' own, resident points; the end of
+// a long flight passes one that reads them back from edges.bin an edge at a time, so that the solves hold no edge's
+// points beyond the one they are reading (RegistrationEngine's EndPointReader). Used from one thread.
+class EdgePointSource {
+ public:
+  virtual ~EdgePointSource() = default;
+  // `edge`'s points as the solve takes them, valid until the next call; empty when they cannot be read.
+  [[nodiscard]] virtual const EdgePoints& Points(const Edge& edge) = 0;
+};
+
+[[nodiscard]] inline const EdgePoints& PointsOf(const Edge& edge, EdgePointSource* source) {
+  return source != nullptr ? source->Points(edge) : edge.points;
+}
+
 class UnionFind {
  public:
   int Add();  // returns the new element's id (ids are dense, 0..n-1)

@@ -552,6 +552,48 @@ std::pair<size_t, size_t> RegistrationEngine::EndPointsPerEdge(const std::vector
   return {per_edge, std::max<size_t>(2, per_edge / 4)};
 }
 
+namespace {
+
+// The end of a long flight's points: an edge still resident is read as it is; another is read back from the spill into
+// one scratch edge, thinned to the end's share and moved to the solved lens's pixels, as LoadEdgePoints and the lens
+// would have left it resident. The solves get the same numbers and hold one edge's points instead of all of them.
+class EndPointReader final : public EdgePointSource {
+ public:
+  // Borrows the spill and the engine (its solved lens), which outlive the reader.
+  EndPointReader(EdgeSpill* spill, const RegistrationEngine* engine, size_t max_points, size_t max_holdout)
+      : spill_(spill), engine_(engine), max_points_(max_points), max_holdout_(max_holdout) {}
+
+  const EdgePoints& Points(const Edge& edge) override {
+    if (edge.points_resident) return edge.points;
+    scratch_.src = edge.src;
+    scratch_.tgt = edge.tgt;
+    scratch_.stored_at = edge.stored_at;
+    scratch_.points_resident = false;
+    std::string error;
+    if (!spill_->Load(&scratch_, &error)) {
+      if (failed_++ == 0) spdlog::error("{}", error);
+      scratch_.points.Free();
+      return scratch_.points;
+    }
+    dropped_ += scratch_.points.Thin(max_points_, max_holdout_);
+    engine_->AsSolved(&scratch_);
+    return scratch_.points;
+  }
+  [[nodiscard]] size_t dropped() const { return dropped_; }  // pairs left on disk, summed over the reads
+  [[nodiscard]] size_t failed() const { return failed_; }
+
+ private:
+  EdgeSpill* spill_;                  // borrowed
+  const RegistrationEngine* engine_;  // borrowed
+  size_t max_points_;
+  size_t max_holdout_;
+  Edge scratch_;
+  size_t dropped_ = 0;
+  size_t failed_ = 0;
+};
+
+}  // namespace
+
 Solution RegistrationEngine::FinishSolve() {
   StageTimer t;
   // The relocalisation index serves the flight only (Densify looks for partners among footprints): its memory goes
@@ -578,11 +620,24 @@ Solution RegistrationEngine::FinishSolve() {
   EnterPhase("end_load");
   const auto [max_points, max_holdout] = EndPointsPerEdge(edges);
   counters_.end_points_per_edge = max_points;
-  if (!LoadEdgePoints(edges, max_points, max_holdout))
+  // All of the points when they fit end_correspondences. Beyond, the solves read an edge's share from the spill each
+  // time they need it (edges.bin is read a few dozen times, from the page cache): what they hold stops growing with
+  // the flight's edges, except the share of those still resident from the flight, thinned in place.
+  std::optional<EndPointReader> reader;
+  std::vector<const Edge*> to_load = edges;
+  if (max_points > 0 && spill_ != nullptr) {
+    reader.emplace(spill_, this, max_points, max_holdout);
+    std::erase_if(to_load, [](const Edge* e) { return !e->points_resident; });
+    thinned_ = true;
+    // One read of each: the pairs left on disk counted, and an unreadable edges.bin said before the solves.
+    for (const Edge* e : edges) (void)reader->Points(*e);
+    counters_.end_points_thinned += reader->dropped();
+  }
+  if (!LoadEdgePoints(to_load, max_points, max_holdout) || (reader && reader->failed() > 0))
     spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
   s.ok = true;
   if (s.component.size() >= 2) {
-    SolveFinal(edges, t, &s);
+    SolveFinal(edges, reader ? &*reader : nullptr, t, &s);
   } else if (s.component.size() == 1) {
     SetMap(s.component.front(), Mat3::Identity());
   }
@@ -783,7 +838,7 @@ LensWindow MiddleWindow(const std::vector<int>& component, const std::vector<con
 
 }  // namespace
 
-bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>& edges,
+bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>& edges, EdgePointSource* points,
                                                  const std::unordered_set<int>& variable,
                                                  const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
                                                  Solution* s) {
@@ -795,6 +850,13 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
     }
   EnterPhase("lens");
   const LensWindow w = MiddleWindow(s->component, edges, static_cast<size_t>(options_.refine.max_frames_per_solve));
+  // The window's points are resident (bounded by the window): the calibration reads them many times, and a rematch
+  // replaces some, which edges.bin does not hold.
+  const size_t max_points = counters_.end_points_per_edge;
+  const size_t left_on_disk = counters_.end_points_thinned;  // counted once, at end_load
+  if (!LoadEdgePoints(w.edges, max_points, std::max<size_t>(2, max_points / 4)))
+    spdlog::warn("lens: calibrated without some edges (edges.bin unreadable)");
+  counters_.end_points_thinned = left_on_disk;
   s->lens = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, *camera_,
                           options_.lens_calibration, mosaic_from_work_);
   if (s->lens.accepted && options_.lens_calibration.rematch)
@@ -810,10 +872,12 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
     spdlog::warn("lens: {}", s->lens.why);
   }
   if (!s->lens.accepted && !s->lens.dropped) return true;
-  // The engine owns the edges (the const view is the solve's): their points move to the calibrated ideal pixels.
-  for (const Edge* e : edges) ReprojectEdgePoints(*camera_, s->lens.distortion, const_cast<Edge*>(e));
+  // The engine owns the edges (the const view is the solve's): their points move to the calibrated ideal pixels, the
+  // resident ones now, the others as they are read (AsSolved).
+  for (const Edge* e : edges)
+    if (e->points_resident) ReprojectEdgePoints(*camera_, s->lens.distortion, const_cast<Edge*>(e));
   solved_lens_ = s->lens.distortion;
-  *linear = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+  *linear = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_, points);
   if (!linear->ok) {
     s->ok = false;
     s->failure = "final adjustment failed after the lens calibration: " + linear->failure;
@@ -825,27 +889,28 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
 // The refinement with the configured model; with the homography model, affine maps too when choose_model is set
 // (the homographies are kept only when they fit the held-out points better by homography_min_gain) or when the
 // homographies are refused.
-RefineResult RegistrationEngine::RefineAndChooseModel(const std::vector<const Edge*>& edges,
+RefineResult RegistrationEngine::RefineAndChooseModel(const std::vector<const Edge*>& edges, EdgePointSource* points,
                                                       const std::unordered_set<int>& variable, int anchor,
                                                       const std::unordered_map<int, double>& half_diag, Solution* s) {
   RefineOptions affine = options_.refine;
   affine.model = MotionModel::kAffine;
   std::unordered_map<int, Mat3> affine_maps;
   if (options_.refine.model == MotionModel::kHomography) affine_maps = mosaic_from_work_;
-  RefineResult rr = RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_);
+  RefineResult rr =
+      RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_, nullptr, points);
   s->model = options_.refine.model;
   if (options_.refine.model != MotionModel::kHomography) return rr;
   if (!rr.ok) {
     spdlog::warn("homography refinement refused ({}); refining affine maps instead", rr.failure);
     mosaic_from_work_ = std::move(affine_maps);
     s->model = MotionModel::kAffine;
-    return RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_);
+    return RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_, nullptr, points);
   }
   if (!options_.refine.choose_model) return rr;
-  const RefineResult ra = RefineGlobal(edges, variable, anchor, half_diag, affine, &affine_maps);
+  const RefineResult ra = RefineGlobal(edges, variable, anchor, half_diag, affine, &affine_maps, nullptr, points);
   if (!ra.ok) return rr;
-  const double homography_rms = TransferErrors(edges, mosaic_from_work_, true).rms;
-  const double affine_rms = TransferErrors(edges, affine_maps, true).rms;
+  const double homography_rms = TransferErrors(edges, mosaic_from_work_, true, 0.0, nullptr, points).rms;
+  const double affine_rms = TransferErrors(edges, affine_maps, true, 0.0, nullptr, points).rms;
   const bool keep_homographies = homography_rms < (1.0 - options_.refine.homography_min_gain) * affine_rms;
   spdlog::info("refinement models: held-out RMS {:.4f} px with homographies, {:.4f} with affines: {} kept",
                homography_rms, affine_rms, keep_homographies ? "homographies" : "affines");
@@ -861,8 +926,8 @@ RefineResult RegistrationEngine::RefineAndChooseModel(const std::vector<const Ed
 
 // Re-anchors on the component's first frame (identity), solves all of it linearly, then refines: transfer errors in
 // frame pixels (no pull to shrink towards the anchor) and, with the homography model, each frame's perspective.
-void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish,
-                                    Solution* s) {
+void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, EdgePointSource* points,
+                                    const StageTimer& since_finish, Solution* s) {
   const int anchor = s->component.front();
   const Mat3 fix = Map(anchor).inverse();
   for (int id : s->component) SetMap(id, fix * Map(id));
@@ -870,7 +935,7 @@ void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const
   std::unordered_map<int, double> half_diag;
   for (int id : s->component) half_diag[id] = Record(id).half_diagonal;
   EnterPhase("adjust");
-  auto r = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_);
+  auto r = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_, points);
   if (!r.ok) {
     s->ok = false;
     s->failure = "final adjustment failed: " + r.failure;
@@ -878,18 +943,18 @@ void RegistrationEngine::SolveFinal(const std::vector<const Edge*>& edges, const
   }
   spdlog::info("final linear adjustment: {} frames, {} edges, {}", variable.size() + 1, edges.size(),
                r.iterative ? fmt::format("conjugate gradients ({} steps)", r.iterative_steps) : "factored");
-  if (!CalibrateLensAndResolve(edges, variable, half_diag, &r, s)) return;
+  if (!CalibrateLensAndResolve(edges, points, variable, half_diag, &r, s)) return;
   s->rms_px = r.rms_px;
   s->median_px = r.median_px;
   s->adjust_ms = since_finish.ElapsedMs();
-  s->holdout_linear = TransferErrors(edges, mosaic_from_work_, true);
+  s->holdout_linear = TransferErrors(edges, mosaic_from_work_, true, 0.0, nullptr, points);
   StageTimer refine_timer;
   EnterPhase("refine");
-  const RefineResult rr = RefineAndChooseModel(edges, variable, anchor, half_diag, s);
+  const RefineResult rr = RefineAndChooseModel(edges, points, variable, anchor, half_diag, s);
   s->refine = rr;
   s->refine_ms = refine_timer.ElapsedMs();
-  s->holdout_final = TransferErrors(edges, mosaic_from_work_, true);
-  s->holdout_inliers = TransferErrors(edges, mosaic_from_work_, true, options_.refine.outlier_px);
+  s->holdout_final = TransferErrors(edges, mosaic_from_work_, true, 0.0, nullptr, points);
+  s->holdout_inliers = TransferErrors(edges, mosaic_from_work_, true, options_.refine.outlier_px, nullptr, points);
   if (!rr.ok) {
     spdlog::warn("refinement failed ({}); keeping the affine solution", rr.failure);
     return;

@@ -244,15 +244,18 @@ class RegistrationEngine {
   [[nodiscard]] bool IsNewGround(int id);
   void Place(int id);
   [[nodiscard]] Solution FinishSolve();
-  void SolveFinal(const std::vector<const Edge*>& edges, const StageTimer& since_finish, Solution* s);
-  RefineResult RefineAndChooseModel(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
-                                    int anchor, const std::unordered_map<int, double>& half_diag, Solution* s);
+  // The final solves over `edges`, whose points come from `points` (null: the edges' own).
+  void SolveFinal(const std::vector<const Edge*>& edges, EdgePointSource* points, const StageTimer& since_finish,
+                  Solution* s);
+  RefineResult RefineAndChooseModel(const std::vector<const Edge*>& edges, EdgePointSource* points,
+                                    const std::unordered_set<int>& variable, int anchor,
+                                    const std::unordered_map<int, double>& half_diag, Solution* s);
   void EnterPhase(const char* name) const {
     if (enter_phase_) enter_phase_(name);
   }
   // After the linear solve: the lens self-calibration; when accepted, the edges' points move to its ideal pixels and
   // the linear solve runs again on them. False when that solve fails.
-  [[nodiscard]] bool CalibrateLensAndResolve(const std::vector<const Edge*>& edges,
+  [[nodiscard]] bool CalibrateLensAndResolve(const std::vector<const Edge*>& edges, EdgePointSource* points,
                                              const std::unordered_set<int>& variable,
                                              const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
                                              Solution* s);
