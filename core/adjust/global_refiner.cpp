@@ -73,6 +73,16 @@ Mat3 FromParams(const FrameParams& p) {
   return m;
 }
 
+// The correspondences an edge contributes to the refinement: `count` pairs at `pairs`, each its source point then its
+// target point (a view into the RefineProblem's one block of them).
+struct KeptPairs {
+  const Vec2f* pairs = nullptr;
+  size_t count = 0;
+  [[nodiscard]] size_t size() const { return count; }
+  [[nodiscard]] const Vec2f& src(size_t k) const { return pairs[2 * k]; }
+  [[nodiscard]] const Vec2f& tgt(size_t k) const { return pairs[2 * k + 1]; }
+};
+
 // Transfer errors of one edge's correspondences (the problem's own copy of those it keeps): each source point through
 // mosaic_from_src, then back through the inverse of mosaic_from_tgt (its adjugate: the determinant cancels in the
 // projective division), minus the target point. One residual block per edge, not per point: Ceres' per-block
@@ -81,12 +91,12 @@ Mat3 FromParams(const FrameParams& p) {
 // HuberLoss). With a LensRefine, a fifth block holds its (u1, u2, u3): each point is taken to its recorded pixel
 // (precomputed) and through the undistortion.
 struct EdgeTransferCost {
-  EdgeTransferCost(const EdgePoints* kept, double huber_px, const LensRefine* lens_refine)
+  EdgeTransferCost(KeptPairs kept, double huber_px, const LensRefine* lens_refine)
       : points(kept), delta(huber_px), lens(lens_refine) {
     if (lens == nullptr) return;
-    for (size_t k = 0; k < points->size(); ++k) {
-      recorded.push_back(lens->prepared.DistortPixel(points->src(k).cast<double>()));
-      recorded.push_back(lens->prepared.DistortPixel(points->tgt(k).cast<double>()));
+    for (size_t k = 0; k < points.size(); ++k) {
+      recorded.push_back(lens->prepared.DistortPixel(points.src(k).cast<double>()));
+      recorded.push_back(lens->prepared.DistortPixel(points.tgt(k).cast<double>()));
     }
   }
 
@@ -94,7 +104,7 @@ struct EdgeTransferCost {
   template <typename T>
   void Point(T const* const* blocks, size_t j, int which, T* x, T* y) const {
     if (lens == nullptr) {
-      const Vec2f& p = which == 0 ? points->src(j) : points->tgt(j);
+      const Vec2f& p = which == 0 ? points.src(j) : points.tgt(j);
       *x = T(p.x());
       *y = T(p.y());
       return;
@@ -126,7 +136,7 @@ struct EdgeTransferCost {
     const T r10 = f * g - d, r11 = a - c * g, r12 = c * d - a * f;
     const T r20 = d * h - e * g, r21 = b * g - a * h, r22 = a * e - b * d;
     const double d2 = delta * delta;
-    for (size_t j = 0; j < points->size(); ++j) {
+    for (size_t j = 0; j < points.size(); ++j) {
       T px, py, qx, qy;
       Point(blocks, j, 0, &px, &py);
       Point(blocks, j, 1, &qx, &qy);
@@ -151,7 +161,7 @@ struct EdgeTransferCost {
     return true;
   }
 
-  const EdgePoints* points;  // borrowed: the RefineProblem's
+  KeptPairs points;  // borrowed: the RefineProblem's
   double delta;
   const LensRefine* lens;
   std::vector<Vec2> recorded;  // with a lens: per kept point, source then target recorded pixel
@@ -215,7 +225,7 @@ struct FramePriors {
 
 // One edge of the iterative solve: its correspondences and its frames' dense indices.
 struct TermEdge {
-  const EdgePoints* points = nullptr;  // borrowed: the RefineProblem's
+  KeptPairs points;  // borrowed: the RefineProblem's
   size_t src = 0;
   size_t tgt = 0;
   bool in_tree = false;
@@ -247,7 +257,7 @@ class RefineTerms final : public FrameGraphTerms {
             std::vector<double>* jacobian) const override {
     const TermEdge& t = edges_[edge];
     const EdgeTransferCost cost(t.points, huber_px_, lens_);
-    const size_t rows = 2 * t.points->size();
+    const size_t rows = 2 * t.points.size();
     const size_t at = residuals->size();
     residuals->resize(at + rows);
     if (jacobian == nullptr) {
@@ -350,6 +360,9 @@ class RefineProblem {
   }
 
   const std::vector<const Edge*>& used() const { return used_; }
+  KeptPairs Kept(size_t i) const {
+    return {kept_pairs_.data() + 2 * static_cast<size_t>(kept_begin_[i]), kept_begin_[i + 1] - kept_begin_[i]};
+  }
   bool empty() const { return params_.empty(); }
   // The variable frames the edges touch (known before Select: it decides the solve, which decides the selection).
   size_t NumVariables() const {
@@ -364,25 +377,33 @@ class RefineProblem {
   // particular order, so a stride keeps the spread); the parameters of the frames they touch. Returns how many.
   size_t Select(size_t stride, bool iterative, const std::unordered_map<int, Mat3>& T) {
     size_t used_points = 0;
-    kept_.assign(used_.size(), {});
+    kept_pairs_.clear();
+    kept_begin_.assign(1, 0);
     // The iterative solve's preconditioner is a spanning tree of edges of kTreeMinPoints points at least: where the
     // stride leaves an edge fewer (a flight beyond ~5000 frames at the defaults: 12 points an edge, stride 4), the
     // edges of a tree over the full point counts keep that many, at most a point more per frame than the cap.
     const std::vector<size_t> full(full_.begin(), full_.end());
     const std::vector<bool> tree =
         iterative && stride > 1 ? SpanningTreeBy(full) : std::vector<bool>(used_.size(), false);
+    std::vector<size_t> steps(used_.size());
+    size_t most = 0;  // the block is reserved once: the solvers point into it
+    for (size_t i = 0; i < used_.size(); ++i) {
+      steps[i] = stride;
+      if (tree[i] && (full[i] + stride - 1) / stride < kTreeMinPoints)
+        steps[i] = std::max<size_t>(1, full[i] / kTreeMinPoints);
+      most += (full[i] + steps[i] - 1) / steps[i];
+    }
+    kept_pairs_.reserve(2 * most);
     for (size_t i = 0; i < used_.size(); ++i) {
       const Edge* e = used_[i];
       const EdgePoints& points = PointsOf(*e, points_);
       const size_t n = std::min<size_t>(full[i], points.size());  // a read that failed now keeps nothing
-      size_t step = stride;
-      if (tree[i] && (full[i] + step - 1) / step < kTreeMinPoints) step = std::max<size_t>(1, full[i] / kTreeMinPoints);
-      auto* kept = reinterpret_cast<Vec2f*>(kept_[i].Reset((n + step - 1) / step, 0));
-      for (size_t k = 0; k < n; k += step) {
-        *kept++ = points.src(k);
-        *kept++ = points.tgt(k);
+      for (size_t k = 0; k < n; k += steps[i]) {
+        kept_pairs_.push_back(points.src(k));
+        kept_pairs_.push_back(points.tgt(k));
       }
-      used_points += kept_[i].size();
+      kept_begin_.push_back(static_cast<uint32_t>(kept_pairs_.size() / 2));
+      used_points += Kept(i).size();
       for (int id : {e->src, e->tgt})
         if (params_.find(id) == params_.end()) params_.emplace(id, ToParams(T.at(id)));
       // A frame's centre, from the extent of its own correspondence points (the frame size is not passed in).
@@ -423,8 +444,7 @@ class RefineProblem {
     const std::vector<bool> in_tree = SpanningTree();
     std::vector<TermEdge> edges;
     for (size_t i = 0; i < used_.size(); ++i)
-      if (kept_[i].size() != 0)
-        edges.push_back({&kept_[i], index.at(used_[i]->src), index.at(used_[i]->tgt), in_tree[i]});
+      if (Kept(i).size() != 0) edges.push_back({Kept(i), index.at(used_[i]->src), index.at(used_[i]->tgt), in_tree[i]});
     const LensRefine* lens = edges.empty() ? nullptr : lens_;
     std::optional<LensPrior> lens_prior;
     if (lens != nullptr) lens_prior = MakeLensPrior();
@@ -452,25 +472,33 @@ class RefineProblem {
   // that would lose more than half of its points keeps them all. Returns how many were dropped.
   size_t DropOutliers() {
     size_t removed = 0;
+    size_t write = 0;  // in pairs: the block is compacted in place (a pair only moves towards the front)
+    std::vector<char> good;
     for (size_t i = 0; i < used_.size(); ++i) {
       const Edge* e = used_[i];
       const Mat3 tgt_from_src = FromParams(params_.at(e->tgt)).inverse() * FromParams(params_.at(e->src));
-      const EdgePoints& kept = kept_[i];
-      std::vector<Vec2f> good;
-      for (size_t k = 0; k < kept.size(); ++k)
-        if ((Apply(tgt_from_src, Ideal(kept.src(k).cast<double>())) - Ideal(kept.tgt(k).cast<double>())).norm() <=
-            options_.outlier_px) {
-          good.push_back(kept.src(k));
-          good.push_back(kept.tgt(k));
-        }
-      const size_t bad = kept.size() - good.size() / 2;
-      if (bad > 0 && 2 * bad <= kept.size()) {
-        removed += bad;
-        EdgePoints fewer;
-        std::copy(good.begin(), good.end(), reinterpret_cast<Vec2f*>(fewer.Reset(good.size() / 2, 0)));
-        kept_[i] = std::move(fewer);
+      const KeptPairs kept = Kept(i);
+      good.assign(kept.size(), 0);
+      size_t bad = 0;
+      for (size_t k = 0; k < kept.size(); ++k) {
+        good[k] = (Apply(tgt_from_src, Ideal(kept.src(k).cast<double>())) - Ideal(kept.tgt(k).cast<double>())).norm() <=
+                  options_.outlier_px;
+        bad += good[k] != 0 ? 0 : 1;
+      }
+      const bool drop = bad > 0 && 2 * bad <= kept.size();
+      if (drop) removed += bad;
+      kept_begin_[i] = static_cast<uint32_t>(write);
+      for (size_t k = 0; k < kept.size(); ++k) {
+        if (drop && good[k] == 0) continue;
+        const Vec2f src = kept.src(k);
+        const Vec2f tgt = kept.tgt(k);
+        kept_pairs_[2 * write] = src;
+        kept_pairs_[2 * write + 1] = tgt;
+        ++write;
       }
     }
+    kept_begin_.back() = static_cast<uint32_t>(write);
+    kept_pairs_.resize(2 * write);
     return removed;
   }
 
@@ -491,12 +519,12 @@ class RefineProblem {
 
   void Build(ceres::Problem* problem) {
     for (size_t i = 0; i < used_.size(); ++i) {
-      if (kept_[i].size() == 0) continue;
+      if (Kept(i).size() == 0) continue;
       const Edge* e = used_[i];
       FrameParams& s = params_.at(e->src);
       FrameParams& t = params_.at(e->tgt);
       auto* cost = new ceres::DynamicAutoDiffCostFunction<EdgeTransferCost, 8>(
-          new EdgeTransferCost(&kept_[i], options_.huber_px, lens_));
+          new EdgeTransferCost(Kept(i), options_.huber_px, lens_));
       cost->AddParameterBlock(6);
       cost->AddParameterBlock(2);
       cost->AddParameterBlock(6);
@@ -506,7 +534,7 @@ class RefineProblem {
         cost->AddParameterBlock(3);
         blocks.push_back(lens_->undistortion.data());
       }
-      cost->SetNumResiduals(static_cast<int>(2 * kept_[i].size()));
+      cost->SetNumResiduals(static_cast<int>(2 * Kept(i).size()));
       problem->AddResidualBlock(cost, nullptr, blocks);
     }
     for (auto& [id, p] : params_) AddFramePriors(id, &p, problem);
@@ -533,7 +561,7 @@ class RefineProblem {
   // preconditioner leaves to hundreds of steps. Kruskal over the edges, heaviest first.
   std::vector<bool> SpanningTree() const {
     std::vector<size_t> kept(used_.size());
-    for (size_t i = 0; i < kept.size(); ++i) kept[i] = kept_[i].size();
+    for (size_t i = 0; i < kept.size(); ++i) kept[i] = Kept(i).size();
     return SpanningTreeBy(kept);
   }
   // The same over `points` per edge.
@@ -618,8 +646,11 @@ class RefineProblem {
   std::array<double, 3> lens_start_ = lens_ != nullptr ? lens_->undistortion : std::array<double, 3>{};
   EdgePointSource* points_;  // borrowed; null: the edges' own
   std::vector<const Edge*> used_;
-  std::vector<uint32_t> full_;    // each used edge's correspondences
-  std::vector<EdgePoints> kept_;  // the correspondences each contributes, copied
+  std::vector<uint32_t> full_;  // each used edge's correspondences
+  // The correspondences each used edge contributes, copied into one block: edge i's are pairs kept_begin_[i] to
+  // kept_begin_[i + 1] (16 bytes a pair and 4 an edge; the solvers point into it).
+  std::vector<Vec2f> kept_pairs_;
+  std::vector<uint32_t> kept_begin_;
   // Ordered map: the parameter blocks' addresses must stay put while the problem holds them.
   std::map<int, FrameParams> params_;
   std::unordered_map<int, Vec2> frame_centre_;
