@@ -258,21 +258,29 @@ std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options,
   return {};
 }
 
+// Per correspondence of each used edge, its IRLS weight from the previous pass: edge i's are at begin[i] to
+// begin[i + 1] (the edges' points may be read again each pass: an edge read with another count gets none).
+struct IrlsWeights {
+  std::vector<float> weights;
+  std::vector<uint32_t> begin;
+  [[nodiscard]] const float* Of(size_t edge, size_t count) const {
+    return edge + 1 < begin.size() && begin[edge + 1] - begin[edge] == count ? weights.data() + begin[edge] : nullptr;
+  }
+};
+
 // One weighted least-squares pass over every variable frame. Empty on success, else why.
 std::string SolvePass(const std::vector<const Edge*>& used, EdgePointSource* points, const ColumnOf& column,
                       const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
-                      const std::vector<float>* weights, std::unordered_map<int, Mat3>* mosaic_from_frame,
+                      const IrlsWeights* weights, std::unordered_map<int, Mat3>* mosaic_from_frame,
                       AdjustResult* result) {
   auto& T = *mosaic_from_frame;
   BlockSystem sys(column.size());
   sys.pairs.reserve(used.size());
   sys.off_diagonal.reserve(used.size());
-  size_t corr_index = 0;
-  for (const Edge* e : used) {
-    const EdgePoints& p = PointsOf(*e, points);
-    AddEdge(*e, p, column, T, half_diagonal, options, weights == nullptr ? nullptr : weights->data() + corr_index,
+  for (size_t i = 0; i < used.size(); ++i) {
+    const EdgePoints& p = PointsOf(*used[i], points);
+    AddEdge(*used[i], p, column, T, half_diagonal, options, weights == nullptr ? nullptr : weights->Of(i, p.size()),
             &sys);
-    corr_index += p.size();
   }
   AddFramePriors(column, T, half_diagonal, options, &sys);
   Eigen::VectorXd x(static_cast<long>(column.size()) * kDof);
@@ -297,16 +305,18 @@ std::string SolvePass(const std::vector<const Edge*>& used, EdgePointSource* poi
 // Huber weights per correspondence of `used`, in order, for the next pass (sqrt of the IRLS weight, since rows are
 // scaled, not squared). float: the only per-correspondence state, so the solve's memory grows with edges, not points.
 void HuberWeights(const std::vector<const Edge*>& used, EdgePointSource* points, const std::unordered_map<int, Mat3>& T,
-                  double huber_px, std::vector<float>* weights) {
-  weights->clear();
+                  double huber_px, IrlsWeights* irls) {
+  irls->weights.clear();
+  irls->begin.assign(1, 0);
   for (const Edge* e : used) {
     const Mat3& Ts = T.at(e->src);
     const Mat3& Tt = T.at(e->tgt);
     const EdgePoints& p = PointsOf(*e, points);
     for (size_t k = 0; k < p.size(); ++k) {
       const double r = (Apply(Ts, p.src(k).cast<double>()) - Apply(Tt, p.tgt(k).cast<double>())).norm();
-      weights->push_back(static_cast<float>(r <= huber_px ? 1.0 : std::sqrt(huber_px / r)));
+      irls->weights.push_back(static_cast<float>(r <= huber_px ? 1.0 : std::sqrt(huber_px / r)));
     }
+    irls->begin.push_back(static_cast<uint32_t>(irls->weights.size()));
   }
 }
 
@@ -338,7 +348,7 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
     if (column.count(e->src) == 0 && column.count(e->tgt) == 0) continue;
     used.push_back(e);
   }
-  std::vector<float> weights;  // IRLS, from the previous pass
+  IrlsWeights weights;  // from the previous pass
   for (int iteration = 0; iteration <= options.robust_iterations; ++iteration) {
     result.failure =
         SolvePass(used, points, column, half_diagonal, options, iteration == 0 ? nullptr : &weights, &T, &result);

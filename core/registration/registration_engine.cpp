@@ -144,6 +144,7 @@ void RegistrationEngine::ReleaseColdEdges() {
 }
 
 bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points, size_t max_holdout) {
+  bool all = true;  // an edge that cannot be read stays without points; the others are still loaded
   for (const Edge* e : edges) {
     // The list borrows the graph's edges read-only; the graph (this object's) owns them mutably.
     Edge& edge = const_cast<Edge&>(*e);
@@ -153,7 +154,8 @@ bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, s
       std::string error;
       if (!spill_->Load(&edge, &error)) {
         spdlog::error("{}", error);
-        return false;
+        all = false;
+        continue;
       }
     }
     // Thinned only where the spill keeps every point: a writer reads them back from it (ReleaseAllEdges).
@@ -163,7 +165,7 @@ bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, s
       if (dropped > 0) thinned_ = true;
     }
   }
-  return true;
+  return all;
 }
 
 // Re-expresses every frame of `other_root`'s component by `other_fix` (new = fix * old) and unites the two.
@@ -849,13 +851,16 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
       return true;
     }
   EnterPhase("lens");
-  const LensWindow w = MiddleWindow(s->component, edges, static_cast<size_t>(options_.refine.max_frames_per_solve));
+  LensWindow w = MiddleWindow(s->component, edges, static_cast<size_t>(options_.refine.max_frames_per_solve));
   // The window's points are resident (bounded by the window): the calibration reads them many times, and a rematch
   // replaces some, which edges.bin does not hold.
   const size_t max_points = counters_.end_points_per_edge;
   const size_t left_on_disk = counters_.end_points_thinned;  // counted once, at end_load
-  if (!LoadEdgePoints(w.edges, max_points, std::max<size_t>(2, max_points / 4)))
+  if (!LoadEdgePoints(w.edges, max_points, std::max<size_t>(2, max_points / 4))) {
     spdlog::warn("lens: calibrated without some edges (edges.bin unreadable)");
+    // Out of the window: a rematch would give them points that the solves, reading them from edges.bin, never see.
+    std::erase_if(w.edges, [](const Edge* e) { return !e->points_resident; });
+  }
   counters_.end_points_thinned = left_on_disk;
   s->lens = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, *camera_,
                           options_.lens_calibration, mosaic_from_work_);
