@@ -143,7 +143,8 @@ void RegistrationEngine::ReleaseColdEdges() {
   }
 }
 
-bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points, size_t max_holdout) {
+bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points, size_t max_holdout,
+                                        size_t* dropped) {
   bool all = true;  // an edge that cannot be read stays without points; the others are still loaded
   for (const Edge* e : edges) {
     // The list borrows the graph's edges read-only; the graph (this object's) owns them mutably.
@@ -160,9 +161,9 @@ bool RegistrationEngine::LoadEdgePoints(const std::vector<const Edge*>& edges, s
     }
     // Thinned only where the spill keeps every point: a writer reads them back from it (ReleaseAllEdges).
     if (max_points > 0 && spill_ != nullptr && edge.stored_at >= 0) {
-      const size_t dropped = edge.points.Thin(max_points, max_holdout);
-      counters_.end_points_thinned += dropped;
-      if (dropped > 0) thinned_ = true;
+      const size_t thinned = edge.points.Thin(max_points, max_holdout);
+      if (dropped != nullptr) *dropped += thinned;
+      if (thinned > 0) thinned_ = true;
     }
   }
   return all;
@@ -542,6 +543,15 @@ void RegistrationEngine::AsSolved(Edge* edge) const {
   if (solved_lens_ && camera_) ReprojectEdgePoints(*camera_, *solved_lens_, edge);
 }
 
+namespace {
+
+// The held-out pairs an edge keeps beside `pairs` thinned pairs: a quarter, 2 at least.
+size_t EndHoldoutShare(size_t pairs) {
+  return std::max<size_t>(2, pairs / 4);
+}
+
+}  // namespace
+
 // Each edge's share of the end's correspondences: all of them up to end_correspondences in total, then an even share
 // of it (never below min_end_points): the solves' memory stops growing with the flight there.
 std::pair<size_t, size_t> RegistrationEngine::EndPointsPerEdge(const std::vector<const Edge*>& edges) const {
@@ -551,7 +561,7 @@ std::pair<size_t, size_t> RegistrationEngine::EndPointsPerEdge(const std::vector
   const auto cap = static_cast<size_t>(options_.end_correspondences);
   if (points <= cap) return {0, 0};
   const size_t per_edge = std::max(static_cast<size_t>(options_.min_end_points), cap / edges.size());
-  return {per_edge, std::max<size_t>(2, per_edge / 4)};
+  return {per_edge, EndHoldoutShare(per_edge)};
 }
 
 namespace {
@@ -635,7 +645,8 @@ Solution RegistrationEngine::FinishSolve() {
     for (const Edge* e : edges) (void)reader->Points(*e);
     counters_.end_points_thinned += reader->dropped();
   }
-  if (!LoadEdgePoints(to_load, max_points, max_holdout) || (reader && reader->failed() > 0))
+  if (!LoadEdgePoints(to_load, max_points, max_holdout, &counters_.end_points_thinned) ||
+      (reader && reader->failed() > 0))
     spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
   s.ok = true;
   if (s.component.size() >= 2) {
@@ -697,7 +708,7 @@ size_t RegistrationEngine::RematchUnderLens(const std::vector<const Edge*>& edge
     if (!Acceptable(r) || 2 * r.num_inliers < e->num_inliers) continue;
     auto* edge = const_cast<Edge*>(e);  // the engine's own edge (the const view is the solve's)
     edge->points = EdgePoints(r.src_points, r.tgt_points, r.holdout_src_points, r.holdout_tgt_points);
-    if (max_points > 0) (void)edge->points.Thin(max_points, std::max<size_t>(2, max_points / 4));
+    if (max_points > 0) (void)edge->points.Thin(max_points, EndHoldoutShare(max_points));
     (*at_lens)[i] = 1;
     ++rematched;
   }
@@ -855,13 +866,11 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
   // The window's points are resident (bounded by the window): the calibration reads them many times, and a rematch
   // replaces some, which edges.bin does not hold.
   const size_t max_points = counters_.end_points_per_edge;
-  const size_t left_on_disk = counters_.end_points_thinned;  // counted once, at end_load
-  if (!LoadEdgePoints(w.edges, max_points, std::max<size_t>(2, max_points / 4))) {
+  if (!LoadEdgePoints(w.edges, max_points, EndHoldoutShare(max_points))) {  // counted at end_load already
     spdlog::warn("lens: calibrated without some edges (edges.bin unreadable)");
     // Out of the window: a rematch would give them points that the solves, reading them from edges.bin, never see.
     std::erase_if(w.edges, [](const Edge* e) { return !e->points_resident; });
   }
-  counters_.end_points_thinned = left_on_disk;
   s->lens = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, *camera_,
                           options_.lens_calibration, mosaic_from_work_);
   if (s->lens.accepted && options_.lens_calibration.rematch)

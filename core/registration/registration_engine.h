@@ -220,7 +220,10 @@ class RegistrationEngine {
   [[nodiscard]] std::vector<const Edge*> EdgesTouching(const std::unordered_set<int>& ids, int root);
   void AddEdge(Edge edge);
   void ReleaseColdEdges();
-  bool LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points = 0, size_t max_holdout = 0);
+  // Makes `edges`' points resident, thinned to max_points / max_holdout (0: all); the pairs thinned are added to
+  // `dropped` when given. False when some could not be read (the others are loaded).
+  bool LoadEdgePoints(const std::vector<const Edge*>& edges, size_t max_points = 0, size_t max_holdout = 0,
+                      size_t* dropped = nullptr);
   // Gives every edge's points back to the spill (after the final solves; writers reload them one by one).
   void ReleaseAllEdges();
   [[nodiscard]] std::pair<size_t, size_t> EndPointsPerEdge(const std::vector<const Edge*>& edges) const;
