@@ -32,7 +32,9 @@ constexpr int kDof = 6;
 using Block = Eigen::Matrix<double, kDof, kDof>;
 using Vec6 = Eigen::Matrix<double, kDof, 1>;
 
-using ColumnOf = std::unordered_map<int, int>;  // frame id -> variable index (column / kDof)
+// The variable frames' ids, ascending: a frame's variable index (column / kDof) is its position. A sorted list, not a
+// hash map: at the end of a long flight every frame is variable, and a map's node per frame was the solve's own.
+using ColumnOf = std::vector<int>;
 
 // The normal equations in blocks: a 6x6 block on the diagonal per variable frame, one off-diagonal block per edge
 // between two variable frames (an edge's correspondence and relative-linear terms couple only its two frames). Both of
@@ -70,8 +72,8 @@ double HalfDiagonal(const std::unordered_map<int, double>& half_diagonal, int id
 }
 
 int VariableIndex(const ColumnOf& column, int id) {
-  const auto it = column.find(id);
-  return it != column.end() ? it->second : -1;
+  const auto it = std::lower_bound(column.begin(), column.end(), id);
+  return it != column.end() && *it == id ? static_cast<int>(it - column.begin()) : -1;
 }
 
 // One edge's share of the normal equations: its frames' diagonal blocks and right-hand sides, and their coupling
@@ -106,16 +108,27 @@ void AddRelativeLinear(const Edge& e, const Mat3& Ts, const Mat3& Tt, bool src_f
     }
 }
 
+// A correspondence's Huber weight at the maps the previous pass solved (the square root of the IRLS weight, since rows
+// are scaled, not squared). Computed as each pass adds the edge, not kept between passes: it was the only state per
+// correspondence, and an edge read back from edges.bin gets the weights of the very points it is read with.
+double HuberWeight(const Mat3& Ts, const Mat3& Tt, const Vec2f& p, const Vec2f& q, double huber_px) {
+  const double r = (Apply(Ts, p.cast<double>()) - Apply(Tt, q.cast<double>())).norm();
+  return static_cast<double>(static_cast<float>(r <= huber_px ? 1.0 : std::sqrt(huber_px / r)));
+}
+
 // Correspondence rows T_src p - T_tgt q = 0: per edge, the weighted sums S_pp, S_pq, S_qq of the homogeneous points
-// give its blocks (the same for both coordinate rows). A fixed side moves to the right-hand side.
+// give its blocks (the same for both coordinate rows). A fixed side moves to the right-hand side. `huber_px` 0: the
+// first pass, unweighted.
 void AddEdge(const Edge& e, const EdgePoints& points, const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
-             const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options, const float* weights,
+             const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options, double huber_px,
              BlockSystem* sys) {
+  const Mat3& Ts = T.at(e.src);
+  const Mat3& Tt = T.at(e.tgt);
   Eigen::Matrix3d Spp = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d Spq = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d Sqq = Eigen::Matrix3d::Zero();
   for (size_t k = 0; k < points.size(); ++k) {
-    const double w = weights == nullptr ? 1.0 : static_cast<double>(weights[k]);
+    const double w = huber_px > 0 ? HuberWeight(Ts, Tt, points.src(k), points.tgt(k), huber_px) : 1.0;
     const Eigen::Vector3d p(points.src(k).x(), points.src(k).y(), 1.0);
     const Eigen::Vector3d q(points.tgt(k).x(), points.tgt(k).y(), 1.0);
     const double w2 = w * w;
@@ -125,8 +138,6 @@ void AddEdge(const Edge& e, const EdgePoints& points, const ColumnOf& column, co
   }
   const int s = VariableIndex(column, e.src);
   const int t = VariableIndex(column, e.tgt);
-  const Mat3& Ts = T.at(e.src);
-  const Mat3& Tt = T.at(e.tgt);
   EdgeBlocks blocks;
   blocks.st = -Spq;
   for (int r = 0; r < 2; ++r) {
@@ -158,9 +169,10 @@ void AddFramePriors(const ColumnOf& column, const std::unordered_map<int, Mat3>&
                     const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
                     BlockSystem* sys) {
   constexpr double kDamping = 1e-6;
-  for (const auto& [id, index] : column) {
-    Block& d = sys->diagonal[static_cast<size_t>(index)];
-    Vec6& b = sys->rhs[static_cast<size_t>(index)];
+  for (size_t index = 0; index < column.size(); ++index) {
+    const int id = column[index];
+    Block& d = sys->diagonal[index];
+    Vec6& b = sys->rhs[index];
     const double scale = options.rigidity_weight * HalfDiagonal(half_diagonal, id);
     if (scale > 0) {
       Vec6 j1 = Vec6::Zero(), j2 = Vec6::Zero();
@@ -229,15 +241,15 @@ std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options,
       z->segment<kDof>(static_cast<long>(i) * kDof).noalias() =
           inverse[i] * r.segment<kDof>(static_cast<long>(i) * kDof);
   };
-  Eigen::VectorXd b(n);
-  for (size_t i = 0; i < frames; ++i) b.segment<kDof>(static_cast<long>(i) * kDof) = sys.rhs[i];
-  Eigen::VectorXd r, z, p, q;
+  // The residual starts as the right-hand side (no copy of it is kept: its norm is all the stop needs).
+  Eigen::VectorXd r(n), z, p, q;
+  for (size_t i = 0; i < frames; ++i) r.segment<kDof>(static_cast<long>(i) * kDof) = sys.rhs[i];
+  const double stop = options.iterative_tolerance * options.iterative_tolerance * r.squaredNorm();
   sys.Multiply(*x, &q);
-  r = b - q;
+  r -= q;
   precondition(r, &z);
   p = z;
   double rz = r.dot(z);
-  const double stop = options.iterative_tolerance * options.iterative_tolerance * b.squaredNorm();
   *iterations = 0;
   while (r.squaredNorm() > stop && *iterations < options.max_iterative_steps) {
     sys.Multiply(p, &q);
@@ -258,66 +270,34 @@ std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options,
   return {};
 }
 
-// Per correspondence of each used edge, its IRLS weight from the previous pass: edge i's are at begin[i] to
-// begin[i + 1] (the edges' points may be read again each pass: an edge read with another count gets none).
-struct IrlsWeights {
-  std::vector<float> weights;
-  std::vector<uint32_t> begin;
-  [[nodiscard]] const float* Of(size_t edge, size_t count) const {
-    return edge + 1 < begin.size() && begin[edge + 1] - begin[edge] == count ? weights.data() + begin[edge] : nullptr;
-  }
-};
-
-// One weighted least-squares pass over every variable frame. Empty on success, else why.
+// One least-squares pass over every variable frame, weighted by `huber_px` at the current maps (0: unweighted). Empty
+// on success, else why.
 std::string SolvePass(const std::vector<const Edge*>& used, EdgePointSource* points, const ColumnOf& column,
                       const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
-                      const IrlsWeights* weights, std::unordered_map<int, Mat3>* mosaic_from_frame,
-                      AdjustResult* result) {
+                      double huber_px, std::unordered_map<int, Mat3>* mosaic_from_frame, AdjustResult* result) {
   auto& T = *mosaic_from_frame;
   BlockSystem sys(column.size());
   sys.pairs.reserve(used.size());
   sys.off_diagonal.reserve(used.size());
-  for (size_t i = 0; i < used.size(); ++i) {
-    const EdgePoints& p = PointsOf(*used[i], points);
-    AddEdge(*used[i], p, column, T, half_diagonal, options, weights == nullptr ? nullptr : weights->Of(i, p.size()),
-            &sys);
-  }
+  for (const Edge* e : used) AddEdge(*e, PointsOf(*e, points), column, T, half_diagonal, options, huber_px, &sys);
   AddFramePriors(column, T, half_diagonal, options, &sys);
   Eigen::VectorXd x(static_cast<long>(column.size()) * kDof);
-  for (const auto& [id, index] : column)
+  for (size_t index = 0; index < column.size(); ++index)
     for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 3; ++c) x(index * kDof + 3 * r + c) = T.at(id)(r, c);
+      for (int c = 0; c < 3; ++c) x(static_cast<long>(index) * kDof + 3 * r + c) = T.at(column[index])(r, c);
   const bool direct = static_cast<int>(column.size()) <= options.direct_max_frames;
   int steps = 0;
   const std::string failure = direct ? SolveDirect(sys, &x) : SolveIterative(sys, options, &x, &steps);
   if (!failure.empty()) return failure;
   result->iterative = !direct;
   result->iterative_steps += steps;
-  for (const auto& [id, index] : column) {
-    Mat3& t = T[id];
+  for (size_t index = 0; index < column.size(); ++index) {
+    Mat3& t = T[column[index]];
     for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 3; ++c) t(r, c) = x(index * kDof + 3 * r + c);
+      for (int c = 0; c < 3; ++c) t(r, c) = x(static_cast<long>(index) * kDof + 3 * r + c);
     t.row(2) << 0, 0, 1;
   }
   return {};
-}
-
-// Huber weights per correspondence of `used`, in order, for the next pass (sqrt of the IRLS weight, since rows are
-// scaled, not squared). float: the only per-correspondence state, so the solve's memory grows with edges, not points.
-void HuberWeights(const std::vector<const Edge*>& used, EdgePointSource* points, const std::unordered_map<int, Mat3>& T,
-                  double huber_px, IrlsWeights* irls) {
-  irls->weights.clear();
-  irls->begin.assign(1, 0);
-  for (const Edge* e : used) {
-    const Mat3& Ts = T.at(e->src);
-    const Mat3& Tt = T.at(e->tgt);
-    const EdgePoints& p = PointsOf(*e, points);
-    for (size_t k = 0; k < p.size(); ++k) {
-      const double r = (Apply(Ts, p.src(k).cast<double>()) - Apply(Tt, p.tgt(k).cast<double>())).norm();
-      irls->weights.push_back(static_cast<float>(r <= huber_px ? 1.0 : std::sqrt(huber_px / r)));
-    }
-    irls->begin.push_back(static_cast<uint32_t>(irls->weights.size()));
-  }
 }
 
 }  // namespace
@@ -327,33 +307,29 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
                           std::unordered_map<int, Mat3>* mosaic_from_frame, EdgePointSource* points) {
   AdjustResult result;
   auto& T = *mosaic_from_frame;
-  ColumnOf column;
-  std::vector<int> variable_ids(variable.begin(), variable.end());
-  std::sort(variable_ids.begin(), variable_ids.end());
-  for (int id : variable_ids) {
+  ColumnOf column(variable.begin(), variable.end());
+  std::sort(column.begin(), column.end());
+  for (int id : column) {
     if (T.find(id) == T.end()) {
       result.failure = "variable frame without initial transform";
       return result;
     }
-    column.emplace(id, static_cast<int>(column.size()));
   }
-  result.num_variables = variable_ids.size();
-  if (variable_ids.empty()) {
+  result.num_variables = column.size();
+  if (column.empty()) {
     result.ok = true;
     return result;
   }
   std::vector<const Edge*> used;
   for (const Edge* e : edges) {
     if (T.count(e->src) == 0 || T.count(e->tgt) == 0) continue;
-    if (column.count(e->src) == 0 && column.count(e->tgt) == 0) continue;
+    if (VariableIndex(column, e->src) < 0 && VariableIndex(column, e->tgt) < 0) continue;
     used.push_back(e);
   }
-  IrlsWeights weights;  // from the previous pass
   for (int iteration = 0; iteration <= options.robust_iterations; ++iteration) {
     result.failure =
-        SolvePass(used, points, column, half_diagonal, options, iteration == 0 ? nullptr : &weights, &T, &result);
+        SolvePass(used, points, column, half_diagonal, options, iteration == 0 ? 0.0 : options.huber_px, &T, &result);
     if (!result.failure.empty()) return result;
-    HuberWeights(used, points, T, options.huber_px, &weights);
   }
   const ResidualStats stats = EdgeResiduals(used, T, points);
   result.num_residuals = stats.count;
@@ -366,23 +342,25 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
 ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::unordered_map<int, Mat3>& T,
                             EdgePointSource* points) {
   ResidualStats s;
-  std::vector<double> r;
+  std::vector<float> r;  // for the median only: the sums are taken in double as the residuals come
+  double sq = 0.0;
   for (const Edge* e : edges) {
     const auto ts = T.find(e->src);
     const auto tt = T.find(e->tgt);
     if (ts == T.end() || tt == T.end()) continue;
     const EdgePoints& p = PointsOf(*e, points);
-    for (size_t k = 0; k < p.size(); ++k)
-      r.push_back((Apply(ts->second, p.src(k).cast<double>()) - Apply(tt->second, p.tgt(k).cast<double>())).norm());
+    for (size_t k = 0; k < p.size(); ++k) {
+      const double v = (Apply(ts->second, p.src(k).cast<double>()) - Apply(tt->second, p.tgt(k).cast<double>())).norm();
+      sq += v * v;
+      s.max = std::max(s.max, v);
+      r.push_back(static_cast<float>(v));
+    }
   }
   s.count = r.size();
   if (r.empty()) return s;
-  double sq = 0.0;
-  for (double v : r) sq += v * v;
   s.rms = std::sqrt(sq / static_cast<double>(r.size()));
   std::nth_element(r.begin(), r.begin() + static_cast<long>(r.size() / 2), r.end());
   s.median = r[r.size() / 2];
-  s.max = *std::max_element(r.begin(), r.end());
   return s;
 }
 
