@@ -196,6 +196,9 @@ TEST(MemoryLimitTest, LongSimulatedFlightEndsUnderAHardLimitJustAboveItsBudget) 
   double phases_peak = 0;
   for (const auto& p : report["memory"]["phases"]) {
     EXPECT_LE(p["peak_rss_mib"].get<double>(), kBudgetMiB) << p["phase"];
+    // The allocator's view at the phase's start: some heap in use, never more than the arenas hold.
+    EXPECT_GT(p["heap_in_use_at_start_mib"].get<double>(), 0) << p["phase"];
+    EXPECT_LE(p["heap_in_use_at_start_mib"].get<double>(), p["heap_arena_at_start_mib"].get<double>()) << p["phase"];
     phases_peak = std::max(phases_peak, p["peak_rss_mib"].get<double>());
   }
   EXPECT_NEAR(phases_peak, peak, 5.0);

@@ -81,22 +81,33 @@ std::vector<std::vector<int>> MatchGraph::ComponentsBySize(double relative, int 
   return out;
 }
 
+EdgePoints::EdgePoints(const EdgePoints& other) {
+  *this = other;
+}
+
+EdgePoints& EdgePoints::operator=(const EdgePoints& other) {
+  if (this == &other) return *this;
+  const size_t pairs = other.pairs_;
+  (void)Reset(pairs, other.holdout_size());
+  std::copy_n(other.block_.get(), other.points_, block_.get());
+  return *this;
+}
+
 EdgePoints EdgePoints::Combine(const EdgePoints& pairs, const EdgePoints& holdout) {
   EdgePoints out;
-  const auto first = pairs.block_.begin();
-  const auto held = holdout.block_.begin() + 2 * static_cast<std::ptrdiff_t>(holdout.pairs_);
-  out.block_.reserve(2 * pairs.pairs_ + (holdout.block_.end() - held));
-  out.block_.insert(out.block_.end(), first, first + 2 * static_cast<std::ptrdiff_t>(pairs.pairs_));
-  out.block_.insert(out.block_.end(), held, holdout.block_.end());
-  out.pairs_ = pairs.pairs_;
+  const size_t n = pairs.pairs_;
+  (void)out.Reset(n, holdout.holdout_size());
+  std::copy_n(pairs.block_.get(), 2 * n, out.block_.get());
+  std::copy_n(holdout.block_.get() + 2 * size_t{holdout.pairs_}, 2 * holdout.holdout_size(), out.block_.get() + 2 * n);
   return out;
 }
 
 float* EdgePoints::Reset(size_t pairs, size_t holdout) {
-  std::vector<Vec2f> block(2 * (pairs + holdout));
-  block_.swap(block);
+  const size_t points = 2 * (pairs + holdout);
+  block_ = points > 0 ? std::make_unique_for_overwrite<Vec2f[]>(points) : nullptr;
+  points_ = static_cast<uint32_t>(points);
   pairs_ = static_cast<uint32_t>(pairs);
-  return reinterpret_cast<float*>(block_.data());
+  return reinterpret_cast<float*>(block_.get());
 }
 
 size_t EdgePoints::Thin(size_t max_pairs, size_t max_holdout) {
@@ -105,25 +116,25 @@ size_t EdgePoints::Thin(size_t max_pairs, size_t max_holdout) {
   const size_t keep_n = std::min(n, max_pairs);
   const size_t keep_m = std::min(m, max_holdout);
   if (keep_n == n && keep_m == m) return 0;
-  std::vector<Vec2f> kept;
-  kept.reserve(2 * (keep_n + keep_m));
-  // `keep` of the `count` pairs from pair `first` on, evenly spread over the whole list.
-  const auto keep_strided = [&](size_t first, size_t count, size_t keep) {
+  EdgePoints kept;
+  (void)kept.Reset(keep_n, keep_m);
+  // `keep` of the `count` pairs from pair `first` on, evenly spread over the whole list, to pair `to` on.
+  const auto keep_strided = [&](size_t first, size_t count, size_t keep, size_t to) {
     for (size_t k = 0; k < keep; ++k) {
       const size_t i = first + k * count / keep;
-      kept.push_back(block_[2 * i]);
-      kept.push_back(block_[2 * i + 1]);
+      kept.block_[2 * (to + k)] = block_[2 * i];
+      kept.block_[2 * (to + k) + 1] = block_[2 * i + 1];
     }
   };
-  keep_strided(0, n, keep_n);
-  keep_strided(n, m, keep_m);
-  block_.swap(kept);
-  pairs_ = static_cast<uint32_t>(keep_n);
+  keep_strided(0, n, keep_n, 0);
+  keep_strided(n, m, keep_m, keep_n);
+  *this = std::move(kept);
   return (n - keep_n) + (m - keep_m);
 }
 
 void EdgePoints::Free() {
-  std::vector<Vec2f>().swap(block_);
+  block_.reset();
+  points_ = 0;
   pairs_ = 0;
 }
 

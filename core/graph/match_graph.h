@@ -3,7 +3,9 @@
 #include <cstddef>
 #include <cstdint>
 #include <deque>
+#include <memory>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "core/geometry/transform.h"
@@ -23,26 +25,38 @@ class EdgePoints {
              const std::vector<Point>& holdout_tgt) {
     const size_t n = std::min(src.size(), tgt.size());
     const size_t m = std::min(holdout_src.size(), holdout_tgt.size());
-    block_.reserve(2 * (n + m));
-    for (size_t k = 0; k < n; ++k) Append(src[k], tgt[k]);
-    for (size_t k = 0; k < m; ++k) Append(holdout_src[k], holdout_tgt[k]);
-    pairs_ = static_cast<uint32_t>(n);
+    (void)Reset(n, m);
+    for (size_t k = 0; k < n; ++k) Set(k, src[k], tgt[k]);
+    for (size_t k = 0; k < m; ++k) Set(n + k, holdout_src[k], holdout_tgt[k]);
   }
+  EdgePoints(const EdgePoints& other);
+  EdgePoints& operator=(const EdgePoints& other);
+  EdgePoints(EdgePoints&& other) noexcept
+      : block_(std::move(other.block_)),
+        points_(std::exchange(other.points_, 0)),
+        pairs_(std::exchange(other.pairs_, 0)) {}
+  EdgePoints& operator=(EdgePoints&& other) noexcept {
+    block_ = std::move(other.block_);
+    points_ = std::exchange(other.points_, 0);
+    pairs_ = std::exchange(other.pairs_, 0);
+    return *this;
+  }
+  ~EdgePoints() = default;
   // `pairs`' adjustment pairs with `holdout`'s held-out pairs.
   [[nodiscard]] static EdgePoints Combine(const EdgePoints& pairs, const EdgePoints& holdout);
 
   [[nodiscard]] size_t size() const { return pairs_; }  // pairs the adjustment uses
-  [[nodiscard]] size_t holdout_size() const { return block_.size() / 2 - pairs_; }
+  [[nodiscard]] size_t holdout_size() const { return points_ / 2 - pairs_; }
   [[nodiscard]] const Vec2f& src(size_t k) const { return block_[2 * k]; }
   [[nodiscard]] const Vec2f& tgt(size_t k) const { return block_[2 * k + 1]; }
   [[nodiscard]] const Vec2f& holdout_src(size_t k) const { return block_[2 * (pairs_ + k)]; }
   [[nodiscard]] const Vec2f& holdout_tgt(size_t k) const { return block_[2 * (pairs_ + k) + 1]; }
   // Every point, pairs and held-out pairs alike (to move them all, e.g. into another lens).
-  [[nodiscard]] std::span<Vec2f> all() { return block_; }
+  [[nodiscard]] std::span<Vec2f> all() { return {block_.get(), points_}; }
 
   // The block as edges.bin's payload: (size() + holdout_size()) x {x_src, y_src, x_tgt, y_tgt}.
-  [[nodiscard]] const float* floats() const { return reinterpret_cast<const float*>(block_.data()); }
-  [[nodiscard]] size_t float_count() const { return 2 * block_.size(); }
+  [[nodiscard]] const float* floats() const { return reinterpret_cast<const float*>(block_.get()); }
+  [[nodiscard]] size_t float_count() const { return 2 * size_t{points_}; }
   // Room for `pairs` and `holdout` pairs, returned to be filled in that layout.
   [[nodiscard]] float* Reset(size_t pairs, size_t holdout);
 
@@ -50,18 +64,22 @@ class EdgePoints {
   // stride keeps their spread); frees what it drops. Returns the pairs dropped.
   size_t Thin(size_t max_pairs, size_t max_holdout);
   void Free();
-  [[nodiscard]] size_t bytes() const { return block_.capacity() * sizeof(Vec2f); }
+  [[nodiscard]] size_t bytes() const { return size_t{points_} * sizeof(Vec2f); }
 
  private:
   template <typename Point>
-  void Append(const Point& a, const Point& b) {
-    block_.push_back(a.template cast<float>());
-    block_.push_back(b.template cast<float>());
+  void Set(size_t pair, const Point& a, const Point& b) {
+    block_[2 * pair] = a.template cast<float>();
+    block_[2 * pair + 1] = b.template cast<float>();
   }
 
-  std::vector<Vec2f> block_;
+  // The block and two counts, not a std::vector: 16 bytes an edge instead of 32 (an edge record is 120 bytes, so a
+  // std::deque node of 512 holds four edges instead of three), and no spare capacity.
+  std::unique_ptr<Vec2f[]> block_;
+  uint32_t points_ = 0;  // in the block: 2 x (pairs + held-out pairs)
   uint32_t pairs_ = 0;
 };
+static_assert(sizeof(EdgePoints) == 16, "an edge's points are a pointer and two counts");
 static_assert(sizeof(Vec2f) == 2 * sizeof(float), "EdgePoints reads its block as floats");
 
 // A verified pair. Its points are in float: float is what edges.bin keeps (an edge read back gives the same solution as
@@ -78,6 +96,8 @@ struct Edge {
   int64_t stored_at = -1;
   bool points_resident = true;
 };
+// A long flight holds every edge's record to its end, in a std::deque whose nodes are 512 bytes: four records a node.
+static_assert(sizeof(Edge) <= 128, "an edge record grew past a quarter of a deque node");
 
 // Where a solve reads each edge's points. Without one (null) a solve reads the edges' own, resident points; the end of
 // a long flight passes one that reads them back from edges.bin an edge at a time, so that the solves hold no edge's

@@ -49,7 +49,9 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
     phases.push_back({{"phase", p.name},
                       {"peak_rss_mib", p.peak_rss_mib},
                       {"peak_anon_mib", p.peak_anon_mib},
-                      {"seconds", p.seconds}});
+                      {"seconds", p.seconds},
+                      {"heap_in_use_at_start_mib", p.heap_at_start.in_use_mib},
+                      {"heap_arena_at_start_mib", p.heap_at_start.arena_mib}});
     phase_peak[p.name] = p.peak_rss_mib;
     if (p.name != "flight") end_peak = std::max(end_peak, p.peak_rss_mib);
   }

@@ -51,7 +51,7 @@ void MemoryWatch::Enter(const std::string& name) {
     phases_[current_].seconds += now - phase_start_s_;
     const auto it = std::find_if(phases_.begin(), phases_.end(), [&](const PhaseMemory& p) { return p.name == name; });
     current_ = static_cast<size_t>(it - phases_.begin());
-    if (it == phases_.end()) phases_.push_back({name, 0, 0, 0});
+    if (it == phases_.end()) phases_.push_back({name, 0, 0, 0, CurrentHeapStats()});
     phase_start_s_ = now;
     phase_start_hwm_mib_ = SampleRss().hwm_mib;
     SampleLocked();

@@ -16,6 +16,9 @@ struct PhaseMemory {
   double peak_rss_mib = 0;   // VmRSS
   double peak_anon_mib = 0;  // RssAnon: the heap and stacks, what a memory cgroup cannot reclaim
   double seconds = 0;
+  // The allocator's view when the phase was first entered (glibc mallinfo2): heap in use, and what the arenas hold
+  // (in use + free inside them). What a phase starts with, and how much of it is holes, beside its peak.
+  HeapStats heap_at_start;
 };
 
 // Samples this process's VmRSS and RssAnon (/proc/self/status) on a thread of its own, every `interval_ms`, and
