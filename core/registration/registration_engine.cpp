@@ -120,7 +120,7 @@ void RegistrationEngine::AddEdge(Edge edge) {
       spill_ = nullptr;
     }
   }
-  const size_t index = graph_.edges().size();
+  const auto index = static_cast<uint32_t>(graph_.edges().size());
   adjacency_.at(static_cast<size_t>(edge.src)).push_back(index);
   adjacency_.at(static_cast<size_t>(edge.tgt)).push_back(index);
   graph_.AddEdge(std::move(edge));
@@ -623,10 +623,13 @@ Solution RegistrationEngine::FinishSolve() {
     s.other_components.assign(std::make_move_iterator(components.begin() + 1),
                               std::make_move_iterator(components.end()));
   }
-  std::unordered_set<int> in_component(s.component.begin(), s.component.end());
+  // A flag per frame id (a byte each, where a hash set took ~40): the end phases carry it.
+  std::vector<char> in_component(static_cast<size_t>(frames()), 0);
+  for (int id : s.component) in_component[static_cast<size_t>(id)] = 1;
   std::vector<const Edge*> edges;
   for (const auto& e : graph_.edges())
-    if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 && EdgeCounts(e)) edges.push_back(&e);
+    if (in_component[static_cast<size_t>(e.src)] != 0 && in_component[static_cast<size_t>(e.tgt)] != 0 && EdgeCounts(e))
+      edges.push_back(&e);
   // The final solves use every edge: the points given back during the flight come back from the spill (an even share
   // of each edge's when all of them would outgrow end_correspondences).
   EnterPhase("end_load");
@@ -656,7 +659,7 @@ Solution RegistrationEngine::FinishSolve() {
   }
   for (int id = 0; id < frames(); ++id) {
     FrameRecord& f = Record(id);
-    if (in_component.count(id) != 0) continue;
+    if (in_component[static_cast<size_t>(id)] != 0) continue;
     if (f.failure.empty()) f.failure = f.has_features ? "not in the largest connected component" : "not processed";
   }
   return s;

@@ -1,4 +1,5 @@
 #pragma once
+#include <cstdint>
 #include <deque>
 #include <functional>
 #include <memory>
@@ -289,7 +290,7 @@ class RegistrationEngine {
   mutable Components components_;
   FootprintGrid footprints_;        // in_graph frames' footprints, for overlap candidates and new-ground checks
   std::deque<FrameRecord> frames_;  // grows chunk by chunk: no doubling copy in a long flight
-  std::vector<std::vector<size_t>> adjacency_;  // edge indices per frame
+  std::vector<std::vector<uint32_t>> adjacency_;  // edge indices per frame (4 bytes: a flight has < 4e9 edges)
   bool track_moves_ = false;
   std::vector<int> moved_;
   std::unordered_map<int, Mat3> mosaic_from_work_;  // per placed frame, in its component's coordinates
