@@ -5,7 +5,6 @@
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <string>
 #include <unordered_map>
@@ -37,28 +36,6 @@ using Vec6 = Eigen::Matrix<double, kDof, 1>;
 // hash map: at the end of a long flight every frame is variable, and a map's node per frame was the solve's own.
 using ColumnOf = std::vector<int>;
 
-// A symmetric 6x6 block by its lower triangle, row by row: 21 doubles instead of 36.
-class PackedBlock {
- public:
-  PackedBlock() = default;
-  explicit PackedBlock(const Block& b) {
-    for (int r = 0, k = 0; r < kDof; ++r)
-      for (int c = 0; c <= r; ++c) v_[static_cast<size_t>(k++)] = b(r, c);
-  }
-  // out = B x (written, not added to).
-  void Apply(const double* x, double* out) const {
-    for (int r = 0; r < kDof; ++r) out[r] = 0.0;
-    for (int r = 0, k = 0; r < kDof; ++r)
-      for (int c = 0; c <= r; ++c, ++k) {
-        out[r] += v_[static_cast<size_t>(k)] * x[c];
-        if (c != r) out[c] += v_[static_cast<size_t>(k)] * x[r];
-      }
-  }
-
- private:
-  std::array<double, 21> v_{};
-};
-
 // The normal equations in blocks: a 6x6 block on the diagonal per variable frame, one off-diagonal block per edge
 // between two variable frames (an edge's correspondence and relative-linear terms couple only its two frames). Both of
 // an edge's terms act alike on the two rows of the maps, so its off-diagonal block is I2 (x) B with B 3x3: 72 bytes per
@@ -69,15 +46,8 @@ struct BlockSystem {
   std::vector<Vec6, Eigen::aligned_allocator<Vec6>> rhs;
   std::vector<std::pair<int, int>> pairs;     // (row frame, column frame) of each off-diagonal block: x_row, x_col
   std::vector<Eigen::Matrix3d> off_diagonal;  // B: the block is I2 (x) B
-  std::vector<PackedBlock> packed_diagonal;   // the diagonal once packed (PackDiagonal), which then is empty
 
   explicit BlockSystem(size_t frames) : diagonal(frames, Block::Zero()), rhs(frames, Vec6::Zero()) {}
-
-  void PackDiagonal() {
-    packed_diagonal.reserve(diagonal.size());
-    for (const Block& b : diagonal) packed_diagonal.emplace_back(b);
-    diagonal = {};
-  }
 
   // y = N x, with N the symmetric matrix of the blocks.
   void Multiply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
@@ -85,8 +55,6 @@ struct BlockSystem {
     for (size_t i = 0; i < diagonal.size(); ++i)
       y->segment<kDof>(static_cast<long>(i) * kDof).noalias() +=
           diagonal[i] * x.segment<kDof>(static_cast<long>(i) * kDof);
-    for (size_t i = 0; i < packed_diagonal.size(); ++i)
-      packed_diagonal[i].Apply(x.data() + static_cast<long>(i) * kDof, y->data() + static_cast<long>(i) * kDof);
     for (size_t k = 0; k < pairs.size(); ++k) {
       const long a = static_cast<long>(pairs[k].first) * kDof;
       const long b = static_cast<long>(pairs[k].second) * kDof;
@@ -257,36 +225,34 @@ std::string SolveDirect(const BlockSystem& sys, Eigen::VectorXd* x) {
 
 // Iterative: conjugate gradients preconditioned by the inverse diagonal blocks, from `x` (the current maps, already
 // close). Memory is the blocks and five vectors: it grows with the frames and edges by a few hundred bytes each,
-// never with a factor's fill. The diagonal blocks and their inverses are held by their lower triangles once the
-// inverses are made (both symmetric; the blocks' LDLT reads only that triangle too).
-std::string SolveIterative(BlockSystem* sys, const AdjustOptions& options, Eigen::VectorXd* x, int* iterations) {
-  const size_t frames = sys->diagonal.size();
+// never with a factor's fill.
+std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options, Eigen::VectorXd* x, int* iterations) {
+  const size_t frames = sys.diagonal.size();
   const long n = static_cast<long>(frames) * kDof;
-  std::vector<PackedBlock> inverse(frames);
+  std::vector<Block, Eigen::aligned_allocator<Block>> inverse(frames);
   for (size_t i = 0; i < frames; ++i) {
-    const Eigen::LDLT<Block> ldlt(sys->diagonal[i]);
+    const Eigen::LDLT<Block> ldlt(sys.diagonal[i]);
     if (ldlt.info() != Eigen::Success) return "normal equations are singular";
-    inverse[i] = PackedBlock(ldlt.solve(Block::Identity()));
+    inverse[i] = ldlt.solve(Block::Identity());
   }
-  sys->PackDiagonal();
   const auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd* z) {
     z->resize(n);
     for (size_t i = 0; i < frames; ++i)
-      inverse[i].Apply(r.data() + static_cast<long>(i) * kDof, z->data() + static_cast<long>(i) * kDof);
+      z->segment<kDof>(static_cast<long>(i) * kDof).noalias() =
+          inverse[i] * r.segment<kDof>(static_cast<long>(i) * kDof);
   };
-  // The residual starts as the right-hand side, which is not kept (its norm is all the stop needs).
+  // The residual starts as the right-hand side (no copy of it is kept: its norm is all the stop needs).
   Eigen::VectorXd r(n), z, p, q;
-  for (size_t i = 0; i < frames; ++i) r.segment<kDof>(static_cast<long>(i) * kDof) = sys->rhs[i];
-  sys->rhs = {};
+  for (size_t i = 0; i < frames; ++i) r.segment<kDof>(static_cast<long>(i) * kDof) = sys.rhs[i];
   const double stop = options.iterative_tolerance * options.iterative_tolerance * r.squaredNorm();
-  sys->Multiply(*x, &q);
+  sys.Multiply(*x, &q);
   r -= q;
   precondition(r, &z);
   p = z;
   double rz = r.dot(z);
   *iterations = 0;
   while (r.squaredNorm() > stop && *iterations < options.max_iterative_steps) {
-    sys->Multiply(p, &q);
+    sys.Multiply(p, &q);
     const double pq = p.dot(q);
     if (!(pq > 0)) return "normal equations are not positive definite";
     const double alpha = rz / pq;
@@ -321,7 +287,7 @@ std::string SolvePass(const std::vector<const Edge*>& used, EdgePointSource* poi
       for (int c = 0; c < 3; ++c) x(static_cast<long>(index) * kDof + 3 * r + c) = T.at(column[index])(r, c);
   const bool direct = static_cast<int>(column.size()) <= options.direct_max_frames;
   int steps = 0;
-  const std::string failure = direct ? SolveDirect(sys, &x) : SolveIterative(&sys, options, &x, &steps);
+  const std::string failure = direct ? SolveDirect(sys, &x) : SolveIterative(sys, options, &x, &steps);
   if (!failure.empty()) return failure;
   result->iterative = !direct;
   result->iterative_steps += steps;
