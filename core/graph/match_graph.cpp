@@ -37,13 +37,8 @@ void MatchGraph::AddNode(int id) {
 }
 
 void MatchGraph::AddEdge(Edge edge) {
+  max_inliers_ = std::max(max_inliers_, edge.num_inliers);
   edges_.push_back(std::move(edge));
-}
-
-int MatchGraph::MaxInliers() const {
-  int best = 0;
-  for (const auto& e : edges_) best = std::max(best, e.num_inliers);
-  return best;
 }
 
 bool MatchGraph::EdgeCounts(const Edge& e, double relative, int absolute_floor) const {

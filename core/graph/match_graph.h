@@ -133,9 +133,11 @@ class MatchGraph {
   void AddEdge(Edge edge);
   // A deque: edges are never moved once added (no doubling copy of every record as a long flight grows them).
   [[nodiscard]] const std::deque<Edge>& edges() const { return edges_; }
+  // For the edges' points and transforms; an edge's num_inliers stays as it was added (MaxInliers is kept as edges
+  // come).
   [[nodiscard]] std::deque<Edge>& mutable_edges() { return edges_; }
   [[nodiscard]] const std::vector<int>& nodes() const { return nodes_; }
-  [[nodiscard]] int MaxInliers() const;
+  [[nodiscard]] int MaxInliers() const { return max_inliers_; }
   // An edge counts when its inliers reach both the absolute floor and `relative` x the best edge's count
   // (the seed method's 5 % rule). Returns the node ids of the largest connected component over counting edges,
   // sorted ascending; ties go to the component with the smallest frame id.
@@ -147,6 +149,9 @@ class MatchGraph {
  private:
   std::vector<int> nodes_;
   std::deque<Edge> edges_;
+  // Kept as edges are added: EdgeCounts asks it once per edge, and scanning every edge each time made the end's
+  // edge lists and tables quadratic in the flight's edges.
+  int max_inliers_ = 0;
 };
 
 }  // namespace uavm
