@@ -342,7 +342,7 @@ class FakeSessionEnd final : public SessionEnd {
  public:
   void EnterPhase(const std::string& name) override { phases.push_back(name); }
   void ComposeEnd() override { phases.push_back("compose_end"); }
-  bool WriteEdgeTables(const std::unordered_set<int>& in_component, std::string*) override {
+  bool WriteEdgeTables(const IdSet& in_component, std::string*) override {
     tables_for = in_component.size();
     return true;
   }

@@ -813,40 +813,50 @@ struct TileFrames {
   std::vector<std::atomic<int>> tiles_left;     // per frame
 };
 
+// Frame selection on footprints: `frames` keeps, in order, those SelectByOverlap keeps. In place, and the footprints
+// gone before the tiles start: every per-frame list of a long flight is held once.
+void KeepByOverlap(cv::Size canvas, double max_covered_fraction, std::vector<CompositeInput>* frames,
+                   CompositeResult* result) {
+  std::vector<std::vector<cv::Point2f>> footprints;
+  footprints.reserve(frames->size());
+  for (const auto& f : *frames)
+    footprints.push_back(Footprint(f.canvas_from_image, f.image_size.width, f.image_size.height));
+  const std::vector<bool> keep =
+      SelectByOverlap(footprints, cv::Rect2d(0, 0, canvas.width, canvas.height), max_covered_fraction);
+  size_t kept = 0;
+  for (size_t i = 0; i < frames->size(); ++i) {
+    if (keep[i])
+      (*frames)[kept++] = (*frames)[i];
+    else
+      ++result->frames_dropped_by_overlap;
+  }
+  frames->resize(kept);
+  result->frames_used = static_cast<int>(kept);
+}
+
 }  // namespace
 
-CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas, const ImageLoadFn& load,
+CompositeResult Composite(std::vector<CompositeInput> frames, cv::Size canvas, const ImageLoadFn& load,
                           const CompositorOptions& options, GdalTiffWriter* tiff) {
   return Composite(
-      frames, canvas,
+      std::move(frames), canvas,
       [&](int id, const cv::Rect&) {
         return FramePart{load(id), cv::Point2d()};
       },
       options, tiff);
 }
 
-CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas, const PartLoadFn& load,
+CompositeResult Composite(std::vector<CompositeInput> frames, cv::Size canvas, const PartLoadFn& load,
                           const CompositorOptions& options, GdalTiffWriter* tiff) {
   CompositeResult result;
   StageTimer timer;
   // What the flight left, before the compositor allocates anything.
   const double resident_mib = options.memory_budget_mib > 0 ? CurrentRssMiB() : 0.0;
   result.canvas = canvas;
-  // Frame selection on footprints.
-  std::vector<std::vector<cv::Point2f>> footprints;
-  for (const auto& f : frames)
-    footprints.push_back(Footprint(f.canvas_from_image, f.image_size.width, f.image_size.height));
-  const std::vector<bool> keep =
-      SelectByOverlap(footprints, cv::Rect2d(0, 0, canvas.width, canvas.height), options.max_covered_fraction);
-  std::vector<CompositeInput> used;
-  for (size_t i = 0; i < frames.size(); ++i) {
-    if (keep[i])
-      used.push_back(frames[i]);
-    else
-      ++result.frames_dropped_by_overlap;
-  }
-  result.frames_used = static_cast<int>(used.size());
+  std::vector<CompositeInput> used = std::move(frames);
+  KeepByOverlap(canvas, options.max_covered_fraction, &used, &result);
   std::vector<FrameGeometry> geometry;
+  geometry.reserve(used.size());
   for (const auto& f : used) geometry.push_back(MakeGeometry(f));
   const std::vector<cv::Rect> need = NeededParts(geometry, canvas, options.num_bands);
   TileSink sink(canvas, options.quicklook_long_side, tiff);

@@ -118,12 +118,13 @@ struct CompositeResult {
 // border is farthest (distance-to-border seams, in canvas pixels), owners are warped and blended with multi-band
 // blending over the tile plus a margin, and the tile goes to `tiff` (may be null) and the quick-look. A write error
 // (a full disk) stops it with the error in the result; what was written is removed or left incomplete for a retry.
-[[nodiscard]] CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas,
-                                        const PartLoadFn& load, const CompositorOptions& options, GdalTiffWriter* tiff);
+// `frames` is taken (moved in by a caller that has no more use for it): a long flight's inputs are filtered in place
+// instead of copied.
+[[nodiscard]] CompositeResult Composite(std::vector<CompositeInput> frames, cv::Size canvas, const PartLoadFn& load,
+                                        const CompositorOptions& options, GdalTiffWriter* tiff);
 // The same with a loader of whole frames.
-[[nodiscard]] CompositeResult Composite(const std::vector<CompositeInput>& frames, cv::Size canvas,
-                                        const ImageLoadFn& load, const CompositorOptions& options,
-                                        GdalTiffWriter* tiff);
+[[nodiscard]] CompositeResult Composite(std::vector<CompositeInput> frames, cv::Size canvas, const ImageLoadFn& load,
+                                        const CompositorOptions& options, GdalTiffWriter* tiff);
 
 // Renders one ROI of the canvas (for tests and previews), with the same seams and blending as Composite.
 [[nodiscard]] bool RenderRoi(const std::vector<CompositeInput>& frames, const std::vector<cv::Mat>& images,

@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <unordered_map>
 
+#include "core/util/id_set.h"
+
 namespace uavm {
 
 CanvasPlacement::CanvasPlacement(const PipelineOptions& options, const FlightRecord* record, const Solution* solution)
@@ -160,7 +162,7 @@ nlohmann::json CanvasPlacement::GeorefJson() const {
 
 // Frames of placed_ are the map's; the others that are stored in the session become the pieces bridging may place.
 std::vector<BridgeFrame> CanvasPlacement::BridgeInputs(int* candidates) const {
-  const std::unordered_set<int> in_map(placed_.begin(), placed_.end());
+  const IdSet in_map(placed_);
   std::unordered_map<int, int> piece_of;  // frames of the other image-linked pieces: the piece's first frame
   for (const auto& members : solution_->other_components)
     for (int id : members) piece_of[id] = members.front();
@@ -170,7 +172,7 @@ std::vector<BridgeFrame> CanvasPlacement::BridgeInputs(int* candidates) const {
   *candidates = 0;
   for (const SessionFrame& f : record_->frames()) {
     std::error_code ec;
-    const bool in = in_map.count(f.id) != 0;
+    const bool in = in_map.contains(f.id);
     if (!in && (f.stored_file.empty() || !std::filesystem::exists(f.stored_file, ec))) continue;
     BridgeFrame b;
     b.id = f.id;

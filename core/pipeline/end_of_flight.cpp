@@ -7,11 +7,11 @@
 #include <cmath>
 #include <filesystem>
 #include <future>
-#include <unordered_map>
 
 #include "core/mosaic/gdal_writer.h"
 #include "core/pipeline/session_tables.h"
 #include "core/util/clock.h"
+#include "core/util/id_set.h"
 #include "core/util/memory.h"
 
 namespace uavm {
@@ -43,8 +43,8 @@ bool EndOfFlight::Run(std::string* error) {
 
 bool EndOfFlight::WriteTables(std::string* error) {
   const std::vector<int>& component = in_.solution->component;
-  const std::unordered_set<int> in_component(component.begin(), component.end());
-  const std::unordered_set<int> in_map(placement_.placed().begin(), placement_.placed().end());
+  const IdSet in_component(component);
+  const IdSet in_map(placement_.placed());
   const std::string camera_yaml = CameraYaml(*in_.lens, in_.solution->lens);
   return WriteTransformsCsv(paths_.Join("transforms.csv"), *in_.record, in_map, placement_.canvas_from_original(),
                             placement_.placed_by_telemetry(), error) &&
@@ -61,7 +61,9 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
   const double scale = placement_.scale();
   const GeorefFit& georef = placement_.georef();
   std::vector<CompositeInput> inputs;
-  std::unordered_map<int, CanvasLoad> load_of;
+  inputs.reserve(placement_.placed().size());
+  // By frame id (ids are dense): no node a frame.
+  std::vector<CanvasLoad> load_of(in_.record->size());
   for (int id : placement_.placed()) {
     const SessionFrame& f = in_.record->frame(id);
     const Mat3& c = canvas_from_original[static_cast<size_t>(id)];
@@ -69,7 +71,7 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
     const double local_scale =
         LocalScale(c, Vec2(0.5 * (f.original_size.width - 1), 0.5 * (f.original_size.height - 1)));
     const CanvasLoad how = PlanCanvasLoad(f.stored_file, f.original_size, std::min(1.0, local_scale));
-    load_of[id] = how;
+    load_of[static_cast<size_t>(id)] = how;
     CompositeInput in;
     in.id = id;
     in.image_size = how.size;
@@ -84,7 +86,7 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
     inputs.push_back(in);
   }
   auto load = [&](int id, const cv::Rect& need) {
-    const CanvasLoad& how = load_of.at(id);
+    const CanvasLoad& how = load_of.at(static_cast<size_t>(id));
     FramePart part = LoadIdealPart(id, how, need);
     CorrectRadiometry(radiometry_.model, id, HeadingOf(id), how.size, part.origin, &part.image);
     return part;
@@ -98,7 +100,7 @@ bool EndOfFlight::CompositeMosaic(CompositeResult* composite, std::string* error
     return false;
   CompositorOptions mosaic = options_.mosaic;
   mosaic.quicklook_path = paths_.Join("mosaic.png");
-  *composite = Composite(inputs, canvas, load, mosaic, write_tiff ? &tiff : nullptr);
+  *composite = Composite(std::move(inputs), canvas, load, mosaic, write_tiff ? &tiff : nullptr);
   if (!composite->ok) {
     *error = "composite failed: " + composite->error;
     return false;
@@ -236,10 +238,10 @@ bool EndOfFlight::WriteReport(const CompositeResult& composite, nlohmann::json p
   report["bridge"] = placement_.bridge_report();
   report["live_tiles"] = in_.live != nullptr ? in_.live->Report() : nlohmann::json{{"enabled", false}};
   report["reference_frame"] = placed.empty() ? -1 : placed.front();
-  const std::unordered_set<int> in_map(placed.begin(), placed.end());
+  const IdSet in_map(placed);
   nlohmann::json unregistered = nlohmann::json::array();
   for (const auto& f : in_.record->frames())
-    if (in_map.count(f.id) == 0)
+    if (!in_map.contains(f.id))
       unregistered.push_back({{"index", f.id}, {"file", f.name}, {"reason", in_.record->engine().frame(f.id).failure}});
   report["unregistered"] = unregistered;
   report["composite_ms"] = composite.ms;

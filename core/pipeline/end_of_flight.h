@@ -14,6 +14,7 @@
 #include "core/pipeline/options.h"
 #include "core/pipeline/work_lens.h"
 #include "core/session/session_dir.h"
+#include "core/util/id_set.h"
 
 namespace uavm {
 
@@ -24,7 +25,7 @@ class SessionEnd {
   virtual ~SessionEnd() = default;
   virtual void EnterPhase(const std::string& name) = 0;
   virtual void ComposeEnd() = 0;
-  [[nodiscard]] virtual bool WriteEdgeTables(const std::unordered_set<int>& in_component, std::string* error) = 0;
+  [[nodiscard]] virtual bool WriteEdgeTables(const IdSet& in_component, std::string* error) = 0;
   [[nodiscard]] virtual nlohmann::json Report(const Solution& solution, const CompositeResult& composite) const = 0;
 };
 

@@ -7,11 +7,11 @@
 #include <cmath>
 #include <opencv2/imgcodecs.hpp>
 #include <unordered_map>
-#include <unordered_set>
 #include <utility>
 
 #include "core/pipeline/session_stores.h"
 #include "core/util/clock.h"
+#include "core/util/id_set.h"
 #include "core/util/memory.h"
 
 namespace uavm {
@@ -22,7 +22,7 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
   RadiometryModel& radiometry = out.model;
   if (!options.enabled || component.size() < 2) return out;
   const StageTimer timer;
-  const std::unordered_set<int> in_component(component.begin(), component.end());
+  const IdSet in_component(component);
   const std::string dir = paths.Join("thumbs");
   // Edges come in flight order, so a small cache of thumbnails serves most of them.
   std::unordered_map<int, cv::Mat> thumbs;
@@ -35,7 +35,7 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
   };
   std::vector<const Edge*> edges;
   for (const Edge& e : record.engine().edges())
-    if (in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0) edges.push_back(&e);
+    if (in_component.contains(e.src) && in_component.contains(e.tgt)) edges.push_back(&e);
   // A long flight samples fewer points per edge: the edges share max_samples, each at least one point (a fractional
   // share, accumulated in edge order), so the samples stop growing with the flight there.
   const double share =

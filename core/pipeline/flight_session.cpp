@@ -263,7 +263,7 @@ void FlightSession::MarkFinished() {
 }
 
 // graph.csv and correspondences.csv (original-resolution pixels, so the ground tool needs no working sizes).
-bool FlightSession::WriteEdgeTables(const std::unordered_set<int>& in_component, std::string* error) {
+bool FlightSession::WriteEdgeTables(const IdSet& in_component, std::string* error) {
   // Both grow with the flight (correspondences.csv ~5 kB per edge, graph.csv ~70 bytes): streamed to disk edge by
   // edge, and an edge whose points are only in edges.bin is read, written and given back.
   AtomicFileWriter graph_csv;
@@ -274,7 +274,7 @@ bool FlightSession::WriteEdgeTables(const std::unordered_set<int>& in_component,
   corr_csv.Write("src,tgt,x_src,y_src,x_tgt,y_tgt\n");
   std::string row;
   for (Edge& e : engine_.mutable_edges()) {
-    const bool used = in_component.count(e.src) != 0 && in_component.count(e.tgt) != 0 && engine_.EdgeCounts(e);
+    const bool used = in_component.contains(e.src) && in_component.contains(e.tgt) && engine_.EdgeCounts(e);
     row = fmt::format("{},{},{},{},{},{},{}\n", e.src, e.tgt, record_.frame(e.src).name, record_.frame(e.tgt).name,
                       e.num_matches, e.num_inliers, used ? 1 : 0);
     graph_csv.Write(row);

@@ -73,7 +73,7 @@ class FlightSession final : public SessionEnd {
   enum class StartStatus { kOk, kBadJournal, kOutputError };
   // Starts the journal (journal.jsonl); with `resume`, continues it: the frames it accepted are registered again
   // from `stored` (no detection: the same result), its skipped inputs recorded. Afterwards seen() holds the source
-  // names the journal has, which the source then passes over.
+  // names the journal has, which the source then passes over (until EndFlight()).
   [[nodiscard]] StartStatus Start(bool resume, StoredFrameReader* stored, std::string* error);
   [[nodiscard]] const std::unordered_set<std::string>& seen() const { return seen_; }
 
@@ -98,14 +98,18 @@ class FlightSession final : public SessionEnd {
 
   // The end of the flight: the last frame is in (the resources at the flight's end are noted), then the engine's
   // final solve of the largest component (its steps are memory phases).
-  void EndFlight() { resources_.FlightEnd(); }
+  // The source is done, so the journal's names it passed over (seen()) go too.
+  void EndFlight() {
+    std::unordered_set<std::string>().swap(seen_);
+    resources_.FlightEnd();
+  }
   [[nodiscard]] Solution Solve();
   // The end's side of the session (SessionEnd): its memory phases after the solve (radiometry, outputs, compose,
   // products); graph.csv and correspondences.csv (streamed, each edge's points read back and given up again); its
   // keys of report.json (counters, registration, memory), `solution` being Solve()'s.
   void EnterPhase(const std::string& name) override { resources_.EnterPhase(name); }
   void ComposeEnd() override { resources_.ComposeEnd(); }
-  [[nodiscard]] bool WriteEdgeTables(const std::unordered_set<int>& in_component, std::string* error) override;
+  [[nodiscard]] bool WriteEdgeTables(const IdSet& in_component, std::string* error) override;
   [[nodiscard]] nlohmann::json Report(const Solution& solution, const CompositeResult& composite) const override;
   // The journal says the flight was finished (a resumed run knows it has nothing to add).
   void MarkFinished();

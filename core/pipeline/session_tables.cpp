@@ -10,7 +10,7 @@
 
 namespace uavm {
 
-bool WriteTransformsCsv(const std::string& path, const FlightRecord& record, const std::unordered_set<int>& in_map,
+bool WriteTransformsCsv(const std::string& path, const FlightRecord& record, const IdSet& in_map,
                         const std::vector<Mat3>& canvas_from_original, const std::unordered_set<int>& by_telemetry,
                         std::string* error) {
   std::vector<TransformRow> rows;
@@ -18,7 +18,7 @@ bool WriteTransformsCsv(const std::string& path, const FlightRecord& record, con
     TransformRow r;
     r.index = f.id;
     r.filename = f.name;
-    r.registered = in_map.count(f.id) != 0;
+    r.registered = in_map.contains(f.id);
     r.mosaic_from_frame = canvas_from_original[static_cast<size_t>(f.id)];
     if (r.registered) r.placed_by = by_telemetry.count(f.id) != 0 ? "telemetry" : "image";
     rows.push_back(r);
@@ -26,8 +26,7 @@ bool WriteTransformsCsv(const std::string& path, const FlightRecord& record, con
   return WriteFileAtomic(path, FormatTransformsCsv(rows), error);
 }
 
-bool WriteFramesCsv(const std::string& path, const FlightRecord& record, const std::unordered_set<int>& in_map,
-                    std::string* error) {
+bool WriteFramesCsv(const std::string& path, const FlightRecord& record, const IdSet& in_map, std::string* error) {
   // Streamed row by row: the table grows with the flight.
   AtomicFileWriter frames_csv;
   if (!frames_csv.Open(path, error)) return false;
@@ -39,7 +38,7 @@ bool WriteFramesCsv(const std::string& path, const FlightRecord& record, const s
     const auto& m = f.metadata();
     frames_csv.Write(fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.id, f.name,
                                  std::filesystem::path(f.stored_file).filename().string(), f.original_size.width,
-                                 f.original_size.height, f.timestamp_ns, in_map.count(f.id) != 0 ? 1 : 0,
+                                 f.original_size.height, f.timestamp_ns, in_map.contains(f.id) ? 1 : 0,
                                  cell(m.latitude_deg), cell(m.longitude_deg), cell(m.altitude_m),
                                  cell(m.relative_altitude_m), cell(m.flight_yaw_deg), cell(m.gimbal_yaw_deg),
                                  cell(m.gimbal_pitch_deg), cell(m.focal_length_mm)));
