@@ -203,13 +203,13 @@ nlohmann::json EndOfFlight::MakeProducts() {
 // index.html: the tiles, the frames' footprints and the match graph on an offline map page.
 bool EndOfFlight::WriteMapPage(const TileSet& tiles) const {
   const std::vector<Mat3>& canvas_from_original = placement_.canvas_from_original();
-  const std::unordered_set<int> in(placement_.placed().begin(), placement_.placed().end());
+  const IdSet in(placement_.placed());
   std::vector<MapFrame> frames;
   for (const auto& f : in_.record->frames()) {
     MapFrame m;
     m.id = f.id;
     m.name = f.name;
-    m.registered = in.count(f.id) != 0;
+    m.registered = in.contains(f.id);
     m.mosaic_from_frame = canvas_from_original[static_cast<size_t>(f.id)];
     m.width = f.original_size.width;
     m.height = f.original_size.height;
@@ -218,8 +218,7 @@ bool EndOfFlight::WriteMapPage(const TileSet& tiles) const {
   std::vector<MapEdge> edges;
   const RegistrationEngine& engine = in_.record->engine();
   for (const Edge& e : engine.edges())
-    edges.push_back(
-        {e.src, e.tgt, e.num_inliers, in.count(e.src) != 0 && in.count(e.tgt) != 0 && engine.EdgeCounts(e)});
+    edges.push_back({e.src, e.tgt, e.num_inliers, in.contains(e.src) && in.contains(e.tgt) && engine.EdgeCounts(e)});
   std::string err;
   const bool page = WriteWebPage(paths_.root, options_.leaflet_dir, tiles, placement_.georef(), frames, edges, &err);
   if (!page) spdlog::warn("index.html: {}", err);

@@ -2,7 +2,6 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <string>
-#include <unordered_set>
 #include <vector>
 
 #include "core/georef/products.h"
