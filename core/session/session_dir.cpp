@@ -147,22 +147,22 @@ bool AtomicFileWriter::Commit(std::string* error) {
   return true;
 }
 
+std::string FormatTransformsRow(const TransformRow& r) {
+  std::string out = std::to_string(r.index) + "," + r.filename;
+  if (!r.registered) return out + ",0,,,,,,,,,\n";
+  // Normalised so the projective part's constant term is 1, as the header's formula assumes.
+  const Mat3 m = r.mosaic_from_frame / r.mosaic_from_frame(2, 2);
+  char buf[256];  // the numbers only: the file name is appended whole, whatever its length or bytes
+  std::snprintf(buf, sizeof(buf), ",1,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,", m(0, 0), m(0, 1), m(0, 2),
+                m(1, 0), m(1, 1), m(1, 2), m(2, 0), m(2, 1));
+  out += buf;
+  out += (r.placed_by.empty() ? std::string("image") : r.placed_by) + "\n";
+  return out;
+}
+
 std::string FormatTransformsCsv(const std::vector<TransformRow>& rows) {
   std::string out = std::string(kTransformsHeader) + "\n";
-  char buf[256];  // the numbers only: the file name is appended whole, whatever its length or bytes
-  for (const auto& r : rows) {
-    out += std::to_string(r.index) + "," + r.filename;
-    if (!r.registered) {
-      out += ",0,,,,,,,,,\n";
-      continue;
-    }
-    // Normalised so the projective part's constant term is 1, as the header's formula assumes.
-    const Mat3 m = r.mosaic_from_frame / r.mosaic_from_frame(2, 2);
-    std::snprintf(buf, sizeof(buf), ",1,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,%.10g,", m(0, 0), m(0, 1), m(0, 2),
-                  m(1, 0), m(1, 1), m(1, 2), m(2, 0), m(2, 1));
-    out += buf;
-    out += (r.placed_by.empty() ? std::string("image") : r.placed_by) + "\n";
-  }
+  for (const auto& r : rows) out += FormatTransformsRow(r);
   return out;
 }
 

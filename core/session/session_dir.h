@@ -82,6 +82,9 @@ struct TransformRow {
 };
 
 [[nodiscard]] std::string FormatTransformsCsv(const std::vector<TransformRow>& rows);
+// One row of transforms.csv with its newline (what FormatTransformsCsv writes after the header): a long flight's table
+// is streamed row by row.
+[[nodiscard]] std::string FormatTransformsRow(const TransformRow& row);
 // Parses transforms.csv; rejects a wrong header or malformed registered rows.
 [[nodiscard]] bool ParseTransformsCsv(const std::string& text, std::vector<TransformRow>* rows, std::string* error);
 [[nodiscard]] bool ReadTextFile(const std::string& path, std::string* text, std::string* error);
