@@ -12,6 +12,7 @@
 
 #include "core/util/clock.h"
 #include "core/util/fail.h"
+#include "core/util/id_set.h"
 #include "core/util/memory.h"
 
 namespace uavm {
@@ -623,13 +624,11 @@ Solution RegistrationEngine::FinishSolve() {
     s.other_components.assign(std::make_move_iterator(components.begin() + 1),
                               std::make_move_iterator(components.end()));
   }
-  // A flag per frame id (a byte each, where a hash set took ~40): the end phases carry it.
-  std::vector<char> in_component(static_cast<size_t>(frames()), 0);
-  for (int id : s.component) in_component[static_cast<size_t>(id)] = 1;
+  // A byte per frame id (IdSet, where a hash set took ~40): the end phases carry it.
+  const IdSet in_component(s.component);
   std::vector<const Edge*> edges;
   for (const auto& e : graph_.edges())
-    if (in_component[static_cast<size_t>(e.src)] != 0 && in_component[static_cast<size_t>(e.tgt)] != 0 && EdgeCounts(e))
-      edges.push_back(&e);
+    if (in_component.contains(e.src) && in_component.contains(e.tgt) && EdgeCounts(e)) edges.push_back(&e);
   // The final solves use every edge: the points given back during the flight come back from the spill (an even share
   // of each edge's when all of them would outgrow end_correspondences).
   EnterPhase("end_load");
@@ -659,7 +658,7 @@ Solution RegistrationEngine::FinishSolve() {
   }
   for (int id = 0; id < frames(); ++id) {
     FrameRecord& f = Record(id);
-    if (in_component[static_cast<size_t>(id)] != 0) continue;
+    if (in_component.contains(id)) continue;
     if (f.failure.empty()) f.failure = f.has_features ? "not in the largest connected component" : "not processed";
   }
   return s;
