@@ -9,15 +9,16 @@
 # run's (resumed and whole runs agreed within 9 MiB on every end phase at 5000 frames, 2026-11-27). Each phase's
 # peak against the same phase of the first FRAMES given (default: every sim_* in MEMORY_RUN_DIR, smallest first).
 #
-# Environment: BUDGET_MIB (default 256), EXTRA_ARGS (e.g. "--config exp.yaml"), UAVM_BUILD_DIR, TMPDIR (the copies),
-# REPORTS_DIR (keeps each run's report.json and log there as sim_FRAMES.report.json / .log).
+# Environment: REPEAT (runs of each flight, default 1; each phase's figure is the median of its runs), BUDGET_MIB
+# (default 256), EXTRA_ARGS (e.g. "--config exp.yaml"), UAVM_BUILD_DIR, TMPDIR (the copies), REPORTS_DIR (keeps each
+# run's report.json and log there as sim_FRAMES[.RUN].report.json / .log).
 set -euo pipefail
 export LC_ALL=C
 
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 if [[ $# -lt 1 || $1 == -h || $1 == --help ]]; then
-  sed -n '2,13p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,14p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 # shellcheck source=bench/lib.sh
@@ -32,6 +33,8 @@ BUDGET_MIB=${BUDGET_MIB:-256}
 log() { echo "[memory_end] $*" >&2; }
 [[ -f $PLAN ]] || { log "$PLAN missing: MEMORY_RUN_DIR is an OUT_DIR of bench/memory.sh"; exit 1; }
 [[ -x $OURS_BIN ]] || { log "$OURS_BIN missing (scripts/build.sh)"; exit 1; }
+REPEAT=${REPEAT:-1}
+median() { printf '%s\n' "$@" | sort -n | awk '{ v[NR] = $1 } END { print v[int((NR + 1) / 2)] }'; }
 FRAMES=("$@")
 if [[ ${#FRAMES[@]} -eq 0 ]]; then
   mapfile -t FRAMES < <(find "$RUN_DIR" -maxdepth 1 -type d -name 'sim_*' -printf '%f\n' | sed 's/^sim_//' | sort -n)
@@ -44,22 +47,32 @@ declare -A PEAK ANON
 PHASES=()
 for n in "${FRAMES[@]}"; do
   [[ -f $RUN_DIR/sim_$n/journal.jsonl ]] || { log "sim_$n: no session"; exit 1; }
-  rm -rf "$WORK/s"
-  cp -a "$RUN_DIR/sim_$n" "$WORK/s"
-  log "sim_$n: resumed"
-  # shellcheck disable=SC2086 # EXTRA_ARGS is a list of words
-  run_phased "$WORK/r" "$OURS_BIN" --source "sim:$PLAN" --max-frames "$n" --no-tiff --out "$WORK/s" \
-    --memory-budget "$BUDGET_MIB" --resume ${EXTRA_ARGS:-}
-  ((W_RC == 0)) || { log "sim_$n: exit $W_RC"; tail -n 5 "$WORK/r.stdout" >&2; exit 1; }
-  if [[ -n ${REPORTS_DIR:-} ]]; then
-    mkdir -p "$REPORTS_DIR"
-    cp "$WORK/s/report.json" "$REPORTS_DIR/sim_$n.report.json"
-    cat "$WORK/r.stdout" "$WORK/r.stderr" >"$REPORTS_DIR/sim_$n.log"
-  fi
-  while IFS=$'\t' read -r phase rss anon _n _first _last; do
-    [[ " ${PHASES[*]} " == *" $phase "* ]] || PHASES+=("$phase")
-    PEAK[$phase.$n]=$rss ANON[$phase.$n]=$anon
-  done <"$WORK/r.phases.tsv"
+  for ((rep = 1; rep <= REPEAT; rep++)); do
+    rm -rf "$WORK/s"
+    cp -a "$RUN_DIR/sim_$n" "$WORK/s"
+    log "sim_$n: resumed ($rep/$REPEAT)"
+    # shellcheck disable=SC2086 # EXTRA_ARGS is a list of words
+    run_phased "$WORK/r" "$OURS_BIN" --source "sim:$PLAN" --max-frames "$n" --no-tiff --out "$WORK/s" \
+      --memory-budget "$BUDGET_MIB" --resume ${EXTRA_ARGS:-}
+    ((W_RC == 0)) || { log "sim_$n: exit $W_RC"; tail -n 5 "$WORK/r.stdout" >&2; exit 1; }
+    if [[ -n ${REPORTS_DIR:-} ]]; then
+      mkdir -p "$REPORTS_DIR"
+      suffix=""
+      ((REPEAT == 1)) || suffix=".$rep"
+      cp "$WORK/s/report.json" "$REPORTS_DIR/sim_$n$suffix.report.json"
+      cat "$WORK/r.stdout" "$WORK/r.stderr" >"$REPORTS_DIR/sim_$n$suffix.log"
+    fi
+    while IFS=$'\t' read -r phase rss anon _n _first _last; do
+      [[ " ${PHASES[*]} " == *" $phase "* ]] || PHASES+=("$phase")
+      PEAK[$phase.$n]+="$rss " ANON[$phase.$n]+="$anon "
+    done <"$WORK/r.phases.tsv"
+  done
+  # The median of the repeats (the lower middle of an even count): one resumed run's end phases vary by a few MiB.
+  for key in "${!PEAK[@]}"; do
+    [[ $key == *".$n" ]] || continue
+    # shellcheck disable=SC2086 # the runs' figures, a word each
+    PEAK[$key]=$(median ${PEAK[$key]}) ANON[$key]=$(median ${ANON[$key]})
+  done
 done
 
 header="| phase |"

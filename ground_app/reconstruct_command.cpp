@@ -111,6 +111,10 @@ int RunReconstructCommand(int argc, char** argv) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitReconstructionFailed;
   }
+  if (result.dense.empty()) {  // neither dense nor sparse points: no product to write
+    std::fprintf(stderr, "uavmosaic-ground: no point was reconstructed (summary: %s)\n", result.summary.dump().c_str());
+    return kExitReconstructionFailed;
+  }
   const auto t_out = std::chrono::steady_clock::now();
   auto& js = result.summary;
   if (!sfm::WritePly(out_dir + "/cloud.ply", result.dense, &error) ||
@@ -133,9 +137,13 @@ int RunReconstructCommand(int argc, char** argv) {
   js["outputs"] = {"cloud.ply", "dsm.tif", "sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt"};
   js["timings"]["write_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_out).count();
   std::ofstream(out_dir + "/summary.json") << js.dump(2) << '\n';
-  std::fprintf(stderr, "uavmosaic-ground: %zu frames, %zu sparse points, BA RMS %.3f -> %.3f px, %zu dense points\n",
-               result.rec.images.size(), result.rec.points.size(), js.value("ba_rms_before_px", 0.0),
-               js.value("ba_rms_after_px", 0.0), result.dense.size());
+  // What was made: the dense points are the fused cloud's (cloud.ply holds the sparse points when there is none).
+  std::fprintf(stderr,
+               "uavmosaic-ground: %zu frames (%zu left out), %zu sparse points, BA RMS %.3f -> %.3f px, %zu dense "
+               "points, DSM from the %s points\n",
+               result.rec.images.size(), js.value("frames_not_used", nlohmann::json::array()).size(),
+               result.rec.points.size(), js.value("ba_rms_before_px", 0.0), js.value("ba_rms_after_px", 0.0),
+               js.value("dense_points", size_t{0}), js.value("dsm_source", std::string("sparse")).c_str());
   return kExitOk;
 }
 

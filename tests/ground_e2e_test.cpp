@@ -11,7 +11,11 @@
 #include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
@@ -195,6 +199,62 @@ void CheckGcpRun(const fs::path& tmp, const fs::path& session, const fs::path& f
   }
 }
 
+// The same session with its first frame at another size (0.9x its sides, as a camera set to another resolution for
+// one shot): the reconstruction has one camera model, so that frame is left out and named with the reason, and the
+// others still make a dense cloud (with the first frame's size taken as the camera's, every stereo pair was refused).
+void CheckMixedSizeRun(const fs::path& tmp, const fs::path& session, int frames) {
+  const fs::path mixed = tmp / "session_mixed", out = tmp / "ground_mixed";
+  fs::copy(session, mixed, fs::copy_options::recursive);
+  std::ifstream in(session / "frames.csv");
+  std::ofstream csv(mixed / "frames.csv");
+  std::string row;
+  std::getline(in, row);
+  csv << row << "\n";
+  int changed = -1;
+  while (std::getline(in, row)) {
+    std::vector<std::string> cols;  // every field, the empty ones too
+    for (size_t start = 0;;) {
+      const size_t comma = row.find(',', start);
+      cols.push_back(row.substr(start, comma == std::string::npos ? std::string::npos : comma - start));
+      if (comma == std::string::npos) break;
+      start = comma + 1;
+    }
+    if (changed < 0 && cols.size() > 6 && cols[6] == "1") {  // index,filename,stored_file,width,height,ts,registered
+      const fs::path stored = mixed / "frames" / cols[2];
+      const cv::Mat image = cv::imread(stored.string(), cv::IMREAD_COLOR);
+      ASSERT_FALSE(image.empty()) << stored;
+      const cv::Size size(image.cols * 9 / 10, image.rows * 9 / 10);
+      ASSERT_TRUE(cv::imwrite(
+          stored.string(),
+          image(cv::Rect((image.cols - size.width) / 2, (image.rows - size.height) / 2, size.width, size.height))));
+      cols[3] = std::to_string(size.width);
+      cols[4] = std::to_string(size.height);
+      changed = std::stoi(cols[0]);
+      row.clear();
+      for (size_t k = 0; k < cols.size(); ++k) row += (k > 0 ? "," : "") + cols[k];
+    }
+    csv << row << "\n";
+  }
+  csv.close();
+  ASSERT_GE(changed, 0);
+  ASSERT_EQ(RunCommand(std::string(UAVM_GROUND_BIN) + " " + mixed.string() + " --out " + out.string() +
+                       " --threads 2 --max-dense-pairs 6" + GroundEmulationArgs() + " 2>" +
+                       (tmp / "stderr_mixed.txt").string()),
+            0);
+  std::ifstream js_in(out / "summary.json");
+  const auto js = nlohmann::json::parse(js_in);
+  const std::string log = ReadText(tmp / "stderr_mixed.txt");
+  std::printf("mixed sizes: %s\n", js["frames_not_used"].dump().c_str());
+  ASSERT_EQ(js["frames_not_used"].size(), 1u) << log;
+  EXPECT_EQ(js["frames_not_used"][0]["index"].get<int>(), changed);
+  EXPECT_NE(js["frames_not_used"][0]["reason"].get<std::string>().find("one camera model"), std::string::npos);
+  EXPECT_EQ(js["frames_used"].get<int>(), frames - 1);
+  EXPECT_GT(js["dense_points"].get<size_t>(), 1000u) << log;
+  EXPECT_EQ(js["dsm_source"].get<std::string>(), "dense");
+  EXPECT_NE(log.find("left out"), std::string::npos) << log;
+  EXPECT_NE(log.find("(1 left out)"), std::string::npos) << log;  // the closing line counts it
+}
+
 TEST(GroundE2e, BrightonBeachSmall) {
   const fs::path tmp = fs::temp_directory_path() / ("uavm_ground_e2e_" + std::to_string(::getpid()));
   fs::remove_all(tmp);
@@ -271,6 +331,7 @@ TEST(GroundE2e, BrightonBeachSmall) {
   EXPECT_LT(std::abs(p50), 15.0);
   EXPECT_LT(p95 - p05, 8.0);
   CheckGcpRun(tmp, session, out);
+  CheckMixedSizeRun(tmp, session, frames);
   fs::remove_all(tmp);
 }
 

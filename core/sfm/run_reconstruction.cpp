@@ -95,7 +95,21 @@ struct SelectedFrames {
   Session session;
   std::vector<const SessionFrame*> frames;  // into session.frames, in frames.csv order; position = image slot
   std::map<int, size_t> slot_of;            // session index -> image slot
+  // Registered frames left out of the reconstruction, with the reason (summary.json "frames_not_used").
+  std::vector<std::pair<const SessionFrame*, std::string>> left_out;
 };
+
+// The reconstruction has one camera model: the size most of the frames have (ties: the first frame's). A frame of
+// another size (another camera, or the same one set to another resolution) would be projected through the wrong
+// model, and its stereo pairs refused; it is left out, named with the reason.
+std::pair<int, int> CameraSize(const std::vector<const SessionFrame*>& frames) {
+  std::map<std::pair<int, int>, int> count;
+  for (const SessionFrame* f : frames) ++count[{f->width, f->height}];
+  std::pair<int, int> best{frames.front()->width, frames.front()->height};
+  for (const auto& [size, n] : count)
+    if (n > count[best]) best = size;
+  return best;
+}
 
 bool SelectFrames(const std::string& session_dir, SelectedFrames* out, std::string* error) {
   if (!ReadSession(session_dir, &out->session, error)) return false;
@@ -111,12 +125,31 @@ bool SelectFrames(const std::string& session_dir, SelectedFrames* out, std::stri
       out->frames.push_back(&f);
     }
   }
+  if (!out->frames.empty()) {
+    const auto [width, height] = CameraSize(out->frames);
+    std::erase_if(out->frames, [&](const SessionFrame* f) {
+      if (f->width == width && f->height == height) return false;
+      const auto size = [](int w, int h) { return std::to_string(w) + "x" + std::to_string(h); };
+      out->left_out.emplace_back(f, size(f->width, f->height) + " px, not the " + size(width, height) +
+                                        " of the flight's other frames (one camera model per reconstruction)");
+      return true;
+    });
+  }
+  for (const auto& [f, why] : out->left_out)
+    std::fprintf(stderr, "uavmosaic-ground: warning: frame %d (%s) left out: %s\n", f->index, f->filename.c_str(),
+                 why.c_str());
   if (out->frames.size() < 2) {
-    *error = "fewer than two registered frames with used graph edges in " + session_dir;
+    *error = "fewer than two registered frames of one size with used graph edges in " + session_dir;
     return false;
   }
   for (size_t i = 0; i < out->frames.size(); ++i) out->slot_of[out->frames[i]->index] = i;
   return true;
+}
+
+nlohmann::json LeftOutJson(const SelectedFrames& sel) {
+  nlohmann::json j = nlohmann::json::array();
+  for (const auto& [f, why] : sel.left_out) j.push_back({{"index", f->index}, {"file", f->filename}, {"reason", why}});
+  return j;
 }
 
 double FeatureScale(const ReconstructionOptions& options, const SessionFrame& frame) {
@@ -762,6 +795,17 @@ void FuseAndRasterize(const DenseCloud& dense, const ReconstructionOptions& opti
   result->dsm = RasterizeMedian(dsm_source, g, -9999.0f);
   js["dsm_size"] = {g.width, g.height};
   js["dsm_source"] = fused.empty() ? "sparse" : "dense";
+  if (options.dense && fused.empty()) {
+    // A stage that made nothing is said, in the log and the summary: the products fall back to the sparse points.
+    const auto& failures = dense.report.failures;
+    std::string why =
+        std::to_string(dense.report.pairs.size()) + " stereo pair(s), " + std::to_string(failures.size()) + " refused";
+    if (!failures.empty()) why += " (first: " + failures.front() + ")";
+    const std::string warning =
+        "dense matching made no point: " + why + "; cloud.ply and dsm.tif hold the sparse points";
+    std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", warning.c_str());
+    js["warnings"].push_back(warning);
+  }
   result->dense = fused.empty() ? sparse_cloud : std::move(fused);
 }
 
@@ -820,6 +864,7 @@ bool RunReconstruction(const std::string& session_dir, const ReconstructionOptio
   const auto& frames = sel.frames;
   const bool ok = times.Run("import_s", [&] {
     if (!SelectFrames(session_dir, &sel, error)) return false;
+    js["frames_not_used"] = LeftOutJson(sel);
     if (options.gcp_file.empty()) return true;
     gcp = std::make_unique<GcpInput>();  // read and checked before the long stages
     gcp->horizontal_only = options.control.horizontal_only;
