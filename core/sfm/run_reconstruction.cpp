@@ -181,9 +181,11 @@ bool FrameFeaturesOf(const std::string& path, const SiftExtractor& sift, double 
   return true;
 }
 
-bool ExtractFeatures(const std::string& session_dir, const std::vector<const SessionFrame*>& frames,
-                     const ReconstructionOptions& options, const ProgressFn& progress,
-                     std::vector<FrameFeatures>* feats, nlohmann::json* js, std::string* error) {
+// A frame whose stored image cannot be read is left out (named with the reason), not the whole reconstruction.
+bool ExtractFeatures(const std::string& session_dir, SelectedFrames* sel, const ReconstructionOptions& options,
+                     const ProgressFn& progress, std::vector<FrameFeatures>* feats, nlohmann::json* js,
+                     std::string* error) {
+  const std::vector<const SessionFrame*>& frames = sel->frames;
   feats->assign(frames.size(), FrameFeatures{});
   std::vector<std::string> failures(frames.size());
   std::atomic<size_t> done{0};
@@ -206,11 +208,28 @@ bool ExtractFeatures(const std::string& session_dir, const std::vector<const Ses
     if (progress) progress("features", ++done, frames.size());
   });
   cv::setNumThreads(cv_threads);
-  for (const auto& f : failures) {
-    if (!f.empty()) {
-      *error = f;
-      return false;
+  size_t kept = 0;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (!failures[i].empty()) {
+      std::fprintf(stderr, "uavmosaic-ground: warning: frame %d (%s) left out: %s\n", frames[i]->index,
+                   frames[i]->filename.c_str(), failures[i].c_str());
+      sel->left_out.emplace_back(frames[i], failures[i]);
+      continue;
     }
+    if (kept != i) {  // (a vector moved onto itself is left empty)
+      sel->frames[kept] = frames[i];
+      (*feats)[kept] = std::move((*feats)[i]);
+    }
+    ++kept;
+  }
+  sel->frames.resize(kept);
+  feats->resize(kept);
+  sel->slot_of.clear();
+  for (size_t i = 0; i < kept; ++i) sel->slot_of[sel->frames[i]->index] = i;
+  (*js)["frames_not_used"] = LeftOutJson(*sel);
+  if (kept < 2) {
+    *error = "fewer than two readable frames (" + std::to_string(sel->left_out.size()) + " left out)";
+    return false;
   }
   size_t total_kp = 0;
   for (const auto& f : *feats) total_kp += f.points.size();
@@ -844,6 +863,16 @@ bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialM
   return true;
 }
 
+// The GCP file (none without options.gcp_file) read, checked and bound to the selected frames' image slots.
+bool BindGcpFile(const SelectedFrames& sel, const ReconstructionOptions& options, std::unique_ptr<GcpInput>* gcp,
+                 nlohmann::json* js, std::string* error) {
+  if (options.gcp_file.empty()) return true;
+  *gcp = std::make_unique<GcpInput>();
+  (*gcp)->horizontal_only = options.control.horizontal_only;
+  return LoadGcpInput(options.gcp_file, options.checkpoints, sel.session, sel.frames, options.gcp_max_distance_km,
+                      gcp->get(), js, error);
+}
+
 }  // namespace
 
 // The stages in order; each reads the earlier ones' outputs and adds its figures to the summary.
@@ -865,13 +894,12 @@ bool RunReconstruction(const std::string& session_dir, const ReconstructionOptio
   const bool ok = times.Run("import_s", [&] {
     if (!SelectFrames(session_dir, &sel, error)) return false;
     js["frames_not_used"] = LeftOutJson(sel);
-    if (options.gcp_file.empty()) return true;
-    gcp = std::make_unique<GcpInput>();  // read and checked before the long stages
-    gcp->horizontal_only = options.control.horizontal_only;
-    return LoadGcpInput(options.gcp_file, options.checkpoints, sel.session, frames, options.gcp_max_distance_km,
-                        gcp.get(), &js, error);
+    return BindGcpFile(sel, options, &gcp, &js, error);  // read and checked before the long stages
   }) && times.Run("features_s", [&] {
-    return ExtractFeatures(session_dir, frames, options, progress, &feats, &js, error);
+    const size_t left_out = sel.left_out.size();
+    if (!ExtractFeatures(session_dir, &sel, options, progress, &feats, &js, error)) return false;
+    // An unreadable frame moved the image slots that the GCPs' clicks are bound to.
+    return sel.left_out.size() == left_out || BindGcpFile(sel, options, &gcp, &js, error);
   }) && times.Run("matching_s", [&] {
     matches = MatchGraphPairs(sel, feats, options, progress, &js);
     return true;
