@@ -150,8 +150,9 @@ void AddClicks(const Reconstruction& truth, const Eigen::Vector3d& X, double cli
                ControlPoint* cp) {
   for (size_t i = 0; i < truth.images.size(); ++i) {
     const double nx = rng->Normal(click_px), ny = rng->Normal(click_px);
-    const auto m = Project(truth.camera, truth.images[i].pose, X);
-    if (!m || m->x() < 0 || m->y() < 0 || m->x() > truth.camera.width - 1 || m->y() > truth.camera.height - 1) continue;
+    const auto m = Project(truth.cameras[0], truth.images[i].pose, X);
+    if (!m || m->x() < 0 || m->y() < 0 || m->x() > truth.cameras[0].width - 1 || m->y() > truth.cameras[0].height - 1)
+      continue;
     cp->observations.emplace_back(static_cast<int>(i), *m + Eigen::Vector2d(nx, ny));
   }
 }
@@ -190,7 +191,7 @@ TEST(GcpAdjustment, CheckpointsWithinClickNoise) {
     const double px = rng.Normal(0.3), py = rng.Normal(0.3), pz = rng.Normal(0.3);
     p.X += Eigen::Vector3d(px, py, pz);
   }
-  rec.camera.fx = rec.camera.fy = truth.camera.fx * 1.02;
+  rec.cameras[0].fx = rec.cameras[0].fy = truth.cameras[0].fx * 1.02;
   Similarity3 arbitrary;
   arbitrary.scale = 0.37;
   arbitrary.rotation = Eigen::AngleAxisd(1.1, Eigen::Vector3d(0.2, -0.3, 1.0).normalized()).toRotationMatrix();
@@ -239,7 +240,7 @@ TEST(GcpAdjustment, CheckpointsWithinClickNoise) {
     worst_z = std::max(worst_z, std::abs(d.z()));
   }
   std::printf("camera centres: worst %.3f m horizontally, %.3f m in height; focal %.1f (truth %.1f)\n", worst_xy,
-              worst_z, rec.camera.fx, truth.camera.fx);
+              worst_z, rec.cameras[0].fx, truth.cameras[0].fx);
   EXPECT_LT(worst_xy, 0.2);
   EXPECT_LT(worst_z, 0.2);
 }
@@ -332,8 +333,8 @@ TEST(GcpAdjustment, AMisclickedControlPointIsReported) {
     const Eigen::Vector3d X(grid[k][0], grid[k][1], testing::Terrain(grid[k][0], grid[k][1]));
     cp.world = X;
     for (size_t i = 0; i < truth.images.size(); ++i) {
-      const auto m = Project(truth.camera, truth.images[i].pose, X);
-      if (m && m->x() >= 0 && m->y() >= 0 && m->x() < truth.camera.width && m->y() < truth.camera.height) {
+      const auto m = Project(truth.cameras[0], truth.images[i].pose, X);
+      if (m && m->x() >= 0 && m->y() >= 0 && m->x() < truth.cameras[0].width && m->y() < truth.cameras[0].height) {
         cp.observations.emplace_back(static_cast<int>(i), *m);
       }
     }

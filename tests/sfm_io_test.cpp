@@ -47,14 +47,14 @@ TEST(SfmIo, ColmapRoundTrip) {
   s >> id >> model >> w >> h >> fx >> fy >> cx >> cy;
   EXPECT_EQ(model, "OPENCV");
   EXPECT_EQ(w, 1600);
-  EXPECT_NEAR(cx, rec.camera.cx + 0.5, 1e-9);
+  EXPECT_NEAR(cx, rec.cameras[0].cx + 0.5, 1e-9);
 
   Reconstruction back;
   ASSERT_TRUE(ReadColmapText(dir.string(), &back, &err)) << err;
-  EXPECT_NEAR(back.camera.fx, rec.camera.fx, 1e-9);
-  EXPECT_NEAR(back.camera.cy, rec.camera.cy, 1e-9);
-  EXPECT_NEAR(back.camera.k1, rec.camera.k1, 1e-12);
-  EXPECT_NEAR(back.camera.p2, rec.camera.p2, 1e-12);
+  EXPECT_NEAR(back.cameras[0].fx, rec.cameras[0].fx, 1e-9);
+  EXPECT_NEAR(back.cameras[0].cy, rec.cameras[0].cy, 1e-9);
+  EXPECT_NEAR(back.cameras[0].k1, rec.cameras[0].k1, 1e-12);
+  EXPECT_NEAR(back.cameras[0].p2, rec.cameras[0].p2, 1e-12);
   ASSERT_EQ(back.images.size(), rec.images.size());
   for (size_t i = 0; i < rec.images.size(); ++i) {
     EXPECT_EQ(back.images[i].name, rec.images[i].name);
@@ -74,10 +74,35 @@ TEST(SfmIo, ColmapRoundTrip) {
   // Reprojection is unchanged by the round trip.
   EXPECT_NEAR(back.ReprojectionRms(), rec.ReprojectionRms(), 1e-9);
   // FULL_OPENCV when k3 is used.
-  rec.camera.k3 = 0.01;
+  rec.cameras[0].k3 = 0.01;
   ASSERT_TRUE(WriteColmapText(rec, dir.string(), &err));
   ASSERT_TRUE(ReadColmapText(dir.string(), &back, &err)) << err;
-  EXPECT_NEAR(back.camera.k3, 0.01, 1e-15);
+  EXPECT_NEAR(back.cameras[0].k3, 0.01, 1e-15);
+  fs::remove_all(dir);
+}
+
+// Two cameras (two image sizes in one flight): both written, and every image read back with its own.
+TEST(SfmIo, ColmapRoundTripOfTwoCameras) {
+  const Reconstruction rec = testing::MakeScene(0.1, 4, 200, /*two_cameras=*/true);
+  const fs::path dir = TempDir("colmap2");
+  std::string err;
+  ASSERT_TRUE(WriteColmapText(rec, dir.string(), &err)) << err;
+  Reconstruction back;
+  ASSERT_TRUE(ReadColmapText(dir.string(), &back, &err)) << err;
+  ASSERT_EQ(back.cameras.size(), 2u);
+  for (size_t k = 0; k < 2; ++k) {
+    EXPECT_EQ(back.cameras[k].width, rec.cameras[k].width);
+    EXPECT_NEAR(back.cameras[k].fx, rec.cameras[k].fx, 1e-9);
+    EXPECT_NEAR(back.cameras[k].k1, rec.cameras[k].k1, 1e-12);
+  }
+  ASSERT_EQ(back.images.size(), rec.images.size());
+  for (size_t i = 0; i < rec.images.size(); ++i) EXPECT_EQ(back.images[i].camera, rec.images[i].camera) << i;
+  EXPECT_NEAR(back.ReprojectionRms(), rec.ReprojectionRms(), 1e-9);
+  EXPECT_LT(rec.ReprojectionRms(), 0.2);  // each image projected through its own camera (the noise is 0.1 px)
+  // A camera id no camera line has is refused.
+  std::ofstream(dir / "cameras.txt") << "1 PINHOLE 1600 1200 1400 1400 800 600\n";
+  EXPECT_FALSE(ReadColmapText(dir.string(), &back, &err));
+  EXPECT_NE(err.find("unknown camera id"), std::string::npos) << err;
   fs::remove_all(dir);
 }
 

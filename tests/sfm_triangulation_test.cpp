@@ -15,7 +15,7 @@ std::pair<std::vector<Pose>, std::vector<Eigen::Vector2d>> Views(const Reconstru
   for (const auto& o : p.track) {
     poses.push_back(rec.images[static_cast<size_t>(o.image)].pose);
     xn.push_back(
-        rec.camera.Undistort(rec.images[static_cast<size_t>(o.image)].keypoints[static_cast<size_t>(o.feature)]));
+        rec.cameras[0].Undistort(rec.images[static_cast<size_t>(o.image)].keypoints[static_cast<size_t>(o.feature)]));
   }
   return {poses, xn};
 }
@@ -48,8 +48,8 @@ TEST(SfmTriangulation, ErrorAtTheNoiseFloor) {
     expected_sq += sigma * sigma * (2 * n - 3) / 2;  // per-point sum over its 2n residual components / 2 axes
     for (const auto& o : p.track) {
       const auto& im = rec.images[static_cast<size_t>(o.image)];
-      sum_sq += (*Project(rec.camera, im.pose, *X) - im.keypoints[static_cast<size_t>(o.feature)]).squaredNorm();
-      truth_sq += (*Project(rec.camera, im.pose, p.X) - im.keypoints[static_cast<size_t>(o.feature)]).squaredNorm();
+      sum_sq += (*Project(rec.cameras[0], im.pose, *X) - im.keypoints[static_cast<size_t>(o.feature)]).squaredNorm();
+      truth_sq += (*Project(rec.cameras[0], im.pose, p.X) - im.keypoints[static_cast<size_t>(o.feature)]).squaredNorm();
       ++nobs;
     }
   }

@@ -4,7 +4,9 @@
 #include <ceres/rotation.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <vector>
 
 namespace uavm::sfm {
 
@@ -17,8 +19,8 @@ bool BundleOptions::Check(std::string* why) const {
     *why = "bundle: control_sigma_m and control_click_px must be > 0";
     return false;
   }
-  if (max_iterations < 1 || threads < 1) {
-    *why = "bundle: max_iterations and threads must be >= 1";
+  if (max_iterations < 1 || threads < 1 || min_images_for_lens < 1) {
+    *why = "bundle: max_iterations, threads and min_images_for_lens must be >= 1";
     return false;
   }
   return true;
@@ -72,10 +74,12 @@ struct CentrePrior {
   double sxy, sz;
 };
 
+using Intrinsics = std::array<double, kIntrinsics>;
+
 // Each control point's 3-D block, its clicks and its surveyed position; returns how many entered.
-int AddControl(const BundleOptions& options, double* intr, std::vector<std::array<double, 3>>& rot,
-               std::vector<std::array<double, 3>>& centre, std::vector<Eigen::Vector3d>* blocks,
-               ceres::Problem* problem) {
+int AddControl(const BundleOptions& options, const Reconstruction& rec, std::vector<Intrinsics>& intr,
+               std::vector<std::array<double, 3>>& rot, std::vector<std::array<double, 3>>& centre,
+               std::vector<Eigen::Vector3d>* blocks, ceres::Problem* problem) {
   blocks->clear();
   for (const auto& cp : options.control) blocks->push_back(cp.world);
   int n = 0;
@@ -86,7 +90,8 @@ int AddControl(const BundleOptions& options, double* intr, std::vector<std::arra
       const auto i = static_cast<size_t>(image);
       problem->AddResidualBlock(new ceres::AutoDiffCostFunction<ReprojectionCost, 2, kIntrinsics, 3, 3, 3>(
                                     new ReprojectionCost(pixel.x(), pixel.y(), 1.0 / options.control_click_px)),
-                                nullptr, intr, rot[i].data(), centre[i].data(), X);
+                                nullptr, intr[static_cast<size_t>(rec.images[i].camera)].data(), rot[i].data(),
+                                centre[i].data(), X);
     }
     problem->AddResidualBlock(
         new ceres::AutoDiffCostFunction<CentrePrior, 3, 3>(
@@ -106,9 +111,9 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
     *error = "bundle: needs at least two images and one point";
     return false;
   }
-  Camera& cam = rec->camera;
-  const double f0 = cam.fx;
-  double intr[kIntrinsics] = {cam.fx, cam.cx, cam.cy, cam.k1, cam.k2, cam.p1, cam.p2, cam.k3};
+  // One intrinsics block per camera (a flight may mix cameras or image sizes), shared by its images.
+  std::vector<Intrinsics> intr;
+  for (const Camera& c : rec->cameras) intr.push_back({c.fx, c.cx, c.cy, c.k1, c.k2, c.p1, c.p2, c.k3});
   const size_t n_images = rec->images.size();
   std::vector<std::array<double, 3>> rot(n_images), centre(n_images);
   for (size_t i = 0; i < n_images; ++i) {
@@ -130,7 +135,8 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
       auto* cost = new ceres::AutoDiffCostFunction<ReprojectionCost, 2, kIntrinsics, 3, 3, 3>(
           new ReprojectionCost(kp.x(), kp.y()));
       // One loss object for all blocks: the problem reference-counts it and deletes it once.
-      problem.AddResidualBlock(cost, loss, intr, rot[i].data(), centre[i].data(), p.X.data());
+      problem.AddResidualBlock(cost, loss, intr[static_cast<size_t>(rec->images[i].camera)].data(), rot[i].data(),
+                               centre[i].data(), p.X.data());
       used[i] = true;
     }
   }
@@ -143,7 +149,7 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
     ++n_priors;
   }
   std::vector<Eigen::Vector3d> control_blocks;
-  const int n_control = AddControl(options, intr, rot, centre, &control_blocks, &problem);
+  const int n_control = AddControl(options, *rec, intr, rot, centre, &control_blocks, &problem);
   if (n_control >= 3) n_priors = std::max(n_priors, 3);  // the control points fix the gauge
   // Gauge: the priors (or control points), or one image and one coordinate of another.
   int fixed = options.fixed_image;
@@ -182,15 +188,28 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
   if (!options.refine_radial) held.insert(held.end(), {3, 4});
   if (!options.refine_tangential) held.insert(held.end(), {5, 6});
   if (!options.refine_k3 || !options.refine_radial) held.push_back(7);
-  if (held.size() == kIntrinsics) {
-    problem.SetParameterBlockConstant(intr);
-  } else if (!held.empty()) {
-    problem.SetManifold(intr, new ceres::SubsetManifold(kIntrinsics, held));
-  }
-  if (options.focal_prior_sigma > 0.0 && options.refine_focal) {
-    problem.AddResidualBlock(
-        new ceres::AutoDiffCostFunction<FocalPrior, 1, kIntrinsics>(new FocalPrior(f0, options.focal_prior_sigma * f0)),
-        nullptr, intr);
+  std::vector<int> images_of(intr.size(), 0);
+  for (size_t i = 0; i < n_images; ++i)
+    if (used[i]) ++images_of[static_cast<size_t>(rec->images[i].camera)];
+  for (size_t k = 0; k < intr.size(); ++k) {
+    double* block = intr[k].data();
+    if (!problem.HasParameterBlock(block)) continue;  // a camera none of whose images observe a point
+    std::vector<int> held_k = held;
+    if (images_of[k] < options.min_images_for_lens) {
+      held_k = {1, 2, 3, 4, 5, 6, 7};
+      if (!options.refine_focal) held_k.push_back(0);
+    }
+    if (held_k.size() == kIntrinsics) {
+      problem.SetParameterBlockConstant(block);
+    } else if (!held_k.empty()) {
+      problem.SetManifold(block, new ceres::SubsetManifold(kIntrinsics, held_k));
+    }
+    if (options.focal_prior_sigma > 0.0 && options.refine_focal) {
+      const double f0 = rec->cameras[k].fx;
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FocalPrior, 1, kIntrinsics>(
+                                   new FocalPrior(f0, options.focal_prior_sigma * f0)),
+                               nullptr, block);
+    }
   }
 
   ceres::Solver::Options sopts;
@@ -209,14 +228,18 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
     *error = "bundle: " + s.message;
     return false;
   }
-  cam.fx = cam.fy = intr[0];
-  cam.cx = intr[1];
-  cam.cy = intr[2];
-  cam.k1 = intr[3];
-  cam.k2 = intr[4];
-  cam.p1 = intr[5];
-  cam.p2 = intr[6];
-  cam.k3 = intr[7];
+  for (size_t k = 0; k < intr.size(); ++k) {
+    Camera& cam = rec->cameras[k];
+    const Intrinsics& v = intr[k];
+    cam.fx = cam.fy = v[0];
+    cam.cx = v[1];
+    cam.cy = v[2];
+    cam.k1 = v[3];
+    cam.k2 = v[4];
+    cam.p1 = v[5];
+    cam.p2 = v[6];
+    cam.k3 = v[7];
+  }
   for (size_t i = 0; i < n_images; ++i) {
     Eigen::Matrix3d R;
     ceres::AngleAxisToRotationMatrix(rot[i].data(), ceres::ColumnMajorAdapter3x3(R.data()));

@@ -16,6 +16,10 @@ struct BundleOptions {
   bool refine_radial = true;  // k1 k2 (k3 with refine_k3)
   bool refine_k3 = false;
   bool refine_tangential = true;  // p1 p2
+  // A camera model seen by fewer images (e.g. the one odd-sized shot of a flight) keeps its principal point and lens
+  // terms as they start and refines its focal length only (under its prior): one image's observations cannot tell
+  // them from its pose, and freed they fit the noise (a single 900x505 frame's k1 went to 8).
+  int min_images_for_lens = 5;
   // Weak prior that keeps the focal length near its start value (sigma as a fraction of f): a nadir flight over flat
   // ground cannot separate focal length from flying height. 0 = none.
   double focal_prior_sigma = 0.0;

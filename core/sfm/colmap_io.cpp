@@ -22,7 +22,6 @@ bool NextDataLine(std::istream& in, std::string* line) {
 }  // namespace
 
 bool WriteColmapText(const Reconstruction& rec, const std::string& dir, std::string* error) {
-  const Camera& c = rec.camera;
   std::ofstream cams(dir + "/cameras.txt"), ims(dir + "/images.txt"), pts(dir + "/points3D.txt");
   if (!cams || !ims || !pts) {
     *error = "cannot write the COLMAP model into " + dir;
@@ -30,14 +29,14 @@ bool WriteColmapText(const Reconstruction& rec, const std::string& dir, std::str
   }
   cams << std::setprecision(17);
   cams << "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-       << "# Number of cameras: 1\n";
-  if (c.k3 == 0.0) {
-    cams << "1 OPENCV " << c.width << ' ' << c.height << ' ' << c.fx << ' ' << c.fy << ' ' << c.cx + kColmapShift << ' '
-         << c.cy + kColmapShift << ' ' << c.k1 << ' ' << c.k2 << ' ' << c.p1 << ' ' << c.p2 << '\n';
-  } else {
-    cams << "1 FULL_OPENCV " << c.width << ' ' << c.height << ' ' << c.fx << ' ' << c.fy << ' ' << c.cx + kColmapShift
-         << ' ' << c.cy + kColmapShift << ' ' << c.k1 << ' ' << c.k2 << ' ' << c.p1 << ' ' << c.p2 << ' ' << c.k3
-         << " 0 0 0\n";
+       << "# Number of cameras: " << rec.cameras.size() << '\n';
+  for (size_t id = 0; id < rec.cameras.size(); ++id) {  // CAMERA_ID = index + 1
+    const Camera& c = rec.cameras[id];
+    cams << id + 1 << (c.k3 == 0.0 ? " OPENCV " : " FULL_OPENCV ") << c.width << ' ' << c.height << ' ' << c.fx << ' '
+         << c.fy << ' ' << c.cx + kColmapShift << ' ' << c.cy + kColmapShift << ' ' << c.k1 << ' ' << c.k2 << ' '
+         << c.p1 << ' ' << c.p2;
+    if (c.k3 != 0.0) cams << ' ' << c.k3 << " 0 0 0";
+    cams << '\n';
   }
   // POINT3D_ID per (image, feature).
   std::vector<std::vector<long>> point_of(rec.images.size());
@@ -56,7 +55,7 @@ bool WriteColmapText(const Reconstruction& rec, const std::string& dir, std::str
     const Eigen::Quaterniond q(im.pose.R);
     const Eigen::Vector3d t = im.pose.t();
     ims << i + 1 << ' ' << q.w() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' ' << t.x() << ' ' << t.y() << ' '
-        << t.z() << " 1 " << im.name << '\n';
+        << t.z() << ' ' << im.camera + 1 << ' ' << im.name << '\n';
     for (size_t k = 0; k < im.keypoints.size(); ++k) {
       if (k) ims << ' ';
       ims << im.keypoints[k].x() + kColmapShift << ' ' << im.keypoints[k].y() + kColmapShift << ' ' << point_of[i][k];
@@ -92,15 +91,12 @@ bool ReadColmapText(const std::string& dir, Reconstruction* rec, std::string* er
   }
   *rec = Reconstruction{};
   std::string line;
-  if (!NextDataLine(cams, &line)) {
-    *error = "cameras.txt: no camera";
-    return false;
-  }
-  {
+  std::map<int, int> camera_of_id;
+  while (NextDataLine(cams, &line)) {
     std::istringstream s(line);
     int id = 0;
     std::string model;
-    Camera& c = rec->camera;
+    Camera c;
     s >> id >> model >> c.width >> c.height;
     if (model == "OPENCV" || model == "FULL_OPENCV") {
       s >> c.fx >> c.fy >> c.cx >> c.cy >> c.k1 >> c.k2 >> c.p1 >> c.p2;
@@ -121,6 +117,12 @@ bool ReadColmapText(const std::string& dir, Reconstruction* rec, std::string* er
     }
     c.cx -= kColmapShift;
     c.cy -= kColmapShift;
+    camera_of_id[id] = static_cast<int>(rec->cameras.size());
+    rec->cameras.push_back(c);
+  }
+  if (rec->cameras.empty()) {
+    *error = "cameras.txt: no camera";
+    return false;
   }
   std::map<long, size_t> image_of_id;
   while (NextDataLine(ims, &line)) {
@@ -134,6 +136,12 @@ bool ReadColmapText(const std::string& dir, Reconstruction* rec, std::string* er
       *error = "images.txt: malformed image line";
       return false;
     }
+    const auto camera = camera_of_id.find(cam_id);
+    if (camera == camera_of_id.end()) {
+      *error = "images.txt: image " + im.name + " has an unknown camera id";
+      return false;
+    }
+    im.camera = camera->second;
     im.pose.R = Eigen::Quaterniond(qw, qx, qy, qz).normalized().toRotationMatrix();
     im.pose.c = -im.pose.R.transpose() * Eigen::Vector3d(tx, ty, tz);
     std::string pts_line;

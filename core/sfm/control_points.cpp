@@ -25,7 +25,7 @@ std::optional<Eigen::Vector3d> TriangulateClicks(const Reconstruction& rec, cons
   std::vector<Eigen::Vector2d> normalized;
   for (const auto& [image, pixel] : cp.observations) {
     poses.push_back(rec.images[static_cast<size_t>(image)].pose);
-    normalized.push_back(rec.camera.Undistort(pixel));
+    normalized.push_back(rec.CameraOf(image).Undistort(pixel));
   }
   const auto X = TriangulateDlt(poses, normalized);
   if (!X) return std::nullopt;
@@ -66,7 +66,7 @@ bool FitHorizontal(const std::vector<Eigen::Vector3d>& src, const std::vector<Ei
 double ClickRms(const Reconstruction& rec, const ControlPoint& cp, const Eigen::Vector3d& X) {
   double sum = 0.0;
   for (const auto& [image, pixel] : cp.observations) {
-    const auto m = Project(rec.camera, rec.images[static_cast<size_t>(image)].pose, X);
+    const auto m = Project(rec.CameraOf(image), rec.images[static_cast<size_t>(image)].pose, X);
     sum += m ? (*m - pixel).squaredNorm() : 1e12;
   }
   return std::sqrt(sum / static_cast<double>(std::max<size_t>(1, cp.observations.size())));

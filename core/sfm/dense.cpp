@@ -129,8 +129,8 @@ bool DenseFromReconstruction(const Reconstruction& rec, const std::vector<std::s
     std::vector<stereo::ColoredPoint> pts;
     std::string why;
     const bool ok = stereo::DensePointsFromPair(
-        img1, ToStereo(rec.camera, rec.images[static_cast<size_t>(pc.image1)].pose), img2,
-        ToStereo(rec.camera, rec.images[static_cast<size_t>(pc.image2)].pose), po, &pts, &why);
+        img1, ToStereo(rec.CameraOf(pc.image1), rec.images[static_cast<size_t>(pc.image1)].pose), img2,
+        ToStereo(rec.CameraOf(pc.image2), rec.images[static_cast<size_t>(pc.image2)].pose), po, &pts, &why);
     if (!ok) report->failures.push_back(std::to_string(pc.image1) + "-" + std::to_string(pc.image2) + ": " + why);
     for (const auto& p : pts) {
       if (!std::isfinite(p.xyz[0]) || !std::isfinite(p.xyz[1]) || !std::isfinite(p.xyz[2])) continue;

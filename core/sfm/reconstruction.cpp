@@ -18,7 +18,7 @@ double Reconstruction::ReprojectionRms() const {
   for (const auto& p : points) {
     for (const auto& o : p.track) {
       const auto& im = images[static_cast<size_t>(o.image)];
-      const auto proj = Project(camera, im.pose, p.X);
+      const auto proj = Project(CameraOf(im), im.pose, p.X);
       if (!proj) continue;
       sum += (*proj - im.keypoints[static_cast<size_t>(o.feature)]).squaredNorm();
       ++n;
@@ -28,13 +28,16 @@ double Reconstruction::ReprojectionRms() const {
 }
 
 double Reconstruction::MedianGsd() const {
-  std::vector<double> depths;
+  std::vector<double> gsd;  // per observation: its depth over its camera's focal length
   for (const auto& p : points) {
-    for (const auto& o : p.track) depths.push_back(images[static_cast<size_t>(o.image)].pose.ToCamera(p.X).z());
+    for (const auto& o : p.track) {
+      const Image& im = images[static_cast<size_t>(o.image)];
+      if (CameraOf(im).fx > 0.0) gsd.push_back(im.pose.ToCamera(p.X).z() / CameraOf(im).fx);
+    }
   }
-  if (depths.empty() || camera.fx <= 0.0) return 0.0;
-  std::nth_element(depths.begin(), depths.begin() + static_cast<long>(depths.size() / 2), depths.end());
-  return depths[depths.size() / 2] / camera.fx;
+  if (gsd.empty()) return 0.0;
+  std::nth_element(gsd.begin(), gsd.begin() + static_cast<long>(gsd.size() / 2), gsd.end());
+  return gsd[gsd.size() / 2];
 }
 
 void Reconstruction::Transform(const Similarity3& s) {

@@ -10,11 +10,13 @@
 
 namespace uavm::sfm {
 
-// The aerial-triangulation data model: one shared camera, per image its pose and keypoints, per 3-D point its
-// observations (image = index into `images`, feature = index into that image's keypoints).
+// The aerial-triangulation data model: the cameras (one model per camera and image size, shared by its images), per
+// image its camera, pose and keypoints, per 3-D point its observations (image = index into `images`, feature = index
+// into that image's keypoints).
 struct Image {
   int frame_index = -1;  // session frame index
   std::string name;      // file name (COLMAP NAME)
+  int camera = 0;        // index into Reconstruction::cameras
   Pose pose;
   bool posed = true;
   std::vector<Eigen::Vector2d> keypoints;  // original-resolution pixels, pixel-centre convention
@@ -28,9 +30,12 @@ struct Point3D {
 };
 
 struct Reconstruction {
-  Camera camera;
+  std::vector<Camera> cameras;
   std::vector<Image> images;
   std::vector<Point3D> points;
+
+  [[nodiscard]] const Camera& CameraOf(const Image& image) const { return cameras[static_cast<size_t>(image.camera)]; }
+  [[nodiscard]] const Camera& CameraOf(int image) const { return CameraOf(images[static_cast<size_t>(image)]); }
 
   [[nodiscard]] size_t NumObservations() const;
   // RMS and mean reprojection error over all observations of all points (pixels).

@@ -99,18 +99,6 @@ struct SelectedFrames {
   std::vector<std::pair<const SessionFrame*, std::string>> left_out;
 };
 
-// The reconstruction has one camera model: the size most of the frames have (ties: the first frame's). A frame of
-// another size (another camera, or the same one set to another resolution) would be projected through the wrong
-// model, and its stereo pairs refused; it is left out, named with the reason.
-std::pair<int, int> CameraSize(const std::vector<const SessionFrame*>& frames) {
-  std::map<std::pair<int, int>, int> count;
-  for (const SessionFrame* f : frames) ++count[{f->width, f->height}];
-  std::pair<int, int> best{frames.front()->width, frames.front()->height};
-  for (const auto& [size, n] : count)
-    if (n > count[best]) best = size;
-  return best;
-}
-
 bool SelectFrames(const std::string& session_dir, SelectedFrames* out, std::string* error) {
   if (!ReadSession(session_dir, &out->session, error)) return false;
   std::set<int> in_graph;
@@ -125,21 +113,8 @@ bool SelectFrames(const std::string& session_dir, SelectedFrames* out, std::stri
       out->frames.push_back(&f);
     }
   }
-  if (!out->frames.empty()) {
-    const auto [width, height] = CameraSize(out->frames);
-    std::erase_if(out->frames, [&](const SessionFrame* f) {
-      if (f->width == width && f->height == height) return false;
-      const auto size = [](int w, int h) { return std::to_string(w) + "x" + std::to_string(h); };
-      out->left_out.emplace_back(f, size(f->width, f->height) + " px, not the " + size(width, height) +
-                                        " of the flight's other frames (one camera model per reconstruction)");
-      return true;
-    });
-  }
-  for (const auto& [f, why] : out->left_out)
-    std::fprintf(stderr, "uavmosaic-ground: warning: frame %d (%s) left out: %s\n", f->index, f->filename.c_str(),
-                 why.c_str());
   if (out->frames.size() < 2) {
-    *error = "fewer than two registered frames of one size with used graph edges in " + session_dir;
+    *error = "fewer than two registered frames with used graph edges in " + session_dir;
     return false;
   }
   for (size_t i = 0; i < out->frames.size(); ++i) out->slot_of[out->frames[i]->index] = i;
@@ -360,7 +335,8 @@ GpsPositions ProjectGps(const std::vector<const SessionFrame*>& frames) {
   return out;
 }
 
-// The reconstruction's images (keypoints, no poses yet) and the camera guessed from the first frame's EXIF.
+// The reconstruction's images (keypoints, no poses yet) and their cameras: one per image size (a flight may mix
+// cameras, or one camera set to another resolution for some shots), each guessed from its first frame's EXIF.
 // The onboard program's lens (camera.yaml) as the start of the camera's distortion: its k's are normalised by its own
 // focal length, so they are rescaled to the guessed one (the same bending in pixels).
 void StartDistortionFrom(const std::optional<SessionLens>& lens, Camera* camera, nlohmann::json* js) {
@@ -378,21 +354,35 @@ IntrinsicsGuess InitImages(const std::vector<const SessionFrame*>& frames, const
                            const std::optional<SessionLens>& lens, const ReconstructionOptions& options,
                            Reconstruction* rec, nlohmann::json* js) {
   *rec = Reconstruction{};
-  const SessionFrame& f0 = *frames[0];
-  IntrinsicsGuess guess = GuessIntrinsics(f0.width, f0.height, f0.focal_length_mm.value_or(0.0), options.camera_model,
-                                          options.default_hfov_deg);
-  rec->camera = guess.camera;
-  StartDistortionFrom(lens, &rec->camera, js);
-  (*js)["intrinsics_source"] = guess.source;
-  (*js)["focal_initial_px"] = rec->camera.fx;
+  std::map<std::pair<int, int>, int> camera_of_size;
+  std::vector<IntrinsicsGuess> guesses;
+  std::vector<int> images_of(1, 0);
   for (size_t i = 0; i < frames.size(); ++i) {
+    const SessionFrame& f = *frames[i];
+    const auto [it, added] = camera_of_size.emplace(std::pair(f.width, f.height), static_cast<int>(guesses.size()));
+    if (added) {
+      guesses.push_back(GuessIntrinsics(f.width, f.height, f.focal_length_mm.value_or(0.0), options.camera_model,
+                                        options.default_hfov_deg));
+      rec->cameras.push_back(guesses.back().camera);
+      images_of.resize(guesses.size(), 0);
+    }
     Image im;
-    im.frame_index = frames[i]->index;
-    im.name = frames[i]->stored_file.substr(frames[i]->stored_file.find_last_of('/') + 1);
+    im.frame_index = f.index;
+    im.name = f.stored_file.substr(f.stored_file.find_last_of('/') + 1);
+    im.camera = it->second;
     im.keypoints = feats[i].points;
     rec->images.push_back(std::move(im));
+    ++images_of[static_cast<size_t>(it->second)];
   }
-  return guess;
+  // The onboard lens (camera.yaml) was estimated on the flight's frames: it starts the camera most of them use.
+  const auto main = static_cast<size_t>(std::max_element(images_of.begin(), images_of.end()) - images_of.begin());
+  StartDistortionFrom(lens, &rec->cameras[main], js);
+  (*js)["intrinsics_source"] = guesses[main].source;
+  (*js)["focal_initial_px"] = rec->cameras[main].fx;
+  if (rec->cameras.size() > 1) {
+    std::fprintf(stderr, "uavmosaic-ground: %zu image sizes in the flight: a camera model each\n", rec->cameras.size());
+  }
+  return guesses[main];
 }
 
 // Poses and intrinsics of a COLMAP text model, matched by image name (the image size stays the session's).
@@ -409,10 +399,17 @@ bool PosesFromColmap(const std::string& dir, Reconstruction* rec, std::string* e
     }
     im.pose = it->second->pose;
   }
-  const int w = rec->camera.width, h = rec->camera.height;
-  rec->camera = imported.camera;
-  rec->camera.width = w;
-  rec->camera.height = h;
+  // Each camera's intrinsics from the imported camera of its first image.
+  std::vector<bool> set(rec->cameras.size(), false);
+  for (const auto& im : rec->images) {
+    auto& cam = rec->cameras[static_cast<size_t>(im.camera)];
+    if (set[static_cast<size_t>(im.camera)]) continue;
+    set[static_cast<size_t>(im.camera)] = true;
+    const int w = cam.width, h = cam.height;
+    cam = imported.CameraOf(*by_name.at(im.name));
+    cam.width = w;
+    cam.height = h;
+  }
   return true;
 }
 
@@ -427,7 +424,7 @@ struct MosaicToWorld {
 // From the frame centres onto GPS; without GPS, metres from the relative altitude when known, else mosaic pixels.
 MosaicToWorld FitMosaicToWorld(const std::vector<const SessionFrame*>& frames, const GpsPositions& gps,
                                const std::vector<Eigen::Vector2d>& centre_mosaic,
-                               const std::vector<Eigen::Matrix2d>& jac, double fpx) {
+                               const std::vector<Eigen::Matrix2d>& jac, const std::vector<double>& fpx) {
   MosaicToWorld m;
   std::vector<Eigen::Vector2d> src, dst;
   for (size_t i = 0; i < frames.size(); ++i) {
@@ -447,7 +444,7 @@ MosaicToWorld FitMosaicToWorld(const std::vector<const SessionFrame*>& frames, c
   std::vector<double> ratios;
   for (size_t i = 0; i < frames.size(); ++i) {
     if (frames[i]->relative_altitude_m && *frames[i]->relative_altitude_m > 1.0) {
-      ratios.push_back(*frames[i]->relative_altitude_m / (fpx * std::sqrt(std::abs(jac[i].determinant()))));
+      ratios.push_back(*frames[i]->relative_altitude_m / (fpx[i] * std::sqrt(std::abs(jac[i].determinant()))));
     }
   }
   if (!ratios.empty()) {
@@ -464,11 +461,13 @@ MosaicToWorld FitMosaicToWorld(const std::vector<const SessionFrame*>& frames, c
 // in-plane yaw and (via scale) height.
 bool PosesFromOnboardMaps(const std::vector<const SessionFrame*>& frames, const GpsPositions& gps, Reconstruction* rec,
                           std::string* pose_source, nlohmann::json* js, std::string* error) {
-  const double fpx = rec->camera.fx;
   std::vector<Eigen::Vector2d> centre_mosaic(frames.size());
   std::vector<Eigen::Matrix2d> jac(frames.size());
-  const Vec2 pp(rec->camera.cx, rec->camera.cy);
+  std::vector<double> fpx(frames.size());  // each image's camera's focal length, pixels
   for (size_t i = 0; i < frames.size(); ++i) {
+    const Camera& cam = rec->CameraOf(rec->images[i]);
+    fpx[i] = cam.fx;
+    const Vec2 pp(cam.cx, cam.cy);
     const Mat3& H = frames[i]->mosaic_from_frame;
     centre_mosaic[i] = Apply(H, pp);
     Eigen::Matrix2d J;
@@ -482,7 +481,7 @@ bool PosesFromOnboardMaps(const std::vector<const SessionFrame*>& frames, const 
   (*js)["mosaic_to_world_reflection"] = m.Q.determinant() < 0;
   for (size_t i = 0; i < frames.size(); ++i) {
     const Eigen::Matrix2d L = m.s * m.Q * jac[i];  // frame px -> world metres near the principal point
-    const double h = fpx * std::sqrt(std::abs(L.determinant()));
+    const double h = fpx[i] * std::sqrt(std::abs(L.determinant()));
     const Eigen::Matrix2d Q2 = Polar(L.transpose());
     Pose& p = rec->images[i].pose;
     p.R.setZero();
@@ -533,8 +532,8 @@ void TriangulateAll(const std::vector<Track>& tracks, const std::vector<FrameFea
     std::vector<Eigen::Vector2d> xn;
     for (const auto& o : tr) {
       poses.push_back(rec->images[static_cast<size_t>(o.image)].pose);
-      xn.push_back(
-          rec->camera.Undistort(rec->images[static_cast<size_t>(o.image)].keypoints[static_cast<size_t>(o.feature)]));
+      const Image& im = rec->images[static_cast<size_t>(o.image)];
+      xn.push_back(rec->CameraOf(im).Undistort(im.keypoints[static_cast<size_t>(o.feature)]));
     }
     const auto X = TriangulateDlt(poses, xn);
     if (!X) continue;
@@ -543,7 +542,7 @@ void TriangulateAll(const std::vector<Track>& tracks, const std::vector<FrameFea
     p.X = *X;
     double sum = 0.0;
     for (size_t k = 0; k < tr.size(); ++k) {
-      const auto proj = Project(rec->camera, poses[k], *X);
+      const auto proj = Project(rec->CameraOf(tr[k].image), poses[k], *X);
       const auto& kp = rec->images[static_cast<size_t>(tr[k].image)].keypoints[static_cast<size_t>(tr[k].feature)];
       const double e = proj ? (*proj - kp).norm() : 1e9;
       if (e <= max_err) {
@@ -566,7 +565,7 @@ void FilterObservations(double min_angle_deg, double max_err, Reconstruction* re
     double sum = 0.0;
     for (const auto& o : p.track) {
       const auto& im = rec->images[static_cast<size_t>(o.image)];
-      const auto proj = Project(rec->camera, im.pose, p.X);
+      const auto proj = Project(rec->CameraOf(im), im.pose, p.X);
       const double e = proj ? (*proj - im.keypoints[static_cast<size_t>(o.feature)]).norm() : 1e9;
       if (e <= max_err) {
         t.push_back(o);
@@ -672,7 +671,6 @@ bool TriangulateAndAdjust(const std::vector<const SessionFrame*>& frames, const 
   const BundlePriors priors = MakeBundlePriors(frames, init, options, js);
   nlohmann::json rounds = nlohmann::json::array();
   if (!BundleRounds(tracks, feats, priors, options, progress, rec, &rounds, error)) return false;
-  const Camera& c = rec->camera;
   (*js)["ba_rounds"] = rounds;
   (*js)["ba_rms_before_px"] = rms_initial;  // with the initial poses, all first-triangulated points
   (*js)["ba_rms_after_px"] = rec->ReprojectionRms();
@@ -680,8 +678,28 @@ bool TriangulateAndAdjust(const std::vector<const SessionFrame*>& frames, const 
   (*js)["observations_in_tracks"] = obs_tracks;
   (*js)["observations_kept"] = rec->NumObservations();
   (*js)["sparse_points"] = rec->points.size();
-  (*js)["camera"] = {{"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx}, {"cy", c.cy}, {"k1", c.k1},
-                     {"k2", c.k2}, {"p1", c.p1}, {"p2", c.p2}, {"k3", c.k3}};
+  // Each camera (one per image size) with its images; "camera" is the one most images use.
+  std::vector<int> images_of(rec->cameras.size(), 0);
+  for (const auto& im : rec->images) ++images_of[static_cast<size_t>(im.camera)];
+  nlohmann::json cameras = nlohmann::json::array();
+  for (size_t k = 0; k < rec->cameras.size(); ++k) {
+    const Camera& c = rec->cameras[k];
+    cameras.push_back({{"width", c.width},
+                       {"height", c.height},
+                       {"images", images_of[k]},
+                       {"fx", c.fx},
+                       {"fy", c.fy},
+                       {"cx", c.cx},
+                       {"cy", c.cy},
+                       {"k1", c.k1},
+                       {"k2", c.k2},
+                       {"p1", c.p1},
+                       {"p2", c.p2},
+                       {"k3", c.k3}});
+  }
+  const auto main = static_cast<size_t>(std::max_element(images_of.begin(), images_of.end()) - images_of.begin());
+  (*js)["camera"] = cameras[main];
+  (*js)["cameras"] = cameras;
   return true;
 }
 
