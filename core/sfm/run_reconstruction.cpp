@@ -335,6 +335,18 @@ GpsPositions ProjectGps(const std::vector<const SessionFrame*>& frames) {
   return out;
 }
 
+// Images per camera, and the camera most images use (the flight's main one: it starts from the onboard lens, and
+// summary.json "camera" is its).
+std::vector<int> ImagesPerCamera(const Reconstruction& rec) {
+  std::vector<int> images_of(rec.cameras.size(), 0);
+  for (const auto& im : rec.images) ++images_of[static_cast<size_t>(im.camera)];
+  return images_of;
+}
+size_t MostUsedCamera(const Reconstruction& rec) {
+  const std::vector<int> n = ImagesPerCamera(rec);
+  return static_cast<size_t>(std::max_element(n.begin(), n.end()) - n.begin());
+}
+
 // The reconstruction's images (keypoints, no poses yet) and their cameras: one per image size (a flight may mix
 // cameras, or one camera set to another resolution for some shots), each guessed from its first frame's EXIF.
 // The onboard program's lens (camera.yaml) as the start of the camera's distortion: its k's are normalised by its own
@@ -356,7 +368,6 @@ IntrinsicsGuess InitImages(const std::vector<const SessionFrame*>& frames, const
   *rec = Reconstruction{};
   std::map<std::pair<int, int>, int> camera_of_size;
   std::vector<IntrinsicsGuess> guesses;
-  std::vector<int> images_of(1, 0);
   for (size_t i = 0; i < frames.size(); ++i) {
     const SessionFrame& f = *frames[i];
     const auto [it, added] = camera_of_size.emplace(std::pair(f.width, f.height), static_cast<int>(guesses.size()));
@@ -364,7 +375,6 @@ IntrinsicsGuess InitImages(const std::vector<const SessionFrame*>& frames, const
       guesses.push_back(GuessIntrinsics(f.width, f.height, f.focal_length_mm.value_or(0.0), options.camera_model,
                                         options.default_hfov_deg));
       rec->cameras.push_back(guesses.back().camera);
-      images_of.resize(guesses.size(), 0);
     }
     Image im;
     im.frame_index = f.index;
@@ -372,10 +382,9 @@ IntrinsicsGuess InitImages(const std::vector<const SessionFrame*>& frames, const
     im.camera = it->second;
     im.keypoints = feats[i].points;
     rec->images.push_back(std::move(im));
-    ++images_of[static_cast<size_t>(it->second)];
   }
   // The onboard lens (camera.yaml) was estimated on the flight's frames: it starts the camera most of them use.
-  const auto main = static_cast<size_t>(std::max_element(images_of.begin(), images_of.end()) - images_of.begin());
+  const size_t main = MostUsedCamera(*rec);
   StartDistortionFrom(lens, &rec->cameras[main], js);
   (*js)["intrinsics_source"] = guesses[main].source;
   (*js)["focal_initial_px"] = rec->cameras[main].fx;
@@ -679,8 +688,7 @@ bool TriangulateAndAdjust(const std::vector<const SessionFrame*>& frames, const 
   (*js)["observations_kept"] = rec->NumObservations();
   (*js)["sparse_points"] = rec->points.size();
   // Each camera (one per image size) with its images; "camera" is the one most images use.
-  std::vector<int> images_of(rec->cameras.size(), 0);
-  for (const auto& im : rec->images) ++images_of[static_cast<size_t>(im.camera)];
+  const std::vector<int> images_of = ImagesPerCamera(*rec);
   nlohmann::json cameras = nlohmann::json::array();
   for (size_t k = 0; k < rec->cameras.size(); ++k) {
     const Camera& c = rec->cameras[k];
@@ -697,8 +705,7 @@ bool TriangulateAndAdjust(const std::vector<const SessionFrame*>& frames, const 
                        {"p2", c.p2},
                        {"k3", c.k3}});
   }
-  const auto main = static_cast<size_t>(std::max_element(images_of.begin(), images_of.end()) - images_of.begin());
-  (*js)["camera"] = cameras[main];
+  (*js)["camera"] = cameras[MostUsedCamera(*rec)];
   (*js)["cameras"] = cameras;
   return true;
 }
