@@ -1,0 +1,468 @@
+#include "core/sfm/orthophoto.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <list>
+#include <memory>
+#include <mutex>
+#include <opencv2/imgproc.hpp>
+#include <set>
+#include <unordered_map>
+#include <vector>
+
+#include "core/mosaic/compositor.h"
+#include "core/mosaic/tile_blender.h"
+#include "core/util/parallel.h"
+
+namespace uavm::sfm {
+
+bool OrthoOptions::Check(std::string* why) const {
+  const auto fail = [&](const char* msg) {
+    if (why != nullptr) *why = msg;
+    return false;
+  };
+  if (gsd < 0.0) return fail("ortho gsd must be >= 0 (0 = the flight's)");
+  if (tile_size < 64) return fail("ortho tile_size must be >= 64");
+  if (num_bands < 0 || num_bands > 8) return fail("ortho num_bands must be in [0, 8]");
+  if (seam_cell < 1 || seam_cell > 16) return fail("ortho seam_cell must be in [1, 16]");
+  if (zbuffer_mib <= 0.0 || image_cache_mib <= 0.0) return fail("ortho memory caps must be > 0");
+  if (occlusion_tolerance_cells <= 0.0) return fail("ortho occlusion tolerance must be > 0");
+  if (threads < 1) return fail("ortho threads must be >= 1");
+  return true;
+}
+
+nlohmann::json OrthoReport::ToJson() const {
+  return {{"size", {grid.width, grid.height}},
+          {"gsd", grid.cell},
+          {"tiles", tiles},
+          {"tiles_written", tiles_written},
+          {"images_used", images_used},
+          {"images_unreadable", images_unreadable},
+          {"pixels_covered", pixels_covered},
+          {"seam_cells_taken_from_another_view", cells_taken_from_another_view},
+          {"seam_cells_occluded_in_every_view", cells_occluded_everywhere},
+          {"image_loads", image_loads},
+          {"zbuffer_scale", zbuffer_scale},
+          {"zbuffer_mib", zbuffer_mib},
+          {"seconds", seconds}};
+}
+
+DsmGrid OrthoGridOver(const DsmGrid& dsm_grid, double gsd) {
+  DsmGrid g;
+  g.x0 = dsm_grid.x0;
+  g.y0 = dsm_grid.y0;
+  g.cell = gsd;
+  g.width = std::max(1, static_cast<int>(std::ceil(dsm_grid.width * dsm_grid.cell / gsd)));
+  g.height = std::max(1, static_cast<int>(std::ceil(dsm_grid.height * dsm_grid.cell / gsd)));
+  return g;
+}
+
+bool SurfaceHeight(const cv::Mat1f& dsm, const DsmGrid& grid, float nodata, double x, double y, double* z) {
+  const double fc = (x - grid.x0) / grid.cell - 0.5;
+  const double fr = (grid.y0 - y) / grid.cell - 0.5;
+  const int c0 = static_cast<int>(std::floor(fc));
+  const int r0 = static_cast<int>(std::floor(fr));
+  const double ax = fc - c0;
+  const double ay = fr - r0;
+  double sum = 0.0;
+  double weight = 0.0;
+  for (int dr = 0; dr < 2; ++dr) {
+    for (int dc = 0; dc < 2; ++dc) {
+      const int r = std::clamp(r0 + dr, 0, dsm.rows - 1);
+      const int c = std::clamp(c0 + dc, 0, dsm.cols - 1);
+      const float h = dsm(r, c);
+      if (h == nodata) continue;
+      const double w = (dr != 0 ? ay : 1.0 - ay) * (dc != 0 ? ax : 1.0 - ax) + 1e-9;
+      sum += w * h;
+      weight += w;
+    }
+  }
+  if (weight <= 0.0) return false;
+  *z = sum / weight;
+  return true;
+}
+
+namespace {
+
+constexpr float kFar = std::numeric_limits<float>::infinity();
+constexpr double kMiB = 1024.0 * 1024.0;
+
+// A frame as the orthophoto sees it: its z-buffer of the DSM and the ortho pixels its view of the DSM reaches.
+struct FrameView {
+  cv::Mat1f depth;           // depth along the optical axis, at `scale` of the frame's pixels; kFar = no surface
+  cv::Rect ortho_box;        // ortho pixels whose surface projects into the frame (empty: it sees none)
+  double max_radius2 = 0.0;  // normalised radius^2 beyond which the lens polynomial is not trusted (it folds back)
+};
+
+// The frame's normalised radius^2 at its farthest corner, with a margin: points beyond it are outside the frame.
+double LensRadius2(const Camera& cam) {
+  double r2 = 0.0;
+  for (const auto& corner : {Eigen::Vector2d(0, 0), Eigen::Vector2d(cam.width - 1, 0),
+                             Eigen::Vector2d(0, cam.height - 1), Eigen::Vector2d(cam.width - 1, cam.height - 1)})
+    r2 = std::max(r2, cam.Undistort(corner).squaredNorm());
+  return r2 * 1.2 * 1.2;
+}
+
+// A world point in frame pixels (false behind the camera or beyond the lens's trusted field); *depth along the axis.
+bool ToPixel(const Camera& cam, const Pose& pose, double max_radius2, const Eigen::Vector3d& X, Eigen::Vector2d* pixel,
+             double* depth) {
+  const Eigen::Vector3d p = pose.ToCamera(X);
+  if (p.z() <= 1e-9) return false;
+  const Eigen::Vector2d xn(p.x() / p.z(), p.y() / p.z());
+  if (xn.squaredNorm() > max_radius2) return false;
+  *pixel = cam.Distort(xn);
+  *depth = p.z();
+  return true;
+}
+
+// Keeps the nearest depth of triangle (a, b, c) (x, y in z-buffer pixels, z depth) in `depth`; depth is interpolated
+// linearly on the image, which over a DSM cell of a few pixels is well within the occlusion tolerance.
+void RasterizeTriangle(const cv::Vec3f& a, const cv::Vec3f& b, const cv::Vec3f& c, cv::Mat1f* depth) {
+  const float area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+  if (std::abs(area) < 1e-12f) return;
+  const int x0 = std::max(0, static_cast<int>(std::floor(std::min({a[0], b[0], c[0]}))));
+  const int x1 = std::min(depth->cols - 1, static_cast<int>(std::ceil(std::max({a[0], b[0], c[0]}))));
+  const int y0 = std::max(0, static_cast<int>(std::floor(std::min({a[1], b[1], c[1]}))));
+  const int y1 = std::min(depth->rows - 1, static_cast<int>(std::ceil(std::max({a[1], b[1], c[1]}))));
+  constexpr float kEdge = -1e-3f;  // inclusive edges: neighbouring triangles leave no crack between them
+  for (int yi = y0; yi <= y1; ++yi) {
+    float* row = depth->ptr<float>(yi);
+    const auto y = static_cast<float>(yi);
+    for (int xi = x0; xi <= x1; ++xi) {
+      const auto x = static_cast<float>(xi);
+      const float w0 = ((b[0] - x) * (c[1] - y) - (b[1] - y) * (c[0] - x)) / area;
+      const float w1 = ((c[0] - x) * (a[1] - y) - (c[1] - y) * (a[0] - x)) / area;
+      const float w2 = 1.0f - w0 - w1;
+      if (w0 < kEdge || w1 < kEdge || w2 < kEdge) continue;
+      row[xi] = std::min(row[xi], w0 * a[2] + w1 * b[2] + w2 * c[2]);
+    }
+  }
+}
+
+// The frame's z-buffer of the DSM (the surface through the cell centres, two triangles a cell) and the ortho box its
+// view reaches.
+FrameView RenderFrameView(const Camera& cam, const Pose& pose, const cv::Mat1f& dsm, const DsmGrid& grid, float nodata,
+                          const DsmGrid& ortho, double scale) {
+  FrameView view;
+  view.max_radius2 = LensRadius2(cam);
+  view.depth = cv::Mat1f(std::max(1, static_cast<int>(std::ceil(cam.height * scale))),
+                         std::max(1, static_cast<int>(std::ceil(cam.width * scale))), kFar);
+  // Every vertex projected once: (x, y) in z-buffer pixels, depth; NaN = not usable.
+  cv::Mat3f vertex(dsm.rows, dsm.cols, cv::Vec3f(NAN, NAN, NAN));
+  int c_lo = dsm.cols, c_hi = -1, r_lo = dsm.rows, r_hi = -1;
+  for (int r = 0; r < dsm.rows; ++r) {
+    for (int c = 0; c < dsm.cols; ++c) {
+      if (dsm(r, c) == nodata) continue;
+      const Eigen::Vector3d X(grid.x0 + (c + 0.5) * grid.cell, grid.y0 - (r + 0.5) * grid.cell, dsm(r, c));
+      Eigen::Vector2d px;
+      double d = 0.0;
+      if (!ToPixel(cam, pose, view.max_radius2, X, &px, &d)) continue;
+      vertex(r, c) = cv::Vec3f(static_cast<float>((px.x() + 0.5) * scale - 0.5),
+                               static_cast<float>((px.y() + 0.5) * scale - 0.5), static_cast<float>(d));
+      if (px.x() >= 0 && px.y() >= 0 && px.x() <= cam.width - 1 && px.y() <= cam.height - 1) {
+        c_lo = std::min(c_lo, c);
+        c_hi = std::max(c_hi, c);
+        r_lo = std::min(r_lo, r);
+        r_hi = std::max(r_hi, r);
+      }
+    }
+  }
+  const auto usable = [](const cv::Vec3f& v) { return !std::isnan(v[0]); };
+  const float w = static_cast<float>(view.depth.cols), h = static_cast<float>(view.depth.rows);
+  const auto outside = [&](const cv::Vec3f& a, const cv::Vec3f& b, const cv::Vec3f& c) {
+    return std::max({a[0], b[0], c[0]}) < -1 || std::min({a[0], b[0], c[0]}) > w || std::max({a[1], b[1], c[1]}) < -1 ||
+           std::min({a[1], b[1], c[1]}) > h;
+  };
+  for (int r = 0; r + 1 < dsm.rows; ++r) {
+    for (int c = 0; c + 1 < dsm.cols; ++c) {
+      const cv::Vec3f& v00 = vertex(r, c);
+      const cv::Vec3f& v01 = vertex(r, c + 1);
+      const cv::Vec3f& v10 = vertex(r + 1, c);
+      const cv::Vec3f& v11 = vertex(r + 1, c + 1);
+      if (usable(v00) && usable(v01) && usable(v11) && !outside(v00, v01, v11))
+        RasterizeTriangle(v00, v01, v11, &view.depth);
+      if (usable(v00) && usable(v11) && usable(v10) && !outside(v00, v11, v10))
+        RasterizeTriangle(v00, v11, v10, &view.depth);
+    }
+  }
+  if (c_hi >= 0) {
+    // DSM cells (one beyond, for the bilinear surface between centres) to ortho pixels.
+    const double k = grid.cell / ortho.cell;
+    const int x0 = static_cast<int>(std::floor((c_lo - 1) * k)), x1 = static_cast<int>(std::ceil((c_hi + 2) * k));
+    const int y0 = static_cast<int>(std::floor((r_lo - 1) * k)), y1 = static_cast<int>(std::ceil((r_hi + 2) * k));
+    view.ortho_box = cv::Rect(x0, y0, x1 - x0, y1 - y0) & cv::Rect(0, 0, ortho.width, ortho.height);
+  }
+  return view;
+}
+
+// Decoded frames kept between tiles, least recently used dropped first, within a byte cap (one frame at least).
+class FrameCache {
+ public:
+  FrameCache(const OrthoImageLoad& load, size_t cap_bytes) : load_(load), cap_(cap_bytes) {}
+  cv::Mat Get(size_t image) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      auto it = index_.find(image);
+      if (it != index_.end()) {
+        order_.splice(order_.begin(), order_, it->second);
+        return it->second->second;
+      }
+    }
+    cv::Mat loaded = load_(image);  // outside the lock: two workers decode at once
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++loads_;
+    if (loaded.empty()) unreadable_.insert(image);
+    auto it = index_.find(image);
+    if (it != index_.end()) return it->second->second;  // the other worker loaded it meanwhile
+    order_.emplace_front(image, loaded);
+    index_[image] = order_.begin();
+    bytes_ += loaded.total() * loaded.elemSize();
+    while (bytes_ > cap_ && order_.size() > 1) {
+      const auto& last = order_.back();
+      bytes_ -= last.second.total() * last.second.elemSize();
+      index_.erase(last.first);
+      order_.pop_back();
+    }
+    return loaded;
+  }
+  [[nodiscard]] size_t loads() const { return loads_; }
+  [[nodiscard]] size_t unreadable() const { return unreadable_.size(); }
+
+ private:
+  const OrthoImageLoad& load_;
+  size_t cap_;
+  std::mutex mutex_;
+  std::list<std::pair<size_t, cv::Mat>> order_;
+  std::unordered_map<size_t, std::list<std::pair<size_t, cv::Mat>>::iterator> index_;
+  size_t bytes_ = 0;
+  size_t loads_ = 0;
+  std::set<size_t> unreadable_;
+};
+
+// What a tile's work shares: the inputs and the frames' views.
+struct OrthoContext {
+  const Reconstruction& rec;
+  const cv::Mat1f& dsm;
+  const DsmGrid& dsm_grid;
+  float nodata;
+  const DsmGrid& ortho;
+  const OrthoOptions& options;
+  const std::vector<FrameView>& views;
+  double scale;          // z-buffer scale
+  double tolerance = 0;  // depth tolerance, world units
+};
+
+// Counters a worker adds to the report.
+struct TileCounts {
+  size_t taken_from_another = 0;
+  size_t occluded_everywhere = 0;
+  size_t covered = 0;
+  std::vector<char> used;
+};
+
+// The world point of ortho pixel (col, row) (fractional: pixel centres at .0); false where the DSM has no height.
+bool SurfacePoint(const OrthoContext& ctx, double col, double row, Eigen::Vector3d* X) {
+  const double x = ctx.ortho.x0 + (col + 0.5) * ctx.ortho.cell;
+  const double y = ctx.ortho.y0 - (row + 0.5) * ctx.ortho.cell;
+  double z = 0.0;
+  if (!SurfaceHeight(ctx.dsm, ctx.dsm_grid, ctx.nodata, x, y, &z)) return false;
+  *X = Eigen::Vector3d(x, y, z);
+  return true;
+}
+
+// Per seam cell of `roi`, the index (into `candidates`) of the most nadir frame that sees the cell's surface point
+// unoccluded (the most nadir frame that has it in view when none does); -1 = no frame or no surface.
+cv::Mat1s SeamOwners(const OrthoContext& ctx, const std::vector<size_t>& candidates, const cv::Rect& roi,
+                     TileCounts* counts) {
+  const int cell = ctx.options.seam_cell;
+  const cv::Size cells((roi.width + cell - 1) / cell, (roi.height + cell - 1) / cell);
+  cv::Mat1s owner(cells, static_cast<int16_t>(-1));
+  for (int r = 0; r < cells.height; ++r) {
+    for (int c = 0; c < cells.width; ++c) {
+      const double col = roi.x + std::min(c * cell + 0.5 * (cell - 1), roi.width - 1.0);
+      const double row = roi.y + std::min(r * cell + 0.5 * (cell - 1), roi.height - 1.0);
+      Eigen::Vector3d X;
+      if (!SurfacePoint(ctx, col, row, &X)) continue;
+      int best_seen = -1, best_any = -1;
+      double score_seen = -2.0, score_any = -2.0;
+      for (size_t k = 0; k < candidates.size(); ++k) {
+        const Image& im = ctx.rec.images[candidates[k]];
+        const Camera& cam = ctx.rec.CameraOf(im);
+        const FrameView& view = ctx.views[candidates[k]];
+        Eigen::Vector2d px;
+        double depth = 0.0;
+        if (!ToPixel(cam, im.pose, view.max_radius2, X, &px, &depth)) continue;
+        if (px.x() < 0 || px.y() < 0 || px.x() > cam.width - 1 || px.y() > cam.height - 1) continue;
+        // Nadir-ness: the cosine between the ray to the camera and the vertical.
+        const double score = (im.pose.c - X).normalized().z();
+        if (score > score_any) {
+          score_any = score;
+          best_any = static_cast<int>(k);
+        }
+        const int zx =
+            std::clamp(static_cast<int>(std::lround((px.x() + 0.5) * ctx.scale - 0.5)), 0, view.depth.cols - 1);
+        const int zy =
+            std::clamp(static_cast<int>(std::lround((px.y() + 0.5) * ctx.scale - 0.5)), 0, view.depth.rows - 1);
+        if (depth > view.depth(zy, zx) + ctx.tolerance) continue;  // something nearer hides it
+        if (score > score_seen) {
+          score_seen = score;
+          best_seen = static_cast<int>(k);
+        }
+      }
+      if (best_seen >= 0) {
+        owner(r, c) = static_cast<int16_t>(best_seen);
+        if (best_seen != best_any) ++counts->taken_from_another;
+      } else if (best_any >= 0) {
+        owner(r, c) = static_cast<int16_t>(best_any);
+        ++counts->occluded_everywhere;
+      }
+    }
+  }
+  return owner;
+}
+
+// One worker's tile: ownership, then each owner's pixels (and the blend's reach around them) warped from its frame
+// through the DSM and fed to the blender.
+bool OrthoTile(const OrthoContext& ctx, FrameCache* cache, const std::vector<size_t>& candidates, const cv::Rect& roi,
+               TileBlender* blender, TileCounts* counts, cv::Mat* image, cv::Mat* mask) {
+  const int cell = ctx.options.seam_cell;
+  const cv::Mat1s cell_owner = SeamOwners(ctx, candidates, roi, counts);
+  cv::Mat1s owner(roi.size());
+  for (int r = 0; r < roi.height; ++r)
+    for (int c = 0; c < roi.width; ++c) owner(r, c) = cell_owner(r / cell, c / cell);
+  blender->Prepare(roi);
+  bool fed = false;
+  const int reach = BlendReach(ctx.options.num_bands);
+  cv::Mat1b own;
+  for (size_t k = 0; k < candidates.size(); ++k) {
+    cv::compare(owner, cv::Scalar(static_cast<double>(k)), own, cv::CMP_EQ);
+    if (cv::countNonZero(own) == 0) continue;
+    const cv::Mat frame = cache->Get(candidates[k]);
+    if (frame.empty()) continue;
+    const Image& im = ctx.rec.images[candidates[k]];
+    const Camera& cam = ctx.rec.CameraOf(im);
+    const FrameView& view = ctx.views[candidates[k]];
+    cv::Rect box = cv::boundingRect(own);
+    box = cv::Rect(box.x - reach, box.y - reach, box.width + 2 * reach, box.height + 2 * reach) &
+          cv::Rect(0, 0, roi.width, roi.height);
+    cv::Mat1f map_x(box.size(), -1.0f), map_y(box.size(), -1.0f);
+    for (int r = 0; r < box.height; ++r) {
+      for (int c = 0; c < box.width; ++c) {
+        Eigen::Vector3d X;
+        if (!SurfacePoint(ctx, roi.x + box.x + c, roi.y + box.y + r, &X)) continue;
+        Eigen::Vector2d px;
+        double depth = 0.0;
+        if (!ToPixel(cam, im.pose, view.max_radius2, X, &px, &depth)) continue;
+        map_x(r, c) = static_cast<float>(px.x());
+        map_y(r, c) = static_cast<float>(px.y());
+      }
+    }
+    cv::Mat warped;
+    cv::remap(frame, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    blender->Feed(warped, own(box), roi.tl() + box.tl());
+    counts->used[candidates[k]] = 1;
+    fed = true;
+  }
+  if (!fed) return false;
+  blender->Blend(image, mask);
+  cv::Mat1b none;
+  cv::compare(owner, cv::Scalar(0), none, cv::CMP_LT);
+  mask->setTo(0, none);
+  image->setTo(cv::Scalar::all(0), none);
+  return true;
+}
+
+}  // namespace
+
+bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGrid& dsm_grid, float nodata,
+                    const DsmGrid& ortho_grid, const OrthoOptions& options, const OrthoImageLoad& load,
+                    const OrthoTileSink& sink, OrthoReport* report, std::string* error) {
+  const auto start = std::chrono::steady_clock::now();
+  if (!options.Check(error)) return false;
+  *report = OrthoReport{};
+  report->grid = ortho_grid;
+  if (dsm.empty() || ortho_grid.width <= 0 || ortho_grid.height <= 0) {
+    *error = "orthophoto: no DSM";
+    return false;
+  }
+  // The z-buffers' scale: every posed frame's depth map within zbuffer_mib, at most a quarter of the frame's pixels.
+  double frame_pixels = 0.0;
+  for (const auto& im : rec.images)
+    if (im.posed) frame_pixels += static_cast<double>(rec.CameraOf(im).width) * rec.CameraOf(im).height;
+  if (frame_pixels <= 0.0) {
+    *error = "orthophoto: no posed frame";
+    return false;
+  }
+  const double scale = std::min(0.25, std::sqrt(options.zbuffer_mib * kMiB / (4.0 * frame_pixels)));
+  report->zbuffer_scale = scale;
+  std::vector<FrameView> views(rec.images.size());
+  ParallelFor(rec.images.size(), options.threads, [&](size_t i) {
+    if (rec.images[i].posed)
+      views[i] =
+          RenderFrameView(rec.CameraOf(rec.images[i]), rec.images[i].pose, dsm, dsm_grid, nodata, ortho_grid, scale);
+  });
+  for (const auto& v : views) report->zbuffer_mib += static_cast<double>(v.depth.total()) * 4.0 / kMiB;
+
+  OrthoContext ctx{
+      rec, dsm, dsm_grid, nodata, ortho_grid, options, views, scale, options.occlusion_tolerance_cells * dsm_grid.cell};
+  const std::vector<cv::Rect> tiles =
+      TilesAlongHilbertCurve(cv::Size(ortho_grid.width, ortho_grid.height), options.tile_size);
+  report->tiles = static_cast<int>(tiles.size());
+  const int margin = std::max(2, BlendReach(options.num_bands));
+  const cv::Rect whole(0, 0, ortho_grid.width, ortho_grid.height);
+  FrameCache cache(load, static_cast<size_t>(options.image_cache_mib * kMiB));
+  std::vector<std::unique_ptr<TileBlender>> blenders;
+  std::vector<TileCounts> counts(static_cast<size_t>(options.threads));
+  for (int w = 0; w < options.threads; ++w) {
+    blenders.push_back(options.num_bands > 0 ? MakeMultiBandBlender(options.num_bands) : MakeSeamOnlyBlender());
+    counts[static_cast<size_t>(w)].used.assign(rec.images.size(), 0);
+  }
+  std::mutex sink_mutex;
+  std::atomic<bool> failed{false};
+  std::string sink_error;
+  ParallelForOnWorkers(tiles.size(), options.threads, [&](size_t t, size_t worker) {
+    if (failed) return;
+    const cv::Rect tile = tiles[t];
+    const cv::Rect roi =
+        cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & whole;
+    std::vector<size_t> candidates;
+    for (size_t i = 0; i < views.size(); ++i)
+      if ((views[i].ortho_box & roi).area() > 0) candidates.push_back(i);
+    cv::Mat image, mask;
+    if (candidates.empty() ||
+        !OrthoTile(ctx, &cache, candidates, roi, blenders[worker].get(), &counts[worker], &image, &mask))
+      return;
+    const cv::Rect inner(tile.x - roi.x, tile.y - roi.y, tile.width, tile.height);
+    const int covered = cv::countNonZero(mask(inner));
+    if (covered == 0) return;
+    std::lock_guard<std::mutex> lock(sink_mutex);
+    counts[worker].covered += static_cast<size_t>(covered);
+    ++report->tiles_written;
+    std::string why;
+    if (!failed && !sink(image(inner), mask(inner), tile.tl(), &why)) {
+      failed = true;
+      sink_error = why;
+    }
+  });
+  if (failed) {
+    *error = "orthophoto: " + sink_error;
+    return false;
+  }
+  std::vector<char> used(rec.images.size(), 0);
+  for (const auto& c : counts) {
+    report->pixels_covered += c.covered;
+    report->cells_taken_from_another_view += c.taken_from_another;
+    report->cells_occluded_everywhere += c.occluded_everywhere;
+    for (size_t i = 0; i < used.size(); ++i) used[i] = static_cast<char>(used[i] | c.used[i]);
+  }
+  report->images_used = static_cast<int>(std::count(used.begin(), used.end(), 1));
+  report->image_loads = cache.loads();
+  report->images_unreadable = static_cast<int>(cache.unreadable());
+  report->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return true;
+}
+
+}  // namespace uavm::sfm
