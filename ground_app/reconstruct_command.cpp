@@ -2,6 +2,8 @@
 // its products: cloud.ply, dsm.tif, sparse/ (COLMAP text model), summary.json, optional PNG previews.
 #include "ground_app/reconstruct_command.h"
 
+#include <spdlog/fmt/fmt.h>
+
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cstdio>
@@ -14,6 +16,7 @@
 
 #include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
+#include "core/sfm/ortho_files.h"
 #include "core/sfm/run_reconstruction.h"
 #include "core/sfm/session_import.h"
 #include "ground_app/exit_codes.h"
@@ -41,6 +44,8 @@ void AddReconstructionOptions(CLI::App* app, sfm::ReconstructionOptions* opts, s
   app->add_option("--max-dense-pairs", opts->max_dense_pairs, "stereo pairs for the dense cloud");
   app->add_option("--pairs-per-image", opts->dense_pairs_per_image, "stereo partners chosen per image");
   app->add_option("--dsm-cell", opts->dsm_cell_m, "DSM cell size in metres (0 = automatic)");
+  app->add_option("--dsm-fill", opts->dsm_fill_cells,
+                  "DSM holes are filled up to this many cells from a measured one (dsm_filled.tif marks them)");
   app->add_option("--hfov", opts->default_hfov_deg, "horizontal field of view (deg) when EXIF gives no focal length");
   app->add_flag("--refine-k3", opts->refine_k3, "also refine the radial k3 term");
   app->add_option("--gcp", opts->gcp_file,
@@ -70,15 +75,22 @@ int RunReconstructCommand(int argc, char** argv) {
   AddReconstructionOptions(&app, &opts, &dense_cost);
   app.add_flag("--no-dense", no_dense, "sparse only (the DSM is rasterised from the sparse points)");
   app.add_flag("--render-previews", previews, "write preview_cloud.png and preview_dsm.png");
+  sfm::OrthoOptions ortho;
+  bool no_ortho = false;
+  bool no_mbtiles = false;
+  app.add_option("--ortho-gsd", ortho.gsd, "orthophoto pixel size in the map's units (0 = the flight's GSD)");
+  app.add_flag("--no-ortho", no_ortho, "no orthophoto (ortho.tif, ortho_preview.png, ortho.mbtiles)");
+  app.add_flag("--no-mbtiles", no_mbtiles, "no ortho.mbtiles");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e) == 0 ? kExitOk : kExitUsage;
   }
   opts.dense = !no_dense;
+  ortho.threads = opts.threads;
   opts.dense_daisy = dense_cost == "daisy";
   std::string error;
-  if (!opts.Check(&error)) {
+  if (!opts.Check(&error) || !ortho.Check(&error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitUsage;
   }
@@ -124,6 +136,29 @@ int RunReconstructCommand(int argc, char** argv) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitOutputError;
   }
+  std::vector<std::string> outputs = {"cloud.ply", "dsm.tif", "dsm_filled.tif"};
+  if (!sfm::WriteDsmFillMask(out_dir + "/dsm_filled.tif", result.dsm_provenance, result.grid, result.offset,
+                             result.crs_wkt, &error)) {
+    std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
+    return kExitOutputError;
+  }
+  if (!no_ortho) {
+    sfm::OrthoFiles files;
+    files.cog = out_dir + "/ortho.tif";
+    files.quicklook = out_dir + "/ortho_preview.png";
+    if (!no_mbtiles && !result.crs_wkt.empty()) files.mbtiles = out_dir + "/ortho.mbtiles";
+    sfm::OrthoFilesReport report;
+    const auto t_ortho = std::chrono::steady_clock::now();
+    if (!sfm::WriteOrthophoto(result.rec, result.image_paths, result.dsm, result.grid, -9999.0f, result.offset,
+                              result.crs_wkt, ortho, files, &report, &error)) {
+      std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
+      return kExitOutputError;
+    }
+    js["ortho"] = report.ToJson();
+    js["timings"]["ortho_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_ortho).count();
+    outputs.insert(outputs.end(), {"ortho.tif", "ortho_preview.png"});
+    if (report.mbtiles_written) outputs.push_back("ortho.mbtiles");
+  }
   if (previews) {
     const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};
     cv::imwrite(out_dir + "/preview_cloud.png", sfm::RenderCloudTopView(result.dense, 900), png);
@@ -134,16 +169,23 @@ int RunReconstructCommand(int argc, char** argv) {
                        {"note",
                         "cloud.ply and sparse/ are in local coordinates: add the offset for the CRS ("
                         "dsm.tif is georeferenced with it)"}};
-  js["outputs"] = {"cloud.ply", "dsm.tif", "sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt"};
+  outputs.insert(outputs.end(), {"sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt"});
+  js["outputs"] = outputs;
   js["timings"]["write_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_out).count();
   std::ofstream(out_dir + "/summary.json") << js.dump(2) << '\n';
   // What was made: the dense points are the fused cloud's (cloud.ply holds the sparse points when there is none).
+  std::string ortho_line = "no orthophoto";
+  if (js.contains("ortho"))
+    ortho_line = fmt::format("orthophoto {}x{} px at {:.3f} from {} frames", js["ortho"]["size"][0].get<int>(),
+                             js["ortho"]["size"][1].get<int>(), js["ortho"]["gsd"].get<double>(),
+                             js["ortho"]["images_used"].get<int>());
   std::fprintf(stderr,
                "uavmosaic-ground: %zu frames (%zu left out), %zu sparse points, BA RMS %.3f -> %.3f px, %zu dense "
-               "points, DSM from the %s points\n",
+               "points, DSM from the %s points (%.0f %% of it filled), %s\n",
                result.rec.images.size(), js.value("frames_not_used", nlohmann::json::array()).size(),
                result.rec.points.size(), js.value("ba_rms_before_px", 0.0), js.value("ba_rms_after_px", 0.0),
-               js.value("dense_points", size_t{0}), js.value("dsm_source", std::string("sparse")).c_str());
+               js.value("dense_points", size_t{0}), js.value("dsm_source", std::string("sparse")).c_str(),
+               100.0 * js.value("dsm_filled_fraction", 0.0), ortho_line.c_str());
   return kExitOk;
 }
 

@@ -268,6 +268,9 @@ void CheckMixedSizeRun(const fs::path& tmp, const fs::path& session, int frames)
   EXPECT_LT(js["ba_rms_after_px"].get<double>(), 0.6);
   EXPECT_GT(js["dense_points"].get<size_t>(), 1000u) << log;
   EXPECT_EQ(js["dsm_source"].get<std::string>(), "dense");
+  // The orthophoto has every used frame in view, the cropped one through its own camera.
+  EXPECT_EQ(js["ortho"]["images_in_view"].get<int>(), frames - 1) << js["ortho"].dump();
+  EXPECT_EQ(js["ortho"]["images_unreadable"].get<int>(), 0);
   EXPECT_NE(log.find("left out"), std::string::npos) << log;
   EXPECT_NE(log.find("(1 left out)"), std::string::npos) << log;  // the closing line counts it
   // COLMAP reads the two cameras back.
@@ -275,6 +278,70 @@ void CheckMixedSizeRun(const fs::path& tmp, const fs::path& session, int frames)
   std::string err;
   ASSERT_TRUE(ReadColmapText((out / "sparse").string(), &rec, &err)) << err;
   EXPECT_EQ(rec.cameras.size(), 2u);
+}
+
+// The orthophoto: a valid COG (GDAL's own validator when python3-gdal is there, as setup.sh installs it) in UTM 15N
+// at the summary's GSD, RGB with a mask, covering the flown area; its MBTiles package with zoom levels; the DSM's fill
+// mask agreeing with the summary.
+void CheckOrthophoto(const fs::path& out, const nlohmann::json& js) {
+  ASSERT_TRUE(js.contains("ortho")) << js.dump();
+  const auto& o = js["ortho"];
+  const char* validator = "/usr/share/doc/python3-gdal/examples/validate_cloud_optimized_geotiff.py";
+  if (fs::exists(validator) && fs::exists("/usr/bin/python3")) {
+    EXPECT_EQ(RunCommand(std::string("/usr/bin/python3 ") + validator + " --full-check=yes " +
+                         (out / "ortho.tif").string() + " > /dev/null"),
+              0);
+  }
+  auto* ds = static_cast<GDALDataset*>(GDALOpen((out / "ortho.tif").c_str(), GA_ReadOnly));
+  ASSERT_NE(ds, nullptr);
+  const char* layout = ds->GetMetadataItem("LAYOUT", "IMAGE_STRUCTURE");
+  EXPECT_STREQ(layout != nullptr ? layout : "", "COG");
+  EXPECT_EQ(ds->GetRasterCount(), 3);
+  EXPECT_EQ(ds->GetRasterXSize(), o["size"][0].get<int>());
+  GDALRasterBand* band = ds->GetRasterBand(1);
+  EXPECT_EQ(band->GetMaskFlags(), GMF_PER_DATASET);
+  EXPECT_GE(band->GetOverviewCount(), 2);
+  double gt[6];
+  ds->GetGeoTransform(gt);
+  EXPECT_NEAR(gt[1], o["gsd"].get<double>(), 1e-9);
+  EXPECT_NEAR(gt[0], 576000.0, 5000.0);
+  const OGRSpatialReference* srs = ds->GetSpatialRef();
+  ASSERT_NE(srs, nullptr);
+  EXPECT_STREQ(srs->GetAuthorityCode(nullptr), "32615");
+  // The mask, read at an overview: most of the map is covered, and what is covered is a photograph (not one colour).
+  const int w = ds->GetRasterXSize() / 4, h = ds->GetRasterYSize() / 4;
+  cv::Mat1b mask(h, w), grey(h, w);
+  ASSERT_EQ(band->GetMaskBand()->RasterIO(GF_Read, 0, 0, ds->GetRasterXSize(), ds->GetRasterYSize(), mask.data, w, h,
+                                          GDT_Byte, 0, 0, nullptr),
+            CE_None);
+  ASSERT_EQ(band->RasterIO(GF_Read, 0, 0, ds->GetRasterXSize(), ds->GetRasterYSize(), grey.data, w, h, GDT_Byte, 0, 0,
+                           nullptr),
+            CE_None);
+  GDALClose(ds);
+  EXPECT_GT(cv::countNonZero(mask), w * h / 3);
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(grey, mean, stddev, mask);
+  EXPECT_GT(stddev[0], 15.0);
+  EXPECT_EQ(o["images_in_view"].get<int>(), js["frames_used"].get<int>());
+  EXPECT_GT(o["images_used"].get<int>(), js["frames_used"].get<int>() / 2);
+  // MBTiles: Web Mercator tiles with their zoom levels.
+  auto* tiles = static_cast<GDALDataset*>(GDALOpen((out / "ortho.mbtiles").c_str(), GA_ReadOnly));
+  ASSERT_NE(tiles, nullptr);
+  EXPECT_STREQ(tiles->GetDriver()->GetDescription(), "MBTiles");
+  EXPECT_GE(tiles->GetRasterBand(1)->GetOverviewCount(), 2);
+  GDALClose(tiles);
+  // The DSM's fill mask: 1 filled, 0 measured, as many as the summary says.
+  auto* fill = static_cast<GDALDataset*>(GDALOpen((out / "dsm_filled.tif").c_str(), GA_ReadOnly));
+  ASSERT_NE(fill, nullptr);
+  cv::Mat1b flags(fill->GetRasterYSize(), fill->GetRasterXSize());
+  ASSERT_EQ(fill->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, flags.cols, flags.rows, flags.data, flags.cols, flags.rows,
+                                             GDT_Byte, 0, 0, nullptr),
+            CE_None);
+  GDALClose(fill);
+  const double cells = static_cast<double>(flags.total());
+  EXPECT_NEAR(cv::countNonZero(flags == 0) / cells, js["dsm_measured_fraction"].get<double>(), 1e-9);
+  EXPECT_NEAR(cv::countNonZero(flags == 1) / cells, js["dsm_filled_fraction"].get<double>(), 1e-9);
+  EXPECT_GT(js["dsm_measured_fraction"].get<double>(), 0.2);
 }
 
 TEST(GroundE2e, BrightonBeachSmall) {
@@ -340,18 +407,30 @@ TEST(GroundE2e, BrightonBeachSmall) {
   std::vector<float> v(static_cast<size_t>(w) * static_cast<size_t>(h));
   ASSERT_EQ(band->RasterIO(GF_Read, 0, 0, w, h, v.data(), w, h, GDT_Float32, 0, 0), CE_None);
   GDALClose(ds);
-  std::vector<float> valid;
-  for (float z : v) {
-    if (z != static_cast<float>(nodata)) valid.push_back(z);
+  // Heights measured (dsm_filled.tif 0) and filled (1): the fill interpolates, so it stays within the measured range.
+  auto* fill = static_cast<GDALDataset*>(GDALOpen((out / "dsm_filled.tif").c_str(), GA_ReadOnly));
+  ASSERT_NE(fill, nullptr);
+  std::vector<uint8_t> flag(v.size());
+  ASSERT_EQ(fill->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, w, h, flag.data(), w, h, GDT_Byte, 0, 0), CE_None);
+  GDALClose(fill);
+  std::vector<float> valid, filled;
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (flag[i] == 0) valid.push_back(v[i]);
+    if (flag[i] == 1) filled.push_back(v[i]);
+    EXPECT_EQ(flag[i] == 255, v[i] == static_cast<float>(nodata)) << i;
   }
   ASSERT_GT(valid.size(), v.size() / 4);
   std::sort(valid.begin(), valid.end());
+  ASSERT_FALSE(filled.empty());
+  EXPECT_GE(*std::min_element(filled.begin(), filled.end()), valid.front() - 1e-3f);
+  EXPECT_LE(*std::max_element(filled.begin(), filled.end()), valid.back() + 1e-3f);
   const float p05 = valid[valid.size() / 20], p50 = valid[valid.size() / 2], p95 = valid[valid.size() * 19 / 20];
   // Heights relative to take-off (DJI relative altitude): a beach is a few metres below/around the take-off point and
   // gently sloping park. Measured: p05 -3.92, p50 0.14, p95 1.31 m (spread 5.2 m).
   std::printf("DSM heights p05 %.2f p50 %.2f p95 %.2f m (%zu cells)\n", p05, p50, p95, valid.size());
   EXPECT_LT(std::abs(p50), 15.0);
   EXPECT_LT(p95 - p05, 8.0);
+  CheckOrthophoto(out, js);
   CheckGcpRun(tmp, session, out);
   CheckMixedSizeRun(tmp, session, frames);
   fs::remove_all(tmp);

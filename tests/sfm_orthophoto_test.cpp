@@ -91,7 +91,7 @@ OrthoOutcome RunOrtho(const ReliefFlight& f, const DsmGrid& grid, OrthoOptions o
 // Covered ground pixels whose distance to the nearest building or crown lies in [lo_m, hi_m).
 cv::Mat1b GroundBand(const eval::ReliefScene& scene, const eval::TruthGrid& g, const cv::Mat1b& covered, double lo_m,
                      double hi_m) {
-  const cv::Mat1b ground = eval::RenderCover(scene, g) == 0;
+  const cv::Mat ground = eval::RenderCover(scene, g) == 0;
   cv::Mat1f dist;
   cv::distanceTransform(ground, dist, cv::DIST_L2, cv::DIST_MASK_PRECISE);
   dist *= g.gsd;

@@ -1,5 +1,6 @@
 #include "core/sfm/cloud_and_dsm.h"
 
+#include <gdal_alg.h>
 #include <gdal_priv.h>
 
 #include <algorithm>
@@ -141,6 +142,62 @@ bool WriteDsmGeoTiff(const std::string& path, const cv::Mat1f& dsm, const DsmGri
   cv::Mat1f data = dsm.isContinuous() ? dsm : dsm.clone();
   const CPLErr err =
       band->RasterIO(GF_Write, 0, 0, dsm.cols, dsm.rows, data.ptr<float>(), dsm.cols, dsm.rows, GDT_Float32, 0, 0);
+  GDALClose(ds);
+  if (err != CE_None) {
+    *error = "GDAL write error on " + path;
+    return false;
+  }
+  return true;
+}
+
+cv::Mat1b FillDsmHoles(cv::Mat1f* dsm, float nodata, int max_distance_cells) {
+  cv::Mat1b provenance(dsm->size(), uchar{0});
+  provenance.setTo(255, *dsm != nodata);
+  if (dsm->empty() || cv::countNonZero(provenance) == 0) return provenance;
+  GDALAllRegister();
+  GDALDriver* mem = GetGDALDriverManager()->GetDriverByName("MEM");
+  if (mem == nullptr) return provenance;
+  GDALDataset* ds = mem->Create("", dsm->cols, dsm->rows, 1, GDT_Float32, nullptr);
+  if (ds == nullptr) return provenance;
+  GDALRasterBand* band = ds->GetRasterBand(1);
+  band->SetNoDataValue(nodata);
+  cv::Mat1f data = dsm->isContinuous() ? *dsm : dsm->clone();
+  bool ok = band->RasterIO(GF_Write, 0, 0, dsm->cols, dsm->rows, data.ptr<float>(), dsm->cols, dsm->rows, GDT_Float32,
+                           0, 0) == CE_None;
+  ok = ok && GDALFillNodata(band, band->GetMaskBand(), max_distance_cells, 0, 1, nullptr, nullptr, nullptr) == CE_None;
+  cv::Mat1f filled(dsm->size());
+  ok = ok && band->RasterIO(GF_Read, 0, 0, dsm->cols, dsm->rows, filled.ptr<float>(), dsm->cols, dsm->rows, GDT_Float32,
+                            0, 0) == CE_None;
+  GDALClose(ds);
+  if (!ok) return provenance;
+  provenance.setTo(128, (provenance == 0) & (filled != nodata));
+  *dsm = filled;
+  return provenance;
+}
+
+bool WriteDsmFillMask(const std::string& path, const cv::Mat1b& provenance, const DsmGrid& grid,
+                      const Eigen::Vector2d& offset, const std::string& wkt, std::string* error) {
+  GDALAllRegister();
+  GDALDriver* drv = GetGDALDriverManager()->GetDriverByName("GTiff");
+  char** opts = CSLSetNameValue(nullptr, "COMPRESS", "DEFLATE");
+  GDALDataset* ds =
+      drv != nullptr ? drv->Create(path.c_str(), provenance.cols, provenance.rows, 1, GDT_Byte, opts) : nullptr;
+  CSLDestroy(opts);
+  if (ds == nullptr) {
+    *error = "GDAL cannot create " + path;
+    return false;
+  }
+  double gt[6] = {grid.x0 + offset.x(), grid.cell, 0.0, grid.y0 + offset.y(), 0.0, -grid.cell};
+  ds->SetGeoTransform(gt);
+  if (!wkt.empty()) ds->SetProjection(wkt.c_str());
+  cv::Mat1b flag(provenance.size(), uchar{255});
+  flag.setTo(1, provenance == 128);
+  flag.setTo(0, provenance == 255);
+  GDALRasterBand* band = ds->GetRasterBand(1);
+  band->SetNoDataValue(255);
+  band->SetDescription("filled (1) or measured (0)");
+  const CPLErr err =
+      band->RasterIO(GF_Write, 0, 0, flag.cols, flag.rows, flag.data, flag.cols, flag.rows, GDT_Byte, 0, 0);
   GDALClose(ds);
   if (err != CE_None) {
     *error = "GDAL write error on " + path;

@@ -28,10 +28,20 @@ struct DsmGrid {
 // Per-cell median height of points whose (x, y) fall in the grid. Cells without a point are `nodata`.
 [[nodiscard]] cv::Mat1f RasterizeMedian(const std::vector<CloudPoint>& points, const DsmGrid& grid, float nodata);
 
+// Fills the DSM's holes within `max_distance_cells` of a measured cell by GDAL's inverse-distance interpolation
+// (GDALFillNodata, smoothed once), in place. Returns where the heights come from: 255 measured, 128 filled, 0 none
+// (farther than max_distance_cells from any measurement: still nodata).
+[[nodiscard]] cv::Mat1b FillDsmHoles(cv::Mat1f* dsm, float nodata, int max_distance_cells);
+
 // float32 single-band GeoTIFF with nodata; `wkt` empty = no CRS (local metres). Coordinates are `offset` + grid.
 [[nodiscard]] bool WriteDsmGeoTiff(const std::string& path, const cv::Mat1f& dsm, const DsmGrid& grid,
                                    const Eigen::Vector2d& offset, const std::string& wkt, float nodata,
                                    std::string* error);
+
+// The filled DSM's provenance (FillDsmHoles' mask) as a Byte GeoTIFF on the DSM's grid: 1 filled, 0 measured, nodata
+// 255 where the DSM has none.
+[[nodiscard]] bool WriteDsmFillMask(const std::string& path, const cv::Mat1b& provenance, const DsmGrid& grid,
+                                    const Eigen::Vector2d& offset, const std::string& wkt, std::string* error);
 
 // PNG previews: a top view of the cloud (colours, z-buffered by height) and the DSM (hillshade-tinted colour ramp).
 [[nodiscard]] cv::Mat RenderCloudTopView(const std::vector<CloudPoint>& points, int long_side);

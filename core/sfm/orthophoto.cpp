@@ -39,6 +39,7 @@ nlohmann::json OrthoReport::ToJson() const {
           {"gsd", grid.cell},
           {"tiles", tiles},
           {"tiles_written", tiles_written},
+          {"images_in_view", images_in_view},
           {"images_used", images_used},
           {"images_unreadable", images_unreadable},
           {"pixels_covered", pixels_covered},
@@ -404,7 +405,10 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
       views[i] =
           RenderFrameView(rec.CameraOf(rec.images[i]), rec.images[i].pose, dsm, dsm_grid, nodata, ortho_grid, scale);
   });
-  for (const auto& v : views) report->zbuffer_mib += static_cast<double>(v.depth.total()) * 4.0 / kMiB;
+  for (const auto& v : views) {
+    report->zbuffer_mib += static_cast<double>(v.depth.total()) * 4.0 / kMiB;
+    if (!v.ortho_box.empty()) ++report->images_in_view;
+  }
 
   OrthoContext ctx{
       rec, dsm, dsm_grid, nodata, ortho_grid, options, views, scale, options.occlusion_tolerance_cells * dsm_grid.cell};

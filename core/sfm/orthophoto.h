@@ -30,8 +30,9 @@ struct OrthoOptions {
 struct OrthoReport {
   DsmGrid grid;  // the orthophoto's pixels: cell = GSD, local coordinates as the DSM's
   int tiles = 0;
-  int tiles_written = 0;  // tiles with at least one covered pixel
-  int images_used = 0;    // frames that own at least one pixel
+  int tiles_written = 0;   // tiles with at least one covered pixel
+  int images_in_view = 0;  // posed frames whose view reaches the orthophoto (each a candidate where it does)
+  int images_used = 0;     // frames that own at least one pixel (the most nadir view of somewhere)
   int images_unreadable = 0;
   size_t pixels_covered = 0;
   // Seam cells whose most nadir frame did not see them (occluded there) and that another frame took.

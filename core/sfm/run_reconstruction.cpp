@@ -42,6 +42,7 @@ bool ReconstructionOptions::Check(std::string* why) const {
   if (round_reprojection_px.empty()) return fail("round_reprojection_px needs at least one round");
   if (!(dense_image_scale > 0.0 && dense_image_scale <= 1.0)) return fail("dense_image_scale must be in (0,1]");
   if (dense_sample_step < 1 || fusion_min_pairs < 1) return fail("dense_sample_step, fusion_min_pairs >= 1");
+  if (dsm_fill_cells < 0) return fail("--dsm-fill must be >= 0");
   if (!checkpoints.empty() && gcp_file.empty()) return fail("--checkpoints needs --gcp");
   if (!gcp_file.empty() && !control.Check(why)) return false;
   return true;
@@ -837,6 +838,10 @@ void FuseAndRasterize(const DenseCloud& dense, const ReconstructionOptions& opti
   const DsmGrid g = GridOver(dsm_source, cell);
   result->grid = g;
   result->dsm = RasterizeMedian(dsm_source, g, -9999.0f);
+  result->dsm_provenance = FillDsmHoles(&result->dsm, -9999.0f, options.dsm_fill_cells);
+  const double cells = std::max(1, g.width * g.height);
+  js["dsm_measured_fraction"] = cv::countNonZero(result->dsm_provenance == 255) / cells;
+  js["dsm_filled_fraction"] = cv::countNonZero(result->dsm_provenance == 128) / cells;
   js["dsm_size"] = {g.width, g.height};
   js["dsm_source"] = fused.empty() ? "sparse" : "dense";
   if (options.dense && fused.empty()) {
@@ -951,6 +956,7 @@ bool RunReconstruction(const std::string& session_dir, const ReconstructionOptio
     return true;
   });
   if (!ok) return false;
+  for (const auto* f : frames) result->image_paths.push_back(session_dir + "/" + f->stored_file);
   js["timings"] = times.Finish();
   js["frames_used"] = frames.size();
   return true;

@@ -52,6 +52,7 @@ struct ReconstructionOptions {
   int fusion_min_pairs = 2;             // a DSM cell's points are kept when at least this many pairs agree there
   double dsm_cell_m = 0.0;              // 0 = automatic from the dense sampling
   double fusion_tolerance_cells = 2.0;  // agreement with the cell median, in cell sizes
+  int dsm_fill_cells = 64;              // DSM holes are filled up to this many cells from a measured one
   // Ground control points (core/sfm/gcp.h): non-empty = gcp_list.txt; the outputs are then in its CRS.
   std::string gcp_file;
   std::vector<std::string> checkpoints;  // GCP names kept out of the adjustment, reported as checks
@@ -63,8 +64,10 @@ struct ReconstructionOptions {
 struct ReconstructionResult {
   Reconstruction rec;
   std::vector<CloudPoint> dense;  // fused cloud (world coordinates, relative to `offset`)
-  cv::Mat1f dsm;
+  cv::Mat1f dsm;                  // holes filled (FillDsmHoles)
+  cv::Mat1b dsm_provenance;       // FillDsmHoles' mask: 255 measured, 128 filled, 0 none
   DsmGrid grid;
+  std::vector<std::string> image_paths;              // the stored frame of each image of rec
   Eigen::Vector2d offset = Eigen::Vector2d::Zero();  // world x,y = local + offset (UTM easting/northing)
   double z_offset = 0.0;
   std::string crs_wkt;  // empty = local coordinates
