@@ -17,8 +17,11 @@
 #include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/ortho_files.h"
+#include "core/sfm/report_html.h"
 #include "core/sfm/run_reconstruction.h"
 #include "core/sfm/session_import.h"
+#include "core/sfm/terrain.h"
+#include "core/util/memory.h"
 #include "ground_app/exit_codes.h"
 #include "hal/common/metadata.h"
 
@@ -74,7 +77,7 @@ int RunReconstructCommand(int argc, char** argv) {
   app.add_option("--threads", opts.threads, "worker threads (features, matching, bundle adjustment)");
   AddReconstructionOptions(&app, &opts, &dense_cost);
   app.add_flag("--no-dense", no_dense, "sparse only (the DSM is rasterised from the sparse points)");
-  app.add_flag("--render-previews", previews, "write preview_cloud.png and preview_dsm.png");
+  app.add_flag("--render-previews", previews, "write preview_cloud.png, preview_dsm.png and preview_dtm.png");
   sfm::OrthoOptions ortho;
   bool no_ortho = false;
   bool no_mbtiles = false;
@@ -136,12 +139,24 @@ int RunReconstructCommand(int argc, char** argv) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitOutputError;
   }
-  std::vector<std::string> outputs = {"cloud.ply", "dsm.tif", "dsm_filled.tif"};
+  // The terrain under buildings and trees (core/sfm/terrain.h).
+  sfm::TerrainReport terrain;
+  const cv::Mat1f dtm =
+      sfm::TerrainFromDsm(result.dsm, -9999.0f, result.grid.cell, sfm::TerrainOptions{}, nullptr, &terrain);
+  js["terrain"] = terrain.ToJson();
+  if (!sfm::WriteDsmGeoTiff(out_dir + "/dtm.tif", dtm, result.grid, result.offset, result.crs_wkt, -9999.0f, &error)) {
+    std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
+    return kExitOutputError;
+  }
+  std::vector<std::string> outputs = {"cloud.ply", "dsm.tif", "dsm_filled.tif", "dtm.tif"};
   if (!sfm::WriteDsmFillMask(out_dir + "/dsm_filled.tif", result.dsm_provenance, result.grid, result.offset,
                              result.crs_wkt, &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitOutputError;
   }
+  sfm::ReportPictures pictures;
+  pictures.dsm = sfm::RenderDsm(result.dsm, -9999.0f, 900);
+  pictures.dtm = sfm::RenderDsm(dtm, -9999.0f, 900);
   if (!no_ortho) {
     sfm::OrthoFiles files;
     files.cog = out_dir + "/ortho.tif";
@@ -155,23 +170,33 @@ int RunReconstructCommand(int argc, char** argv) {
       return kExitOutputError;
     }
     js["ortho"] = report.ToJson();
+    js["ortho"]["origin"] = {report.ortho.grid.x0 + result.offset.x(), report.ortho.grid.y0 + result.offset.y()};
     js["timings"]["ortho_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_ortho).count();
+    const RssSample rss = SampleRss();
+    js["stage_memory_mib"]["ortho_s"] = {{"rss_end", rss.rss_mib}, {"peak_so_far", rss.hwm_mib}};
+    pictures.ortho = cv::imread(files.quicklook, cv::IMREAD_UNCHANGED);
+    pictures.overlap = report.ortho.overlap;
     outputs.insert(outputs.end(), {"ortho.tif", "ortho_preview.png"});
     if (report.mbtiles_written) outputs.push_back("ortho.mbtiles");
   }
   if (previews) {
     const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};
     cv::imwrite(out_dir + "/preview_cloud.png", sfm::RenderCloudTopView(result.dense, 900), png);
-    cv::imwrite(out_dir + "/preview_dsm.png", sfm::RenderDsm(result.dsm, -9999.0f, 900), png);
+    cv::imwrite(out_dir + "/preview_dsm.png", pictures.dsm, png);
+    cv::imwrite(out_dir + "/preview_dtm.png", pictures.dtm, png);
   }
   js["camera_model_exif"] = opts.camera_model;
   js["coordinates"] = {{"ply_and_colmap_offset_xy", {result.offset.x(), result.offset.y()}},
                        {"note",
                         "cloud.ply and sparse/ are in local coordinates: add the offset for the CRS ("
                         "dsm.tif is georeferenced with it)"}};
-  outputs.insert(outputs.end(), {"sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt"});
+  outputs.insert(outputs.end(), {"sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt", "report.html"});
   js["outputs"] = outputs;
   js["timings"]["write_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_out).count();
+  if (!sfm::WriteReportHtml(out_dir + "/report.html", js, pictures, &error)) {
+    std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
+    return kExitOutputError;
+  }
   std::ofstream(out_dir + "/summary.json") << js.dump(2) << '\n';
   // What was made: the dense points are the fused cloud's (cloud.ply holds the sparse points when there is none).
   std::string ortho_line = "no orthophoto";

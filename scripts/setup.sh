@@ -9,7 +9,7 @@ PACKAGES=(
   libceres-dev libsystemd-dev systemd file
   libcamera-dev libcamera-ipa
   libgtest-dev libgmock-dev libbenchmark-dev
-  libcpp-httplib-dev libjs-leaflet chromium python3-gdal curl
+  libcpp-httplib-dev libjs-leaflet chromium python3-gdal python3-qgis curl
   jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
   clang-tidy clang-format  # scripts/lint.sh --function-size and --check (CI steps)
   libgps-dev  # --telemetry gpsd:HOST:PORT (hal/telemetry/gpsd_source.cpp)

@@ -20,7 +20,8 @@ inline std::string ChromiumBinary() {
 
 // Loads `url` in a fresh profile and returns the 800x600 screenshot (empty on failure). The virtual time budget lets
 // the page's scripts and tile loads settle before the picture is taken.
-inline cv::Mat Screenshot(const std::string& url, const std::filesystem::path& work, int budget_ms = 5000) {
+inline cv::Mat Screenshot(const std::string& url, const std::filesystem::path& work, int budget_ms = 5000,
+                          cv::Size window = cv::Size(800, 600)) {
   const std::string chromium = ChromiumBinary();
   if (chromium.empty()) return {};
   std::filesystem::remove_all(work);
@@ -30,8 +31,9 @@ inline cv::Mat Screenshot(const std::string& url, const std::filesystem::path& w
                           " --headless --no-sandbox --disable-gpu --disable-background-networking"
                           " --disable-component-update --no-first-run --user-data-dir=" +
                           (work / "profile").string() + " --screenshot=" + png.string() +
-                          " --window-size=800,600 --virtual-time-budget=" + std::to_string(budget_ms) + " '" + url +
-                          "' >" + (work / "chromium.log").string() + " 2>&1";
+                          " --window-size=" + std::to_string(window.width) + "," + std::to_string(window.height) +
+                          " --virtual-time-budget=" + std::to_string(budget_ms) + " '" + url + "' >" +
+                          (work / "chromium.log").string() + " 2>&1";
   const int status = std::system(cmd.c_str());
   if (!WIFEXITED(status)) return {};
   return cv::imread(png.string(), cv::IMREAD_COLOR);

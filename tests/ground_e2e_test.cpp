@@ -19,6 +19,7 @@
 
 #include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
+#include "tests/browser_shot.h"
 #include "tests/test_env.h"
 
 namespace uavm::sfm {
@@ -324,6 +325,20 @@ void CheckOrthophoto(const fs::path& out, const nlohmann::json& js) {
   EXPECT_GT(stddev[0], 15.0);
   EXPECT_EQ(o["images_in_view"].get<int>(), js["frames_used"].get<int>());
   EXPECT_GT(o["images_used"].get<int>(), js["frames_used"].get<int>() / 2);
+  // QGIS opens it (python3-qgis, headless) in its CRS and draws it: the map where the mask says, white around it.
+  const fs::path qgis_png = out / "qgis_ortho.png";
+  ASSERT_EQ(RunCommand(std::string("/usr/bin/python3 ") + UAVM_SOURCE_DIR + "/tests/qgis_render.py " +
+                       (out / "ortho.tif").string() + " " + qgis_png.string() + " > " + (out / "qgis.json").string()),
+            0)
+      << "python3-qgis missing? (scripts/setup.sh installs it)";
+  EXPECT_NE(ReadText(out / "qgis.json").find("EPSG:32615"), std::string::npos);
+  const cv::Mat drawn = cv::imread(qgis_png.string(), cv::IMREAD_COLOR);
+  ASSERT_FALSE(drawn.empty());
+  cv::Mat white;
+  cv::inRange(drawn, cv::Scalar(250, 250, 250), cv::Scalar(255, 255, 255), white);
+  const double white_share = cv::countNonZero(white) / static_cast<double>(white.total());
+  EXPECT_LT(white_share, 0.6);
+  EXPECT_GT(white_share, 0.02);  // the mask is honoured: outside the flown area is background, not black
   // MBTiles: Web Mercator tiles with their zoom levels.
   auto* tiles = static_cast<GDALDataset*>(GDALOpen((out / "ortho.mbtiles").c_str(), GA_ReadOnly));
   ASSERT_NE(tiles, nullptr);
@@ -342,6 +357,53 @@ void CheckOrthophoto(const fs::path& out, const nlohmann::json& js) {
   EXPECT_NEAR(cv::countNonZero(flags == 0) / cells, js["dsm_measured_fraction"].get<double>(), 1e-9);
   EXPECT_NEAR(cv::countNonZero(flags == 1) / cells, js["dsm_filled_fraction"].get<double>(), 1e-9);
   EXPECT_GT(js["dsm_measured_fraction"].get<double>(), 0.2);
+  // The DTM: on the DSM's grid, nowhere above the surface (beyond the interpolation's noise), mostly ground on a beach
+  // park.
+  auto* dsm = static_cast<GDALDataset*>(GDALOpen((out / "dsm.tif").c_str(), GA_ReadOnly));
+  auto* dtm = static_cast<GDALDataset*>(GDALOpen((out / "dtm.tif").c_str(), GA_ReadOnly));
+  ASSERT_NE(dsm, nullptr);
+  ASSERT_NE(dtm, nullptr);
+  ASSERT_EQ(dtm->GetRasterXSize(), dsm->GetRasterXSize());
+  cv::Mat1f surface(dsm->GetRasterYSize(), dsm->GetRasterXSize()), terrain(surface.size());
+  ASSERT_EQ(dsm->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, surface.cols, surface.rows, surface.data, surface.cols,
+                                            surface.rows, GDT_Float32, 0, 0, nullptr),
+            CE_None);
+  ASSERT_EQ(dtm->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, terrain.cols, terrain.rows, terrain.data, terrain.cols,
+                                            terrain.rows, GDT_Float32, 0, 0, nullptr),
+            CE_None);
+  GDALClose(dsm);
+  GDALClose(dtm);
+  const cv::Mat has = surface != -9999.0f;
+  EXPECT_EQ(cv::countNonZero(has), cv::countNonZero(terrain != -9999.0f));
+  const cv::Mat above = (terrain > surface + 0.5f) & has;
+  EXPECT_LT(cv::countNonZero(above), cv::countNonZero(has) / 100);
+  EXPECT_GT(js["terrain"]["ground_fraction"].get<double>(), 0.3) << js["terrain"].dump();
+}
+
+// The report: one self-contained file (nothing fetched), drawn by headless Chromium with the orthophoto and its
+// figures; the screenshot is kept beside it (report.png) to be looked at.
+void CheckReport(const fs::path& out, const fs::path& work) {
+  const std::string html = ReadText(out / "report.html");
+  ASSERT_GT(html.size(), 10000u);
+  EXPECT_EQ(html.find("src='http"), std::string::npos);
+  EXPECT_EQ(html.find("href='http"), std::string::npos);
+  EXPECT_EQ(html.find("<script"), std::string::npos);
+  for (const char* section : {"Orthophoto, cameras and control", "Overlap", "Cameras", "Reprojection residuals",
+                              "Surface and terrain", "Time and memory per stage"})
+    EXPECT_NE(html.find(section), std::string::npos) << section;
+  ASSERT_FALSE(test::ChromiumBinary().empty()) << "chromium missing: run scripts/setup.sh";
+  const cv::Mat shot =
+      test::Screenshot("file://" + (out / "report.html").string(), work / "report_shot", 3000, cv::Size(1200, 2400));
+  ASSERT_FALSE(shot.empty());
+  cv::imwrite((out / "report.png").string(), shot);
+  // The page shows pictures, not just text: a good share of it is neither white background nor black text.
+  cv::Mat hsv;
+  cv::cvtColor(shot, hsv, cv::COLOR_BGR2HSV);
+  cv::Mat coloured;
+  cv::inRange(hsv, cv::Scalar(0, 40, 40), cv::Scalar(180, 255, 255), coloured);
+  const double share = cv::countNonZero(coloured) / static_cast<double>(coloured.total());
+  std::printf("report screenshot: %.0f %% coloured\n", 100.0 * share);
+  EXPECT_GT(share, 0.15);
 }
 
 TEST(GroundE2e, BrightonBeachSmall) {
@@ -358,8 +420,9 @@ TEST(GroundE2e, BrightonBeachSmall) {
       RunCommand(std::string(UAVM_GROUND_BIN) + " " + session.string() + " --out " + out.string() +
                  " --threads 2 --render-previews" + GroundEmulationArgs() + " 2>" + (tmp / "stderr.txt").string()),
       0);
-  for (const char* f : {"cloud.ply", "dsm.tif", "summary.json", "sparse/cameras.txt", "sparse/images.txt",
-                        "sparse/points3D.txt", "preview_cloud.png", "preview_dsm.png"}) {
+  for (const char* f :
+       {"cloud.ply", "dsm.tif", "summary.json", "sparse/cameras.txt", "sparse/images.txt", "sparse/points3D.txt",
+        "preview_cloud.png", "preview_dsm.png", "preview_dtm.png", "dtm.tif", "report.html"}) {
     EXPECT_TRUE(fs::exists(out / f)) << f;
   }
   std::ifstream js_in(out / "summary.json");
@@ -431,6 +494,7 @@ TEST(GroundE2e, BrightonBeachSmall) {
   EXPECT_LT(std::abs(p50), 15.0);
   EXPECT_LT(p95 - p05, 8.0);
   CheckOrthophoto(out, js);
+  CheckReport(out, tmp);
   CheckGcpRun(tmp, session, out);
   CheckMixedSizeRun(tmp, session, frames);
   fs::remove_all(tmp);

@@ -15,9 +15,12 @@ struct ReliefScene {
     double x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // footprint, metres
     double height = 10.0;                   // above the ground at its centre (flat roof)
   };
+  // A crown: a paraboloid cap of this radius reaching `height`, on a solid of the same radius from the ground up to
+  // kCrownBase x height (its overhanging sides; the trunk beneath is not modelled).
   struct Tree {
-    double x = 0, y = 0, radius = 3.0, height = 8.0;  // crown: a paraboloid of this radius and top height
+    double x = 0, y = 0, radius = 3.0, height = 8.0;
   };
+  static constexpr double kCrownBase = 0.45;
   double half_extent = 60.0;            // the scene covers [-half_extent, half_extent]^2 metres
   double slope_x = 0.0, slope_y = 0.0;  // the ground plane's gradient
   // The textures' finest wavelength, metres: a scene seen at GSD g needs texture_scale >= ~3 g to have no detail
@@ -46,6 +49,9 @@ struct ReliefScene {
 using RayOfPixel = std::function<Eigen::Vector3d(double u, double v)>;
 [[nodiscard]] cv::Mat RenderView(const ReliefScene& scene, cv::Size size, const Eigen::Vector3d& centre,
                                  const RayOfPixel& ray);
+
+// Whether the point `to` is seen from `from` (nothing of the scene between them; 5 cm of tolerance at `to`).
+[[nodiscard]] bool Sees(const ReliefScene& scene, const Eigen::Vector3d& from, const Eigen::Vector3d& to);
 
 // The truth from above on a north-up grid: pixel (c, r) is at x = x0 + (c + 0.5) * gsd, y = y0 - (r + 0.5) * gsd.
 struct TruthGrid {

@@ -139,6 +139,7 @@ void MeasureControl(const Reconstruction& rec, const std::vector<ControlPoint>& 
   report->points.clear();
   for (const auto& cp : cps) {
     ControlPointError e;
+    e.surveyed = cp.world;
     e.name = cp.name;
     e.checkpoint = cp.checkpoint;
     e.clicks = static_cast<int>(cp.observations.size());
@@ -160,7 +161,8 @@ nlohmann::json ControlReport::ToJson() const {
     nlohmann::json j = {{"name", p.name},
                         {"role", p.checkpoint ? "checkpoint" : "control"},
                         {"clicks", p.clicks},
-                        {"triangulated", p.triangulated}};
+                        {"triangulated", p.triangulated},
+                        {"position_local", {p.surveyed.x(), p.surveyed.y(), p.surveyed.z()}}};
     if (p.triangulated) {
       j["error_m"] = {p.error_m.x(), p.error_m.y(),
                       horizontal_only ? nlohmann::json(nullptr) : nlohmann::json(p.error_m.z())};

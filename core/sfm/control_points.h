@@ -35,8 +35,9 @@ struct ControlPointError {
   bool checkpoint = false;
   int clicks = 0;
   bool triangulated = false;
-  Eigen::Vector3d error_m = Eigen::Vector3d::Zero();  // triangulated - surveyed
-  double reprojection_px = 0.0;                       // RMS of its clicks against the triangulated point
+  Eigen::Vector3d surveyed = Eigen::Vector3d::Zero();  // the survey's position (the GCP CRS minus the offset)
+  Eigen::Vector3d error_m = Eigen::Vector3d::Zero();   // triangulated - surveyed
+  double reprojection_px = 0.0;                        // RMS of its clicks against the triangulated point
 };
 
 struct ControlReport {

@@ -274,6 +274,46 @@ bool SurfacePoint(const OrthoContext& ctx, double col, double row, Eigen::Vector
   return true;
 }
 
+enum class Sight { kOutside, kOccluded, kSeen };
+
+// How frame `image` sees the surface point X: outside its picture, hidden by something nearer in its z-buffer, or
+// seen; *nadir the cosine between the ray to the camera and the vertical.
+Sight SightOf(const OrthoContext& ctx, size_t image, const Eigen::Vector3d& X, double* nadir) {
+  const Image& im = ctx.rec.images[image];
+  const Camera& cam = ctx.rec.CameraOf(im);
+  const FrameView& view = ctx.views[image];
+  Eigen::Vector2d px;
+  double depth = 0.0;
+  if (!ToPixel(cam, im.pose, view.max_radius2, X, &px, &depth)) return Sight::kOutside;
+  if (px.x() < 0 || px.y() < 0 || px.x() > cam.width - 1 || px.y() > cam.height - 1) return Sight::kOutside;
+  *nadir = (im.pose.c - X).normalized().z();
+  const int zx = std::clamp(static_cast<int>(std::lround((px.x() + 0.5) * ctx.scale - 0.5)), 0, view.depth.cols - 1);
+  const int zy = std::clamp(static_cast<int>(std::lround((px.y() + 0.5) * ctx.scale - 0.5)), 0, view.depth.rows - 1);
+  return depth > view.depth(zy, zx) + ctx.tolerance ? Sight::kOccluded : Sight::kSeen;
+}
+
+// Frames that see each kOverlapBlock x kOverlapBlock block's centre unoccluded (for the report's overlap map).
+cv::Mat1b OverlapMap(const OrthoContext& ctx, int threads) {
+  const int block = OrthoReport::kOverlapBlock;
+  cv::Mat1b overlap((ctx.ortho.height + block - 1) / block, (ctx.ortho.width + block - 1) / block, uchar{0});
+  ParallelFor(static_cast<size_t>(overlap.rows), threads, [&](size_t row) {
+    const int r = static_cast<int>(row);
+    for (int c = 0; c < overlap.cols; ++c) {
+      const cv::Point px(std::min(c * block + block / 2, ctx.ortho.width - 1),
+                         std::min(r * block + block / 2, ctx.ortho.height - 1));
+      Eigen::Vector3d X;
+      if (!SurfacePoint(ctx, px.x, px.y, &X)) continue;
+      int seen = 0;
+      for (size_t i = 0; i < ctx.views.size(); ++i) {
+        double nadir = 0.0;
+        if (ctx.views[i].ortho_box.contains(px) && SightOf(ctx, i, X, &nadir) == Sight::kSeen) ++seen;
+      }
+      overlap(r, c) = static_cast<uchar>(std::min(seen, 255));
+    }
+  });
+  return overlap;
+}
+
 // Per seam cell of `roi`, the index (into `candidates`) of the most nadir frame that sees the cell's surface point
 // unoccluded (the most nadir frame that has it in view when none does); -1 = no frame or no surface.
 cv::Mat1s SeamOwners(const OrthoContext& ctx, const std::vector<size_t>& candidates, const cv::Rect& roi,
@@ -290,25 +330,14 @@ cv::Mat1s SeamOwners(const OrthoContext& ctx, const std::vector<size_t>& candida
       int best_seen = -1, best_any = -1;
       double score_seen = -2.0, score_any = -2.0;
       for (size_t k = 0; k < candidates.size(); ++k) {
-        const Image& im = ctx.rec.images[candidates[k]];
-        const Camera& cam = ctx.rec.CameraOf(im);
-        const FrameView& view = ctx.views[candidates[k]];
-        Eigen::Vector2d px;
-        double depth = 0.0;
-        if (!ToPixel(cam, im.pose, view.max_radius2, X, &px, &depth)) continue;
-        if (px.x() < 0 || px.y() < 0 || px.x() > cam.width - 1 || px.y() > cam.height - 1) continue;
-        // Nadir-ness: the cosine between the ray to the camera and the vertical.
-        const double score = (im.pose.c - X).normalized().z();
+        double score = 0.0;
+        const Sight sight = SightOf(ctx, candidates[k], X, &score);
+        if (sight == Sight::kOutside) continue;
         if (score > score_any) {
           score_any = score;
           best_any = static_cast<int>(k);
         }
-        const int zx =
-            std::clamp(static_cast<int>(std::lround((px.x() + 0.5) * ctx.scale - 0.5)), 0, view.depth.cols - 1);
-        const int zy =
-            std::clamp(static_cast<int>(std::lround((px.y() + 0.5) * ctx.scale - 0.5)), 0, view.depth.rows - 1);
-        if (depth > view.depth(zy, zx) + ctx.tolerance) continue;  // something nearer hides it
-        if (score > score_seen) {
+        if (sight == Sight::kSeen && score > score_seen) {
           score_seen = score;
           best_seen = static_cast<int>(k);
         }
@@ -412,6 +441,7 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
 
   OrthoContext ctx{
       rec, dsm, dsm_grid, nodata, ortho_grid, options, views, scale, options.occlusion_tolerance_cells * dsm_grid.cell};
+  report->overlap = OverlapMap(ctx, options.threads);
   const std::vector<cv::Rect> tiles =
       TilesAlongHilbertCurve(cv::Size(ortho_grid.width, ortho_grid.height), options.tile_size);
   report->tiles = static_cast<int>(tiles.size());

@@ -40,6 +40,9 @@ struct OrthoReport {
   // Seam cells that no frame saw unoccluded: filled from the most nadir frame regardless (counted, not hidden).
   size_t cells_occluded_everywhere = 0;
   size_t image_loads = 0;
+  // Frames that see each kOverlapBlock x kOverlapBlock block of the orthophoto unoccluded (at its centre).
+  static constexpr int kOverlapBlock = 16;
+  cv::Mat1b overlap;
   double zbuffer_scale = 0.0;  // of the frames' resolution
   double zbuffer_mib = 0.0;
   double seconds = 0.0;

@@ -27,6 +27,23 @@ double Reconstruction::ReprojectionRms() const {
   return n ? std::sqrt(sum / static_cast<double>(n)) : 0.0;
 }
 
+std::vector<Reconstruction::ImageResidual> Reconstruction::ResidualsPerImage() const {
+  std::vector<ImageResidual> out(images.size());
+  std::vector<double> sum(images.size(), 0.0);
+  for (const auto& p : points) {
+    for (const auto& o : p.track) {
+      const auto i = static_cast<size_t>(o.image);
+      const auto proj = Project(CameraOf(images[i]), images[i].pose, p.X);
+      if (!proj) continue;
+      sum[i] += (*proj - images[i].keypoints[static_cast<size_t>(o.feature)]).squaredNorm();
+      ++out[i].observations;
+    }
+  }
+  for (size_t i = 0; i < out.size(); ++i)
+    out[i].rms_px = out[i].observations > 0 ? std::sqrt(sum[i] / static_cast<double>(out[i].observations)) : 0.0;
+  return out;
+}
+
 double Reconstruction::MedianGsd() const {
   std::vector<double> gsd;  // per observation: its depth over its camera's focal length
   for (const auto& p : points) {

@@ -40,6 +40,12 @@ struct Reconstruction {
   [[nodiscard]] size_t NumObservations() const;
   // RMS and mean reprojection error over all observations of all points (pixels).
   [[nodiscard]] double ReprojectionRms() const;
+  // Per image: RMS reprojection error (pixels) and number of observations.
+  struct ImageResidual {
+    double rms_px = 0.0;
+    size_t observations = 0;
+  };
+  [[nodiscard]] std::vector<ImageResidual> ResidualsPerImage() const;
   // Ground sampling distance at the median depth of all observations (world units per pixel); 0 without points.
   [[nodiscard]] double MedianGsd() const;
   // Moves the whole model by a similarity (x -> s R x + t): camera centres, orientations and points.

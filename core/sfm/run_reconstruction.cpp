@@ -24,6 +24,7 @@
 #include "core/matching/radius_matcher.h"
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/dense.h"
+#include "core/util/memory.h"
 #include "core/util/parallel.h"
 
 namespace uavm::sfm {
@@ -71,7 +72,8 @@ cv::Mat ReadFrame(const std::string& path) {
   return cv::imread(path, cv::IMREAD_COLOR);
 }
 
-// Records each stage's wall time under its key of the summary's "timings".
+// Records each stage's wall time under its key of the summary's "timings", and the process's memory when it ends
+// under "stage_memory_mib" (resident, and the high-water mark so far: a stage that raised it holds the peak).
 class StageTimes {
  public:
   template <typename Stage>
@@ -79,16 +81,20 @@ class StageTimes {
     const auto t0 = Clock::now();
     const bool ok = stage();
     json_[key] = Seconds(t0);
+    const RssSample rss = SampleRss();
+    memory_[key] = {{"rss_end", rss.rss_mib}, {"peak_so_far", rss.hwm_mib}};
     return ok;
   }
   nlohmann::json Finish() {
     json_["total_s"] = Seconds(start_);
     return json_;
   }
+  [[nodiscard]] const nlohmann::json& memory() const { return memory_; }
 
  private:
   Clock::time_point start_ = Clock::now();
   nlohmann::json json_ = nlohmann::json::object();
+  nlohmann::json memory_ = nlohmann::json::object();
 };
 
 // 1. The frames the reconstruction uses: registered, with a stored file and at least one used graph edge.
@@ -903,6 +909,25 @@ bool BindGcpFile(const SelectedFrames& sel, const ReconstructionOptions& options
                       gcp->get(), js, error);
 }
 
+// Per image for the report: its name, camera, centre and GPS position in the map's coordinates (GPS only when the map
+// is georeferenced by it, not by GCPs), its reprojection residuals.
+nlohmann::json ImagesJson(const Reconstruction& rec, const GpsPositions& gps, bool gcp, const Eigen::Vector2d& offset) {
+  nlohmann::json list = nlohmann::json::array();
+  const auto residuals = rec.ResidualsPerImage();
+  for (size_t i = 0; i < rec.images.size(); ++i) {
+    const Image& im = rec.images[i];
+    nlohmann::json js = {{"name", im.name},
+                         {"camera", im.camera},
+                         {"centre", {im.pose.c.x() + offset.x(), im.pose.c.y() + offset.y(), im.pose.c.z()}},
+                         {"observations", residuals[i].observations},
+                         {"rms_px", residuals[i].rms_px}};
+    if (!gcp && gps.projected && gps.local[i])
+      js["gps"] = {gps.local[i]->x() + gps.origin.x(), gps.local[i]->y() + gps.origin.y(), gps.local[i]->z()};
+    list.push_back(js);
+  }
+  return list;
+}
+
 }  // namespace
 
 // The stages in order; each reads the earlier ones' outputs and adds its figures to the summary.
@@ -957,7 +982,9 @@ bool RunReconstruction(const std::string& session_dir, const ReconstructionOptio
   });
   if (!ok) return false;
   for (const auto* f : frames) result->image_paths.push_back(session_dir + "/" + f->stored_file);
+  js["images"] = ImagesJson(rec, init.gps, gcp != nullptr, result->offset);
   js["timings"] = times.Finish();
+  js["stage_memory_mib"] = times.memory();
   js["frames_used"] = frames.size();
   return true;
 }

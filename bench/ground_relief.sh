@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# ground_relief.sh [OUT_DIR]
+#
+# The ground tool's map against the truth of a synthetic survey over relief (tools/relief_flight.h: 8 buildings of
+# 8-25 m and 20 trees on a slope, 1000x750 frames at 70 m, GPS 1.5 m, a mild lens): uavmosaic-relief fly, then
+# uavmosaic-onboard (replay, positions from geo.txt) and uavmosaic-ground --render-previews on the session, each under
+# the bench's watchdog (peak VmRSS sampled from /proc), then uavmosaic-relief compare on the ground tool's ortho.tif,
+# dsm.tif and dtm.tif and on the onboard mosaic.tif. Prints a Markdown table; everything stays in OUT_DIR.
+#
+# Environment: UAVM_BUILD_DIR (default <repo>/build), THREADS (default 2), SEED (default 1), RELIEF_ARGS (more
+# `uavmosaic-relief fly` options, e.g. "--buildings 12 --gps-sigma 3").
+set -euo pipefail
+export LC_ALL=C
+SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+REPO=$(dirname "$SCRIPT_DIR")
+if [[ $# -gt 1 || ${1:-} == -h || ${1:-} == --help ]]; then
+  sed -n '2,11p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  exit 2
+fi
+# shellcheck source=bench/lib.sh
+source "$SCRIPT_DIR/lib.sh"
+OUT=${1:-$(mktemp -d /tmp/ground_relief.XXXXXX)}
+BUILD=${UAVM_BUILD_DIR:-$REPO/build}
+THREADS=${THREADS:-2}
+for b in firmware_app/uavmosaic-onboard ground_app/uavmosaic-ground tools/uavmosaic-relief; do
+  [[ -x $BUILD/$b ]] || { echo "missing $BUILD/$b (scripts/build.sh)" >&2; exit 2; }
+done
+mkdir -p "$OUT"
+rm -rf "$OUT/flight" "$OUT/session" "$OUT/ground"
+# shellcheck disable=SC2086 # RELIEF_ARGS is a list of words
+"$BUILD/tools/uavmosaic-relief" fly --out "$OUT/flight" --seed "${SEED:-1}" ${RELIEF_ARGS:-} >"$OUT/flight.json"
+run_watched "$OUT/onboard" 0 0 "$BUILD/firmware_app/uavmosaic-onboard" --source "replay:$OUT/flight/images" \
+  --telemetry "geo:$OUT/flight/geo.txt" --out "$OUT/session" --log-level warn
+((W_RC == 0)) || { echo "onboard: exit $W_RC" >&2; tail -5 "$OUT/onboard.stderr" >&2; exit 1; }
+ONBOARD_S=$W_WALL_S ONBOARD_MIB=$(peak_mib)
+run_watched "$OUT/ground" 0 0 "$BUILD/ground_app/uavmosaic-ground" "$OUT/session" --out "$OUT/ground" \
+  --threads "$THREADS" --render-previews
+((W_RC == 0)) || { echo "ground: exit $W_RC" >&2; tail -5 "$OUT/ground.stderr" >&2; exit 1; }
+GROUND_S=$W_WALL_S GROUND_MIB=$(peak_mib)
+"$BUILD/tools/uavmosaic-relief" compare "$OUT/flight" --ortho "$OUT/ground/ortho.tif" --dsm "$OUT/ground/dsm.tif" \
+  --dsm-filled "$OUT/ground/dsm_filled.tif" --dtm "$OUT/ground/dtm.tif" >"$OUT/compare_ground.json"
+"$BUILD/tools/uavmosaic-relief" compare "$OUT/flight" --ortho "$OUT/session/mosaic.tif" >"$OUT/compare_onboard.json"
+python3 - "$OUT" "$ONBOARD_S" "$ONBOARD_MIB" "$GROUND_S" "$GROUND_MIB" <<'PY'
+import json, sys
+out, onboard_s, onboard_mib, ground_s, ground_mib = sys.argv[1:]
+fly = json.load(open(f"{out}/flight.json"))
+g = json.load(open(f"{out}/compare_ground.json"))
+o = json.load(open(f"{out}/compare_onboard.json"))
+summary = json.load(open(f"{out}/ground/summary.json"))
+print(f"Synthetic relief survey: {fly['frames']} frames {fly['camera']['width']}x{fly['camera']['height']}, "
+      f"GSD {fly['gsd_m']:.3f} m, {fly['scene']['buildings']} buildings, {fly['scene']['trees']} trees")
+print(f"onboard {onboard_s} s, peak {onboard_mib} MiB; ground {ground_s} s, peak {ground_mib} MiB "
+      f"(VmRSS sampled from /proc); ground BA {summary['ba_rms_after_px']:.3f} px, {summary['dense_points']} dense points")
+print()
+print("| orthophoto against the truth (patch phase correlation, GSD) | all: RMS / median | ground | roofs | crowns | "
+      "relative (median shift out): all RMS / median | offset (x, y) | patches |")
+print("|---|---|---|---|---|---|---|---|")
+for name, r in (("ground tool ortho.tif", g["ortho"]), ("onboard mosaic.tif", o["ortho"])):
+    cls = lambda k: f"{r[k]['rms_gsd']:.2f} / {r[k]['median_gsd']:.2f} ({r[k]['patches']})"
+    print(f"| {name} | {cls('all')} | {cls('ground')} | {cls('roofs')} | {cls('crowns')} | "
+          f"{r['all']['relative_rms_gsd']:.2f} / {r['all']['relative_median_gsd']:.2f} | "
+          f"{r['offset_gsd'][0]:.2f}, {r['offset_gsd'][1]:.2f} | {r['patches']} ({r['unmatched']} unmatched) |")
+print()
+print("| heights against the truth (away from 1 m of edges), GSD RMS (after the median bias) | measured | surfaces | "
+      "ground | roofs / under buildings | crowns / under trees | bias m |")
+print("|---|---|---|---|---|---|---|")
+for name in ("dsm", "dtm"):
+    r = g[name]
+    cls = lambda k: f"{r[k]['rms_gsd']:.2f} ({r[k]['rms_after_bias_gsd']:.2f})"
+    print(f"| {name} | {r['measured_fraction']:.3f} | {cls('surfaces')} | {cls('ground')} | {cls('roofs')} | "
+          f"{cls('crowns')} | {r['bias_m']:.3f} |")
+PY
