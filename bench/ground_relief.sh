@@ -4,8 +4,9 @@
 # The ground tool's map against the truth of a synthetic survey over relief (tools/relief_flight.h: 8 buildings of
 # 8-25 m and 20 trees on a slope, 1000x750 frames at 70 m, GPS 1.5 m, a mild lens): uavmosaic-relief fly, then
 # uavmosaic-onboard (replay, positions from geo.txt) and uavmosaic-ground --render-previews on the session, each under
-# the bench's watchdog (peak VmRSS sampled from /proc), then uavmosaic-relief compare on the ground tool's ortho.tif,
-# dsm.tif and dtm.tif and on the onboard mosaic.tif. Prints a Markdown table; everything stays in OUT_DIR.
+# the bench's watchdog (peak VmRSS sampled from /proc), again with the surveyed targets (every third a checkpoint) and
+# with them without heights, then uavmosaic-relief compare on the ground tool's ortho.tif, dsm.tif and dtm.tif (with
+# and without GCPs) and on the onboard mosaic.tif. Prints Markdown tables; everything stays in OUT_DIR.
 #
 # Environment: UAVM_BUILD_DIR (default <repo>/build), THREADS (default 2), SEED (default 1), RELIEF_ARGS (more
 # `uavmosaic-relief fly` options, e.g. "--buildings 12 --gps-sigma 3").
@@ -37,6 +38,18 @@ run_watched "$OUT/ground" 0 0 "$BUILD/ground_app/uavmosaic-ground" "$OUT/session
   --threads "$THREADS" --render-previews
 ((W_RC == 0)) || { echo "ground: exit $W_RC" >&2; tail -5 "$OUT/ground.stderr" >&2; exit 1; }
 GROUND_S=$W_WALL_S GROUND_MIB=$(peak_mib)
+# The same with the surveyed targets: every third a checkpoint; then the targets without heights (sparse only: the
+# checkpoints are what it measures).
+CHECKS=$(jq -r '.checkpoints | join(",")' "$OUT/flight.json")
+run_watched "$OUT/ground_gcp" 0 0 "$BUILD/ground_app/uavmosaic-ground" "$OUT/session" --out "$OUT/ground_gcp" \
+  --threads "$THREADS" --gcp "$OUT/flight/gcp_list.txt" --checkpoints "$CHECKS"
+((W_RC == 0)) || { echo "ground with GCPs: exit $W_RC" >&2; tail -5 "$OUT/ground_gcp.stderr" >&2; exit 1; }
+run_watched "$OUT/ground_gcp_flat" 0 0 "$BUILD/ground_app/uavmosaic-ground" "$OUT/session" \
+  --out "$OUT/ground_gcp_flat" --threads "$THREADS" --gcp "$OUT/flight/gcp_list_no_heights.txt" \
+  --checkpoints "$CHECKS" --no-dense --no-ortho
+((W_RC == 0)) || { echo "ground with GCPs without heights: exit $W_RC" >&2; exit 1; }
+"$BUILD/tools/uavmosaic-relief" compare "$OUT/flight" --ortho "$OUT/ground_gcp/ortho.tif" --dsm "$OUT/ground_gcp/dsm.tif" \
+  --dsm-filled "$OUT/ground_gcp/dsm_filled.tif" --dtm "$OUT/ground_gcp/dtm.tif" >"$OUT/compare_ground_gcp.json"
 "$BUILD/tools/uavmosaic-relief" compare "$OUT/flight" --ortho "$OUT/ground/ortho.tif" --dsm "$OUT/ground/dsm.tif" \
   --dsm-filled "$OUT/ground/dsm_filled.tif" --dtm "$OUT/ground/dtm.tif" >"$OUT/compare_ground.json"
 "$BUILD/tools/uavmosaic-relief" compare "$OUT/flight" --ortho "$OUT/session/mosaic.tif" >"$OUT/compare_onboard.json"
@@ -46,6 +59,7 @@ out, onboard_s, onboard_mib, ground_s, ground_mib = sys.argv[1:]
 fly = json.load(open(f"{out}/flight.json"))
 g = json.load(open(f"{out}/compare_ground.json"))
 o = json.load(open(f"{out}/compare_onboard.json"))
+gg = json.load(open(f"{out}/compare_ground_gcp.json"))
 summary = json.load(open(f"{out}/ground/summary.json"))
 print(f"Synthetic relief survey: {fly['frames']} frames {fly['camera']['width']}x{fly['camera']['height']}, "
       f"GSD {fly['gsd_m']:.3f} m, {fly['scene']['buildings']} buildings, {fly['scene']['trees']} trees")
@@ -55,7 +69,8 @@ print()
 print("| orthophoto against the truth (patch phase correlation, GSD) | all: RMS / median | ground | roofs | crowns | "
       "relative (median shift out): all RMS / median | offset (x, y) | patches |")
 print("|---|---|---|---|---|---|---|---|")
-for name, r in (("ground tool ortho.tif", g["ortho"]), ("onboard mosaic.tif", o["ortho"])):
+for name, r in (("ground tool ortho.tif", g["ortho"]), ("ground tool ortho.tif with GCPs", gg["ortho"]),
+                ("onboard mosaic.tif", o["ortho"])):
     cls = lambda k: f"{r[k]['rms_gsd']:.2f} / {r[k]['median_gsd']:.2f} ({r[k]['patches']})"
     print(f"| {name} | {cls('all')} | {cls('ground')} | {cls('roofs')} | {cls('crowns')} | "
           f"{r['all']['relative_rms_gsd']:.2f} / {r['all']['relative_median_gsd']:.2f} | "
@@ -64,9 +79,20 @@ print()
 print("| heights against the truth (away from 1 m of edges), GSD RMS (after the median bias) | measured | surfaces | "
       "ground | roofs / under buildings | crowns / under trees | bias m |")
 print("|---|---|---|---|---|---|---|")
-for name in ("dsm", "dtm"):
-    r = g[name]
+for name, r in (("dsm", g["dsm"]), ("dtm", g["dtm"]), ("dsm with GCPs", gg["dsm"]), ("dtm with GCPs", gg["dtm"])):
     cls = lambda k: f"{r[k]['rms_gsd']:.2f} ({r[k]['rms_after_bias_gsd']:.2f})"
     print(f"| {name} | {r['measured_fraction']:.3f} | {cls('surfaces')} | {cls('ground')} | {cls('roofs')} | "
           f"{cls('crowns')} | {r['bias_m']:.3f} |")
+print()
+print("| GCPs (2 cm survey, 0.5 px clicks) | control points | control RMS x / y / z m | checkpoints | "
+      "checkpoint RMS x / y / z m | checkpoint horizontal GSD |")
+print("|---|---|---|---|---|---|")
+gsd = fly["gsd_m"]
+for name in ("ground_gcp", "ground_gcp_flat"):
+    gcp = json.load(open(f"{out}/{name}/summary.json"))["gcp"]
+    c, k = gcp["control_rms"], gcp["checkpoint_rms"]
+    z = lambda r: "—" if r["z_m"] is None else f"{r['z_m']:.3f}"
+    label = "with heights" if name == "ground_gcp" else "without heights (horizontal only)"
+    print(f"| {label} | {c['points']} | {c['x_m']:.3f} / {c['y_m']:.3f} / {z(c)} | {k['points']} | "
+          f"{k['x_m']:.3f} / {k['y_m']:.3f} / {z(k)} | {(k['x_m'] ** 2 + k['y_m'] ** 2) ** 0.5 / gsd:.2f} |")
 PY

@@ -162,6 +162,7 @@ int RunReconstructCommand(int argc, char** argv) {
     files.cog = out_dir + "/ortho.tif";
     files.quicklook = out_dir + "/ortho_preview.png";
     if (!no_mbtiles && !result.crs_wkt.empty()) files.mbtiles = out_dir + "/ortho.mbtiles";
+    if (!result.crs_wkt.empty()) files.tiles_dir = out_dir + "/tiles";
     sfm::OrthoFilesReport report;
     const auto t_ortho = std::chrono::steady_clock::now();
     if (!sfm::WriteOrthophoto(result.rec, result.image_paths, result.dsm, result.grid, -9999.0f, result.offset,
@@ -178,6 +179,7 @@ int RunReconstructCommand(int argc, char** argv) {
     pictures.overlap = report.ortho.overlap;
     outputs.insert(outputs.end(), {"ortho.tif", "ortho_preview.png"});
     if (report.mbtiles_written) outputs.push_back("ortho.mbtiles");
+    if (report.web_tiles > 0) outputs.push_back("tiles/");
   }
   if (previews) {
     const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};

@@ -266,6 +266,10 @@ void CheckMixedSizeRun(const fs::path& tmp, const fs::path& session, int frames)
   // One image cannot calibrate a lens: the small camera keeps the start's (none), only its focal length moves.
   EXPECT_EQ(small["k1"].get<double>(), 0.0);
   EXPECT_EQ(small["cx"].get<double>(), 449.5);
+  // A crop keeps the focal length in pixels: the onboard maps' scale says so, and the odd shot's focal length stays
+  // tied to the main camera's (free, it went 10-12 % off and took the main camera's 18 % with it).
+  EXPECT_NEAR(small["fx"].get<double>() / large["fx"].get<double>(), 1.0, 0.03);
+  EXPECT_NEAR(large["fx"].get<double>(), 608.0, 0.03 * 608.0);  // the single-size run's (summary of BrightonBeachSmall)
   EXPECT_LT(js["ba_rms_after_px"].get<double>(), 0.6);
   EXPECT_GT(js["dense_points"].get<size_t>(), 1000u) << log;
   EXPECT_EQ(js["dsm_source"].get<std::string>(), "dense");
@@ -339,6 +343,10 @@ void CheckOrthophoto(const fs::path& out, const nlohmann::json& js) {
   const double white_share = cv::countNonZero(white) / static_cast<double>(white.total());
   EXPECT_LT(white_share, 0.6);
   EXPECT_GT(white_share, 0.02);  // the mask is honoured: outside the flown area is background, not black
+  // XYZ web tiles as the onboard program writes them, down to the whole map in one tile.
+  EXPECT_GT(o["web_tiles"].get<int>(), 4);
+  const int z0 = o["web_zoom"][0].get<int>();
+  ASSERT_TRUE(fs::is_directory(out / "tiles" / std::to_string(z0)));
   // MBTiles: Web Mercator tiles with their zoom levels.
   auto* tiles = static_cast<GDALDataset*>(GDALOpen((out / "ortho.mbtiles").c_str(), GA_ReadOnly));
   ASSERT_NE(tiles, nullptr);

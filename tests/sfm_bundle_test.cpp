@@ -140,6 +140,47 @@ TEST(SfmBundle, RecoversTwoCamerasOfOneFlight) {
     EXPECT_LT((rec.images[i].pose.c - truth.images[i].pose.c).norm(), 0.2) << i;
 }
 
+// One shot of a flight at another image size (a crop: the same focal length in pixels), its focal length tied by the
+// caller (BundleOptions::focal_held): held at the right value the adjustment fits it to the noise; held 12 % off (as
+// its EXIF focal length read as a resize gives it) it cannot, which is what a held value costs when it is wrong.
+TEST(SfmBundle, OddSizedShotWithItsFocalLengthHeld) {
+  Reconstruction truth = testing::MakeScene(0.3, 9, 1500, /*two_cameras=*/true);
+  truth.cameras[1].fx = truth.cameras[1].fy = truth.cameras[0].fx;  // a crop
+  for (auto& im : truth.images) im.camera = 0;
+  truth.images[5].camera = 1;
+  for (auto& p : truth.points) {  // observations again, through each image's own camera
+    Track kept;
+    for (const auto& o : p.track) {
+      const Image& im = truth.images[static_cast<size_t>(o.image)];
+      const auto px = Project(truth.CameraOf(im), im.pose, p.X);
+      const Camera& cam = truth.CameraOf(im);
+      if (!px || px->x() < 0 || px->y() < 0 || px->x() > cam.width - 1 || px->y() > cam.height - 1) continue;
+      truth.images[static_cast<size_t>(o.image)].keypoints[static_cast<size_t>(o.feature)] = *px;
+      kept.push_back(o);
+    }
+    p.track = kept;
+  }
+  const auto run = [&](double start) {
+    Reconstruction rec = truth;
+    rec.cameras[1].fx = rec.cameras[1].fy = start * truth.cameras[1].fx;
+    BundleOptions opts;
+    opts.loss = BundleOptions::Loss::kHuber;
+    opts.fixed_image = 0;
+    opts.scale_image = 11;
+    opts.focal_prior_sigma = 0.01;
+    opts.focal_held = {0, 1};
+    BundleSummary s;
+    std::string err;
+    EXPECT_TRUE(BundleAdjust(&rec, opts, &s, &err)) << err;
+    EXPECT_EQ(rec.cameras[1].fx, start * truth.cameras[1].fx);  // held
+    return s.rms_after_px;
+  };
+  const double right = run(1.0), wrong = run(0.88);
+  std::printf("odd-sized shot, focal length held: RMS %.3f px at the truth, %.3f px 12 %% off\n", right, wrong);
+  EXPECT_LT(right, 0.45);
+  EXPECT_GT(wrong, right + 0.1);
+}
+
 TEST(SfmBundle, RejectsBadOptions) {
   BundleOptions o;
   o.loss_scale_px = 0.0;

@@ -195,16 +195,19 @@ bool BundleAdjust(Reconstruction* rec, const BundleOptions& options, BundleSumma
     double* block = intr[k].data();
     if (!problem.HasParameterBlock(block)) continue;  // a camera none of whose images observe a point
     std::vector<int> held_k = held;
+    const bool focal_held = k < options.focal_held.size() && options.focal_held[k] != 0;
     if (images_of[k] < options.min_images_for_lens) {
       held_k = {1, 2, 3, 4, 5, 6, 7};
-      if (!options.refine_focal) held_k.push_back(0);
+      if (!options.refine_focal || focal_held) held_k.push_back(0);
+    } else if (focal_held && std::find(held_k.begin(), held_k.end(), 0) == held_k.end()) {
+      held_k.insert(held_k.begin(), 0);
     }
     if (held_k.size() == kIntrinsics) {
       problem.SetParameterBlockConstant(block);
     } else if (!held_k.empty()) {
       problem.SetManifold(block, new ceres::SubsetManifold(kIntrinsics, held_k));
     }
-    if (options.focal_prior_sigma > 0.0 && options.refine_focal) {
+    if (options.focal_prior_sigma > 0.0 && options.refine_focal && !focal_held) {
       const double f0 = rec->cameras[k].fx;
       problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FocalPrior, 1, kIntrinsics>(
                                    new FocalPrior(f0, options.focal_prior_sigma * f0)),

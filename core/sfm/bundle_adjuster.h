@@ -23,6 +23,9 @@ struct BundleOptions {
   // Weak prior that keeps the focal length near its start value (sigma as a fraction of f): a nadir flight over flat
   // ground cannot separate focal length from flying height. 0 = none.
   double focal_prior_sigma = 0.0;
+  // Per camera model (index into Reconstruction::cameras): its focal length held as it starts (e.g. tied by the caller
+  // to the main camera's: one odd-sized shot cannot tell its focal length from its height).
+  std::vector<char> focal_held;
   int max_iterations = 100;
   int threads = 1;
   // Gauge: image `fixed_image` is held fixed, and one coordinate (the largest) of the centre of `scale_image`

@@ -9,6 +9,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "core/georef/products.h"
 #include "core/mosaic/gdal_writer.h"
 
 namespace uavm::sfm {
@@ -16,6 +17,8 @@ namespace uavm::sfm {
 nlohmann::json OrthoFilesReport::ToJson() const {
   nlohmann::json js = ortho.ToJson();
   js["mbtiles_written"] = mbtiles_written;
+  js["web_tiles"] = web_tiles;
+  js["web_zoom"] = {web_min_zoom, web_max_zoom};
   js["write_seconds"] = write_seconds;
   return js;
 }
@@ -179,6 +182,13 @@ bool WriteOrthophoto(const Reconstruction& rec, const std::vector<std::string>& 
     report->mbtiles_written = ok;
   }
   GDALClose(tiles);
+  if (ok && !files.tiles_dir.empty() && !crs_wkt.empty()) {
+    TileSet set;
+    ok = WriteTiles(tiles_path, files.tiles_dir, true, gsd, TileOptions{}, &set, error);
+    report->web_tiles = set.tiles;
+    report->web_min_zoom = set.min_zoom;
+    report->web_max_zoom = set.max_zoom;
+  }
   std::remove(tiles_path.c_str());
   report->write_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return ok;

@@ -6,13 +6,15 @@
 #include "core/sfm/orthophoto.h"
 
 // The orthophoto's files: a Cloud Optimized GeoTIFF (JPEG-compressed RGB with a mask, internal overviews), its
-// quick-look PNG and, when the map has a CRS, an MBTiles package for ground stations that import offline maps.
+// quick-look PNG and, when the map has a CRS, an MBTiles package for ground stations that import offline maps and
+// XYZ web tiles (core/georef's, as the onboard program writes them).
 namespace uavm::sfm {
 
 struct OrthoFiles {
   std::string cog;        // e.g. OUT/ortho.tif
   std::string quicklook;  // PNG (RGBA, transparent where no frame sees the ground); empty = none
   std::string mbtiles;    // empty = none (also none without a CRS)
+  std::string tiles_dir;  // XYZ web tiles (z/x/y.png, EPSG:3857) as the onboard program writes them; empty = none
   int quicklook_long_side = 2000;
   int jpeg_quality = 90;
 };
@@ -20,6 +22,8 @@ struct OrthoFiles {
 struct OrthoFilesReport {
   OrthoReport ortho;
   bool mbtiles_written = false;
+  int web_tiles = 0;  // written to tiles_dir
+  int web_min_zoom = 0, web_max_zoom = 0;
   double write_seconds = 0.0;  // the COG's conversion, the quick-look and the MBTiles
   [[nodiscard]] nlohmann::json ToJson() const;
 };

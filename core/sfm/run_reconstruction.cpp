@@ -475,8 +475,40 @@ MosaicToWorld FitMosaicToWorld(const std::vector<const SessionFrame*>& frames, c
 
 // Nadir assumption from the onboard maps: the frame's centre and local linear part in the mosaic give position,
 // in-plane yaw and (via scale) height.
+// A camera model of another image size than the flight's main one starts from the onboard maps' scale rather than
+// its EXIF focal length (which cannot tell a crop from a resize): at the same flying height a frame's pixel covers
+// ground in inverse proportion to its focal length in pixels, so f = f_main x scale_main / scale (scale: mosaic pixels
+// per frame pixel, medians per camera). A crop keeps the main camera's focal length, a half-size copy halves it.
+std::vector<double> FocalsFromOnboardScale(const std::vector<Eigen::Matrix2d>& jac, Reconstruction* rec,
+                                           std::vector<double>* fpx, nlohmann::json* js) {
+  std::vector<double> ratio(rec->cameras.size(), 0.0);
+  if (rec->cameras.size() < 2) return ratio;
+  std::vector<std::vector<double>> scale(rec->cameras.size());
+  for (size_t i = 0; i < jac.size(); ++i)
+    scale[static_cast<size_t>(rec->images[i].camera)].push_back(std::sqrt(std::abs(jac[i].determinant())));
+  const auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  const size_t main = MostUsedCamera(*rec);
+  if (scale[main].empty()) return ratio;
+  const double main_scale = median(scale[main]);
+  for (size_t k = 0; k < rec->cameras.size(); ++k) {
+    if (k == main || scale[k].empty() || !(main_scale > 0.0)) continue;
+    Camera& cam = rec->cameras[k];
+    const double exif_fx = cam.fx;
+    ratio[k] = main_scale / median(scale[k]);
+    cam.fx = cam.fy = rec->cameras[main].fx * ratio[k];
+    (*js)["focal_from_onboard_scale"].push_back(
+        {{"camera", k}, {"exif_focal_px", exif_fx}, {"focal_px", cam.fx}, {"main_focal_px", rec->cameras[main].fx}});
+  }
+  for (size_t i = 0; i < fpx->size(); ++i) (*fpx)[i] = rec->CameraOf(rec->images[i]).fx;
+  return ratio;
+}
+
 bool PosesFromOnboardMaps(const std::vector<const SessionFrame*>& frames, const GpsPositions& gps, Reconstruction* rec,
-                          std::string* pose_source, nlohmann::json* js, std::string* error) {
+                          std::string* pose_source, std::vector<double>* focal_ratio, nlohmann::json* js,
+                          std::string* error) {
   std::vector<Eigen::Vector2d> centre_mosaic(frames.size());
   std::vector<Eigen::Matrix2d> jac(frames.size());
   std::vector<double> fpx(frames.size());  // each image's camera's focal length, pixels
@@ -492,6 +524,7 @@ bool PosesFromOnboardMaps(const std::vector<const SessionFrame*>& frames, const 
     J.col(1) = Apply(H, pp + Vec2(0, d)) - centre_mosaic[i];
     jac[i] = J;
   }
+  *focal_ratio = FocalsFromOnboardScale(jac, rec, &fpx, js);
   const MosaicToWorld m = FitMosaicToWorld(frames, gps, centre_mosaic, jac, fpx);
   *pose_source = m.pose_source;
   (*js)["mosaic_to_world_reflection"] = m.Q.determinant() < 0;
@@ -520,6 +553,8 @@ struct InitialModel {
   IntrinsicsGuess guess;
   GpsPositions gps;
   std::string pose_source;
+  // Per camera model: its focal length over the main camera's from the onboard maps (0 = its own).
+  std::vector<double> focal_ratio;
 };
 
 bool InitialPoses(const std::vector<const SessionFrame*>& frames, const std::vector<FrameFeatures>& feats,
@@ -530,7 +565,7 @@ bool InitialPoses(const std::vector<const SessionFrame*>& frames, const std::vec
   if (!options.colmap_import_dir.empty()) {
     if (!PosesFromColmap(options.colmap_import_dir, rec, error)) return false;
     out->pose_source = "colmap:" + options.colmap_import_dir;
-  } else if (!PosesFromOnboardMaps(frames, out->gps, rec, &out->pose_source, js, error)) {
+  } else if (!PosesFromOnboardMaps(frames, out->gps, rec, &out->pose_source, &out->focal_ratio, js, error)) {
     return false;
   }
   (*js)["initial_pose_source"] = out->pose_source;
@@ -603,6 +638,7 @@ void FilterObservations(double min_angle_deg, double max_err, Reconstruction* re
 struct BundlePriors {
   double focal_sigma = 0.1;
   std::vector<std::optional<Eigen::Vector3d>> centres;
+  std::vector<double> focal_ratio;  // InitialModel's
 };
 
 BundlePriors MakeBundlePriors(const std::vector<const SessionFrame*>& frames, const InitialModel& init,
@@ -622,7 +658,24 @@ BundlePriors MakeBundlePriors(const std::vector<const SessionFrame*>& frames, co
   }
   (*js)["ba_centre_priors"] = n_priors;
   (*js)["ba_focal_prior_sigma"] = priors.focal_sigma;
+  priors.focal_ratio = init.focal_ratio;
   return priors;
+}
+
+// A camera model of another image size seen by too few images to calibrate (BundleOptions::min_images_for_lens) has
+// its focal length tied to the main camera's by the onboard maps' ratio (FocalsFromOnboardScale), set before each
+// adjustment and held in it: one odd-sized shot cannot tell its focal length from its height (free under a prior, a
+// cropped frame went 12 % short started as resized, 10 % long started as cropped).
+void TieFocals(const BundlePriors& priors, int min_images, Reconstruction* rec, BundleOptions* bo) {
+  bo->focal_held.assign(rec->cameras.size(), 0);
+  if (priors.focal_ratio.size() != rec->cameras.size()) return;
+  const std::vector<int> images = ImagesPerCamera(*rec);
+  const Camera& main = rec->cameras[MostUsedCamera(*rec)];
+  for (size_t k = 0; k < rec->cameras.size(); ++k) {
+    if (priors.focal_ratio[k] <= 0.0 || images[k] >= min_images) continue;
+    rec->cameras[k].fx = rec->cameras[k].fy = main.fx * priors.focal_ratio[k];
+    bo->focal_held[k] = 1;
+  }
 }
 
 // The BA rounds: each adjusts, re-triangulates every track with the adjusted poses (recovers points the rough poses
@@ -641,6 +694,7 @@ bool BundleRounds(const std::vector<Track>& tracks, const std::vector<FrameFeatu
     bo.loss_scale_px = r == 0 ? 4.0 : 1.0;
     bo.refine_k3 = options.refine_k3 && r > 0;
     bo.max_iterations = 50;
+    TieFocals(priors, bo.min_images_for_lens, rec, &bo);
     BundleSummary bs;
     if (!BundleAdjust(rec, bo, &bs, error)) return false;
     if (progress) progress("bundle", r + 1, options.round_reprojection_px.size());
@@ -658,8 +712,10 @@ bool BundleRounds(const std::vector<Track>& tracks, const std::vector<FrameFeatu
   bo.loss = BundleOptions::Loss::kHuber;
   bo.loss_scale_px = 1.0;
   bo.refine_k3 = options.refine_k3;
+  TieFocals(priors, bo.min_images_for_lens, rec, &bo);
   BundleSummary bs;
   if (!BundleAdjust(rec, bo, &bs, error)) return false;
+  TieFocals(priors, bo.min_images_for_lens, rec, &bo);  // to the main camera as the last adjustment left it
   FilterObservations(options.min_triangulation_angle_deg, options.round_reprojection_px.back(), rec);
   rounds->push_back({{"rms_before_px", bs.rms_before_px},
                      {"rms_after_px", bs.rms_after_px},
@@ -882,8 +938,10 @@ bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialM
   bo.control_sigma_m = control.sigma_m;
   if (control.horizontal_only) bo.control_sigma_z_m = control.free_height_sigma_m;
   bo.control_click_px = options.control.click_px;
+  TieFocals(priors, bo.min_images_for_lens, rec, &bo);
   BundleSummary bs;
   if (!BundleAdjust(rec, bo, &bs, error)) return false;
+  TieFocals(priors, bo.min_images_for_lens, rec, &bo);
   MeasureControl(*rec, cps, &report);
   nlohmann::json j = report.ToJson();
   j["file"] = options.gcp_file;

@@ -74,10 +74,16 @@ cv::Mat1f TerrainFromDsm(const cv::Mat1f& dsm, float nodata, double cell, const 
   cv::Mat1f tolerance;
   local_slope.convertTo(tolerance, CV_32F, options.elevation_scaler * cell);
   tolerance += static_cast<float>(options.elevation_threshold_m);
+  const int buffer = 1;
   cv::Mat1f above;
   cv::absdiff(z, provisional, above);
   cv::Mat1b is_ground;
   cv::bitwise_and(above <= tolerance, valid, is_ground);
+  // A cell's width around what stands is not ground either: the DSM's cell at an edge mixes the object's height with
+  // the ground's, within the tolerance of neither (left in, crown edges raised the ground under trees by 0.1 m).
+  cv::Mat standing = is_ground == 0;
+  cv::dilate(standing, standing, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * buffer + 1, 2 * buffer + 1)));
+  is_ground.setTo(0, standing);
   rep.ground_cells = cv::countNonZero(is_ground);
   cv::Mat1f dtm = Interpolate(z, is_ground, nodata);
   dtm.setTo(nodata, valid == 0);
