@@ -199,12 +199,15 @@ bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir,
     if (!open_ground) continue;
     const Eigen::Vector3d X(x, y, scene.Ground(x, y));
     const std::string name = "t" + std::to_string(placed + 1);
-    const double sx = rng.Normal(o.survey_sigma_m), sy = rng.Normal(o.survey_sigma_m), sz = rng.Normal(o.survey_sigma_m);
+    const double sx = rng.Normal(o.survey_sigma_m);  // each draw in its own statement: a fixed order everywhere
+    const double sy = rng.Normal(o.survey_sigma_m);
+    const double sz = rng.Normal(o.survey_sigma_m);
     int clicks = 0;
     for (const auto& t : frames) {
       cv::Point2d px;
       if (!frame_pixel(t, X, &px) || !eval::Sees(scene, t.centre, X)) continue;
-      const double cx = rng.Normal(o.click_sigma_px), cy = rng.Normal(o.click_sigma_px);
+      const double cx = rng.Normal(o.click_sigma_px);
+      const double cy = rng.Normal(o.click_sigma_px);
       gcp << o.easting + x + sx << ' ' << o.northing + y + sy << ' ' << o.datum_m + X.z() + sz << ' ' << px.x + cx
           << ' ' << px.y + cy << ' ' << t.name << ' ' << name << '\n';
       gcp_flat << o.easting + x + sx << ' ' << o.northing + y + sy << " 0 " << px.x + cx << ' ' << px.y + cy << ' '
