@@ -171,6 +171,10 @@ int RunReconstructCommand(int argc, char** argv) {
       return kExitOutputError;
     }
     js["ortho"] = report.ToJson();
+    for (const auto& w : report.warnings) {
+      std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
+      js["warnings"].push_back(w);
+    }
     js["ortho"]["origin"] = {report.ortho.grid.x0 + result.offset.x(), report.ortho.grid.y0 + result.offset.y()};
     js["timings"]["ortho_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_ortho).count();
     const RssSample rss = SampleRss();

@@ -19,6 +19,7 @@ nlohmann::json OrthoFilesReport::ToJson() const {
   js["mbtiles_written"] = mbtiles_written;
   js["web_tiles"] = web_tiles;
   js["web_zoom"] = {web_min_zoom, web_max_zoom};
+  js["warnings"] = warnings;
   js["write_seconds"] = write_seconds;
   return js;
 }
@@ -94,12 +95,29 @@ bool WriteQuicklook(GDALDatasetH src, const std::string& path, int long_side, st
 }
 
 // Web Mercator tiles in an MBTiles file, with zoom levels down to one tile (gdaladdo on the package).
-bool WriteMbtiles(GDALDatasetH src, const std::string& path, std::string* error) {
-  const GdalArgs warp_args({"-of", "VRT", "-t_srs", "EPSG:3857", "-r", "bilinear"});
+// Web Mercator as a virtual warp of `src`, its pixels no finer than `min_resolution` (metres of EPSG:3857).
+GDALDatasetH WarpToMercator(GDALDatasetH src, double min_resolution) {
+  std::vector<std::string> words = {"-of", "VRT", "-t_srs", "EPSG:3857", "-r", "bilinear"};
+  if (min_resolution > 0.0) {
+    words.insert(words.end(), {"-tr", std::to_string(min_resolution), std::to_string(min_resolution), "-r", "average"});
+  }
+  const GdalArgs warp_args(words);
   GDALWarpAppOptions* warp = GDALWarpAppOptionsNew(warp_args.get(), nullptr);
   int usage_error = 0;
   GDALDatasetH mercator = GDALWarp("", nullptr, 1, &src, warp, &usage_error);
   GDALWarpAppOptionsFree(warp);
+  return mercator;
+}
+
+bool WriteMbtiles(GDALDatasetH src, const std::string& path, std::string* error) {
+  GDALDatasetH mercator = WarpToMercator(src, 0.0);
+  // GDAL's MBTiles driver stops at zoom 22 (3.7 cm at the equator): a finer map is written at zoom 22.
+  constexpr double kZoom22 = 2.0 * 20037508.342789244 / 256.0 / (1 << 22);
+  double gt[6] = {0, 0, 0, 0, 0, 0};
+  if (mercator != nullptr && GDALGetGeoTransform(mercator, gt) == CE_None && gt[1] < kZoom22) {
+    GDALClose(mercator);
+    mercator = WarpToMercator(src, kZoom22);
+  }
   if (mercator == nullptr) {
     *error = GdalError("cannot reproject the orthophoto to Web Mercator");
     return false;
@@ -178,8 +196,10 @@ bool WriteOrthophoto(const Reconstruction& rec, const std::vector<std::string>& 
                       error);
   ok = ok && (files.quicklook.empty() || WriteQuicklook(tiles, files.quicklook, files.quicklook_long_side, error));
   if (ok && !files.mbtiles.empty() && !crs_wkt.empty()) {
-    ok = WriteMbtiles(tiles, files.mbtiles, error);
-    report->mbtiles_written = ok;
+    // An extra for ground stations: when it fails the orthophoto still stands, and the failure is said.
+    std::string why;
+    report->mbtiles_written = WriteMbtiles(tiles, files.mbtiles, &why);
+    if (!report->mbtiles_written) report->warnings.push_back("ortho.mbtiles not written: " + why);
   }
   GDALClose(tiles);
   if (ok && !files.tiles_dir.empty() && !crs_wkt.empty()) {

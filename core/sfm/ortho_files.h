@@ -24,7 +24,8 @@ struct OrthoFilesReport {
   bool mbtiles_written = false;
   int web_tiles = 0;  // written to tiles_dir
   int web_min_zoom = 0, web_max_zoom = 0;
-  double write_seconds = 0.0;  // the COG's conversion, the quick-look and the MBTiles
+  std::vector<std::string> warnings;  // products not made (the orthophoto itself was)
+  double write_seconds = 0.0;         // the COG's conversion, the quick-look and the MBTiles
   [[nodiscard]] nlohmann::json ToJson() const;
 };
 
