@@ -5,6 +5,7 @@
 #include <spdlog/fmt/fmt.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -165,7 +166,12 @@ int RunReconstructCommand(int argc, char** argv) {
     if (!result.crs_wkt.empty()) files.tiles_dir = out_dir + "/tiles";
     sfm::OrthoFilesReport report;
     const auto t_ortho = std::chrono::steady_clock::now();
-    if (!sfm::WriteOrthophoto(result.rec, result.image_paths, result.dsm, result.grid, -9999.0f, result.offset,
+    // The orthophoto's surface has no hole: where dsm.tif stays empty (farther than --dsm-fill from a measurement:
+    // water, a uniform field) the interpolated surface still places the frames' pixels, which on such ground are
+    // flat; without it those pixels were holes in the map.
+    cv::Mat1f surface = result.dsm.clone();
+    (void)sfm::FillDsmHoles(&surface, -9999.0f, std::max(surface.rows, surface.cols));
+    if (!sfm::WriteOrthophoto(result.rec, result.image_paths, surface, result.grid, -9999.0f, result.offset,
                               result.crs_wkt, ortho, files, &report, &error)) {
       std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
       return kExitOutputError;
