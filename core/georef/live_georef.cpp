@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include "core/util/xml_escape.h"
+
 namespace uavm {
 
 namespace {
@@ -14,29 +16,6 @@ bool HasFix(const LivePoint& p) {
   // (0, 0) is "no fix" as some cameras write it.
   return std::isfinite(p.latitude_deg) && std::isfinite(p.longitude_deg) &&
          !(p.latitude_deg == 0 && p.longitude_deg == 0);
-}
-
-std::string XmlEscape(const std::string& s) {
-  std::string out;
-  for (char c : s) {
-    switch (c) {
-      case '&':
-        out += "&amp;";
-        break;
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
 }
 
 }  // namespace

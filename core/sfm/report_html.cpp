@@ -10,32 +10,11 @@
 #include <sstream>
 #include <vector>
 
+#include "core/util/xml_escape.h"
+
 namespace uavm::sfm {
 
 namespace {
-
-std::string Escape(const std::string& text) {
-  std::string out;
-  for (char c : text) {
-    switch (c) {
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '&':
-        out += "&amp;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
-}
 
 std::string Num(double v, int decimals) {
   std::ostringstream s;
@@ -128,7 +107,7 @@ std::string OrthoFigure(const nlohmann::json& js, const cv::Mat& ortho, std::str
           << Num(e.y, 1) << "' stroke='" << colour << "' stroke-width='2.5'/>"
           << "<rect x='" << Num(s.x - 5, 1) << "' y='" << Num(s.y - 5, 1) << "' width='10' height='10' fill='none' "
           << "stroke='" << colour << "' stroke-width='2'/><text x='" << Num(s.x + 8, 1) << "' y='" << Num(s.y - 8, 1)
-          << "' fill='" << colour << "' font-size='13'>" << Escape(p["name"].get<std::string>()) << "</text>";
+          << "' fill='" << colour << "' font-size='13'>" << XmlEscape(p["name"].get<std::string>()) << "</text>";
     }
   }
   svg << "</svg>";
@@ -157,8 +136,8 @@ std::string ResidualChart(const nlohmann::json& images) {
   for (const auto& im : images) {
     const double h = im["rms_px"].get<double>() / top * (height - 20);
     svg << "<rect x='" << 38 + i * bar << "' y='" << Num(height - h, 1) << "' width='" << bar - 1 << "' height='"
-        << Num(h, 1) << "' fill='#4a8'><title>" << Escape(im["name"].get<std::string>()) << ": " << Num(im["rms_px"], 3)
-        << " px, " << im["observations"].get<size_t>() << " observations</title></rect>";
+        << Num(h, 1) << "' fill='#4a8'><title>" << XmlEscape(im["name"].get<std::string>()) << ": "
+        << Num(im["rms_px"], 3) << " px, " << im["observations"].get<size_t>() << " observations</title></rect>";
     ++i;
   }
   svg << "<text x='38' y='" << height + 20 << "' font-size='11'>images in flight order (hover: name, RMS, "
@@ -186,7 +165,7 @@ bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const Re
   const size_t left_out = js.value("frames_not_used", nlohmann::json::array()).size();
   h << "<h1>Ground reconstruction report</h1><table>"
     << "<tr><td>frames used / left out</td><td>" << used << " / " << left_out << "</td></tr>"
-    << "<tr><td>map CRS</td><td>" << Escape(js.value("crs", std::string("local"))) << "</td></tr>"
+    << "<tr><td>map CRS</td><td>" << XmlEscape(js.value("crs", std::string("local"))) << "</td></tr>"
     << "<tr><td>ground sampling distance</td><td>" << Num(js.value("gsd_m", 0.0) * 100.0, 2) << " cm</td></tr>"
     << "<tr><td>sparse points / dense points</td><td>" << js.value("sparse_points", size_t{0}) << " / "
     << js.value("dense_points", size_t{0}) << "</td></tr>"
@@ -200,9 +179,9 @@ bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const Re
   h << "<tr><td>DSM measured / filled</td><td>" << Num(100.0 * js.value("dsm_measured_fraction", 0.0), 1) << " % / "
     << Num(100.0 * js.value("dsm_filled_fraction", 0.0), 1) << " %</td></tr></table>";
   for (const auto& w : js.value("warnings", nlohmann::json::array()))
-    h << "<p class='warn'>warning: " << Escape(w.get<std::string>()) << "</p>";
+    h << "<p class='warn'>warning: " << XmlEscape(w.get<std::string>()) << "</p>";
   for (const auto& f : js.value("frames_not_used", nlohmann::json::array()))
-    h << "<p class='warn'>left out: " << Escape(f.dump()) << "</p>";
+    h << "<p class='warn'>left out: " << XmlEscape(f.dump()) << "</p>";
 
   std::string note;
   const std::string figure = OrthoFigure(js, pictures.ortho, &note);
@@ -232,7 +211,7 @@ bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const Re
     h << "<h2>Ground control</h2><table><tr><th>point</th><th>role</th><th>clicks</th><th>dx m</th><th>dy m</th>"
          "<th>dz m</th><th>error GSD</th><th>click RMS px</th></tr>";
     for (const auto& p : g.value("points", nlohmann::json::array())) {
-      h << "<tr><td>" << Escape(p["name"].get<std::string>()) << "</td><td>" << p["role"].get<std::string>()
+      h << "<tr><td>" << XmlEscape(p["name"].get<std::string>()) << "</td><td>" << p["role"].get<std::string>()
         << "</td><td>" << p["clicks"] << "</td>";
       if (p.value("triangulated", false))
         h << "<td>" << Num(p["error_m"][0], 3) << "</td><td>" << Num(p["error_m"][1], 3) << "</td><td>"
@@ -271,7 +250,7 @@ bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const Re
     const auto& seconds = timings[key];
     std::string stage = key;
     if (stage.size() > 2 && stage.substr(stage.size() - 2) == "_s") stage.resize(stage.size() - 2);
-    h << "<tr><td>" << Escape(stage) << "</td><td>" << Num(seconds, 2) << "</td>";
+    h << "<tr><td>" << XmlEscape(stage) << "</td><td>" << Num(seconds, 2) << "</td>";
     if (memory.contains(key))
       h << "<td>" << Num(memory[key]["rss_end"], 0) << "</td><td>" << Num(memory[key]["peak_so_far"], 0) << "</td>";
     else
