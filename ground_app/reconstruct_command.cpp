@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <mutex>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -63,6 +64,110 @@ void AddReconstructionOptions(CLI::App* app, sfm::ReconstructionOptions* opts, s
                 "GCPs tie x and y only (heights from the flight's GPS); automatic when every GCP has the same height");
 }
 
+// The orthophoto's options.
+void AddOrthoOptions(CLI::App* app, sfm::OrthoOptions* ortho, bool* no_ortho, bool* no_mbtiles) {
+  app->add_option("--ortho-gsd", ortho->gsd, "orthophoto pixel size in the map's units (0 = the flight's GSD)");
+  app->add_flag("--no-ortho", *no_ortho, "no orthophoto (ortho.tif, ortho_preview.png, ortho.mbtiles, tiles/)");
+  app->add_flag("--no-mbtiles", *no_mbtiles, "no ortho.mbtiles");
+}
+
+// The camera model (for the sensor table) from the first stored frame's EXIF; empty when none says.
+std::string CameraModelOf(const std::string& session_dir) {
+  sfm::Session s;
+  std::string error;
+  if (!sfm::ReadSession(session_dir, &s, &error)) return {};
+  for (const auto& f : s.frames) {
+    if (!f.stored_file.empty()) return hal::ReadMetadata(session_dir + "/" + f.stored_file).model;
+  }
+  return {};
+}
+
+// The DSM's fill mask and the terrain under buildings and trees (core/sfm/terrain.h): dsm_filled.tif, dtm.tif.
+bool WriteTerrain(sfm::ReconstructionResult& result, const std::string& out_dir, cv::Mat1f* dtm, std::string* error) {
+  sfm::TerrainReport terrain;
+  *dtm = sfm::TerrainFromDsm(result.dsm, -9999.0f, result.grid.cell, sfm::TerrainOptions{}, nullptr, &terrain);
+  result.summary["terrain"] = terrain.ToJson();
+  return sfm::WriteDsmGeoTiff(out_dir + "/dtm.tif", *dtm, result.grid, result.offset, result.crs_wkt, -9999.0f,
+                              error) &&
+         sfm::WriteDsmFillMask(out_dir + "/dsm_filled.tif", result.dsm_provenance, result.grid, result.offset,
+                               result.crs_wkt, error);
+}
+
+// The true orthophoto's files (core/sfm/ortho_files.h), its figures in the summary and its pictures for the report.
+bool WriteOrtho(sfm::ReconstructionResult& result, const sfm::OrthoOptions& ortho, const std::string& out_dir,
+                bool mbtiles, sfm::ReportPictures* pictures, std::vector<std::string>* outputs, std::string* error) {
+  auto& js = result.summary;
+  sfm::OrthoFiles files;
+  files.cog = out_dir + "/ortho.tif";
+  files.quicklook = out_dir + "/ortho_preview.png";
+  if (mbtiles && !result.crs_wkt.empty()) files.mbtiles = out_dir + "/ortho.mbtiles";
+  if (!result.crs_wkt.empty()) files.tiles_dir = out_dir + "/tiles";
+  sfm::OrthoFilesReport report;
+  const auto t_ortho = std::chrono::steady_clock::now();
+  // The orthophoto's surface has no hole: where dsm.tif stays empty (farther than --dsm-fill from a measurement:
+  // water, a uniform field) the interpolated surface still places the frames' pixels, which on such ground are
+  // flat; without it those pixels were holes in the map.
+  cv::Mat1f surface = result.dsm.clone();
+  (void)sfm::FillDsmHoles(&surface, -9999.0f, std::max(surface.rows, surface.cols));
+  if (!sfm::WriteOrthophoto(result.rec, result.image_paths, surface, result.grid, -9999.0f, result.offset,
+                            result.crs_wkt, ortho, files, &report, error))
+    return false;
+  js["ortho"] = report.ToJson();
+  for (const auto& w : report.warnings) {
+    std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
+    js["warnings"].push_back(w);
+  }
+  js["ortho"]["origin"] = {report.ortho.grid.x0 + result.offset.x(), report.ortho.grid.y0 + result.offset.y()};
+  js["timings"]["ortho_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_ortho).count();
+  const RssSample rss = SampleRss();
+  js["stage_memory_mib"]["ortho_s"] = {{"rss_end", rss.rss_mib}, {"peak_so_far", rss.hwm_mib}};
+  pictures->ortho = cv::imread(files.quicklook, cv::IMREAD_UNCHANGED);
+  pictures->overlap = report.ortho.overlap;
+  outputs->insert(outputs->end(), {"ortho.tif", "ortho_preview.png"});
+  if (report.mbtiles_written) outputs->push_back("ortho.mbtiles");
+  if (report.web_tiles > 0) outputs->push_back("tiles/");
+  return true;
+}
+
+// What was made: the dense points are the fused cloud's (cloud.ply holds the sparse points when there is none).
+void PrintClosingLine(const sfm::ReconstructionResult& result) {
+  const auto& js = result.summary;
+  std::string ortho_line = "no orthophoto";
+  if (js.contains("ortho"))
+    ortho_line = fmt::format("orthophoto {}x{} px at {:.3f} from {} frames", js["ortho"]["size"][0].get<int>(),
+                             js["ortho"]["size"][1].get<int>(), js["ortho"]["gsd"].get<double>(),
+                             js["ortho"]["images_used"].get<int>());
+  std::fprintf(stderr,
+               "uavmosaic-ground: %zu frames (%zu left out), %zu sparse points, BA RMS %.3f -> %.3f px, %zu dense "
+               "points, DSM from the %s points (%.0f %% of it filled), %s\n",
+               result.rec.images.size(), js.value("frames_not_used", nlohmann::json::array()).size(),
+               result.rec.points.size(), js.value("ba_rms_before_px", 0.0), js.value("ba_rms_after_px", 0.0),
+               js.value("dense_points", size_t{0}), js.value("dsm_source", std::string("sparse")).c_str(),
+               100.0 * js.value("dsm_filled_fraction", 0.0), ortho_line.c_str());
+}
+
+// --render-previews: the cloud seen from above, the DSM and the DTM as PNGs.
+void WritePreviews(const sfm::ReconstructionResult& result, const sfm::ReportPictures& pictures,
+                   const std::string& out_dir) {
+  const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};
+  cv::imwrite(out_dir + "/preview_cloud.png", sfm::RenderCloudTopView(result.dense, 900), png);
+  cv::imwrite(out_dir + "/preview_dsm.png", pictures.dsm, png);
+  cv::imwrite(out_dir + "/preview_dtm.png", pictures.dtm, png);
+}
+
+// Each stage's progress on one stderr line, from any thread.
+class StderrProgress {
+ public:
+  void operator()(const std::string& stage, size_t done, size_t total) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::fprintf(stderr, "\r[%s] %zu/%zu%s", stage.c_str(), done, total, done == total ? "\n" : "");
+    std::fflush(stderr);
+  }
+
+ private:
+  std::mutex mutex_;
+};
+
 }  // namespace
 
 int RunReconstructCommand(int argc, char** argv) {
@@ -82,9 +187,7 @@ int RunReconstructCommand(int argc, char** argv) {
   sfm::OrthoOptions ortho;
   bool no_ortho = false;
   bool no_mbtiles = false;
-  app.add_option("--ortho-gsd", ortho.gsd, "orthophoto pixel size in the map's units (0 = the flight's GSD)");
-  app.add_flag("--no-ortho", no_ortho, "no orthophoto (ortho.tif, ortho_preview.png, ortho.mbtiles)");
-  app.add_flag("--no-mbtiles", no_mbtiles, "no ortho.mbtiles");
+  AddOrthoOptions(&app, &ortho, &no_ortho, &no_mbtiles);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -104,26 +207,10 @@ int RunReconstructCommand(int argc, char** argv) {
     std::fprintf(stderr, "uavmosaic-ground: cannot create %s: %s\n", out_dir.c_str(), ec.message().c_str());
     return kExitOutputError;
   }
-  // Camera model (sensor table) from the first stored frame's EXIF.
-  {
-    sfm::Session s;
-    if (sfm::ReadSession(session_dir, &s, &error) && !s.frames.empty()) {
-      for (const auto& f : s.frames) {
-        if (f.stored_file.empty()) continue;
-        const auto md = hal::ReadMetadata(session_dir + "/" + f.stored_file);
-        opts.camera_model = md.model;
-        break;
-      }
-    }
-  }
-  std::mutex progress_mutex;
-  auto progress = [&](const std::string& stage, size_t done, size_t total) {
-    std::lock_guard<std::mutex> lock(progress_mutex);
-    std::fprintf(stderr, "\r[%s] %zu/%zu%s", stage.c_str(), done, total, done == total ? "\n" : "");
-    std::fflush(stderr);
-  };
+  opts.camera_model = CameraModelOf(session_dir);
+  StderrProgress progress;
   sfm::ReconstructionResult result;
-  if (!sfm::RunReconstruction(session_dir, opts, progress, &result, &error)) {
+  if (!sfm::RunReconstruction(session_dir, opts, std::ref(progress), &result, &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitReconstructionFailed;
   }
@@ -140,63 +227,20 @@ int RunReconstructCommand(int argc, char** argv) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitOutputError;
   }
-  // The terrain under buildings and trees (core/sfm/terrain.h).
-  sfm::TerrainReport terrain;
-  const cv::Mat1f dtm =
-      sfm::TerrainFromDsm(result.dsm, -9999.0f, result.grid.cell, sfm::TerrainOptions{}, nullptr, &terrain);
-  js["terrain"] = terrain.ToJson();
-  if (!sfm::WriteDsmGeoTiff(out_dir + "/dtm.tif", dtm, result.grid, result.offset, result.crs_wkt, -9999.0f, &error)) {
-    std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
-    return kExitOutputError;
-  }
   std::vector<std::string> outputs = {"cloud.ply", "dsm.tif", "dsm_filled.tif", "dtm.tif"};
-  if (!sfm::WriteDsmFillMask(out_dir + "/dsm_filled.tif", result.dsm_provenance, result.grid, result.offset,
-                             result.crs_wkt, &error)) {
+  cv::Mat1f dtm;
+  if (!WriteTerrain(result, out_dir, &dtm, &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitOutputError;
   }
   sfm::ReportPictures pictures;
   pictures.dsm = sfm::RenderDsm(result.dsm, -9999.0f, 900);
   pictures.dtm = sfm::RenderDsm(dtm, -9999.0f, 900);
-  if (!no_ortho) {
-    sfm::OrthoFiles files;
-    files.cog = out_dir + "/ortho.tif";
-    files.quicklook = out_dir + "/ortho_preview.png";
-    if (!no_mbtiles && !result.crs_wkt.empty()) files.mbtiles = out_dir + "/ortho.mbtiles";
-    if (!result.crs_wkt.empty()) files.tiles_dir = out_dir + "/tiles";
-    sfm::OrthoFilesReport report;
-    const auto t_ortho = std::chrono::steady_clock::now();
-    // The orthophoto's surface has no hole: where dsm.tif stays empty (farther than --dsm-fill from a measurement:
-    // water, a uniform field) the interpolated surface still places the frames' pixels, which on such ground are
-    // flat; without it those pixels were holes in the map.
-    cv::Mat1f surface = result.dsm.clone();
-    (void)sfm::FillDsmHoles(&surface, -9999.0f, std::max(surface.rows, surface.cols));
-    if (!sfm::WriteOrthophoto(result.rec, result.image_paths, surface, result.grid, -9999.0f, result.offset,
-                              result.crs_wkt, ortho, files, &report, &error)) {
-      std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
-      return kExitOutputError;
-    }
-    js["ortho"] = report.ToJson();
-    for (const auto& w : report.warnings) {
-      std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
-      js["warnings"].push_back(w);
-    }
-    js["ortho"]["origin"] = {report.ortho.grid.x0 + result.offset.x(), report.ortho.grid.y0 + result.offset.y()};
-    js["timings"]["ortho_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_ortho).count();
-    const RssSample rss = SampleRss();
-    js["stage_memory_mib"]["ortho_s"] = {{"rss_end", rss.rss_mib}, {"peak_so_far", rss.hwm_mib}};
-    pictures.ortho = cv::imread(files.quicklook, cv::IMREAD_UNCHANGED);
-    pictures.overlap = report.ortho.overlap;
-    outputs.insert(outputs.end(), {"ortho.tif", "ortho_preview.png"});
-    if (report.mbtiles_written) outputs.push_back("ortho.mbtiles");
-    if (report.web_tiles > 0) outputs.push_back("tiles/");
+  if (!no_ortho && !WriteOrtho(result, ortho, out_dir, !no_mbtiles, &pictures, &outputs, &error)) {
+    std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
+    return kExitOutputError;
   }
-  if (previews) {
-    const std::vector<int> png = {cv::IMWRITE_PNG_COMPRESSION, 9};
-    cv::imwrite(out_dir + "/preview_cloud.png", sfm::RenderCloudTopView(result.dense, 900), png);
-    cv::imwrite(out_dir + "/preview_dsm.png", pictures.dsm, png);
-    cv::imwrite(out_dir + "/preview_dtm.png", pictures.dtm, png);
-  }
+  if (previews) WritePreviews(result, pictures, out_dir);
   js["camera_model_exif"] = opts.camera_model;
   js["coordinates"] = {{"ply_and_colmap_offset_xy", {result.offset.x(), result.offset.y()}},
                        {"note",
@@ -210,19 +254,7 @@ int RunReconstructCommand(int argc, char** argv) {
     return kExitOutputError;
   }
   std::ofstream(out_dir + "/summary.json") << js.dump(2) << '\n';
-  // What was made: the dense points are the fused cloud's (cloud.ply holds the sparse points when there is none).
-  std::string ortho_line = "no orthophoto";
-  if (js.contains("ortho"))
-    ortho_line = fmt::format("orthophoto {}x{} px at {:.3f} from {} frames", js["ortho"]["size"][0].get<int>(),
-                             js["ortho"]["size"][1].get<int>(), js["ortho"]["gsd"].get<double>(),
-                             js["ortho"]["images_used"].get<int>());
-  std::fprintf(stderr,
-               "uavmosaic-ground: %zu frames (%zu left out), %zu sparse points, BA RMS %.3f -> %.3f px, %zu dense "
-               "points, DSM from the %s points (%.0f %% of it filled), %s\n",
-               result.rec.images.size(), js.value("frames_not_used", nlohmann::json::array()).size(),
-               result.rec.points.size(), js.value("ba_rms_before_px", 0.0), js.value("ba_rms_after_px", 0.0),
-               js.value("dense_points", size_t{0}), js.value("dsm_source", std::string("sparse")).c_str(),
-               100.0 * js.value("dsm_filled_fraction", 0.0), ortho_line.c_str());
+  PrintClosingLine(result);
   return kExitOk;
 }
 

@@ -106,29 +106,16 @@ bool WriteGeoTiff(const std::string& path, const cv::Mat& image, const double gt
 
 }  // namespace
 
-bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir, nlohmann::json* summary,
-                       std::string* error) {
-  if (!o.Check(error)) return false;
-  GDALAllRegister();
-  std::error_code ec;
-  fs::create_directories(fs::path(out_dir) / "images", ec);
-  fs::create_directories(fs::path(out_dir) / "truth", ec);
-  if (ec) {
-    *error = "cannot create " + out_dir + ": " + ec.message();
-    return false;
-  }
-  const double f = 0.5 * o.width / std::tan(0.5 * o.hfov_deg * kPi / 180.0);
-  const double gsd = o.altitude_m / f;
-  eval::ReliefScene scene = eval::MakeReliefScene(o.seed, o.half_extent_m, o.buildings, o.trees);
-  scene.texture_scale = 3.0 * gsd;  // the finest texture three pixels long
-  const cv::Matx33d K(f, 0, 0.5 * (o.width - 1) + 0.7, 0, f, 0.5 * (o.height - 1) - 0.4, 0, 0, 1);
-  const cv::Vec4d dist(o.k1, o.k2, 0.0, 0.0);
-  // Strips along x (east), flown alternately east and west, covering the scene's centre lines to its edges.
+namespace {
+
+// The survey's frames: strips along x (east), flown alternately east and west, covering the scene's centre lines to
+// its edges; each with its pointing error and its GPS position's noise.
+std::vector<FrameTruth> PlanFrames(const ReliefFlightOptions& o, double gsd, PortableRandom& rng, int* strips_out,
+                                   int* per_strip_out) {
   const double step = (1.0 - o.forward_overlap) * o.width * gsd;
   const double spacing = (1.0 - o.side_overlap) * o.height * gsd;
   const int per_strip = static_cast<int>(std::ceil(2.0 * o.half_extent_m / step)) + 1;
   const int strips = static_cast<int>(std::ceil(2.0 * o.half_extent_m / spacing)) + 1;
-  PortableRandom rng(o.seed * 7919u + 11u);
   std::vector<FrameTruth> frames;
   for (int s = 0; s < strips; ++s) {
     const double y = -o.half_extent_m + s * 2.0 * o.half_extent_m / (strips - 1);
@@ -153,6 +140,14 @@ bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir,
       frames.push_back(t);
     }
   }
+  *strips_out = strips;
+  *per_strip_out = per_strip;
+  return frames;
+}
+
+bool RenderFrames(const ReliefFlightOptions& o, const eval::ReliefScene& scene, const cv::Matx33d& K,
+                  const std::vector<FrameTruth>& frames, const std::string& out_dir, std::string* error) {
+  const cv::Vec4d dist(o.k1, o.k2, 0.0, 0.0);
   const cv::Mat2f rays = PixelRays(K, dist, cv::Size(o.width, o.height));
   std::vector<std::string> failed(frames.size());
   ParallelFor(frames.size(), 2, [&](size_t i) {
@@ -171,8 +166,14 @@ bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir,
       return false;
     }
   }
-  // Targets on open ground (6 m from anything standing), on a jittered grid over the inner scene; each clicked where
-  // a frame sees it (inside the picture, nothing in between), with click noise; surveyed with survey noise.
+  return true;
+}
+
+// Targets on open ground (6 m from anything standing), on a jittered grid over the inner scene; each clicked where a
+// frame sees it (inside the picture, nothing in between), with click noise; surveyed with survey noise.
+void WriteTargets(const ReliefFlightOptions& o, const eval::ReliefScene& scene, const cv::Matx33d& K,
+                  const std::vector<FrameTruth>& frames, const std::string& out_dir, PortableRandom& rng,
+                  nlohmann::json* targets, nlohmann::json* checkpoints) {
   const auto frame_pixel = [&](const FrameTruth& t, const Eigen::Vector3d& X, cv::Point2d* px) {
     const Eigen::Vector3d p = t.R * (X - t.centre);
     if (p.z() <= 0) return false;
@@ -186,7 +187,8 @@ bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir,
   gcp_flat << "EPSG:32615\n";
   gcp.precision(12);
   gcp_flat.precision(12);
-  nlohmann::json targets = nlohmann::json::array(), checkpoints = nlohmann::json::array();
+  *targets = nlohmann::json::array();
+  *checkpoints = nlohmann::json::array();
   const int side = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(o.targets)))));
   for (int k = 0, placed = 0; placed < o.targets && k < 50 * o.targets; ++k) {
     const int cell = placed;
@@ -214,11 +216,15 @@ bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir,
                << t.name << ' ' << name << '\n';
       ++clicks;
     }
-    targets.push_back({{"name", name}, {"xyz", {x, y, X.z()}}, {"clicks", clicks}});
-    if (placed % 3 == 1) checkpoints.push_back(name);
+    targets->push_back({{"name", name}, {"xyz", {x, y, X.z()}}, {"clicks", clicks}});
+    if (placed % 3 == 1) checkpoints->push_back(name);
     ++placed;
   }
-  // Positions: reported (geo.txt) and true, in UTM 15N with heights above the datum.
+}
+
+// Positions: reported (geo.txt) and true, in UTM 15N with heights above the datum. Returns the poses for flight.json.
+nlohmann::json WritePositions(const ReliefFlightOptions& o, const std::vector<FrameTruth>& frames,
+                              const std::string& out_dir) {
   std::ofstream geo(fs::path(out_dir) / "geo.txt"), geo_truth(fs::path(out_dir) / "geo_truth.txt");
   geo << "EPSG:32615\n";
   geo_truth << "EPSG:32615\n";
@@ -235,7 +241,12 @@ bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir,
          {"centre", {t.centre.x(), t.centre.y(), t.centre.z()}},
          {"R", {t.R(0, 0), t.R(0, 1), t.R(0, 2), t.R(1, 0), t.R(1, 1), t.R(1, 2), t.R(2, 0), t.R(2, 1), t.R(2, 2)}}});
   }
-  // The truth from above at the flight's GSD.
+  return poses;
+}
+
+// The truth from above at the flight's GSD.
+bool WriteTruth(const ReliefFlightOptions& o, const eval::ReliefScene& scene, double gsd, const std::string& out_dir,
+                std::string* error) {
   eval::TruthGrid grid;
   grid.gsd = gsd;
   grid.x0 = -o.half_extent_m;
@@ -252,6 +263,36 @@ bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir,
       !WriteGeoTiff((truth / "dtm.tif").string(), ground, gt, error) ||
       !WriteGeoTiff((truth / "cover.tif").string(), eval::RenderCover(scene, grid), gt, error))
     return false;
+  return true;
+}
+
+}  // namespace
+
+bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir, nlohmann::json* summary,
+                       std::string* error) {
+  if (!o.Check(error)) return false;
+  GDALAllRegister();
+  std::error_code ec;
+  fs::create_directories(fs::path(out_dir) / "images", ec);
+  fs::create_directories(fs::path(out_dir) / "truth", ec);
+  if (ec) {
+    *error = "cannot create " + out_dir + ": " + ec.message();
+    return false;
+  }
+  const double f = 0.5 * o.width / std::tan(0.5 * o.hfov_deg * kPi / 180.0);
+  const double gsd = o.altitude_m / f;
+  eval::ReliefScene scene = eval::MakeReliefScene(o.seed, o.half_extent_m, o.buildings, o.trees);
+  scene.texture_scale = 3.0 * gsd;  // the finest texture three pixels long
+  const cv::Matx33d K(f, 0, 0.5 * (o.width - 1) + 0.7, 0, f, 0.5 * (o.height - 1) - 0.4, 0, 0, 1);
+  PortableRandom rng(o.seed * 7919u + 11u);
+  int strips = 0, per_strip = 0;
+  const std::vector<FrameTruth> frames = PlanFrames(o, gsd, rng, &strips, &per_strip);
+  if (!RenderFrames(o, scene, K, frames, out_dir, error)) return false;
+  nlohmann::json targets, checkpoints;
+  WriteTargets(o, scene, K, frames, out_dir, rng, &targets, &checkpoints);
+  const nlohmann::json poses = WritePositions(o, frames, out_dir);
+  if (!WriteTruth(o, scene, gsd, out_dir, error)) return false;
+  const fs::path truth = fs::path(out_dir) / "truth";
   nlohmann::json scene_js = {{"half_extent_m", o.half_extent_m},
                              {"slope", {scene.slope_x, scene.slope_y}},
                              {"buildings", scene.buildings.size()},

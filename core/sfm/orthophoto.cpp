@@ -407,17 +407,12 @@ bool OrthoTile(const OrthoContext& ctx, FrameCache* cache, const std::vector<siz
 
 }  // namespace
 
-bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGrid& dsm_grid, float nodata,
-                    const DsmGrid& ortho_grid, const OrthoOptions& options, const OrthoImageLoad& load,
-                    const OrthoTileSink& sink, OrthoReport* report, std::string* error) {
-  const auto start = std::chrono::steady_clock::now();
-  if (!options.Check(error)) return false;
-  *report = OrthoReport{};
-  report->grid = ortho_grid;
-  if (dsm.empty() || ortho_grid.width <= 0 || ortho_grid.height <= 0) {
-    *error = "orthophoto: no DSM";
-    return false;
-  }
+namespace {
+
+// Every posed frame's z-buffer of the DSM, all within options.zbuffer_mib (at most a quarter of the frame's pixels).
+bool RenderFrameViews(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGrid& dsm_grid, float nodata,
+                      const DsmGrid& ortho_grid, const OrthoOptions& options, std::vector<FrameView>* views_out,
+                      double* scale_out, OrthoReport* report, std::string* error) {
   // The z-buffers' scale: every posed frame's depth map within zbuffer_mib, at most a quarter of the frame's pixels.
   double frame_pixels = 0.0;
   for (const auto& im : rec.images)
@@ -428,7 +423,8 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
   }
   const double scale = std::min(0.25, std::sqrt(options.zbuffer_mib * kMiB / (4.0 * frame_pixels)));
   report->zbuffer_scale = scale;
-  std::vector<FrameView> views(rec.images.size());
+  std::vector<FrameView>& views = *views_out;
+  views.assign(rec.images.size(), FrameView{});
   ParallelFor(rec.images.size(), options.threads, [&](size_t i) {
     if (rec.images[i].posed)
       views[i] =
@@ -439,9 +435,20 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
     if (!v.ortho_box.empty()) ++report->images_in_view;
   }
 
-  OrthoContext ctx{
-      rec, dsm, dsm_grid, nodata, ortho_grid, options, views, scale, options.occlusion_tolerance_cells * dsm_grid.cell};
-  report->overlap = OverlapMap(ctx, options.threads);
+  *scale_out = scale;
+  return true;
+}
+
+// The tiles along a Hilbert curve, each blended by a worker and handed to `sink` (one at a time); per worker counts.
+bool BlendTiles(const OrthoContext& ctx, const OrthoImageLoad& load, const OrthoTileSink& sink,
+                std::vector<TileCounts>* counts_out, OrthoReport* report, std::string* error, size_t* loads,
+                size_t* unreadable) {
+  const OrthoOptions& options = ctx.options;
+  const DsmGrid& ortho_grid = ctx.ortho;
+  const Reconstruction& rec = ctx.rec;
+  const std::vector<FrameView>& views = ctx.views;
+  std::vector<TileCounts>& counts = *counts_out;
+  counts.assign(static_cast<size_t>(options.threads), TileCounts{});
   const std::vector<cv::Rect> tiles =
       TilesAlongHilbertCurve(cv::Size(ortho_grid.width, ortho_grid.height), options.tile_size);
   report->tiles = static_cast<int>(tiles.size());
@@ -449,7 +456,6 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
   const cv::Rect whole(0, 0, ortho_grid.width, ortho_grid.height);
   FrameCache cache(load, static_cast<size_t>(options.image_cache_mib * kMiB));
   std::vector<std::unique_ptr<TileBlender>> blenders;
-  std::vector<TileCounts> counts(static_cast<size_t>(options.threads));
   for (int w = 0; w < options.threads; ++w) {
     blenders.push_back(options.num_bands > 0 ? MakeMultiBandBlender(options.num_bands) : MakeSeamOnlyBlender());
     counts[static_cast<size_t>(w)].used.assign(rec.images.size(), 0);
@@ -485,6 +491,33 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
     *error = "orthophoto: " + sink_error;
     return false;
   }
+  *loads = cache.loads();
+  *unreadable = cache.unreadable();
+  return true;
+}
+
+}  // namespace
+
+bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGrid& dsm_grid, float nodata,
+                    const DsmGrid& ortho_grid, const OrthoOptions& options, const OrthoImageLoad& load,
+                    const OrthoTileSink& sink, OrthoReport* report, std::string* error) {
+  const auto start = std::chrono::steady_clock::now();
+  if (!options.Check(error)) return false;
+  *report = OrthoReport{};
+  report->grid = ortho_grid;
+  if (dsm.empty() || ortho_grid.width <= 0 || ortho_grid.height <= 0) {
+    *error = "orthophoto: no DSM";
+    return false;
+  }
+  std::vector<FrameView> views;
+  double scale = 0.0;
+  if (!RenderFrameViews(rec, dsm, dsm_grid, nodata, ortho_grid, options, &views, &scale, report, error)) return false;
+  OrthoContext ctx{
+      rec, dsm, dsm_grid, nodata, ortho_grid, options, views, scale, options.occlusion_tolerance_cells * dsm_grid.cell};
+  report->overlap = OverlapMap(ctx, options.threads);
+  std::vector<TileCounts> counts;
+  size_t loads = 0, unreadable = 0;
+  if (!BlendTiles(ctx, load, sink, &counts, report, error, &loads, &unreadable)) return false;
   std::vector<char> used(rec.images.size(), 0);
   for (const auto& c : counts) {
     report->pixels_covered += c.covered;
@@ -493,8 +526,8 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
     for (size_t i = 0; i < used.size(); ++i) used[i] = static_cast<char>(used[i] | c.used[i]);
   }
   report->images_used = static_cast<int>(std::count(used.begin(), used.end(), 1));
-  report->image_loads = cache.loads();
-  report->images_unreadable = static_cast<int>(cache.unreadable());
+  report->image_loads = loads;
+  report->images_unreadable = static_cast<int>(unreadable);
   report->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return true;
 }

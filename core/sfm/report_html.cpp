@@ -152,15 +152,10 @@ std::string Picture(const cv::Mat& image, int long_side, const std::string& alt)
 
 }  // namespace
 
-bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const ReportPictures& pictures,
-                     std::string* error) {
-  std::ostringstream h;
-  h << "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>uavmosaic ground report</title><style>"
-       "body{font-family:sans-serif;margin:24px;max-width:1100px;color:#222}h1{font-size:22px}h2{font-size:17px;"
-       "margin-top:28px;border-bottom:1px solid #ccc}table{border-collapse:collapse;font-size:13px}td,th{border:1px "
-       "solid #ccc;padding:3px 7px;text-align:right}th{background:#eee}td:first-child{text-align:left}"
-       ".note{font-size:12px;color:#555}.warn{color:#a40}img{max-width:100%}.row{display:flex;gap:16px}"
-       "</style></head><body>";
+namespace {
+
+// The flight's figures, its warnings and the frames left out.
+void SummarySection(const nlohmann::json& js, std::ostringstream& h) {
   const size_t used = js.value("frames_used", size_t{0});
   const size_t left_out = js.value("frames_not_used", nlohmann::json::array()).size();
   h << "<h1>Ground reconstruction report</h1><table>"
@@ -182,16 +177,9 @@ bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const Re
     h << "<p class='warn'>warning: " << XmlEscape(w.get<std::string>()) << "</p>";
   for (const auto& f : js.value("frames_not_used", nlohmann::json::array()))
     h << "<p class='warn'>left out: " << XmlEscape(f.dump()) << "</p>";
+}
 
-  std::string note;
-  const std::string figure = OrthoFigure(js, pictures.ortho, &note);
-  if (!figure.empty())
-    h << "<h2>Orthophoto, cameras and control</h2>" << figure << "<p class='note'>" << note << "</p>";
-  if (!pictures.overlap.empty())
-    h << "<h2>Overlap</h2>" << Picture(OverlapPicture(pictures.overlap, 600), 600, "overlap")
-      << "<p class='note'>frames that see the ground unoccluded: grey 0, red 1, orange 2, yellow 3, light green 4, "
-         "green 5 or more</p>";
-
+void CamerasSection(const nlohmann::json& js, std::ostringstream& h) {
   h << "<h2>Cameras</h2><table><tr><th>camera</th><th>size</th><th>images</th><th>f px</th><th>cx</th><th>cy</th>"
        "<th>k1</th><th>k2</th><th>p1</th><th>p2</th></tr>";
   int index = 0;
@@ -203,9 +191,9 @@ bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const Re
       << "</td><td>" << Num(c.value("p2", nlohmann::json()), 5) << "</td></tr>";
   }
   h << "</table>";
+}
 
-  h << "<h2>Reprojection residuals per image</h2>" << ResidualChart(js.value("images", nlohmann::json::array()));
-
+void ControlSection(const nlohmann::json& js, std::ostringstream& h) {
   if (js.contains("gcp")) {
     const auto& g = js["gcp"];
     h << "<h2>Ground control</h2><table><tr><th>point</th><th>role</th><th>clicks</th><th>dx m</th><th>dy m</th>"
@@ -228,11 +216,9 @@ bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const Re
           << g[key]["points"] << " points</p>";
     }
   }
+}
 
-  h << "<h2>Surface and terrain</h2><div class='row'><div><p>DSM</p>" << Picture(pictures.dsm, 520, "DSM")
-    << "</div><div><p>DTM (ground under buildings and trees)</p>" << Picture(pictures.dtm, 520, "DTM")
-    << "</div></div>";
-
+void TimingSection(const nlohmann::json& js, std::ostringstream& h) {
   h << "<h2>Time and memory per stage</h2><table><tr><th>stage</th><th>seconds</th><th>resident at its end, "
        "MiB</th><th>peak so far, MiB</th></tr>";
   const auto memory = js.value("stage_memory_mib", nlohmann::json::object());
@@ -259,6 +245,38 @@ bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const Re
   }
   h << "</table><p class='note'>A stage whose &lsquo;peak so far&rsquo; is above the stage before it set the run's "
        "peak there.</p></body></html>\n";
+}
+
+}  // namespace
+
+bool WriteReportHtml(const std::string& path, const nlohmann::json& js, const ReportPictures& pictures,
+                     std::string* error) {
+  std::ostringstream h;
+  h << "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>uavmosaic ground report</title><style>"
+       "body{font-family:sans-serif;margin:24px;max-width:1100px;color:#222}h1{font-size:22px}h2{font-size:17px;"
+       "margin-top:28px;border-bottom:1px solid #ccc}table{border-collapse:collapse;font-size:13px}td,th{border:1px "
+       "solid #ccc;padding:3px 7px;text-align:right}th{background:#eee}td:first-child{text-align:left}"
+       ".note{font-size:12px;color:#555}.warn{color:#a40}img{max-width:100%}.row{display:flex;gap:16px}"
+       "</style></head><body>";
+  SummarySection(js, h);
+  std::string note;
+  const std::string figure = OrthoFigure(js, pictures.ortho, &note);
+  if (!figure.empty())
+    h << "<h2>Orthophoto, cameras and control</h2>" << figure << "<p class='note'>" << note << "</p>";
+  if (!pictures.overlap.empty())
+    h << "<h2>Overlap</h2>" << Picture(OverlapPicture(pictures.overlap, 600), 600, "overlap")
+      << "<p class='note'>frames that see the ground unoccluded: grey 0, red 1, orange 2, yellow 3, light green 4, "
+         "green 5 or more</p>";
+
+  CamerasSection(js, h);
+  h << "<h2>Reprojection residuals per image</h2>" << ResidualChart(js.value("images", nlohmann::json::array()));
+
+  ControlSection(js, h);
+  h << "<h2>Surface and terrain</h2><div class='row'><div><p>DSM</p>" << Picture(pictures.dsm, 520, "DSM")
+    << "</div><div><p>DTM (ground under buildings and trees)</p>" << Picture(pictures.dtm, 520, "DTM")
+    << "</div></div>";
+
+  TimingSection(js, h);
   std::ofstream out(path);
   out << h.str();
   out.close();
