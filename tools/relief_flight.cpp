@@ -322,6 +322,20 @@ bool WriteReliefFlight(const ReliefFlightOptions& o, const std::string& out_dir,
 
 namespace {
 
+// All bands of `ds` as one interleaved Mat of `type` (CV_8U or CV_32F); empty on a read error.
+cv::Mat ReadRaster(GDALDataset* ds, int type) {
+  const int bands = ds->GetRasterCount();
+  cv::Mat data(ds->GetRasterYSize(), ds->GetRasterXSize(), CV_MAKETYPE(type, bands));
+  for (int b = 1; b <= bands; ++b) {
+    if (ds->GetRasterBand(b)->RasterIO(GF_Read, 0, 0, data.cols, data.rows, data.data + (b - 1) * data.elemSize1(),
+                                       data.cols, data.rows, type == CV_32F ? GDT_Float32 : GDT_Byte,
+                                       static_cast<GSpacing>(data.elemSize()), static_cast<GSpacing>(data.step[0]),
+                                       nullptr) != CE_None)
+      return {};
+  }
+  return data;
+}
+
 // `path` resampled onto the truth raster's grid (GDAL warp; bilinear or nearest), with an alpha band when asked.
 cv::Mat WarpOntoTruth(const std::string& path, GDALDataset* truth, bool nearest, bool alpha, int* bands_out,
                       std::string* error) {
@@ -361,31 +375,14 @@ cv::Mat WarpOntoTruth(const std::string& path, GDALDataset* truth, bool nearest,
   auto* ds = GDALDataset::FromHandle(out);
   const int bands = ds->GetRasterCount();
   const bool is_float = ds->GetRasterBand(1)->GetRasterDataType() == GDT_Float32;
-  cv::Mat data(h, w, CV_MAKETYPE(is_float ? CV_32F : CV_8U, bands));
-  for (int b = 1; b <= bands; ++b) {
-    if (ds->GetRasterBand(b)->RasterIO(GF_Read, 0, 0, w, h, data.data + (b - 1) * data.elemSize1(), w, h,
-                                       is_float ? GDT_Float32 : GDT_Byte, static_cast<GSpacing>(data.elemSize()),
-                                       static_cast<GSpacing>(data.step[0]), nullptr) != CE_None) {
-      GDALClose(out);
-      *error = "cannot read the resampled " + path;
-      return {};
-    }
+  const cv::Mat data = ReadRaster(ds, is_float ? CV_32F : CV_8U);
+  if (data.empty()) {
+    GDALClose(out);
+    *error = "cannot read the resampled " + path;
+    return {};
   }
   GDALClose(out);
   *bands_out = bands;
-  return data;
-}
-
-cv::Mat ReadRaster(GDALDataset* ds, int type) {
-  const int bands = ds->GetRasterCount();
-  cv::Mat data(ds->GetRasterYSize(), ds->GetRasterXSize(), CV_MAKETYPE(type, bands));
-  for (int b = 1; b <= bands; ++b) {
-    if (ds->GetRasterBand(b)->RasterIO(GF_Read, 0, 0, data.cols, data.rows, data.data + (b - 1) * data.elemSize1(),
-                                       data.cols, data.rows, type == CV_32F ? GDT_Float32 : GDT_Byte,
-                                       static_cast<GSpacing>(data.elemSize()), static_cast<GSpacing>(data.step[0]),
-                                       nullptr) != CE_None)
-      return {};
-  }
   return data;
 }
 
