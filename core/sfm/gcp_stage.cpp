@@ -6,6 +6,8 @@
 #include <limits>
 #include <map>
 
+#include "core/sfm/sparse_stage.h"
+
 namespace uavm::sfm {
 
 namespace {
@@ -94,6 +96,53 @@ bool LoadGcpInput(const std::string& path, const std::vector<std::string>& check
   }
   for (const auto& w : out->binding.warnings) std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
   return true;
+}
+
+// 7b. Ground control points: the georeferenced model moved onto the GCPs, adjusted with them, every point measured.
+bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialModel& init, GcpInput* gcp,
+                  const ReconstructionOptions& options, Reconstruction* rec, nlohmann::json* js, std::string* error) {
+  BundlePriors priors = MakeBundlePriors(frames, init, options, js);
+  ControlReport report;
+  const auto& cps = gcp->binding.points;
+  ControlOptions control = options.control;
+  control.horizontal_only = control.horizontal_only || gcp->horizontal_only;
+  if (!AlignToControl(cps, control, rec, &priors.centres, &report, error)) return false;
+  BundleOptions bo;
+  bo.threads = options.threads;
+  bo.focal_prior_sigma = priors.focal_sigma;
+  bo.centre_priors = priors.centres;
+  bo.refine_k3 = options.refine_k3;
+  bo.control = ControlConstraints(cps, *rec, control);
+  bo.control_sigma_m = control.sigma_m;
+  if (control.horizontal_only) bo.control_sigma_z_m = control.free_height_sigma_m;
+  bo.control_click_px = options.control.click_px;
+  TieFocals(priors, bo.min_images_for_lens, rec, &bo);
+  BundleSummary bs;
+  if (!BundleAdjust(rec, bo, &bs, error)) return false;
+  TieFocals(priors, bo.min_images_for_lens, rec, &bo);
+  MeasureControl(*rec, cps, &report);
+  nlohmann::json j = report.ToJson();
+  j["file"] = options.gcp_file;
+  j["crs"] = gcp->crs.name();
+  j["clicks_in_unused_frames"] = gcp->binding.clicks_skipped;
+  for (const auto& w : gcp->binding.warnings) j["warnings"].push_back(w);
+  j["ba_rms_px"] = bs.rms_after_px;
+  j["sigma_m"] = options.control.sigma_m;
+  j["click_sigma_px"] = options.control.click_px;
+  (*js)["gcp"] = j;
+  (*js)["ba_rms_after_px"] = rec->ReprojectionRms();
+  for (const auto& w : report.warnings) std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
+  return true;
+}
+
+// The GCP file (none without options.gcp_file) read, checked and bound to the selected frames' image slots.
+bool BindGcpFile(const SelectedFrames& sel, const ReconstructionOptions& options, std::unique_ptr<GcpInput>* gcp,
+                 nlohmann::json* js, std::string* error) {
+  if (options.gcp_file.empty()) return true;
+  *gcp = std::make_unique<GcpInput>();
+  (*gcp)->horizontal_only = options.control.horizontal_only;
+  return LoadGcpInput(options.gcp_file, options.checkpoints, sel.session, sel.frames, options.gcp_max_distance_km,
+                      gcp->get(), js, error);
 }
 
 }  // namespace uavm::sfm

@@ -1,11 +1,14 @@
 #pragma once
 #include <Eigen/Core>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
 #include "core/sfm/control_points.h"
+#include "core/sfm/frame_selection.h"
 #include "core/sfm/gcp.h"
+#include "core/sfm/initial_poses.h"
 #include "core/sfm/session_import.h"
 
 namespace uavm::sfm {
@@ -27,5 +30,15 @@ struct GcpInput {
 [[nodiscard]] bool LoadGcpInput(const std::string& path, const std::vector<std::string>& checkpoints,
                                 const Session& session, const std::vector<const SessionFrame*>& used,
                                 double max_distance_km, GcpInput* out, nlohmann::json* js, std::string* error);
+
+// The GCP file (none without options.gcp_file) read, checked and bound to the selected frames' image slots.
+[[nodiscard]] bool BindGcpFile(const SelectedFrames& sel, const ReconstructionOptions& options,
+                               std::unique_ptr<GcpInput>* gcp, nlohmann::json* js, std::string* error);
+
+// 7b. The georeferenced model moved onto the GCPs and adjusted with them (checkpoints kept out), every point measured;
+// the figures under (*js)["gcp"].
+[[nodiscard]] bool AdjustToGcps(const std::vector<const SessionFrame*>& frames, const InitialModel& init, GcpInput* gcp,
+                                const ReconstructionOptions& options, Reconstruction* rec, nlohmann::json* js,
+                                std::string* error);
 
 }  // namespace uavm::sfm
