@@ -22,6 +22,7 @@
 #include "core/sfm/report_html.h"
 #include "core/sfm/run_reconstruction.h"
 #include "core/sfm/session_import.h"
+#include "core/sfm/session_radiometry.h"
 #include "core/sfm/terrain.h"
 #include "core/util/memory.h"
 #include "ground_app/exit_codes.h"
@@ -94,9 +95,13 @@ bool WriteTerrain(sfm::ReconstructionResult& result, const std::string& out_dir,
 }
 
 // The true orthophoto's files (core/sfm/ortho_files.h), its figures in the summary and its pictures for the report.
-bool WriteOrtho(sfm::ReconstructionResult& result, const sfm::OrthoOptions& ortho, const std::string& out_dir,
-                bool mbtiles, sfm::ReportPictures* pictures, std::vector<std::string>* outputs, std::string* error) {
+bool WriteOrtho(sfm::ReconstructionResult& result, const std::string& session_dir, const sfm::OrthoOptions& ortho,
+                const std::string& out_dir, bool mbtiles, sfm::ReportPictures* pictures,
+                std::vector<std::string>* outputs, std::string* error) {
   auto& js = result.summary;
+  // The onboard gains and shading divided out of each frame, as the onboard map did (none when the session has none).
+  std::string no_radiometry;
+  const sfm::OrthoFrameCorrection correct = sfm::SessionRadiometryCorrection(session_dir, result.rec, &no_radiometry);
   sfm::OrthoFiles files;
   files.cog = out_dir + "/ortho.tif";
   files.quicklook = out_dir + "/ortho_preview.png";
@@ -110,9 +115,11 @@ bool WriteOrtho(sfm::ReconstructionResult& result, const sfm::OrthoOptions& orth
   cv::Mat1f surface = result.dsm.clone();
   (void)sfm::FillDsmHoles(&surface, -9999.0f, std::max(surface.rows, surface.cols));
   if (!sfm::WriteOrthophoto(result.rec, result.image_paths, surface, result.grid, -9999.0f, result.offset,
-                            result.crs_wkt, ortho, files, &report, error))
+                            result.crs_wkt, ortho, files, correct, &report, error))
     return false;
   js["ortho"] = report.ToJson();
+  js["ortho"]["radiometry"] =
+      correct ? "the onboard gains and shading (radiometry.csv, report.json)" : "none: " + no_radiometry;
   for (const auto& w : report.warnings) {
     std::fprintf(stderr, "uavmosaic-ground: warning: %s\n", w.c_str());
     js["warnings"].push_back(w);
@@ -236,7 +243,7 @@ int RunReconstructCommand(int argc, char** argv) {
   sfm::ReportPictures pictures;
   pictures.dsm = sfm::RenderDsm(result.dsm, -9999.0f, 900);
   pictures.dtm = sfm::RenderDsm(dtm, -9999.0f, 900);
-  if (!no_ortho && !WriteOrtho(result, ortho, out_dir, !no_mbtiles, &pictures, &outputs, &error)) {
+  if (!no_ortho && !WriteOrtho(result, session_dir, ortho, out_dir, !no_mbtiles, &pictures, &outputs, &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitOutputError;
   }

@@ -83,7 +83,7 @@ TEST(ReliefOrtho, ExactCamerasAndTrueDsmGiveAnOrthophotoOnTheTruth) {
   files.cog = (dir / "ortho.tif").string();
   sfm::OrthoFilesReport report;
   ASSERT_TRUE(sfm::WriteOrthophoto(rec, paths, dsm, grid, -9999.0f, Eigen::Vector2d(o.easting, o.northing), crs,
-                                   options, files, &report, &error))
+                                   options, files, {}, &report, &error))
       << error;
   nlohmann::json measured;
   tools::ProductPaths products;

@@ -12,6 +12,7 @@
 #include "core/sfm/cloud_and_dsm.h"
 #include "core/sfm/colmap_io.h"
 #include "core/sfm/session_import.h"
+#include "core/sfm/session_radiometry.h"
 #include "sfm_synthetic.h"
 
 namespace uavm::sfm {
@@ -128,6 +129,58 @@ TEST(SfmIo, SessionCameraYaml) {
   std::ofstream(dir / "camera.yaml") << "camera: [1, 2\n";
   EXPECT_FALSE(ReadSession(dir.string(), &s, &err));
   EXPECT_NE(err.find("camera.yaml"), std::string::npos) << err;
+  fs::remove_all(dir);
+}
+
+// The onboard radiometry read back for the orthophoto: each frame's gains from radiometry.csv and the shading from
+// report.json; the correction divides them out of the frame (here a uniform grey, no shading: the gains alone). A
+// session without it, or with a damaged table, gives no correction and says why.
+TEST(SfmIo, SessionRadiometryDividesTheOnboardGainsOut) {
+  const fs::path dir = TempDir("session_radiometry");
+  std::ofstream(dir / "frames.csv")
+      << "index,filename,stored_file,width,height,registered\n3,a.jpg,000003_a.jpg,64,48,1\n";
+  std::ofstream(dir / "graph.csv") << "src,tgt,src_file,tgt_file,matches,inliers,used\n";
+  Reconstruction rec;
+  Image im;
+  im.frame_index = 3;
+  rec.images.push_back(im);
+  std::string why;
+  EXPECT_FALSE(SessionRadiometryCorrection(dir.string(), rec, &why));
+  EXPECT_NE(why.find("report.json"), std::string::npos) << why;
+  std::ofstream(dir / "report.json")
+      << R"({"radiometry": {"corrected": true, "vignetting": true, "log_falloff_c1_c2_bgr": [[-0.2, 0.01], [-0.3, 0.02],
+             [-0.4, 0.03]], "flat_field": false, "hotspot": {"found": true, "antisolar_half_diagonals": [0.1, -0.2],
+             "log_weights": [0.05, 0.02, 0.01]}}})";
+  std::ofstream(dir / "radiometry.csv") << "frame,name,gain_b,gain_g,gain_r\n3,a.jpg,2.00000,1.00000,0.50000\n";
+  Session session;
+  ASSERT_TRUE(ReadSession(dir.string(), &session, &why)) << why;
+  RadiometryModel model;
+  ASSERT_TRUE(ReadSessionRadiometry(session, &model, &why)) << why;
+  EXPECT_TRUE(model.ok);
+  EXPECT_DOUBLE_EQ(model.log_falloff[1][0], -0.3);
+  EXPECT_DOUBLE_EQ(model.log_falloff[2][1], 0.03);
+  EXPECT_TRUE(model.hotspot.found);
+  EXPECT_DOUBLE_EQ(model.hotspot.antisolar_v, -0.2);
+  EXPECT_DOUBLE_EQ(model.hotspot.weights[0], 0.05);
+  EXPECT_NEAR(model.Gain(3)[0], 2.0, 1e-12);
+  EXPECT_NEAR(model.Gain(3)[2], 0.5, 1e-12);
+  // Without shading, the correction is the gains: B halved, R doubled.
+  std::ofstream(dir / "report.json") << R"({"radiometry": {"corrected": true, "vignetting": false,
+      "log_falloff_c1_c2_bgr": [[0, 0], [0, 0], [0, 0]], "flat_field": false, "hotspot": {"found": false}}})";
+  const auto correct = SessionRadiometryCorrection(dir.string(), rec, &why);
+  ASSERT_TRUE(correct) << why;
+  cv::Mat grey(48, 64, CV_8UC3, cv::Scalar(100, 100, 100));
+  correct(0, &grey);
+  const cv::Vec3b px = grey.at<cv::Vec3b>(20, 30);
+  EXPECT_NEAR(px[0], 50, 1);
+  EXPECT_NEAR(px[1], 100, 1);
+  EXPECT_NEAR(px[2], 200, 1);
+  std::ofstream(dir / "radiometry.csv") << "frame,name,gain_b,gain_g,gain_r\n3,a.jpg,2.0,-1,0.5\n";
+  EXPECT_FALSE(SessionRadiometryCorrection(dir.string(), rec, &why));
+  EXPECT_NE(why.find("radiometry.csv"), std::string::npos) << why;
+  std::ofstream(dir / "report.json") << R"({"radiometry": {"corrected": false}})";
+  EXPECT_FALSE(SessionRadiometryCorrection(dir.string(), rec, &why));
+  EXPECT_NE(why.find("did not correct"), std::string::npos) << why;
   fs::remove_all(dir);
 }
 

@@ -146,8 +146,8 @@ bool WriteMbtiles(GDALDatasetH src, const std::string& path, std::string* error)
 
 bool WriteOrthophoto(const Reconstruction& rec, const std::vector<std::string>& image_paths, const cv::Mat1f& dsm,
                      const DsmGrid& dsm_grid, float nodata, const Eigen::Vector2d& offset, const std::string& crs_wkt,
-                     const OrthoOptions& options, const OrthoFiles& files, OrthoFilesReport* report,
-                     std::string* error) {
+                     const OrthoOptions& options, const OrthoFiles& files, const OrthoFrameCorrection& correct,
+                     OrthoFilesReport* report, std::string* error) {
   *report = OrthoFilesReport{};
   const double gsd = options.gsd > 0.0 ? options.gsd : rec.MedianGsd();
   if (gsd <= 0.0 || image_paths.size() != rec.images.size()) {
@@ -175,6 +175,7 @@ bool WriteOrthophoto(const Reconstruction& rec, const std::vector<std::string>& 
                      image_paths[i].c_str(), image.cols, image.rows, cam.width, cam.height);
         return cv::Mat();
       }
+      if (!image.empty() && correct) correct(i, &image);
       return image;
     };
     const OrthoTileSink sink = [&](const cv::Mat& image, const cv::Mat& mask, cv::Point at, std::string* why) {

@@ -1,5 +1,6 @@
 #pragma once
 #include <Eigen/Core>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -32,10 +33,13 @@ struct OrthoFilesReport {
 // The orthophoto of `rec` over `dsm` (local coordinates; the map's are + offset, in `crs_wkt`, empty = local) from
 // the frames at `image_paths` (one per image of rec), written to `files`. Tiles go through a tiled GeoTIFF beside the
 // COG (removed after), so no more than a tile of the map is ever in memory.
+// `correct` (may be empty) is applied to each frame as it is read, before it is warped (e.g. the onboard radiometry
+// divided out).
+using OrthoFrameCorrection = std::function<void(size_t image, cv::Mat* bgr)>;
 [[nodiscard]] bool WriteOrthophoto(const Reconstruction& rec, const std::vector<std::string>& image_paths,
                                    const cv::Mat1f& dsm, const DsmGrid& dsm_grid, float nodata,
                                    const Eigen::Vector2d& offset, const std::string& crs_wkt,
-                                   const OrthoOptions& options, const OrthoFiles& files, OrthoFilesReport* report,
-                                   std::string* error);
+                                   const OrthoOptions& options, const OrthoFiles& files,
+                                   const OrthoFrameCorrection& correct, OrthoFilesReport* report, std::string* error);
 
 }  // namespace uavm::sfm
