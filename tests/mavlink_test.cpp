@@ -351,6 +351,9 @@ TEST(MavlinkTriggers, ImageCapturedMatchesByImageNumber) {
   std::string log;
   const double yaw = 30.0 * M_PI / 180.0;  // about NED down: q = (cos(yaw/2), 0, 0, sin(yaw/2))
   uint8_t seq = 0;
+  // The autopilot's HEARTBEAT (system 1): the camera component of the same vehicle sends the captures.
+  for (int shift = 56; shift >= 0; shift -= 8) log.push_back(static_cast<char>((1700000000000000ULL >> shift) & 0xFF));
+  log += Encode(Heartbeat{0, 2, 3, 209, 4}, seq++, 1, 1);
   for (int32_t i = 1; i <= 6; ++i) {
     CameraImageCaptured c;
     c.time_utc_usec = 1700000000000000ULL + static_cast<uint64_t>(i) * 2000000ULL;

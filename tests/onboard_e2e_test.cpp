@@ -167,8 +167,11 @@ TEST(OnboardE2ETest, ATelemetryLogOfAnotherFlightIsRefused) {
   const std::vector<ExifFrame> frames = ExifFrames(flight.path());
   ASSERT_EQ(static_cast<int>(frames.size()), flight.frames());
   constexpr int64_t kDaysLaterUs = 3LL * 86400 * 1000000;
-  std::string triggers_log, fixes_log;
+  // Each log opens with the autopilot's HEARTBEAT (system 1): whose telemetry it is.
   uint8_t seq = 0;
+  std::string triggers_log =
+      TlogRecord(frames[0].utc_us + kDaysLaterUs - 1000000, hal::mavlink::Heartbeat{0, 2, 3, 209, 4}, seq++);
+  std::string fixes_log = triggers_log;
   for (size_t i = 0; i < frames.size(); ++i) {
     const ExifFrame& f = frames[i];
     hal::mavlink::CameraFeedback c;

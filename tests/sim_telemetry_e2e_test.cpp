@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -22,6 +23,7 @@
 #include "core/eval/evaluator.h"
 #include "core/session/session_dir.h"
 #include "hal/sim/sim_telemetry.h"
+#include "hal/telemetry/mavlink.h"
 #include "tests/geo_txt_test_util.h"
 #include "tests/gpsfake_test_util.h"
 #include "tests/process_util.h"
@@ -240,10 +242,36 @@ TEST(SimTelemetryE2ETest, LiveSimStreamsMavlinkInStepWithTheFrames) {
   ASSERT_NO_FATAL_FAILURE(WriteFlight(plan, dir / "flight"));  // the truth and the fixes (no UDP: live_link off)
   std::string err;
   ASSERT_TRUE(WriteFileAtomic((dir / "plan.yaml").string(), plan + "canvas: \"" + kCanvas + "\"\n", &err)) << err;
-  ASSERT_TRUE(WriteFileAtomic((dir / "config.yaml").string(), "telemetry:\n  latency_ms: 200\n", &err)) << err;
-  ASSERT_NO_FATAL_FAILURE(RunOnboard("--source sim:" + (dir / "plan.yaml").string() + " --out " +
-                                     (dir / "session").string() + " --config " + (dir / "config.yaml").string() +
-                                     " --telemetry mavlink-udp:127.0.0.1:" + std::to_string(port)));
+  // The vehicle is system 1 (hal/sim); a second one (system 2, an autopilot too) sends its HEARTBEAT and positions
+  // 1 km away at 10 Hz to the same port all along: the map must follow system 1 only.
+  ASSERT_TRUE(WriteFileAtomic((dir / "config.yaml").string(), "telemetry:\n  latency_ms: 200\n  system_id: 1\n", &err))
+      << err;
+  std::atomic<bool> flying{true};
+  int injected = 0;
+  std::thread intruder([&] {
+    const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+    sockaddr_in to{};
+    to.sin_family = AF_INET;
+    to.sin_port = htons(static_cast<uint16_t>(port));
+    to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    for (uint8_t seq = 0; flying; ++seq) {
+      hal::mavlink::GlobalPositionInt g;
+      g.lat_deg = 14.6 + 0.009 * (seq % 2);
+      g.lon_deg = -91.99;
+      g.relative_alt_m = 80;
+      std::string bytes = hal::mavlink::Encode(g, seq, 2, 1);
+      if (seq % 10 == 0) bytes += hal::mavlink::Encode(hal::mavlink::Heartbeat{0, 2, 3, 209, 4}, seq, 2, 1);
+      sendto(fd, bytes.data(), bytes.size(), 0, reinterpret_cast<const sockaddr*>(&to), sizeof(to));
+      ++injected;
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    close(fd);
+  });
+  RunOnboard("--source sim:" + (dir / "plan.yaml").string() + " --out " + (dir / "session").string() + " --config " +
+             (dir / "config.yaml").string() + " --telemetry mavlink-udp:127.0.0.1:" + std::to_string(port));
+  flying = false;
+  intruder.join();
+  ASSERT_FALSE(HasFatalFailure());
   Session s;
   ASSERT_NO_FATAL_FAILURE(ReadSession(dir / "session", &s));
   const json& t = s.report["telemetry"];
@@ -253,6 +281,10 @@ TEST(SimTelemetryE2ETest, LiveSimStreamsMavlinkInStepWithTheFrames) {
   EXPECT_LE(dropped, 2);  // 2 frames/s of 400x300 keep a loaded 2-core machine busy, not drowned
   EXPECT_EQ(t["kind"], "mavlink-udp");
   EXPECT_GE(t["frames_placed"].get<int>(), kFrames - 1 - dropped);
+  // The second vehicle was heard, said and ignored: most of what it sent while the mapper listened is counted.
+  EXPECT_EQ(t["system_id"].get<int>(), 1);
+  EXPECT_EQ(t["other_autopilots"].get<int>(), 1);
+  EXPECT_GT(t["packets_of_other_systems"].get<int>(), injected / 2) << injected << " sent";
   // Each frame's position is the fix of the instant it was taken.
   const auto fixes = ReadGeoTxt(dir / "flight/geo.txt");
   const auto placed = ReadFramePositions(dir / "session/frames.csv");

@@ -179,7 +179,9 @@ TEST(TelemetrySourceTest, SerialLinkOnAPseudoTerminal) {
   auto source = MakeTelemetrySource("mavlink-serial:" + slave + ":115200", {}, &error);
   ASSERT_NE(source, nullptr) << error;
   ASSERT_EQ(source->Start(&error), Status::kOk) << error;
-  // The flight controller: 20 Hz of GLOBAL_POSITION_INT for 1 s, moving north.
+  // The flight controller: its HEARTBEAT, then 20 Hz of GLOBAL_POSITION_INT for 1 s, moving north.
+  const std::string heartbeat = mavlink::Encode(mavlink::Heartbeat{0, 2, 3, 209, 4}, 0, 1, 1);
+  ASSERT_EQ(write(master, heartbeat.data(), heartbeat.size()), static_cast<ssize_t>(heartbeat.size()));
   for (int k = 0; k < 20; ++k) {
     mavlink::GlobalPositionInt g;
     g.time_boot_ms = static_cast<uint32_t>(50 * k);

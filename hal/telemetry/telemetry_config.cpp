@@ -13,10 +13,9 @@ namespace uavm::hal {
 namespace {
 
 std::vector<std::pair<const char*, double*>> Keys(TelemetryConfig& c) {
-  return {{"latency_ms", &c.latency_ms},
-          {"max_gap_s", &c.max_gap_s},
-          {"max_hold_s", &c.max_hold_s},
-          {"exif_utc_offset_s", &c.exif_utc_offset_s}};
+  return {{"latency_ms", &c.latency_ms}, {"max_gap_s", &c.max_gap_s},
+          {"max_hold_s", &c.max_hold_s}, {"exif_utc_offset_s", &c.exif_utc_offset_s},
+          {"system_id", &c.system_id},   {"component_id", &c.component_id}};
 }
 
 }  // namespace
@@ -28,6 +27,10 @@ bool TelemetryConfig::Check(std::string* why) const {
   if (!(std::abs(latency_ms) <= 10000)) return Fail(why, "telemetry.latency_ms must be within +-10000");
   if (!(std::abs(exif_utc_offset_s) <= 14 * 3600))
     return Fail(why, "telemetry.exif_utc_offset_s must be within +-14 h");
+  const auto id = [](double v) { return v >= 0 && v <= 255 && v == std::floor(v); };
+  if (!id(system_id) || !id(component_id))
+    return Fail(why, "telemetry.system_id and component_id must be MAVLink ids in [0, 255] (0 = the first autopilot)");
+  if (system_id == 0 && component_id != 0) return Fail(why, "telemetry.component_id needs telemetry.system_id");
   return true;
 }
 
@@ -37,6 +40,8 @@ TelemetryOptions TelemetryConfig::ToOptions() const {
   o.max_gap_ns = static_cast<int64_t>(max_gap_s * 1e9);
   o.max_hold_ns = static_cast<int64_t>(max_hold_s * 1e9);
   o.exif_utc_offset_s = exif_utc_offset_s;
+  o.system_id = static_cast<int>(system_id);
+  o.component_id = static_cast<int>(component_id);
   return o;
 }
 

@@ -13,6 +13,9 @@ struct TelemetryConfig {
   double max_gap_s = 2.0;          // fixes further apart than this place no frame between them
   double max_hold_s = 1.0;         // a frame after the newest fix (link lost) takes it only within this
   double exif_utc_offset_s = 0.0;  // replayed stills: EXIF local time minus UTC
+  // MAVLink: the vehicle whose telemetry is taken (hal/telemetry/system_filter.h); 0 = the first autopilot heard.
+  double system_id = 0;
+  double component_id = 0;
 
   [[nodiscard]] bool Check(std::string* why) const;
   [[nodiscard]] TelemetryOptions ToOptions() const;

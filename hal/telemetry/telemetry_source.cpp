@@ -185,10 +185,12 @@ Status TlogSource::Start(std::string* error) {
   std::vector<std::pair<int64_t, mavlink::Message>> messages;
   std::vector<Trigger> feedback, captured;
   mavlink::TlogStats stats;
+  mavlink::SystemFilter filter(options_.system_id, options_.component_id);
   size_t fixes = 0;
   const bool ok = mavlink::ReadTlog(
       path_,
       [&](uint64_t us, const mavlink::Packet& p) {
+        if (!filter.Accept(p)) return;  // another system's (counted)
         auto m = mavlink::Decode(p);
         if (!m) return;
         if (std::holds_alternative<mavlink::GlobalPositionInt>(*m) || std::holds_alternative<mavlink::GpsRawInt>(*m))
@@ -203,6 +205,7 @@ Status TlogSource::Start(std::string* error) {
       &stats, error);
   if (!ok || !OrderTriggers(path_, std::move(feedback), std::move(captured), &triggers_, error)) return Status::kError;
   report_.parser = stats.parser;
+  report_.system = filter.counters();
   report_.resync_bytes = stats.resync_bytes;
   report_.log_truncated = stats.truncated;
   if (stats.parser.crc_errors + stats.resync_bytes > 0)
@@ -321,6 +324,7 @@ class LinkSource final : public TelemetrySource {
     r.match = "time";
     r.track = track_.counters();
     r.parser = parser_counters_;
+    r.system = system_counters_;
     return r;
   }
   std::string Describe() const override { return kind_ + " " + target_ + ":" + std::to_string(port_or_baud_); }
@@ -344,7 +348,8 @@ class LinkSource final : public TelemetrySource {
   mutable std::mutex mutex_;
   TelemetryReport report_;
   mavlink::ParserCounters parser_counters_;
-  sockaddr_storage peer_{};  // the last sender (UDP): where STATUSTEXT goes
+  mavlink::SystemFilterCounters system_counters_;
+  sockaddr_storage peer_{};  // the vehicle's last datagram's sender (UDP): where STATUSTEXT goes
   socklen_t peer_len_ = 0;
   uint8_t status_seq_ = 0;
 };
@@ -417,6 +422,7 @@ Status LinkSource::Start(std::string* error) {
 
 void LinkSource::ReadLoop() {
   mavlink::Parser parser;
+  mavlink::SystemFilter filter(options_.system_id, options_.component_id);
   TrackFeeder feeder(&track_);
   std::vector<uint8_t> buf(65536);
   while (!stop_) {
@@ -431,17 +437,20 @@ void LinkSource::ReadLoop() {
         (pfd.revents & (POLLHUP | POLLERR | POLLNVAL)) != 0 || n == 0 || (n < 0 && errno != EAGAIN && errno != EINTR);
     if (n <= 0 && kind_ != "mavlink-udp" && hung_up) ReopenSerial(n < 0 ? std::strerror(errno) : "hang-up");
     if (n <= 0) continue;
-    if (kind_ == "mavlink-udp") {
-      std::lock_guard lock(mutex_);
-      peer_ = from;
-      peer_len_ = from_len;
-    }
     const int64_t now = MonotonicNs();
+    bool from_vehicle = false;
     parser.Feed(buf.data(), static_cast<size_t>(n), [&](const mavlink::Packet& p) {
+      if (!filter.Accept(p)) return;  // another system's (counted)
+      from_vehicle = true;
       if (auto m = mavlink::Decode(p)) feeder.Add(*m, now);
     });
     std::lock_guard lock(mutex_);
+    if (from_vehicle && kind_ == "mavlink-udp") {  // STATUSTEXT goes back to the vehicle's link, not to any sender
+      peer_ = from;
+      peer_len_ = from_len;
+    }
     parser_counters_ = parser.counters();
+    system_counters_ = filter.counters();
   }
 }
 

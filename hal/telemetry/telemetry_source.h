@@ -10,6 +10,7 @@
 #include "hal/common/frame_source.h"
 #include "hal/telemetry/geo_txt.h"
 #include "hal/telemetry/mavlink.h"
+#include "hal/telemetry/system_filter.h"
 #include "hal/telemetry/tlog.h"
 #include "hal/telemetry/track.h"
 
@@ -25,6 +26,9 @@ struct TelemetryOptions {
   // local - UTC in seconds (e.g. 3600 for CET). With camera trigger messages (frames matched by image number) it only
   // serves to tell a log of another flight.
   double exif_utc_offset_s = 0;
+  // MAVLink sources: whose packets are taken (hal/telemetry/system_filter.h); 0 = the first autopilot heard.
+  int system_id = 0;
+  int component_id = 0;
 };
 
 // What telemetry did for the flight: report.json "telemetry".
@@ -36,6 +40,7 @@ struct TelemetryReport {
   uint64_t frames_without = 0;  // telemetry could not say (stale, lost, no fix, not in the file): image-only
   TrackCounters track;
   mavlink::ParserCounters parser;
+  mavlink::SystemFilterCounters system;  // MAVLink sources: whose packets were taken, what was ignored
   uint64_t resync_bytes = 0;
   bool log_truncated = false;
   bool log_overlaps_frames = true;    // false: a log of another flight (times that do not meet the frames')
