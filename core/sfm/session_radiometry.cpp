@@ -1,11 +1,14 @@
 #include "core/sfm/session_radiometry.h"
 
+#include <array>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <vector>
 
 namespace uavm::sfm {
 
