@@ -26,9 +26,6 @@ std::vector<std::string> SplitCsv(const std::string& line) {
   return cells;
 }
 
-namespace {
-
-// Rows of a CSV file as header-name -> cell maps.
 bool ReadCsv(const std::string& path, std::vector<std::map<std::string, std::string>>* rows, std::string* error) {
   std::string text;
   if (!ReadTextFile(path, &text, error)) return false;
@@ -61,8 +58,6 @@ std::optional<double> OptNum(const std::map<std::string, std::string>& row, cons
     return std::nullopt;
   }
 }
-
-}  // namespace
 
 namespace {
 

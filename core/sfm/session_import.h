@@ -1,4 +1,5 @@
 #pragma once
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -54,5 +55,10 @@ struct Session {
 
 // Splits a CSV line (no quoting: the session writer never quotes).
 [[nodiscard]] std::vector<std::string> SplitCsv(const std::string& line);
+// Rows of a session's CSV file (frames.csv, graph.csv, radiometry.csv ...) as header-name -> cell maps.
+[[nodiscard]] bool ReadCsv(const std::string& path, std::vector<std::map<std::string, std::string>>* rows,
+                           std::string* error);
+// A row's number under `key`; nullopt when the cell is missing, empty or not a number.
+[[nodiscard]] std::optional<double> OptNum(const std::map<std::string, std::string>& row, const std::string& key);
 
 }  // namespace uavm::sfm

@@ -2,13 +2,16 @@
 
 #include <array>
 #include <cmath>
-#include <cstdlib>
 #include <fstream>
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
-#include <sstream>
+#include <optional>
+#include <string>
 #include <vector>
+
+#include "core/session/session_dir.h"
+#include "core/sfm/session_import.h"
 
 namespace uavm::sfm {
 
@@ -53,46 +56,36 @@ bool ReadShading(const nlohmann::json& r, RadiometryModel* model, std::string* w
   return true;
 }
 
-// radiometry.csv: frame,name,gain_b,gain_g,gain_r.
+// radiometry.csv: frame,name,gain_b,gain_g,gain_r (core/sfm/session_import's CSV reader).
 bool ReadGains(const std::string& path, RadiometryModel* model, std::string* why) {
-  std::ifstream in(path);
-  std::string line;
-  if (!in || !std::getline(in, line) || line.rfind("frame,name,gain_b,gain_g,gain_r", 0) != 0) {
-    *why = path + ": missing or not a gains table";
-    return false;
-  }
-  while (std::getline(in, line)) {
-    if (line.empty()) continue;
-    std::stringstream row(line);
-    std::string field;
-    std::vector<std::string> fields;
-    while (std::getline(row, field, ',')) fields.push_back(field);
+  std::vector<std::map<std::string, std::string>> rows;
+  if (!ReadCsv(path, &rows, why)) return false;
+  for (const auto& row : rows) {
+    const std::optional<double> id = OptNum(row, "frame");
     cv::Vec3d log_gain;
-    bool ok = fields.size() >= 5;
-    for (int c = 0; ok && c < 3; ++c) {
-      char* end = nullptr;
-      const double g = std::strtod(fields[fields.size() - 3 + static_cast<size_t>(c)].c_str(), &end);
-      ok = end != nullptr && *end == '\0' && g > 0.0 && std::isfinite(g);
-      log_gain[c] = ok ? std::log(g) : 0.0;
+    bool ok = id && *id >= 0;
+    int c = 0;
+    for (const char* key : {"gain_b", "gain_g", "gain_r"}) {
+      const std::optional<double> g = OptNum(row, key);
+      ok = ok && g && *g > 0.0 && std::isfinite(*g);
+      log_gain[c++] = ok ? std::log(*g) : 0.0;
     }
-    char* end = nullptr;
-    const long id = ok ? std::strtol(fields[0].c_str(), &end, 10) : -1;
-    if (!ok || end == nullptr || *end != '\0' || id < 0) {
-      *why = path + ": a malformed row: " + line;
+    if (!ok) {
+      *why = path + ": a row without a frame number and three positive gains";
       return false;
     }
-    model->log_gain[static_cast<int>(id)] = log_gain;
+    model->log_gain[static_cast<int>(*id)] = log_gain;
   }
   return true;
 }
 
 }  // namespace
 
-bool ReadSessionRadiometry(const Session& session, RadiometryModel* model, std::string* why) {
+bool ReadSessionRadiometry(const std::string& session_dir, RadiometryModel* model, std::string* why) {
   *model = RadiometryModel{};
   nlohmann::json report;
   try {
-    std::ifstream in(session.root + "/report.json");
+    std::ifstream in(session_dir + "/report.json");
     if (!in) {
       *why = "the session has no report.json";
       return false;
@@ -107,23 +100,33 @@ bool ReadSessionRadiometry(const Session& session, RadiometryModel* model, std::
     *why = std::string("report.json: ") + e.what();
     return false;
   }
-  if (!ReadGains(session.root + "/radiometry.csv", model, why)) return false;
+  if (!ReadGains(session_dir + "/radiometry.csv", model, why)) return false;
   model->ok = true;
   return true;
 }
 
 std::function<void(size_t, cv::Mat*)> SessionRadiometryCorrection(const std::string& session_dir,
                                                                   const Reconstruction& rec, std::string* why) {
-  Session session;
   auto model = std::make_shared<RadiometryModel>();
-  if (!ReadSession(session_dir, &session, why) || !ReadSessionRadiometry(session, model.get(), why)) return {};
-  std::map<int, double> heading_of;
-  for (const auto& f : session.frames)
-    if (f.has_transform) heading_of[f.index] = HeadingOf(f.mosaic_from_frame, cv::Size(f.width, f.height));
+  if (!ReadSessionRadiometry(session_dir, model.get(), why)) return {};
+  // Each frame's heading from its onboard map (transforms.csv; the rotation does not depend on the image's scale). A
+  // frame without one turns the hotspot as a frame along the mosaic's axes.
+  std::string text, unread;
+  std::vector<TransformRow> rows;
+  if (!ReadTextFile(session_dir + "/transforms.csv", &text, &unread) || !ParseTransformsCsv(text, &rows, &unread))
+    rows.clear();
+  std::map<int, const TransformRow*> row_of;
+  for (const auto& row : rows)
+    if (row.registered) row_of[row.index] = &row;
   auto headings = std::make_shared<std::vector<double>>();
   for (const auto& im : rec.images) {
-    const auto it = heading_of.find(im.frame_index);
-    headings->push_back(it != heading_of.end() ? it->second : 0.0);
+    const auto it = row_of.find(im.frame_index);
+    if (it == row_of.end()) {
+      headings->push_back(0.0);
+      continue;
+    }
+    const Camera& cam = rec.CameraOf(im);
+    headings->push_back(HeadingOf(it->second->mosaic_from_frame, cv::Size(cam.width, cam.height)));
   }
   return [model, headings, &rec](size_t i, cv::Mat* bgr) {
     CorrectRadiometry(*model, rec.images[i].frame_index, (*headings)[i], bgr->size(), cv::Point2d(), bgr);
