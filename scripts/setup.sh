@@ -10,6 +10,7 @@ PACKAGES=(
   libcamera-dev libcamera-ipa
   libgtest-dev libgmock-dev libbenchmark-dev
   libcpp-httplib-dev libjs-leaflet chromium python3-gdal python3-qgis curl
+  libssl-dev openssl  # MAVLink signing (SHA-256), the live server's HTTPS; the tests make their CA with openssl
   jq time  # bench/ground_brighton.sh: summary.json fields, peak RSS (/usr/bin/time -v)
   clang-tidy clang-format  # scripts/lint.sh --function-size and --check (CI steps)
   libgps-dev  # --telemetry gpsd:HOST:PORT (hal/telemetry/gpsd_source.cpp)

@@ -5,15 +5,18 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <thread>
 
 #include "core/util/clock.h"
+#include "hal/telemetry/mavlink_signing.h"
 #include "hal/telemetry/telemetry_source.h"
 #include "hal/telemetry/tlog.h"
 #include "tests/test_net.h"
@@ -413,6 +416,83 @@ TEST(MavlinkFraming, SignedPacketsAreAcceptedAndUnknownFlagsDropped) {
   EXPECT_EQ(got[1].text, "after");
   EXPECT_EQ(parser.counters().signed_packets, 1u);
   EXPECT_EQ(parser.counters().unsupported, 1u);
+}
+
+// MAVLink 2 signing against node-mavlink's signer (Node's crypto SHA-256, tests/telemetry/signing_peer.mjs): its
+// check finds the signatures we make right (and one made with another key wrong), and each datagram it signs gets
+// the verdict the spec asks for from our receiver: taken, unsigned, another key, replayed, a new stream too old, cut
+// short, one bit of the signature flipped.
+TEST(MavlinkSigningPeer, SignaturesAgreeWithNodeMavlink) {
+  if (std::system("command -v node >/dev/null 2>&1") != 0) GTEST_SKIP() << "node is not installed (scripts/setup.sh)";
+  const fs::path dir = fs::temp_directory_path() / ("uavm_signing_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  SigningKey key{}, other{};
+  std::string hex;
+  for (size_t i = 0; i < key.size(); ++i) {
+    key[i] = static_cast<uint8_t>(17 * i + 3);
+    other[i] = static_cast<uint8_t>(key[i] ^ 0x80);
+    char digits[3];
+    std::snprintf(digits, sizeof(digits), "%02x", key[i]);
+    hex += digits;
+  }
+  WriteAll(dir / "key.hex", hex + "\n");
+  std::string ours;
+  const auto add = [&ours](const std::string& frame) {
+    ours += std::string{static_cast<char>(frame.size() & 0xFF), static_cast<char>(frame.size() >> 8)} + frame;
+  };
+  for (int k = 0; k < 5; ++k) {
+    GlobalPositionInt g;
+    g.lat_deg = 14.6 + 1e-5 * k;
+    g.lon_deg = -91.99;
+    add(Sign(Encode(g, static_cast<uint8_t>(k), 1, 1), key, static_cast<uint8_t>(k % 2), 1000000 + k));
+  }
+  add(Sign(Encode(Heartbeat{0, 2, 3, 209, 4}, 9, 1, 1), other, 0, 2000000));  // another key
+  add(Sign(Encode(Statustext{6, "mapper: 12 frames"}, 10, 1, 191), key, 0, 2000001));
+  WriteAll(dir / "ours.bin", ours);
+  ASSERT_EQ(std::system(PeerCommand("signing_peer.mjs", "'" + dir.string() + "'").c_str()), 0);
+  EXPECT_EQ(json::parse(ReadAll(dir / "ours.json")), json::parse("[true,true,true,true,true,false,true]"));
+
+  const std::string theirs = ReadAll(dir / "theirs.bin");
+  const json expected = json::parse(ReadAll(dir / "theirs.json"));
+  SignatureCheck check(key);
+  Parser parser;
+  parser.RequireSignatures(&check);
+  size_t at = 0, n = 0;
+  for (; at + 2 <= theirs.size(); ++n) {
+    const size_t size = static_cast<uint8_t>(theirs[at]) | (static_cast<uint8_t>(theirs[at + 1]) << 8);
+    const SigningCounters before = check.counters();
+    const uint64_t cut_before = parser.counters().cut_short;
+    std::optional<double> lat;
+    parser.Feed(reinterpret_cast<const uint8_t*>(theirs.data() + at + 2), size, [&](const Packet& p) {
+      if (const auto m = Decode(p); m && std::holds_alternative<GlobalPositionInt>(*m))
+        lat = std::get<GlobalPositionInt>(*m).lat_deg;
+      else
+        lat = 0;  // taken, not a position (the HEARTBEAT)
+    });
+    parser.EndDatagram();  // as the UDP link does after each datagram
+    at += 2 + size;
+    const SigningCounters& after = check.counters();
+    const std::string verdict = lat                                                    ? "accepted"
+                                : parser.counters().cut_short > cut_before             ? "cut_short"
+                                : after.unsigned_refused > before.unsigned_refused     ? "unsigned"
+                                : after.bad_signature > before.bad_signature           ? "bad_signature"
+                                : after.replayed > before.replayed                     ? "replayed"
+                                : after.new_stream_refused > before.new_stream_refused ? "new_stream_refused"
+                                                                                       : "nothing";
+    ASSERT_LT(n, expected.size());
+    EXPECT_EQ(verdict, expected[n]["verdict"].get<std::string>()) << "datagram " << n;
+    if (lat && !expected[n]["lat"].is_null()) EXPECT_NEAR(*lat, expected[n]["lat"].get<double>() * 1e-7, 1e-9) << n;
+  }
+  EXPECT_EQ(n, expected.size());
+  EXPECT_EQ(check.counters().accepted, 5u);
+  EXPECT_EQ(check.counters().unsigned_refused, 2u);
+  EXPECT_EQ(check.counters().bad_signature, 2u);
+  EXPECT_EQ(check.counters().replayed, 2u);
+  EXPECT_EQ(check.counters().new_stream_refused, 1u);
+  EXPECT_EQ(parser.counters().cut_short, 1u);
+  EXPECT_EQ(parser.counters().refused_by_signing, 7u);
+  std::error_code ec;
+  fs::remove_all(dir, ec);
 }
 
 TEST(MavlinkFraming, CrcMatchesTheStandardCheckValue) {

@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -24,6 +25,7 @@
 #include "core/session/session_dir.h"
 #include "hal/sim/sim_telemetry.h"
 #include "hal/telemetry/mavlink.h"
+#include "hal/telemetry/mavlink_signing.h"
 #include "tests/geo_txt_test_util.h"
 #include "tests/gpsfake_test_util.h"
 #include "tests/process_util.h"
@@ -226,83 +228,184 @@ std::map<std::string, std::pair<double, double>> ReadFramePositions(const fs::pa
   return out;
 }
 
-// --source sim: with mavlink_udp: the frames are rendered live, and the flight controller's stream comes over UDP in
-// real time beside them, the frames delivered 200 ms after they were taken (telemetry.latency_ms compensates it).
-// The mapper's mavlink-udp source places the frames by their monotonic time: each gets the fix of its own instant
-// (the geo.txt fix, to a few cm), and the map is georeferenced within the GPS noise.
-TEST(SimTelemetryE2ETest, LiveSimStreamsMavlinkInStepWithTheFrames) {
-  const fs::path dir = TestDir("live");
+// A live simulated flight: --source sim: with mavlink_udp renders the frames live, and the flight controller's stream
+// comes over UDP in real time beside them, the frames delivered 200 ms after they were taken (telemetry.latency_ms
+// compensates it). `intruder(port, flying)` runs beside the flight, sending to the mapper's port while `flying`.
+struct LiveRun {
+  Session session;
+  int dropped = 0;
+  size_t placed = 0;
+  double rms_m = 0, max_m = 0;  // each frame's position from the fix of its own instant (geo.txt)
+};
+void FlyLive(const fs::path& dir, const std::string& plan_extra, const std::string& config_yaml,
+             const std::function<void(int port, const std::atomic<bool>& flying)>& intruder, LiveRun* run) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   const int port = test::FreePort(SOCK_DGRAM);
   ASSERT_GT(port, 0);
   const std::string plan =
       kPlan + "frame_interval_s: 0.5\ncamera_latency_ms: 200\nmavlink_udp: \"127.0.0.1:" + std::to_string(port) +
-      "\"\n";
+      "\"\n" + plan_extra;
   ASSERT_NO_FATAL_FAILURE(WriteFlight(plan, dir / "flight"));  // the truth and the fixes (no UDP: live_link off)
   std::string err;
   ASSERT_TRUE(WriteFileAtomic((dir / "plan.yaml").string(), plan + "canvas: \"" + kCanvas + "\"\n", &err)) << err;
-  // The vehicle is system 1 (hal/sim); a second one (system 2, an autopilot too) sends its HEARTBEAT and positions
-  // 1 km away at 10 Hz to the same port all along: the map must follow system 1 only.
-  ASSERT_TRUE(WriteFileAtomic((dir / "config.yaml").string(), "telemetry:\n  latency_ms: 200\n  system_id: 1\n", &err))
-      << err;
+  ASSERT_TRUE(WriteFileAtomic((dir / "config.yaml").string(), config_yaml, &err)) << err;
   std::atomic<bool> flying{true};
-  int injected = 0;
-  std::thread intruder([&] {
-    const int fd = socket(AF_INET, SOCK_DGRAM, 0);
-    sockaddr_in to{};
-    to.sin_family = AF_INET;
-    to.sin_port = htons(static_cast<uint16_t>(port));
-    to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    for (uint8_t seq = 0; flying; ++seq) {
-      hal::mavlink::GlobalPositionInt g;
-      g.lat_deg = 14.6 + 0.009 * (seq % 2);
-      g.lon_deg = -91.99;
-      g.relative_alt_m = 80;
-      std::string bytes = hal::mavlink::Encode(g, seq, 2, 1);
-      if (seq % 10 == 0) bytes += hal::mavlink::Encode(hal::mavlink::Heartbeat{0, 2, 3, 209, 4}, seq, 2, 1);
-      sendto(fd, bytes.data(), bytes.size(), 0, reinterpret_cast<const sockaddr*>(&to), sizeof(to));
-      ++injected;
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    }
-    close(fd);
-  });
+  std::thread beside([&] { intruder(port, flying); });
   RunOnboard("--source sim:" + (dir / "plan.yaml").string() + " --out " + (dir / "session").string() + " --config " +
              (dir / "config.yaml").string() + " --telemetry mavlink-udp:127.0.0.1:" + std::to_string(port));
   flying = false;
-  intruder.join();
-  ASSERT_FALSE(HasFatalFailure());
-  Session s;
-  ASSERT_NO_FATAL_FAILURE(ReadSession(dir / "session", &s));
-  const json& t = s.report["telemetry"];
-  const int dropped = s.report["dropped_by_queue"].get<int>();
-  std::printf("live: %d frames in, %d dropped by the live queue, telemetry %s\n", s.report["frames_in"].get<int>(),
-              dropped, t.dump().c_str());
-  EXPECT_LE(dropped, 2);  // 2 frames/s of 400x300 keep a loaded 2-core machine busy, not drowned
-  EXPECT_EQ(t["kind"], "mavlink-udp");
-  EXPECT_GE(t["frames_placed"].get<int>(), kFrames - 1 - dropped);
-  // The second vehicle was heard, said and ignored: most of what it sent while the mapper listened is counted.
-  EXPECT_EQ(t["system_id"].get<int>(), 1);
-  EXPECT_EQ(t["other_autopilots"].get<int>(), 1);
-  EXPECT_GT(t["packets_of_other_systems"].get<int>(), injected / 2) << injected << " sent";
-  // Each frame's position is the fix of the instant it was taken.
+  beside.join();
+  ASSERT_FALSE(::testing::Test::HasFatalFailure());
+  ASSERT_NO_FATAL_FAILURE(ReadSession(dir / "session", &run->session));
+  run->dropped = run->session.report["dropped_by_queue"].get<int>();
+  std::printf("live: %d frames in, %d dropped by the live queue, telemetry %s\n",
+              run->session.report["frames_in"].get<int>(), run->dropped,
+              run->session.report["telemetry"].dump().c_str());
   const auto fixes = ReadGeoTxt(dir / "flight/geo.txt");
   const auto placed = ReadFramePositions(dir / "session/frames.csv");
-  EXPECT_GE(placed.size(), static_cast<size_t>(kFrames - 1 - dropped));
   double sq = 0;
   for (const auto& [name, latlon] : placed) {
     const GeoRow& f = fixes.at(name);
     const double north = (latlon.first - f.lat) * 111195.0;
     const double east = (latlon.second - f.lon) * 111195.0 * std::cos(f.lat * M_PI / 180.0);
     sq += north * north + east * east;
+    run->max_m = std::max(run->max_m, std::hypot(north, east));
   }
-  const double rms_m = std::sqrt(sq / static_cast<double>(std::max<size_t>(1, placed.size())));
-  std::printf("live: %zu frames placed, %.3f m RMS from the fix of their instant\n", placed.size(), rms_m);
-  // Measured 0.17-0.23 m: the receiver stamps a fix when it reads it, a little after it was sent (the rest of the way
-  // to the next fix, 2.4 m on). The latency not compensated would put every frame 2 ticks on: ~4.8 m.
-  EXPECT_LT(rms_m, 1.0);
-  ExpectGeoreferencedWithinTheGpsNoise(s, dir / "flight", "live", dropped);
+  run->placed = placed.size();
+  run->rms_m = std::sqrt(sq / static_cast<double>(std::max<size_t>(1, placed.size())));
+  std::printf("live: %zu frames placed, %.3f m RMS (max %.3f m) from the fix of their instant\n", run->placed,
+              run->rms_m, run->max_m);
+}
+
+// Sends `make(seq)`'s datagrams to 127.0.0.1:`port` at 10 Hz while `flying`; returns how many went.
+int SendAt10Hz(int port, const std::atomic<bool>& flying, const std::function<std::string(uint8_t seq)>& make) {
+  const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(static_cast<uint16_t>(port));
+  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  int sent = 0;
+  for (uint8_t seq = 0; flying; ++seq) {
+    const std::string bytes = make(seq);
+    sendto(fd, bytes.data(), bytes.size(), 0, reinterpret_cast<const sockaddr*>(&to), sizeof(to));
+    ++sent;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  close(fd);
+  return sent;
+}
+
+// A position 1 km from the flight (14.6 N 91.99 W), as an intruder sends it.
+hal::mavlink::GlobalPositionInt FarPosition(uint8_t seq) {
+  hal::mavlink::GlobalPositionInt g;
+  g.lat_deg = 14.6 + 0.009 * (seq % 2);
+  g.lon_deg = -91.99;
+  g.relative_alt_m = 80;
+  return g;
+}
+
+// The mapper's mavlink-udp source places the frames by their monotonic time: each gets the fix of its own instant
+// (the geo.txt fix, to a few cm), and the map is georeferenced within the GPS noise. The vehicle is system 1 (hal/sim);
+// a second one (system 2, an autopilot too) sends its HEARTBEAT and positions 1 km away at 10 Hz to the same port all
+// along: the map must follow system 1 only.
+TEST(SimTelemetryE2ETest, LiveSimStreamsMavlinkInStepWithTheFrames) {
+  const fs::path dir = TestDir("live");
+  int injected = 0;
+  LiveRun run;
+  ASSERT_NO_FATAL_FAILURE(FlyLive(
+      dir, "", "telemetry:\n  latency_ms: 200\n  system_id: 1\n",
+      [&](int port, const std::atomic<bool>& flying) {
+        injected = SendAt10Hz(port, flying, [](uint8_t seq) {
+          std::string bytes = hal::mavlink::Encode(FarPosition(seq), seq, 2, 1);
+          if (seq % 10 == 0) bytes += hal::mavlink::Encode(hal::mavlink::Heartbeat{0, 2, 3, 209, 4}, seq, 2, 1);
+          return bytes;
+        });
+      },
+      &run));
+  const json& t = run.session.report["telemetry"];
+  EXPECT_LE(run.dropped, 2);  // 2 frames/s of 400x300 keep a loaded 2-core machine busy, not drowned
+  EXPECT_EQ(t["kind"], "mavlink-udp");
+  EXPECT_GE(t["frames_placed"].get<int>(), kFrames - 1 - run.dropped);
+  // The second vehicle was heard, said and ignored: most of what it sent while the mapper listened is counted.
+  EXPECT_EQ(t["system_id"].get<int>(), 1);
+  EXPECT_EQ(t["other_autopilots"].get<int>(), 1);
+  EXPECT_GT(t["packets_of_other_systems"].get<int>(), injected / 2) << injected << " sent";
+  EXPECT_FALSE(t["signing"]["enabled"].get<bool>());
+  // Each frame's position is the fix of the instant it was taken. Measured 0.17-0.23 m: the receiver stamps a fix when
+  // it reads it, a little after it was sent (the rest of the way to the next fix, 2.4 m on). The latency not
+  // compensated would put every frame 2 ticks on: ~4.8 m; one intruder's fix taken, 1 km.
+  EXPECT_GE(run.placed, static_cast<size_t>(kFrames - 1 - run.dropped));
+  EXPECT_LT(run.rms_m, 1.0);
+  EXPECT_LT(run.max_m, 5.0);
+  ExpectGeoreferencedWithinTheGpsNoise(run.session, dir / "flight", "live", run.dropped);
   fs::remove_all(dir);
+}
+
+// The same live flight signed (MAVLink 2 signing, the vehicle's key in telemetry.signing_key_file): at 10 Hz all
+// along, an intruder sends positions 1 km away as the vehicle itself (system 1, component 1), in turn unsigned, signed
+// with another key, and signed with the vehicle's key but an old timestamp (a recorded packet sent again). Every one
+// is refused and counted; the frames keep the fixes of their instants.
+TEST(SimTelemetryE2ETest, LiveSignedFlightRefusesUnsignedWrongKeyAndReplayedPackets) {
+  const fs::path dir = TestDir("live_signed");
+  hal::mavlink::SigningKey key{}, other{};
+  std::string hex;
+  for (size_t i = 0; i < key.size(); ++i) {
+    key[i] = static_cast<uint8_t>(29 * i + 1);
+    other[i] = static_cast<uint8_t>(~key[i]);
+    char digits[3];
+    std::snprintf(digits, sizeof(digits), "%02x", key[i]);
+    hex += digits;
+  }
+  fs::create_directories(dir.parent_path());
+  const fs::path key_file = dir.string() + ".key";
+  std::ofstream(key_file) << hex << "\n";
+  fs::permissions(key_file, fs::perms::owner_read | fs::perms::owner_write);
+  // The stream's first packet (1 s before the first frame): what a recorder on the link would have kept.
+  const uint64_t recorded = hal::mavlink::SigningTimestamp(hal::SimTelemetry::UnixUs(-1.0));
+  int injected = 0;
+  LiveRun run;
+  ASSERT_NO_FATAL_FAILURE(FlyLive(
+      dir, "mavlink_signing_key_file: \"" + key_file.string() + "\"\n",
+      "telemetry:\n  latency_ms: 200\n  signing_key_file: \"" + key_file.string() + "\"\n",
+      [&](int port, const std::atomic<bool>& flying) {
+        // Replays start once the vehicle's stream is known (a first frame journaled): before it, a replay of its
+        // first packet would open the stream, as the spec allows.
+        for (int i = 0; i < 600 && flying && !fs::exists(dir / "session/journal.jsonl"); ++i)
+          std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        injected = SendAt10Hz(port, flying, [&](uint8_t seq) {
+          const std::string frame = hal::mavlink::Encode(FarPosition(seq), seq, 1, 1);
+          switch (seq % 3) {
+            case 0:
+              return frame;
+            case 1:
+              return hal::mavlink::Sign(frame, other, 0, recorded + 1000000ULL * seq);
+            default:
+              return hal::mavlink::Sign(frame, key, 0, recorded);
+          }
+        });
+      },
+      &run));
+  const json& t = run.session.report["telemetry"];
+  const json& sig = t["signing"];
+  EXPECT_TRUE(sig["enabled"].get<bool>());
+  std::printf("live signed: %d injected; signing %s\n", injected, sig.dump().c_str());
+  // The vehicle's own stream: 10 Hz positions, attitude and fixes, heartbeats, triggers, all signed and taken.
+  EXPECT_GT(sig["accepted"].get<int>(), 30 * kFrames / 2);
+  EXPECT_GE(injected, 15);
+  const int third = injected / 3;
+  EXPECT_GE(sig["unsigned_refused"].get<int>(), third - 1);
+  EXPECT_GE(sig["bad_signature"].get<int>(), third - 1);
+  EXPECT_GE(sig["replayed"].get<int>(), third - 1);
+  EXPECT_EQ(sig["new_stream_refused"].get<int>(), 0);
+  EXPECT_EQ(t["signed_packets_unverified"].get<int>(), 0);
+  EXPECT_LE(run.dropped, 2);
+  EXPECT_GE(run.placed, static_cast<size_t>(kFrames - 1 - run.dropped));
+  EXPECT_LT(run.rms_m, 1.0);
+  EXPECT_LT(run.max_m, 5.0);  // not one intruder's fix (1 km)
+  ExpectGeoreferencedWithinTheGpsNoise(run.session, dir / "flight", "live signed", run.dropped);
+  fs::remove_all(dir);
+  fs::remove(key_file);
 }
 
 // Bad telemetry (issue 17): damaged and truncated logs, a link lost mid-flight, no GPS fix. Each gives a clear log line

@@ -84,7 +84,8 @@ std::map<std::string, FieldPtr> Fields(SimPlan& p) {
           {"gps_no_fix_to", &p.gps_no_fix_to},
           {"live_camera", &p.live_camera},
           {"start_unix_s", &p.start_unix_s},
-          {"mavlink_udp", &p.mavlink_udp}};
+          {"mavlink_udp", &p.mavlink_udp},
+          {"mavlink_signing_key_file", &p.mavlink_signing_key_file}};
 }
 
 using Draws = PortableRandom;  // the flight must not change with the machine that makes it
@@ -127,6 +128,7 @@ bool SimPlan::CheckTelemetry(std::string* error) const {
   if (!(camera_latency_ms >= 0 && camera_latency_ms < 1000 * frame_interval_s))
     return Fail(error, "camera_latency_ms must be in [0, frame_interval_s)");
   if (!mavlink_udp.empty() && gps != 1) return Fail(error, "mavlink_udp needs gps: 1");
+  if (!mavlink_signing_key_file.empty() && gps != 1) return Fail(error, "mavlink_signing_key_file needs gps: 1");
   if (live_camera != 0 && live_camera != 1) return Fail(error, "live_camera must be 0 or 1");
   if (!(start_unix_s >= 0)) return Fail(error, "start_unix_s must be >= 0");
   if (!(telemetry_lost_from >= 0 && telemetry_lost_to <= 1 && telemetry_lost_from <= telemetry_lost_to))
@@ -199,6 +201,9 @@ bool ParseSimPlan(const std::string& yaml_text, const std::string& base_dir, Sim
   if (!p.Check(error)) return Fail(error, "sim plan: " + *error);
   if (!p.canvas.empty() && !base_dir.empty() && std::filesystem::path(p.canvas).is_relative())
     p.canvas = (std::filesystem::path(base_dir) / p.canvas).string();
+  if (!p.mavlink_signing_key_file.empty() && !base_dir.empty() &&
+      std::filesystem::path(p.mavlink_signing_key_file).is_relative())
+    p.mavlink_signing_key_file = (std::filesystem::path(base_dir) / p.mavlink_signing_key_file).string();
   *plan = p;
   return true;
 }

@@ -89,6 +89,8 @@ namespace uavm::hal {
 //   mavlink_udp: "HOST:PORT": `--source sim:PLAN` sends the telemetry there over UDP in step with the frames, paced
 //     in real time (frames frame_interval_s apart; a consumer that falls behind holds the flight's clock), and the
 //     frames carry no GPS of their own (a companion computer's camera); "" = off [""]
+//   mavlink_signing_key_file: the telemetry (live and .tlog) is MAVLink-2 signed with this key (a file as
+//     telemetry.signing_key_file takes it; relative to the plan), link id 0; "" = unsigned [""]
 // The plan is fitted inside the canvas: the pattern is centred, and shrunk (spacings scaled down, logged as a
 // warning) when footprints would leave it.
 struct SimPlan {
@@ -151,6 +153,7 @@ struct SimPlan {
   int live_camera = 0;
   double start_unix_s = 0.0;
   std::string mavlink_udp;
+  std::string mavlink_signing_key_file;
 
   [[nodiscard]] double Focal() const { return focal_px > 0 ? focal_px : frame_width; }
   // The frames' camera: principal point at the image centre, Focal(), the plan's k1, k2, p1, p2.

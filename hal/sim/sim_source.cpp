@@ -91,6 +91,12 @@ Status SimSource::Open(std::string* error) {
                canvas_.cols, canvas_.rows);
   next_ = 0;
   link_.reset();
+  signing_key_.reset();
+  if (!plan_.mavlink_signing_key_file.empty()) {
+    mavlink::SigningKey key{};
+    if (!mavlink::ReadSigningKey(plan_.mavlink_signing_key_file, &key, error)) return Status::kError;
+    signing_key_ = key;
+  }
   if (options_.live_link && !plan_.mavlink_udp.empty()) {
     link_ = std::make_unique<SimUdpLink>(this);
     if (!link_->Open(plan_.mavlink_udp, error)) return Status::kError;

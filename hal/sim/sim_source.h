@@ -1,11 +1,13 @@
 #pragma once
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "hal/common/frame_source.h"
 #include "hal/sim/sim_plan.h"
+#include "hal/telemetry/mavlink_signing.h"
 
 namespace uavm::hal {
 
@@ -67,6 +69,8 @@ class SimSource final : public FrameSource {
   [[nodiscard]] const std::vector<uchar>& last_encoded() const { return encoded_; }
   [[nodiscard]] const SimPlan& plan() const { return plan_; }
   [[nodiscard]] const std::string& plan_text() const { return plan_text_; }
+  // The plan's mavlink_signing_key_file, read by Open(); none: the telemetry is not signed.
+  [[nodiscard]] const std::optional<mavlink::SigningKey>& signing_key() const { return signing_key_; }
   [[nodiscard]] const std::vector<SimPose>& poses() const { return poses_; }
   [[nodiscard]] size_t NumFrames() const;
   // Name of frame `index`: frame_000000.jpg, or .png when the plan has no JPEG round trip.
@@ -104,7 +108,8 @@ class SimSource final : public FrameSource {
   SimTruth truth_;
   std::vector<uchar> encoded_;
   std::unique_ptr<SimUdpLink> link_;  // the plan's mavlink_udp
-  int64_t live_start_ns_ = 0;         // live_camera: monotonic time of the first frame
+  std::optional<mavlink::SigningKey> signing_key_;
+  int64_t live_start_ns_ = 0;  // live_camera: monotonic time of the first frame
 };
 
 }  // namespace uavm::hal

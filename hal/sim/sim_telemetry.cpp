@@ -50,7 +50,12 @@ uint64_t SimTelemetry::UnixUs(double t_s) {
 }
 
 void SimTelemetry::Add(double t_s, const mavlink::Message& m, std::vector<TimedPacket>* out) {
-  out->push_back({t_s, mavlink::Encode(m, seq_++, kSysId, kCompId)});
+  std::string bytes = mavlink::Encode(m, seq_++, kSysId, kCompId);
+  if (const auto& key = source_->signing_key()) {
+    signing_timestamp_ = std::max(mavlink::SigningTimestamp(UnixUs(t_s)), signing_timestamp_ + 1);
+    bytes = mavlink::Sign(bytes, *key, 0, signing_timestamp_);
+  }
+  out->push_back({t_s, std::move(bytes)});
 }
 
 void SimTelemetry::AddFix(double t_s, std::vector<TimedPacket>* out) {

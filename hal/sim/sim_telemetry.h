@@ -26,7 +26,9 @@ struct TimedPacket {
 //     first frame of the flight), so that a replay matches frames by trigger sequence.
 // The plan's faults: over telemetry_lost_* nothing is sent; over gps_no_fix_* the fixes and triggers carry no position.
 // Positions follow SimSource::FixAt (take-off at sea level: altitude MSL = height above take-off). The stream starts
-// 1 s before the first frame and ends 1 s after the last; flight time 0 is kSimEpochUnixUs (UTC).
+// 1 s before the first frame and ends 1 s after the last; flight time 0 is kSimEpochUnixUs (UTC). With the plan's
+// mavlink_signing_key_file every packet is signed (link id 0), its timestamp its flight time's, made newer than the
+// last one's when several go in one tick.
 class SimTelemetry {
  public:
   static constexpr uint64_t kSimEpochUnixUs = 1717243200ULL * 1000000ULL;  // 2024-06-01 12:00:00 UTC
@@ -49,6 +51,7 @@ class SimTelemetry {
   int64_t slot_;
   int64_t end_slot_;
   uint8_t seq_ = 0;
+  uint64_t signing_timestamp_ = 0;  // the last one signed: each packet's is newer (the receiver refuses replays)
 };
 
 // The whole stream of frames [first_frame, end_frame) as a telemetry log as QGroundControl and MAVProxy write it

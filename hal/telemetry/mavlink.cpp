@@ -4,13 +4,14 @@
 #include <cmath>
 #include <cstring>
 
+#include "hal/telemetry/mavlink_signing.h"
+
 namespace uavm::hal::mavlink {
 
 namespace {
 
 constexpr size_t kHeaderV1 = 6;   // STX len seq sys comp msgid
 constexpr size_t kHeaderV2 = 10;  // STX len incompat compat seq sys comp msgid[3]
-constexpr size_t kSignature = 13;
 
 template <typename T>
 T Read(const Packet& p, size_t offset) {
@@ -153,7 +154,7 @@ void Parser::Feed(const uint8_t* data, size_t size, const Sink& on_packet) {
 
 size_t FrameSize(const uint8_t* p) {
   if (p[0] == kStxV1) return kHeaderV1 + p[1] + 2;
-  return kHeaderV2 + p[1] + 2 + ((p[2] & kIncompatSigned) != 0 ? kSignature : 0);
+  return kHeaderV2 + p[1] + 2 + ((p[2] & kIncompatSigned) != 0 ? kSignatureBytes : 0);
 }
 
 void Parser::Push(uint8_t byte, const Sink& on_packet) {
@@ -193,6 +194,11 @@ void Parser::Complete(const Sink& on_packet) {
       Resync(on_packet);
       return;
     }
+    if (signature_check_ != nullptr && signature_check_->Check(buffer_.data(), size_) != SignatureVerdict::kAccepted) {
+      ++counters_.refused_by_signing;
+      size_ = 0;
+      return;
+    }
   } else {
     ++counters_.unknown;
   }
@@ -202,6 +208,13 @@ void Parser::Complete(const Sink& on_packet) {
   if (p.signed_packet) ++counters_.signed_packets;
   size_ = 0;
   if (info) on_packet(p);
+}
+
+void Parser::EndDatagram() {
+  if (size_ == 0) return;
+  ++counters_.cut_short;
+  counters_.bytes_skipped += size_;
+  size_ = 0;
 }
 
 void Parser::Resync(const Sink& on_packet) {

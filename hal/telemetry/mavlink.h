@@ -13,6 +13,8 @@
 // X.25 CRC over the header and payload followed by the message's CRC_EXTRA.
 namespace uavm::hal::mavlink {
 
+class SignatureCheck;  // hal/telemetry/mavlink_signing.h
+
 inline constexpr uint8_t kStxV1 = 0xFE;
 inline constexpr uint8_t kStxV2 = 0xFD;
 inline constexpr size_t kMaxPacket = 10 + 255 + 2 + 13;  // v2 header, payload, CRC, signature
@@ -117,12 +119,14 @@ using Message = std::variant<Heartbeat, SystemTime, GpsRawInt, GlobalPositionInt
 
 // What the parser met on the wire: what a log line and report.json tell the operator.
 struct ParserCounters {
-  uint64_t packets = 0;         // valid packets (known or not)
-  uint64_t unknown = 0;         // valid framing, message the mapper does not read (CRC not checkable: skipped)
-  uint64_t crc_errors = 0;      // known message, bad checksum
-  uint64_t bytes_skipped = 0;   // garbage between packets, dropped while resynchronising
-  uint64_t signed_packets = 0;  // accepted; the signature is not verified (no key on the companion computer)
-  uint64_t unsupported = 0;     // v2 packets with incompatibility flags this decoder does not know (dropped)
+  uint64_t packets = 0;             // valid packets (known or not)
+  uint64_t unknown = 0;             // valid framing, message the mapper does not read (CRC not checkable: skipped)
+  uint64_t crc_errors = 0;          // known message, bad checksum
+  uint64_t bytes_skipped = 0;       // garbage between packets, dropped while resynchronising
+  uint64_t signed_packets = 0;      // accepted signed packets (verified only with a signing key: RequireSignatures)
+  uint64_t unsupported = 0;         // v2 packets with incompatibility flags this decoder does not know (dropped)
+  uint64_t refused_by_signing = 0;  // known messages the signature check refused (its counters say why)
+  uint64_t cut_short = 0;           // a datagram ended inside a packet (EndDatagram): the part dropped
 };
 
 // Byte-stream framer: feed any chunking of the stream (UDP datagrams, serial reads, a log), get whole packets. After
@@ -136,6 +140,13 @@ class Parser {
   [[nodiscard]] const ParserCounters& counters() const { return counters_; }
   // Bytes of an incomplete packet still buffered (a truncated log ends with some).
   [[nodiscard]] size_t pending_bytes() const { return size_; }
+  // With a check (borrowed: it outlives the parser, and may outlive it to keep its replay state across parsers), only
+  // known messages it accepts are delivered. A refused frame is dropped whole (no resynchronisation inside it: its CRC
+  // was right, so its length was).
+  void RequireSignatures(SignatureCheck* check) { signature_check_ = check; }
+  // UDP carries whole packets in each datagram: what is buffered when one ends is a packet cut short (a truncated
+  // signature, say). Dropped and counted, so that it cannot swallow the start of the next datagram's packet.
+  void EndDatagram();
 
  private:
   void Push(uint8_t byte, const Sink& on_packet);
@@ -146,6 +157,7 @@ class Parser {
   size_t size_ = 0;
   Packet packet_;
   ParserCounters counters_;
+  SignatureCheck* signature_check_ = nullptr;  // borrowed; null: signatures are not checked
 };
 
 // A MAVLink v2 frame for `msgid` with `payload` (trailing zeros cut, as senders do). Returns the bytes to send.

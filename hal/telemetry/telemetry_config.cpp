@@ -7,10 +7,13 @@
 #include <vector>
 
 #include "core/util/fail.h"
+#include "hal/telemetry/mavlink_signing.h"
 
 namespace uavm::hal {
 
 namespace {
+
+constexpr const char* kSigningKeyFile = "signing_key_file";
 
 std::vector<std::pair<const char*, double*>> Keys(TelemetryConfig& c) {
   return {{"latency_ms", &c.latency_ms}, {"max_gap_s", &c.max_gap_s},
@@ -42,6 +45,7 @@ TelemetryOptions TelemetryConfig::ToOptions() const {
   o.exif_utc_offset_s = exif_utc_offset_s;
   o.system_id = static_cast<int>(system_id);
   o.component_id = static_cast<int>(component_id);
+  o.signing_key_file = signing_key_file;
   return o;
 }
 
@@ -56,6 +60,11 @@ bool ParseTelemetryConfigYaml(const std::string& text, const std::string& origin
     auto keys = Keys(c);
     for (const auto& kv : section) {
       const std::string key = kv.first.as<std::string>();
+      if (key == kSigningKeyFile) {
+        if (!kv.second.IsScalar()) return Fail(error, "config " + origin + ": 'telemetry." + key + "' must be a path");
+        c.signing_key_file = kv.second.as<std::string>();
+        continue;
+      }
       bool known = false;
       for (auto& [name, value] : keys)
         if (key == name) {
@@ -73,6 +82,9 @@ bool ParseTelemetryConfigYaml(const std::string& text, const std::string& origin
   }
   std::string why;
   if (!c.Check(&why)) return Fail(error, "config " + origin + ": " + why);
+  mavlink::SigningKey key{};  // read again by the source; a file without a key is the config's error
+  if (!c.signing_key_file.empty() && !mavlink::ReadSigningKey(c.signing_key_file, &key, &why))
+    return Fail(error, "config " + origin + ": " + why);
   *config = c;
   return true;
 }
@@ -82,6 +94,7 @@ std::string ToYaml(const TelemetryConfig& config) {
   YAML::Emitter out;
   out << YAML::BeginMap << YAML::Key << kTelemetrySection << YAML::Value << YAML::BeginMap;
   for (const auto& [name, value] : Keys(copy)) out << YAML::Key << name << YAML::Value << *value;
+  out << YAML::Key << kSigningKeyFile << YAML::Value << config.signing_key_file;
   out << YAML::EndMap << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
 }

@@ -16,6 +16,8 @@ struct TelemetryConfig {
   // MAVLink: the vehicle whose telemetry is taken (hal/telemetry/system_filter.h); 0 = the first autopilot heard.
   double system_id = 0;
   double component_id = 0;
+  // MAVLink signing (hal/telemetry/mavlink_signing.h): the 32-byte key's file; empty: signatures not checked.
+  std::string signing_key_file;
 
   [[nodiscard]] bool Check(std::string* why) const;
   [[nodiscard]] TelemetryOptions ToOptions() const;
@@ -24,7 +26,8 @@ struct TelemetryConfig {
 inline constexpr const char* kTelemetrySection = "telemetry";
 
 // Reads the `telemetry:` section of YAML `text` (other sections are not this unit's); `origin` names the text in
-// messages. An unknown key, a wrong type or a value Check() refuses is an error; no section leaves `config` as is.
+// messages. An unknown key, a wrong type or a value Check() refuses is an error, and so is a signing key file that
+// does not hold a key; no section leaves `config` as is.
 [[nodiscard]] bool ParseTelemetryConfigYaml(const std::string& text, const std::string& origin, TelemetryConfig* config,
                                             std::string* error);
 // The section as YAML (`telemetry:` and its keys), for --print-config and the session's config.yaml.

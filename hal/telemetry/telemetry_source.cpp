@@ -134,6 +134,18 @@ Trigger TriggerOf(const mavlink::CameraImageCaptured& c) {
   return t;
 }
 
+// The signature check of telemetry.signing_key_file; null (and no error) without one.
+bool MakeSignatureCheck(const TelemetryOptions& options, std::unique_ptr<mavlink::SignatureCheck>* check,
+                        std::string* error, mavlink::SigningKey* key_out = nullptr) {
+  if (options.signing_key_file.empty()) return true;
+  mavlink::SigningKey key{};
+  if (!mavlink::ReadSigningKey(options.signing_key_file, &key, error)) return false;
+  *check = std::make_unique<mavlink::SignatureCheck>(key);
+  if (key_out != nullptr) *key_out = key;
+  spdlog::info("telemetry: MAVLink signing on: unsigned, wrongly signed and replayed packets are refused");
+  return true;
+}
+
 // A replayed flight's log: frames find their pose by camera trigger when the log has trigger messages (frame index i
 // takes the trigger numbered first + i, so a trigger lost from the log costs one frame, not a shift of all those
 // after it), else by EXIF time against the log's UTC time.
@@ -186,6 +198,8 @@ Status TlogSource::Start(std::string* error) {
   std::vector<Trigger> feedback, captured;
   mavlink::TlogStats stats;
   mavlink::SystemFilter filter(options_.system_id, options_.component_id);
+  std::unique_ptr<mavlink::SignatureCheck> signatures;
+  if (!MakeSignatureCheck(options_, &signatures, error)) return Status::kError;
   size_t fixes = 0;
   const bool ok = mavlink::ReadTlog(
       path_,
@@ -202,10 +216,15 @@ Status TlogSource::Start(std::string* error) {
         }
         messages.emplace_back(static_cast<int64_t>(us) * 1000, std::move(*m));
       },
-      &stats, error);
+      &stats, error, signatures.get());
   if (!ok || !OrderTriggers(path_, std::move(feedback), std::move(captured), &triggers_, error)) return Status::kError;
   report_.parser = stats.parser;
   report_.system = filter.counters();
+  if (signatures) report_.signing = signatures->counters();
+  if (stats.parser.refused_by_signing > 0)
+    spdlog::warn("telemetry log {}: {} packets refused by their signature ({} unsigned, {} another key, {} replayed)",
+                 path_, stats.parser.refused_by_signing, report_.signing.unsigned_refused,
+                 report_.signing.bad_signature, report_.signing.replayed);
   report_.resync_bytes = stats.resync_bytes;
   report_.log_truncated = stats.truncated;
   if (stats.parser.crc_errors + stats.resync_bytes > 0)
@@ -325,6 +344,7 @@ class LinkSource final : public TelemetrySource {
     r.track = track_.counters();
     r.parser = parser_counters_;
     r.system = system_counters_;
+    r.signing = signing_counters_;
     return r;
   }
   std::string Describe() const override { return kind_ + " " + target_ + ":" + std::to_string(port_or_baud_); }
@@ -349,6 +369,11 @@ class LinkSource final : public TelemetrySource {
   TelemetryReport report_;
   mavlink::ParserCounters parser_counters_;
   mavlink::SystemFilterCounters system_counters_;
+  mavlink::SigningCounters signing_counters_;
+  // With telemetry.signing_key_file: the check the reading thread runs (created by Start, before the thread), and the
+  // key STATUSTEXT is signed with (a GCS that signs refuses unsigned packets).
+  std::unique_ptr<mavlink::SignatureCheck> signatures_;
+  std::optional<mavlink::SigningKey> signing_key_;
   sockaddr_storage peer_{};  // the vehicle's last datagram's sender (UDP): where STATUSTEXT goes
   socklen_t peer_len_ = 0;
   uint8_t status_seq_ = 0;
@@ -356,7 +381,12 @@ class LinkSource final : public TelemetrySource {
 
 void LinkSource::SendStatus(const std::string& text) {
   // MAV_SEVERITY_INFO from component 191 (MAV_COMP_ID_ONBOARD_COMPUTER), system 1.
-  const std::string frame = mavlink::Encode(mavlink::Statustext{6, text}, status_seq_++, 1, 191);
+  std::string frame = mavlink::Encode(mavlink::Statustext{6, text}, status_seq_++, 1, 191);
+  if (signing_key_) {
+    const auto now_us =
+        std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::system_clock::now().time_since_epoch());
+    frame = mavlink::Sign(frame, *signing_key_, 0, mavlink::SigningTimestamp(static_cast<uint64_t>(now_us.count())));
+  }
   std::lock_guard lock(mutex_);
   if (fd_ < 0) return;
   if (kind_ == "mavlink-udp") {
@@ -415,6 +445,9 @@ bool LinkSource::OpenSerial(std::string* error) {
 }
 
 Status LinkSource::Start(std::string* error) {
+  mavlink::SigningKey key{};
+  if (!MakeSignatureCheck(options_, &signatures_, error, &key)) return Status::kError;
+  if (signatures_) signing_key_ = key;
   if (!(kind_ == "mavlink-udp" ? OpenUdp(error) : OpenSerial(error))) return Status::kError;
   thread_ = std::thread([this] { ReadLoop(); });
   return Status::kOk;
@@ -422,6 +455,7 @@ Status LinkSource::Start(std::string* error) {
 
 void LinkSource::ReadLoop() {
   mavlink::Parser parser;
+  parser.RequireSignatures(signatures_.get());
   mavlink::SystemFilter filter(options_.system_id, options_.component_id);
   TrackFeeder feeder(&track_);
   std::vector<uint8_t> buf(65536);
@@ -444,6 +478,7 @@ void LinkSource::ReadLoop() {
       from_vehicle = true;
       if (auto m = mavlink::Decode(p)) feeder.Add(*m, now);
     });
+    if (kind_ == "mavlink-udp") parser.EndDatagram();
     std::lock_guard lock(mutex_);
     if (from_vehicle && kind_ == "mavlink-udp") {  // STATUSTEXT goes back to the vehicle's link, not to any sender
       peer_ = from;
@@ -451,6 +486,7 @@ void LinkSource::ReadLoop() {
     }
     parser_counters_ = parser.counters();
     system_counters_ = filter.counters();
+    if (signatures_) signing_counters_ = signatures_->counters();
   }
 }
 

@@ -10,6 +10,7 @@
 #include "hal/common/frame_source.h"
 #include "hal/telemetry/geo_txt.h"
 #include "hal/telemetry/mavlink.h"
+#include "hal/telemetry/mavlink_signing.h"
 #include "hal/telemetry/system_filter.h"
 #include "hal/telemetry/tlog.h"
 #include "hal/telemetry/track.h"
@@ -29,6 +30,8 @@ struct TelemetryOptions {
   // MAVLink sources: whose packets are taken (hal/telemetry/system_filter.h); 0 = the first autopilot heard.
   int system_id = 0;
   int component_id = 0;
+  // MAVLink sources: the signing key (hal/telemetry/mavlink_signing.h); empty: signatures are not checked.
+  std::string signing_key_file;
 };
 
 // What telemetry did for the flight: report.json "telemetry".
@@ -41,6 +44,7 @@ struct TelemetryReport {
   TrackCounters track;
   mavlink::ParserCounters parser;
   mavlink::SystemFilterCounters system;  // MAVLink sources: whose packets were taken, what was ignored
+  mavlink::SigningCounters signing;      // MAVLink sources with a signing key: what was refused, and why
   uint64_t resync_bytes = 0;
   bool log_truncated = false;
   bool log_overlaps_frames = true;    // false: a log of another flight (times that do not meet the frames')

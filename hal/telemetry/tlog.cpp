@@ -54,12 +54,14 @@ void Accumulate(ParserCounters* total, const ParserCounters& c) {
   total->bytes_skipped += c.bytes_skipped;
   total->signed_packets += c.signed_packets;
   total->unsupported += c.unsupported;
+  total->refused_by_signing += c.refused_by_signing;
+  total->cut_short += c.cut_short;
 }
 
 }  // namespace
 
 bool ReadTlog(const std::string& path, const std::function<void(uint64_t, const Packet&)>& on_packet, TlogStats* stats,
-              std::string* error) {
+              std::string* error, SignatureCheck* signatures) {
   std::ifstream in(path, std::ios::binary);
   if (!in) {
     *error = "cannot read telemetry log " + path;
@@ -86,12 +88,14 @@ bool ReadTlog(const std::string& path, const std::function<void(uint64_t, const 
     }
     // One record, one packet: a parser of its own, so that damage cannot leak into the next record.
     Parser parser;
+    parser.RequireSignatures(signatures);
     bool delivered = false;
     parser.Feed(w.at() + kStamp, frame, [&](const Packet& p) {
       delivered = true;
       on_packet(us, p);
     });
-    const bool framed = parser.counters().packets > 0;  // a known message, or one framed and skipped
+    // A known message, one framed and skipped, or one whose signature was refused.
+    const bool framed = parser.counters().packets + parser.counters().refused_by_signing > 0;
     Accumulate(&stats->parser, parser.counters());
     if (framed) {
       stats->records += delivered ? 1 : 0;

@@ -19,8 +19,10 @@ struct TlogStats {
 // 8-byte big-endian count of microseconds since the UNIX epoch. Streams the file through a fixed buffer; damage
 // (garbage, a bad CRC, a cut-off end) skips to the next plausible record (a start byte after a timestamp close to the
 // last good one). Calls on_packet(unix_us, packet) for each known message. False only when the file cannot be read.
+// With `signatures` (borrowed; null: not checked) only frames it accepts are delivered, as on a live link; a record
+// it refuses is skipped whole, as a record, not as damage.
 [[nodiscard]] bool ReadTlog(const std::string& path,
                             const std::function<void(uint64_t unix_us, const Packet& packet)>& on_packet,
-                            TlogStats* stats, std::string* error);
+                            TlogStats* stats, std::string* error, SignatureCheck* signatures = nullptr);
 
 }  // namespace uavm::hal::mavlink
