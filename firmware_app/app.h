@@ -27,7 +27,13 @@ struct RunConfig {
   std::string http;          // live view HOST:PORT (firmware_app/live_server.h); empty = off
   std::string basemap;       // live page base map URL template (online); empty = offline
   double http_linger_s = 0;  // after the flight, the final map stays served this long (or until SIGTERM)
-  std::string telemetry;     // --telemetry KIND:ARG (hal/telemetry/telemetry_source.h); empty = EXIF GPS only
+  // Live view access (firmware_app/access_gate.h): the token's file (needed off the loopback unless http_no_auth),
+  // and HTTPS's PEM certificate and key files (both or neither).
+  std::string http_token_file;
+  bool http_no_auth = false;
+  std::string http_cert_file;
+  std::string http_key_file;
+  std::string telemetry;  // --telemetry KIND:ARG (hal/telemetry/telemetry_source.h); empty = EXIF GPS only
   PipelineOptions pipeline;
   hal::TelemetryConfig telemetry_timing;  // the config's `telemetry:` keys (hal's)
 };

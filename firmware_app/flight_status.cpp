@@ -19,6 +19,30 @@ FlightStatus::~FlightStatus() {
   subscriptions_.clear();  // the view's tile worker must stop calling into the server first
 }
 
+bool CheckLiveViewAccess(const RunConfig& config, std::string* why) {
+  if (config.http.empty()) return true;
+  std::string host, token;
+  int port = 0;
+  if (!ParseHostPort(config.http, &host, &port)) {
+    *why = "--http: expected HOST:PORT, got '" + config.http + "'";
+    return false;
+  }
+  if (!config.http_token_file.empty() && !ReadAccessToken(config.http_token_file, &token, why)) return false;
+  if (config.http_cert_file.empty() != config.http_key_file.empty()) {
+    *why = "--http-cert and --http-key go together (HTTPS needs the certificate and its private key)";
+    return false;
+  }
+  if (token.empty() && !IsLoopbackHost(host) && !config.http_no_auth) {
+    *why = "--http " + config.http +
+           ": the live view (the map, the session's files) would be open to anyone on the network; give it an access "
+           "token with --http-token-file FILE (README, deploy), or --http-no-auth where the network is trusted";
+    return false;
+  }
+  if (token.empty() && !IsLoopbackHost(host))
+    spdlog::warn("--http {} --http-no-auth: the live view is open to anyone who reaches the port", config.http);
+  return true;
+}
+
 int FlightStatus::StartServer(const RunConfig& config, LiveView* view) {
   serving_ = !config.http.empty();
   run_start_ns_ = MonotonicNs();
@@ -31,6 +55,12 @@ int FlightStatus::StartServer(const RunConfig& config, LiveView* view) {
     spdlog::error("--http: expected HOST:PORT, got '{}'", config.http);
     return kExitUsage;
   }
+  if (!config.http_token_file.empty() && !ReadAccessToken(config.http_token_file, &lo.token, &error)) {
+    spdlog::error("{}", error);
+    return kExitUsage;
+  }
+  lo.cert_file = config.http_cert_file;
+  lo.key_file = config.http_key_file;
   if (!server_.Start(lo, &error)) {
     spdlog::error("--http: {}", error);
     return kExitUsage;

@@ -11,6 +11,10 @@
 
 namespace uavm::app {
 
+// --http's access options: a token file that holds a token, a certificate with its key, and no off-loopback bind
+// without a token unless --http-no-auth says the network is trusted. False with the reason (exit 2).
+[[nodiscard]] bool CheckLiveViewAccess(const RunConfig& config, std::string* why);
+
 // What the flight shows of itself: the terminal's status line and the live server's status, pictures and tiles.
 class FlightStatus {
  public:

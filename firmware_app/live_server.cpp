@@ -10,6 +10,8 @@
 #include <deque>
 #include <functional>
 #include <nlohmann/json.hpp>
+#include <optional>
+#include <string_view>
 #include <vector>
 
 #include "firmware_app/tile_routes.h"
@@ -260,6 +262,24 @@ std::shared_ptr<int> Configure(httplib::Server* s, const LiveServer::Options& o,
   return fd;
 }
 
+int64_t SteadyNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+// The value of cookie `name` in a Cookie header ("a=1; b=2"); nullopt when absent.
+std::optional<std::string> CookieValue(const std::string& header, std::string_view name) {
+  for (size_t at = 0; at < header.size();) {
+    const size_t end = std::min(header.find(';', at), header.size());
+    std::string_view item(header.data() + at, end - at);
+    while (!item.empty() && item.front() == ' ') item.remove_prefix(1);
+    if (item.size() > name.size() && item.substr(0, name.size()) == name && item[name.size()] == '=')
+      return std::string(item.substr(name.size() + 1));
+    at = end + 1;
+  }
+  return std::nullopt;
+}
+
 // The page with the operator's default base map (a JS string literal; '<' escaped so that it cannot end the script).
 std::string LivePage(const std::string& basemap) {
   std::string page = kLivePage;
@@ -292,10 +312,68 @@ bool ParseHostPort(const std::string& text, std::string* host, int* port) {
   return true;
 }
 
+constexpr std::string_view kTokenCookie = "uavm_token";
+
+bool LiveServer::Admit(const httplib::Request& req, httplib::Response& res) {
+  if (!gate_) return true;
+  std::optional<std::string> presented;
+  bool from_query = false;
+  const std::string authorization = req.get_header_value("Authorization");
+  if (authorization.rfind("Bearer ", 0) == 0) {
+    presented = authorization.substr(7);
+  } else if (req.has_param("token")) {
+    presented = req.get_param_value("token");
+    from_query = true;
+  } else {
+    presented = CookieValue(req.get_header_value("Cookie"), kTokenCookie);
+  }
+  const int64_t now = SteadyNs();
+  switch (gate_->Check(req.remote_addr, presented, now)) {
+    case AccessGate::Verdict::kAllowed:
+      // A browser that opened the page with ?token= keeps it for the page's own requests (pictures, tiles, scripts).
+      if (from_query)
+        res.set_header("Set-Cookie", std::string(kTokenCookie) + "=" + *presented +
+                                         "; Path=/; HttpOnly; SameSite=Strict" + (tls_ ? "; Secure" : ""));
+      return true;
+    case AccessGate::Verdict::kRateLimited:
+      res.status = 429;
+      res.set_header("Retry-After", std::to_string(std::max(1, gate_->RetryAfterSeconds(req.remote_addr, now))));
+      res.set_header("Connection", "close");
+      res.set_content("too many wrong access tokens: try again later\n", "text/plain");
+      return false;
+    case AccessGate::Verdict::kUnauthorized:
+      break;
+  }
+  res.status = 401;
+  res.set_header("WWW-Authenticate", "Bearer realm=\"uavmosaic\"");
+  res.set_content("this live view needs its access token (Authorization: Bearer TOKEN, or ?token=TOKEN)\n",
+                  "text/plain");
+  return false;
+}
+
+AccessGate::Counters LiveServer::access_counters() const {
+  return gate_ ? gate_->counters() : AccessGate::Counters{};
+}
+
 bool LiveServer::Start(const Options& o, std::string* error) {
-  server_ = std::make_unique<httplib::Server>();
+  tls_ = !o.cert_file.empty() || !o.key_file.empty();
+  if (tls_) {
+    auto secure = std::make_unique<httplib::SSLServer>(o.cert_file.c_str(), o.key_file.c_str());
+    if (!secure->is_valid()) {
+      *error = "cannot load the TLS certificate " + o.cert_file + " and its key " + o.key_file +
+               " (PEM files; the key must match the certificate)";
+      return false;
+    }
+    server_ = std::move(secure);
+  } else {
+    server_ = std::make_unique<httplib::Server>();
+  }
+  gate_ = o.token.empty() ? nullptr : std::make_unique<AccessGate>(o.token, o.access);
   auto& s = *server_;
   const auto listen_fd = Configure(&s, o, &gauge_);
+  s.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
+    return Admit(req, res) ? httplib::Server::HandlerResponse::Unhandled : httplib::Server::HandlerResponse::Handled;
+  });
   const auto busy = [this](httplib::Response& res) {
     if (!t_overflow) return false;
     ++refused_;
@@ -328,7 +406,7 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     return false;
   }
   if (*listen_fd >= 0) ::listen(*listen_fd, kListenBacklog);
-  AddTileRoutes(&s, {[this] { return TileSnapshotNow(); }, busy, &served_, o.host + ":" + std::to_string(port_)});
+  AddTileRoutes(&s, {[this] { return TileSnapshotNow(); }, busy, &served_, o.host + ":" + std::to_string(port_), tls_});
   listener_ = std::thread([this] {
     pthread_setname_np(pthread_self(), "uavm-http-acc");
     server_->listen_after_bind();
@@ -336,7 +414,8 @@ bool LiveServer::Start(const Options& o, std::string* error) {
   // httplib's stop() does nothing before its loop runs (the loop would then accept for ever): Stop() right after
   // Start() must not hang.
   for (int i = 0; i < 2000 && !server_->is_running(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-  spdlog::info("live view on http://{}:{}/ (/live.jpg, /status.json, /tiles.json)", o.host, port_);
+  spdlog::info("live view on {}://{}:{}/ (/live.jpg, /status.json, /tiles.json){}", tls_ ? "https" : "http", o.host,
+               port_, gate_ ? ", with an access token" : "");
   return true;
 }
 
@@ -378,6 +457,7 @@ nlohmann::json LiveServer::StatusJson() {
     seq = jpeg_seq_;
     georef = georef_;
   }
+  const AccessGate::Counters access = access_counters();
   return {{"state", st.state},
           {"frames_in", st.frames_in},
           {"registered", st.registered},
@@ -394,6 +474,14 @@ nlohmann::json LiveServer::StatusJson() {
           {"http_refused", refused_.load()},
           {"http_working", gauge_.working.load()},
           {"http_queued", gauge_.queued.load()},
+          {"http_access",
+           {{"token", gate_ != nullptr},
+            {"tls", tls_},
+            {"allowed", access.allowed},
+            {"unauthorized", access.unauthorized},
+            {"wrong_token", access.wrong_token},
+            {"rate_limited", access.rate_limited},
+            {"lockouts", access.lockouts}}},
           {"georef", georef ? *georef : nlohmann::json{{"georeferenced", false}, {"reason", "no picture yet"}}},
           {"tiles", TilesStatus(TileSnapshotNow().tiles.get())}};
 }

@@ -7,9 +7,11 @@
 #include <thread>
 
 #include "core/tiles/tile_set.h"
+#include "firmware_app/access_gate.h"
 
 namespace httplib {
 class Server;
+struct Request;
 struct Response;
 }  // namespace httplib
 
@@ -52,6 +54,14 @@ class LiveServer {
     // The live page's default base map under the tiles, an XYZ template (e.g.
     // https://tile.openstreetmap.org/{z}/{x}/{y}.png; /?basemap=... overrides it). Empty: none, the page works offline.
     std::string basemap_url;
+    // Access (firmware_app/access_gate.h): with a token every route, the page and Leaflet's files included, needs it
+    // (Authorization: Bearer, ?token= for clients that take only a URL, or the cookie a browser gets when it opened
+    // the page with ?token=); empty: open to whoever reaches the port. Answers never name a path.
+    std::string token;
+    AccessGate::Options access;
+    // HTTPS (cpp-httplib with OpenSSL): PEM certificate (chain) and private key files; empty: plain HTTP.
+    std::string cert_file;
+    std::string key_file;
   };
   LiveServer();
   ~LiveServer();
@@ -74,6 +84,8 @@ class LiveServer {
 
   [[nodiscard]] long served() const { return served_.load(); }
   [[nodiscard]] long refused() const { return refused_.load(); }
+  // What the token check refused (zeros without a token).
+  [[nodiscard]] AccessGate::Counters access_counters() const;
   // Connections a worker is serving now, and connections waiting for one (status.json; tests wait on them).
   struct PoolGauge {
     std::atomic<long> working{0};
@@ -86,8 +98,12 @@ class LiveServer {
   TileSnapshot TileSnapshotNow();
   nlohmann::json StatusJson();
   void ServeJpeg(httplib::Response& res);
+  // Before any route: true lets the request through; false has set the 401 or 429.
+  [[nodiscard]] bool Admit(const httplib::Request& req, httplib::Response& res);
 
-  PoolGauge gauge_;  // before server_: its pool's workers write here until they are joined
+  PoolGauge gauge_;                   // before server_: its pool's workers write here until they are joined
+  std::unique_ptr<AccessGate> gate_;  // null: no token; before server_, whose handlers use it
+  bool tls_ = false;
   std::unique_ptr<httplib::Server> server_;
   std::thread listener_;
   int port_ = 0;

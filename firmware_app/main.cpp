@@ -11,6 +11,7 @@
 #include "core/buffers/mat_pool.h"
 #include "core/util/memory.h"
 #include "firmware_app/app.h"
+#include "firmware_app/flight_status.h"
 #include "hal/common/camera_options.h"
 
 namespace {
@@ -28,6 +29,13 @@ void AddLiveViewOptions(CLI::App* cli, uavm::app::RunConfig* config, bool* no_li
                   "until SIGTERM/SIGINT (a ground station that kept the URL gets the final tiles)");
   cli->add_flag("--no-live-tiles", *no_live_tiles,
                 "With --http: no live tile pyramid (live_tiles/, /tiles/...); the live view shows live.jpg only");
+  cli->add_option("--http-token-file", config->http_token_file,
+                  "With --http: every request needs this file's access token (Authorization: Bearer TOKEN, or "
+                  "?token=TOKEN); required off the loopback (e.g. a systemd credential: README, deploy)");
+  cli->add_flag("--http-no-auth", config->http_no_auth,
+                "With --http off the loopback: serve without a token (a trusted network only)");
+  cli->add_option("--http-cert", config->http_cert_file, "With --http: serve HTTPS with this PEM certificate (chain)");
+  cli->add_option("--http-key", config->http_key_file, "With --http-cert: its PEM private key");
 }
 
 }  // namespace
@@ -136,6 +144,10 @@ int main(int argc, char** argv) {
   if (print_config) {
     std::fputs(app::EffectiveConfigYaml(config).c_str(), stdout);
     return app::kExitOk;
+  }
+  if (!app::CheckLiveViewAccess(config, &why)) {  // before anything is opened or written
+    spdlog::error("{}", why);
+    return app::kExitUsage;
   }
   if (config.source.empty() || config.out_dir.empty()) {
     std::fprintf(stderr, "%s is required\nRun with --help for more information.\n",

@@ -138,7 +138,7 @@ std::string WmtsMatrixSet(const TileSetInfo& t) {
   return s + "</TileMatrixSet>\n";
 }
 
-std::string WmtsLayer(const TileSetInfo& t, const std::string& base_url) {
+std::string WmtsLayer(const TileSetInfo& t, const ServiceUrl& url) {
   return "<Layer><ows:Title>uavmosaic live map</ows:Title>\n"
          "<ows:WGS84BoundingBox><ows:LowerCorner>" +
          Number(t.west) + " " + Number(t.south) + "</ows:LowerCorner><ows:UpperCorner>" + Number(t.east) + " " +
@@ -151,7 +151,7 @@ std::string WmtsLayer(const TileSetInfo& t, const std::string& base_url) {
          WmtsLimits(t) +
          "</TileMatrixSetLink>\n"
          "<ResourceURL format=\"image/png\" resourceType=\"tile\" template=\"" +
-         base_url + "/tiles/{TileMatrix}/{TileCol}/{TileRow}.png\"/>\n</Layer>\n";
+         url.base + "/tiles/{TileMatrix}/{TileCol}/{TileRow}.png" + url.query + "\"/>\n</Layer>\n";
 }
 
 void Send(const Reply& r, httplib::Response& res) {
@@ -216,7 +216,7 @@ Reply TileReply(const TileSetInfo* tiles, std::string_view path, std::string_vie
   return r;
 }
 
-Reply TileJsonReply(const TileSetInfo* tiles, const std::string& base_url, std::string_view if_none_match) {
+Reply TileJsonReply(const TileSetInfo* tiles, const ServiceUrl& url, std::string_view if_none_match) {
   if (!tiles) return Text(404, "no tile set yet");
   const TileSetInfo& t = *tiles;
   const int centre_zoom = std::clamp(t.max_zoom - 2, t.min_zoom, t.max_zoom);
@@ -225,7 +225,7 @@ Reply TileJsonReply(const TileSetInfo* tiles, const std::string& base_url, std::
       {"name", "uavmosaic"},
       {"description", t.final ? "uavmosaic map (end of flight)" : "uavmosaic live map (growing during the flight)"},
       {"attribution", "uavmosaic aerial survey"},
-      {"tiles", {base_url + "/tiles/{z}/{x}/{y}.png"}},
+      {"tiles", {url.base + "/tiles/{z}/{x}/{y}.png" + url.query}},
       {"scheme", "xyz"},
       {"minzoom", t.min_zoom},
       {"maxzoom", t.max_zoom},
@@ -250,7 +250,7 @@ Reply TileJsonReply(const TileSetInfo* tiles, const std::string& base_url, std::
   return r;
 }
 
-Reply WmtsReply(const TileSetInfo* tiles, const std::string& base_url) {
+Reply WmtsReply(const TileSetInfo* tiles, const ServiceUrl& url) {
   if (!tiles) return Text(404, "no tile set yet");
   if (!tiles->geographic) return NotGeoreferenced("WMTS");
   Reply r;
@@ -263,8 +263,8 @@ Reply WmtsReply(const TileSetInfo* tiles, const std::string& base_url) {
       "<ows:ServiceIdentification><ows:Title>uavmosaic live map</ows:Title>"
       "<ows:ServiceType>OGC WMTS</ows:ServiceType><ows:ServiceTypeVersion>1.0.0</ows:ServiceTypeVersion>"
       "</ows:ServiceIdentification>\n<Contents>\n" +
-      WmtsLayer(*tiles, base_url) + WmtsMatrixSet(*tiles) + "</Contents>\n<ServiceMetadataURL xlink:href=\"" +
-      base_url + "/wmts/1.0.0/WMTSCapabilities.xml\"/>\n</Capabilities>\n";
+      WmtsLayer(*tiles, url) + WmtsMatrixSet(*tiles) + "</Contents>\n<ServiceMetadataURL xlink:href=\"" + url.base +
+      "/wmts/1.0.0/WMTSCapabilities.xml" + url.query + "\"/>\n</Capabilities>\n";
   r.content_type = "application/xml";
   r.cache_control = kNoCache;
   return r;
@@ -272,15 +272,15 @@ Reply WmtsReply(const TileSetInfo* tiles, const std::string& base_url) {
 
 // GDAL's WMS driver, TMS mini-driver: the whole web-mercator world at TileLevel max_zoom, one tile at level 0, rows
 // from the top. A tile not drawn (yet) is a 404, which GDAL reads as an empty (transparent) block.
-Reply GdalWmsReply(const TileSetInfo* tiles, const std::string& base_url) {
+Reply GdalWmsReply(const TileSetInfo* tiles, const ServiceUrl& url) {
   if (!tiles) return Text(404, "no tile set yet");
   if (!tiles->geographic) return NotGeoreferenced("The GDAL XYZ description");
   const std::string half = Number(kWebMercatorHalf, "%.9f");
   Reply r;
-  r.body = "<GDAL_WMS>\n<Service name=\"TMS\"><ServerUrl>" + base_url +
-           "/tiles/${z}/${x}/${y}.png</ServerUrl></Service>\n<DataWindow><UpperLeftX>-" + half +
-           "</UpperLeftX><UpperLeftY>" + half + "</UpperLeftY><LowerRightX>" + half + "</LowerRightX><LowerRightY>-" +
-           half + "</LowerRightY><TileLevel>" + std::to_string(tiles->max_zoom) +
+  r.body = "<GDAL_WMS>\n<Service name=\"TMS\"><ServerUrl>" + url.base + "/tiles/${z}/${x}/${y}.png" + url.query +
+           "</ServerUrl></Service>\n<DataWindow><UpperLeftX>-" + half + "</UpperLeftX><UpperLeftY>" + half +
+           "</UpperLeftY><LowerRightX>" + half + "</LowerRightX><LowerRightY>-" + half + "</LowerRightY><TileLevel>" +
+           std::to_string(tiles->max_zoom) +
            "</TileLevel><TileCountX>1</TileCountX><TileCountY>1</TileCountY><YOrigin>top</YOrigin></DataWindow>\n"
            "<Projection>EPSG:3857</Projection><BlockSizeX>256</BlockSizeX><BlockSizeY>256</BlockSizeY>"
            "<BandsCount>4</BandsCount>\n<ZeroBlockHttpCodes>204,404</ZeroBlockHttpCodes>\n</GDAL_WMS>\n";
@@ -309,11 +309,11 @@ nlohmann::json TilesStatus(const TileSetInfo* t) {
           {"updated_ns", t->updated_ns}};
 }
 
-std::string BaseUrl(std::string_view host, const std::string& fallback_host) {
+std::string BaseUrl(std::string_view host, const std::string& fallback_host, bool tls) {
   const bool plain = !host.empty() && host.size() <= 255 && std::all_of(host.begin(), host.end(), [](char c) {
     return std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' || c == ':' || c == '[' || c == ']';
   });
-  return "http://" + (plain ? std::string(host) : fallback_host);
+  return (tls ? "https://" : "http://") + (plain ? std::string(host) : fallback_host);
 }
 
 bool EtagMatches(std::string_view header, std::string_view etag) {
@@ -331,29 +331,32 @@ bool EtagMatches(std::string_view header, std::string_view etag) {
 
 void AddTileRoutes(httplib::Server* server, const TileRouteHooks& h) {
   // Each route: 503 when the pool is full, else a reply built from one snapshot with no lock held.
-  using Build = std::function<Reply(const TileSnapshot&, const httplib::Request&, const std::string&)>;
+  using Build = std::function<Reply(const TileSnapshot&, const httplib::Request&, const ServiceUrl&)>;
   const auto route = [h](const Build& f) {
     return [h, f](const httplib::Request& req, httplib::Response& res) {
       if (h.busy(res)) return;
       ++*h.served;
-      Send(f(h.snapshot(), req, BaseUrl(req.get_header_value("Host"), h.fallback_host)), res);
+      // A token in the query was checked before any route (and is URL-safe): the URLs handed out carry it on.
+      const ServiceUrl url{BaseUrl(req.get_header_value("Host"), h.fallback_host, h.tls),
+                           req.has_param("token") ? "?token=" + req.get_param_value("token") : ""};
+      Send(f(h.snapshot(), req, url), res);
     };
   };
   // [\s\S]: every path under /tiles/ is ours, so that a malformed one gets a 400, not the generic 404.
-  server->Get(R"(/tiles/[\s\S]*)", route([](const TileSnapshot& s, const httplib::Request& req, const std::string&) {
+  server->Get(R"(/tiles/[\s\S]*)", route([](const TileSnapshot& s, const httplib::Request& req, const ServiceUrl&) {
                 return TileReply(s.tiles.get(), req.path, req.get_header_value("If-None-Match"));
               }));
-  server->Get(R"(/tiles\.json)", route([](const TileSnapshot& s, const httplib::Request& req, const std::string& b) {
+  server->Get(R"(/tiles\.json)", route([](const TileSnapshot& s, const httplib::Request& req, const ServiceUrl& b) {
                 return TileJsonReply(s.tiles.get(), b, req.get_header_value("If-None-Match"));
               }));
   const auto wmts = route(
-      [](const TileSnapshot& s, const httplib::Request&, const std::string& b) { return WmtsReply(s.tiles.get(), b); });
+      [](const TileSnapshot& s, const httplib::Request&, const ServiceUrl& b) { return WmtsReply(s.tiles.get(), b); });
   server->Get(R"(/wmts/1\.0\.0/WMTSCapabilities\.xml)", wmts);
   server->Get(R"(/WMTSCapabilities\.xml)", wmts);
-  server->Get(R"(/tiles\.xml)", route([](const TileSnapshot& s, const httplib::Request&, const std::string& b) {
+  server->Get(R"(/tiles\.xml)", route([](const TileSnapshot& s, const httplib::Request&, const ServiceUrl& b) {
                 return GdalWmsReply(s.tiles.get(), b);
               }));
-  server->Get(R"(/footprints\.geojson)", route([](const TileSnapshot& s, const httplib::Request&, const std::string&) {
+  server->Get(R"(/footprints\.geojson)", route([](const TileSnapshot& s, const httplib::Request&, const ServiceUrl&) {
                 return FootprintsReply(s.footprints.get());
               }));
 }

@@ -44,18 +44,23 @@ struct Reply {
 };
 
 [[nodiscard]] Reply TileReply(const TileSetInfo* tiles, std::string_view path, std::string_view if_none_match);
-[[nodiscard]] Reply TileJsonReply(const TileSetInfo* tiles, const std::string& base_url,
-                                  std::string_view if_none_match);
-[[nodiscard]] Reply WmtsReply(const TileSetInfo* tiles, const std::string& base_url);
-[[nodiscard]] Reply GdalWmsReply(const TileSetInfo* tiles, const std::string& base_url);
+// Where the descriptions send their clients: "http(s)://HOST[:PORT]", and what each URL they give ends with: the
+// access token's query ("?token=..."), for a client that authenticated with it and follows only URLs (GDAL, QGIS).
+struct ServiceUrl {
+  std::string base;
+  std::string query;
+};
+[[nodiscard]] Reply TileJsonReply(const TileSetInfo* tiles, const ServiceUrl& url, std::string_view if_none_match);
+[[nodiscard]] Reply WmtsReply(const TileSetInfo* tiles, const ServiceUrl& url);
+[[nodiscard]] Reply GdalWmsReply(const TileSetInfo* tiles, const ServiceUrl& url);
 [[nodiscard]] Reply FootprintsReply(const std::string* geojson);
 
 // status.json "tiles": the set's description, or null.
 [[nodiscard]] nlohmann::json TilesStatus(const TileSetInfo* tiles);
 
-// "http://HOST" from the request's Host header when it is a plain host[:port] (it ends up in XML and JSON documents),
-// else from `fallback_host` (the address the server listens on).
-[[nodiscard]] std::string BaseUrl(std::string_view host_header, const std::string& fallback_host);
+// "http://HOST" (https:// with `tls`) from the request's Host header when it is a plain host[:port] (it ends up in XML
+// and JSON documents), else from `fallback_host` (the address the server listens on).
+[[nodiscard]] std::string BaseUrl(std::string_view host_header, const std::string& fallback_host, bool tls = false);
 
 // Whether an If-None-Match header value names `etag` (a list, weak validators, "*").
 [[nodiscard]] bool EtagMatches(std::string_view if_none_match, std::string_view etag);
@@ -70,6 +75,7 @@ struct TileRouteHooks {
   std::function<bool(httplib::Response&)> busy;  // true: the pool is full and a 503 was set
   std::atomic<long>* served = nullptr;
   std::string fallback_host;  // "HOST:PORT" the server listens on
+  bool tls = false;           // the documents' URLs are https://
 };
 void AddTileRoutes(httplib::Server* server, const TileRouteHooks& hooks);
 

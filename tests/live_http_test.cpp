@@ -226,5 +226,28 @@ TEST(LiveHttpTest, BadAddressIsAUsageError) {
   fs::remove_all("/tmp/uavm_live_bad_" + std::to_string(::getpid()));
 }
 
+// Off the loopback the live view needs an access token (issue 39): without one the program refuses to start (exit 2,
+// saying why, before the session is made); so does a token file that holds no token, and a certificate without its
+// key.
+TEST(LiveHttpTest, OffTheLoopbackWithoutATokenRefusesToStart) {
+  const fs::path out = fs::temp_directory_path() / ("uavm_live_noauth_" + std::to_string(::getpid()));
+  fs::remove_all(out);
+  const fs::path weak = out.string() + ".weak";
+  std::ofstream(weak) << "1234\n";
+  const std::string run = std::string(UAVM_ONBOARD_BIN) + " --source replay:" + kData +
+                          "/brighton_beach_small/images --out " + out.string() + " --log-level error ";
+  for (const auto& [args, why] : std::vector<std::pair<std::string, std::string>>{
+           {"--http 0.0.0.0:0", "--http-token-file"},
+           {"--http 192.0.2.1:8080", "--http-no-auth"},
+           {"--http 0.0.0.0:0 --http-token-file " + weak.string(), "openssl rand"},
+           {"--http 127.0.0.1:0 --http-cert /etc/hostname", "--http-key"}}) {
+    const std::string log = test::CommandOutput(run + args + " 2>&1; echo \"exit=$?\"");
+    EXPECT_NE(log.find("exit=2"), std::string::npos) << args << ": " << log;
+    EXPECT_NE(log.find(why), std::string::npos) << args << ": " << log;
+    EXPECT_FALSE(fs::exists(out)) << args;
+  }
+  fs::remove(weak);
+}
+
 }  // namespace
 }  // namespace uavm

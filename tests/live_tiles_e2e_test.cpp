@@ -125,16 +125,24 @@ TEST(LiveTilesE2ETest, GdalAndABrowserReadTheMapDuringTheFlightAndTheFinalTilesA
   ASSERT_GT(port, 0);
   const std::string base = "http://127.0.0.1:" + std::to_string(port);
   const std::string data = UAVM_TEST_DATA;
+  // Served on every address, as on a drone's Wi-Fi: with an access token (issue 39). The clients below hold it, each
+  // in its own way: a header (httplib), the URL (GDAL), the page's URL and then its cookie (Chromium).
+  const std::string token = "t0ken-" + std::to_string(::getpid()) + "-of-the-live-view";
+  const fs::path token_file = reads / "token";
+  std::ofstream(token_file) << token << "\n";
+  fs::permissions(token_file, fs::perms::owner_read | fs::perms::owner_write);
+  const std::string query = "?token=" + token;
   // ~1.5 s per frame: the 18-frame flight lasts long enough to read it in the middle, also when the tile worker lags
   // on a loaded machine (at 0.7 s per frame a CI run beside a build saw the flight end before 6 frames were drawn).
   const pid_t pid =
       test::Spawn(std::string(UAVM_ONBOARD_BIN) + " --source replay:" + data + "/brighton_beach_small/images --out " +
-                  out.string() + " --http 127.0.0.1:" + std::to_string(port) +
-                  " --http-linger 120 --process-delay-ms 1200 --log-level warn");
+                  out.string() + " --http 0.0.0.0:" + std::to_string(port) + " --http-token-file " +
+                  token_file.string() + " --http-linger 120 --process-delay-ms 1200 --log-level warn");
   ASSERT_GT(pid, 0);
   httplib::Client client("127.0.0.1", port);
   client.set_connection_timeout(1, 0);
   client.set_read_timeout(5, 0);
+  client.set_bearer_token_auth(token.c_str());
 
   // Mid-flight: georeferenced tiles of at least 6 frames while frames are still coming.
   const json mid = WaitForTiles(&client, 120, [](const json& st) {
@@ -150,9 +158,9 @@ TEST(LiveTilesE2ETest, GdalAndABrowserReadTheMapDuringTheFlightAndTheFinalTilesA
   // may pick different levels for a window between zooms).
   const int z = t["max_zoom"].get<int>();
   const double px_m = 2 * kHalfWorld / (256.0 * std::ldexp(1.0, z));
-  const cv::Mat wmts = ReadWindow("WMTS:" + base + "/wmts/1.0.0/WMTSCapabilities.xml,layer=uavmosaic", box, px_m,
-                                  reads / "mid_wmts.png");
-  const cv::Mat xyz = ReadWindow(base + "/tiles.xml", box, px_m, reads / "mid_xyz.png");
+  const cv::Mat wmts = ReadWindow("WMTS:" + base + "/wmts/1.0.0/WMTSCapabilities.xml" + query + ",layer=uavmosaic", box,
+                                  px_m, reads / "mid_wmts.png");
+  const cv::Mat xyz = ReadWindow(base + "/tiles.xml" + query, box, px_m, reads / "mid_xyz.png");
   ASSERT_FALSE(wmts.empty());
   ASSERT_FALSE(xyz.empty());
   ASSERT_EQ(wmts.size(), xyz.size());
@@ -170,7 +178,7 @@ TEST(LiveTilesE2ETest, GdalAndABrowserReadTheMapDuringTheFlightAndTheFinalTilesA
 
   // The live page in a browser, mid-flight: the map on its tiles.
   ASSERT_FALSE(test::ChromiumBinary().empty()) << "chromium missing: run scripts/setup.sh";
-  const cv::Mat shot = test::ScreenshotUntilDrawn(base + "/", out.string() + "_browser", 0.10, 5000);
+  const cv::Mat shot = test::ScreenshotUntilDrawn(base + "/" + query, out.string() + "_browser", 0.10, 5000);
   ASSERT_FALSE(shot.empty());
   cv::Scalar mean;
   const double share = test::ContentShare(shot, &mean);
@@ -195,8 +203,8 @@ TEST(LiveTilesE2ETest, GdalAndABrowserReadTheMapDuringTheFlightAndTheFinalTilesA
   fbox[2] = -kHalfWorld + std::ceil((fbox[2] + kHalfWorld) / fine_m) * fine_m;
   fbox[1] = kHalfWorld - std::ceil((kHalfWorld - fbox[1]) / fine_m) * fine_m;
   fbox[3] = kHalfWorld - std::floor((kHalfWorld - fbox[3]) / fine_m) * fine_m;
-  const cv::Mat served = ReadWindow("WMTS:" + base + "/wmts/1.0.0/WMTSCapabilities.xml,layer=uavmosaic", fbox, fine_m,
-                                    reads / "final_wmts.png");
+  const cv::Mat served = ReadWindow("WMTS:" + base + "/wmts/1.0.0/WMTSCapabilities.xml" + query + ",layer=uavmosaic",
+                                    fbox, fine_m, reads / "final_wmts.png");
   ASSERT_FALSE(served.empty());
   // mosaic.tif warped by GDAL onto the same EPSG:3857 window and pixel.
   const cv::Mat ref = ReadWindow((out / "mosaic.tif").string(), fbox, fine_m, reads / "ref.png");
@@ -208,6 +216,26 @@ TEST(LiveTilesE2ETest, GdalAndABrowserReadTheMapDuringTheFlightAndTheFinalTilesA
   EXPECT_LT(std::hypot(shift.x, shift.y), 1.0);
   EXPECT_LT(final_diff, 8.0);  // the same mosaic resampled twice (tiles, then the read) against once
   EXPECT_GT(both, 0.3);
+
+  // Without the token, or with a wrong one, every route is refused, the page's scripts included; nothing is named.
+  httplib::Client stranger("127.0.0.1", port);
+  stranger.set_read_timeout(5, 0);
+  for (const std::string path : {"/", "/status.json", "/live.jpg", "/tiles.json", "/tiles/0/0/0.png", "/tiles.xml",
+                                 "/wmts/1.0.0/WMTSCapabilities.xml", "/footprints.geojson", "/leaflet/leaflet.js",
+                                 "/no/such/route", "/?token=wrong-token-of-16-chars"}) {
+    const auto res = stranger.Get(path);
+    ASSERT_TRUE(res) << path;
+    EXPECT_EQ(res->status, 401) << path;
+    EXPECT_EQ(res->body.find(out.string()), std::string::npos) << path;
+    EXPECT_EQ(res->body.find("/leaflet"), std::string::npos) << path;
+  }
+  const auto access = client.Get("/status.json");
+  ASSERT_TRUE(access);
+  const json gate = json::parse(access->body)["http_access"];
+  std::printf("access: %s\n", gate.dump().c_str());
+  EXPECT_TRUE(gate["token"].get<bool>());
+  EXPECT_GE(gate["unauthorized"].get<int>(), 11);
+  EXPECT_EQ(gate["wrong_token"].get<int>(), 1);
 
   ::kill(pid, SIGTERM);  // ends the linger
   int wstatus = 0;
