@@ -6,7 +6,9 @@
 # uavmosaic-onboard (replay, positions from geo.txt) and uavmosaic-ground --render-previews on the session, each under
 # the bench's watchdog (peak VmRSS sampled from /proc), again with the surveyed targets (every third a checkpoint) and
 # with them without heights, then uavmosaic-relief compare on the ground tool's ortho.tif, dsm.tif and dtm.tif (with
-# and without GCPs) and on the onboard mosaic.tif. Prints Markdown tables; everything stays in OUT_DIR.
+# and without GCPs) and on the onboard mosaic.tif; with SEAMS_ANYWHERE=1 the GCP run again with each ortho cell from
+# its most nadir view (--ortho-seams-anywhere), for the seams through standing objects with and without keeping them
+# off. Prints Markdown tables; everything stays in OUT_DIR.
 #
 # Environment: UAVM_BUILD_DIR (default <repo>/build), THREADS (default 2), SEED (default 1), RELIEF_ARGS (more
 # `uavmosaic-relief fly` options, e.g. "--buildings 12 --gps-sigma 3").
@@ -44,6 +46,14 @@ CHECKS=$(jq -r '.checkpoints | join(",")' "$OUT/flight.json")
 run_watched "$OUT/ground_gcp" 0 0 "$BUILD/ground_app/uavmosaic-ground" "$OUT/session" --out "$OUT/ground_gcp" \
   --threads "$THREADS" --gcp "$OUT/flight/gcp_list.txt" --checkpoints "$CHECKS"
 ((W_RC == 0)) || { echo "ground with GCPs: exit $W_RC" >&2; tail -5 "$OUT/ground_gcp.stderr" >&2; exit 1; }
+if [[ ${SEAMS_ANYWHERE:-0} == 1 ]]; then
+  run_watched "$OUT/ground_gcp_anywhere" 0 0 "$BUILD/ground_app/uavmosaic-ground" "$OUT/session" \
+    --out "$OUT/ground_gcp_anywhere" --threads "$THREADS" --gcp "$OUT/flight/gcp_list.txt" --checkpoints "$CHECKS" \
+    --ortho-seams-anywhere
+  ((W_RC == 0)) || { echo "ground with GCPs, seams anywhere: exit $W_RC" >&2; exit 1; }
+  "$BUILD/tools/uavmosaic-relief" compare "$OUT/flight" --ortho "$OUT/ground_gcp_anywhere/ortho.tif" \
+    >"$OUT/compare_ground_gcp_anywhere.json"
+fi
 run_watched "$OUT/ground_gcp_flat" 0 0 "$BUILD/ground_app/uavmosaic-ground" "$OUT/session" \
   --out "$OUT/ground_gcp_flat" --threads "$THREADS" --gcp "$OUT/flight/gcp_list_no_heights.txt" \
   --checkpoints "$CHECKS" --no-dense --no-ortho
@@ -69,12 +79,28 @@ print()
 print("| orthophoto against the truth (patch phase correlation, GSD) | all: RMS / median | ground | roofs | crowns | "
       "relative (median shift out): all RMS / median | offset (x, y) | patches |")
 print("|---|---|---|---|---|---|---|---|")
-for name, r in (("ground tool ortho.tif", g["ortho"]), ("ground tool ortho.tif with GCPs", gg["ortho"]),
-                ("onboard mosaic.tif", o["ortho"])):
+rows = [("ground tool ortho.tif", g["ortho"]), ("ground tool ortho.tif with GCPs", gg["ortho"])]
+try:
+    rows.append(("the same, seams anywhere (`--ortho-seams-anywhere`)",
+                 json.load(open(f"{out}/compare_ground_gcp_anywhere.json"))["ortho"]))
+except FileNotFoundError:
+    pass
+rows.append(("onboard mosaic.tif", o["ortho"]))
+for name, r in rows:
     cls = lambda k: f"{r[k]['rms_gsd']:.2f} / {r[k]['median_gsd']:.2f} ({r[k]['patches']})"
     print(f"| {name} | {cls('all')} | {cls('ground')} | {cls('roofs')} | {cls('crowns')} | "
           f"{r['all']['relative_rms_gsd']:.2f} / {r['all']['relative_median_gsd']:.2f} | "
           f"{r['offset_gsd'][0]:.2f}, {r['offset_gsd'][1]:.2f} | {r['patches']} ({r['unmatched']} unmatched) |")
+print()
+print("| seams (summary.json ortho) | standing objects (taken whole) | seam cells | of which cutting a standing object |")
+print("|---|---|---|---|")
+for name in ("ground", "ground_gcp", "ground_gcp_anywhere"):
+    try:
+        so = json.load(open(f"{out}/{name}/summary.json"))["ortho"]
+    except FileNotFoundError:
+        continue
+    print(f"| {name} | {so.get('standing_objects')} ({so.get('standing_objects_taken_whole')}) | "
+          f"{so.get('seam_cells')} | {so.get('seam_cells_on_standing_objects')} |")
 print()
 print("| heights against the truth (away from 1 m of edges), GSD RMS (after the median bias) | measured | surfaces | "
       "ground | roofs / under buildings | crowns / under trees | bias m |")

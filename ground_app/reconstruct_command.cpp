@@ -68,6 +68,12 @@ void AddReconstructionOptions(CLI::App* app, sfm::ReconstructionOptions* opts, s
 // The orthophoto's options.
 void AddOrthoOptions(CLI::App* app, sfm::OrthoOptions* ortho, bool* no_ortho, bool* no_mbtiles) {
   app->add_option("--ortho-gsd", ortho->gsd, "orthophoto pixel size in the map's units (0 = the flight's GSD)");
+  app->add_option("--ortho-object-height", ortho->object_height,
+                  "seams keep off what stands this high above the terrain (m): each roof or crown from one frame "
+                  "(0 = each cell from its most nadir view)");
+  app->add_flag(
+      "--ortho-seams-anywhere", [ortho](std::int64_t) { ortho->seams_off_objects = false; },
+      "each cell from its most nadir view, seams through roofs and crowns too (the standing objects still counted)");
   app->add_flag("--no-ortho", *no_ortho, "no orthophoto (ortho.tif, ortho_preview.png, ortho.mbtiles, tiles/)");
   app->add_flag("--no-mbtiles", *no_mbtiles, "no ortho.mbtiles");
 }
@@ -95,8 +101,8 @@ bool WriteTerrain(sfm::ReconstructionResult& result, const std::string& out_dir,
 }
 
 // The true orthophoto's files (core/sfm/ortho_files.h), its figures in the summary and its pictures for the report.
-bool WriteOrtho(sfm::ReconstructionResult& result, const std::string& session_dir, const sfm::OrthoOptions& ortho,
-                const std::string& out_dir, bool mbtiles, sfm::ReportPictures* pictures,
+bool WriteOrtho(sfm::ReconstructionResult& result, const cv::Mat1f& dtm, const std::string& session_dir,
+                const sfm::OrthoOptions& ortho, const std::string& out_dir, bool mbtiles, sfm::ReportPictures* pictures,
                 std::vector<std::string>* outputs, std::string* error) {
   auto& js = result.summary;
   // The onboard gains and shading divided out of each frame, as the onboard map did (none when the session has none).
@@ -114,7 +120,7 @@ bool WriteOrtho(sfm::ReconstructionResult& result, const std::string& session_di
   // flat; without it those pixels were holes in the map.
   cv::Mat1f surface = result.dsm.clone();
   (void)sfm::FillDsmHoles(&surface, -9999.0f, std::max(surface.rows, surface.cols));
-  if (!sfm::WriteOrthophoto(result.rec, result.image_paths, surface, result.grid, -9999.0f, result.offset,
+  if (!sfm::WriteOrthophoto(result.rec, result.image_paths, surface, dtm, result.grid, -9999.0f, result.offset,
                             result.crs_wkt, ortho, files, correct, &report, error))
     return false;
   js["ortho"] = report.ToJson();
@@ -243,7 +249,7 @@ int RunReconstructCommand(int argc, char** argv) {
   sfm::ReportPictures pictures;
   pictures.dsm = sfm::RenderDsm(result.dsm, -9999.0f, 900);
   pictures.dtm = sfm::RenderDsm(dtm, -9999.0f, 900);
-  if (!no_ortho && !WriteOrtho(result, session_dir, ortho, out_dir, !no_mbtiles, &pictures, &outputs, &error)) {
+  if (!no_ortho && !WriteOrtho(result, dtm, session_dir, ortho, out_dir, !no_mbtiles, &pictures, &outputs, &error)) {
     std::fprintf(stderr, "uavmosaic-ground: %s\n", error.c_str());
     return kExitOutputError;
   }

@@ -53,18 +53,24 @@ TEST(ReliefOrtho, ExactCamerasAndTrueDsmGiveAnOrthophotoOnTheTruth) {
     rec.images.push_back(im);
     paths.push_back((dir / "images" / im.name).string());
   }
-  // The true DSM (heights above the datum) on its own grid.
+  // The true DSM and DTM (heights above the datum) on their own grid.
   GDALAllRegister();
-  auto* ds = static_cast<GDALDataset*>(GDALOpen((dir / "truth/dsm.tif").c_str(), GA_ReadOnly));
-  ASSERT_NE(ds, nullptr);
-  double gt[6];
-  ds->GetGeoTransform(gt);
-  cv::Mat1f dsm(ds->GetRasterYSize(), ds->GetRasterXSize());
-  ASSERT_EQ(ds->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, dsm.cols, dsm.rows, dsm.data, dsm.cols, dsm.rows, GDT_Float32,
-                                           0, 0, nullptr),
-            CE_None);
-  GDALClose(ds);
-  dsm -= static_cast<float>(o.datum_m);
+  const auto read = [&](const char* name, cv::Mat1f* out, double* gt) {
+    auto* ds = static_cast<GDALDataset*>(GDALOpen((dir / "truth" / name).c_str(), GA_ReadOnly));
+    ASSERT_NE(ds, nullptr) << name;
+    ds->GetGeoTransform(gt);
+    *out = cv::Mat1f(ds->GetRasterYSize(), ds->GetRasterXSize());
+    ASSERT_EQ(ds->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, out->cols, out->rows, out->data, out->cols, out->rows,
+                                             GDT_Float32, 0, 0, nullptr),
+              CE_None);
+    GDALClose(ds);
+    *out -= static_cast<float>(o.datum_m);
+  };
+  double gt[6], gt_dtm[6];
+  cv::Mat1f dsm, dtm;
+  ASSERT_NO_FATAL_FAILURE(read("dsm.tif", &dsm, gt));
+  ASSERT_NO_FATAL_FAILURE(read("dtm.tif", &dtm, gt_dtm));
+  ASSERT_EQ(dtm.size(), dsm.size());
   sfm::DsmGrid grid;
   grid.x0 = gt[0] - o.easting;
   grid.y0 = gt[3] - o.northing;
@@ -77,23 +83,42 @@ TEST(ReliefOrtho, ExactCamerasAndTrueDsmGiveAnOrthophotoOnTheTruth) {
   srs.exportToWkt(&wkt);
   const std::string crs(wkt);
   CPLFree(wkt);
-  sfm::OrthoOptions options;
-  options.gsd = grid.cell;
-  sfm::OrthoFiles files;
-  files.cog = (dir / "ortho.tif").string();
-  sfm::OrthoFilesReport report;
-  ASSERT_TRUE(sfm::WriteOrthophoto(rec, paths, dsm, grid, -9999.0f, Eigen::Vector2d(o.easting, o.northing), crs,
-                                   options, files, {}, &report, &error))
-      << error;
-  nlohmann::json measured;
-  tools::ProductPaths products;
-  products.ortho = files.cog;
-  ASSERT_TRUE(tools::CompareWithTruth(dir.string(), products, &measured, &error)) << error;
-  const auto& m = measured["ortho"];
-  std::printf("exact cameras: offset %s GSD, all %s\n", m["offset_gsd"].dump().c_str(), m["all"].dump().c_str());
-  EXPECT_GT(m["all"]["patches"].get<int>(), 40);
-  EXPECT_LT(std::hypot(m["offset_gsd"][0].get<double>(), m["offset_gsd"][1].get<double>()), 0.25);
-  EXPECT_LT(m["all"]["rms_gsd"].get<double>(), 0.5);
+  // Twice: each cell from its most nadir view, then each standing object (a building, a tree: the DSM above the DTM)
+  // taken whole from one view, so that no seam cuts it.
+  for (const bool objects : {false, true}) {
+    sfm::OrthoOptions options;
+    options.gsd = grid.cell;
+    options.seams_off_objects = objects;
+    sfm::OrthoFiles files;
+    files.cog = (dir / (objects ? "ortho_objects.tif" : "ortho_cells.tif")).string();
+    sfm::OrthoFilesReport report;
+    ASSERT_TRUE(sfm::WriteOrthophoto(rec, paths, dsm, dtm, grid, -9999.0f, Eigen::Vector2d(o.easting, o.northing), crs,
+                                     options, files, {}, &report, &error))
+        << error;
+    nlohmann::json measured;
+    tools::ProductPaths products;
+    products.ortho = files.cog;
+    ASSERT_TRUE(tools::CompareWithTruth(dir.string(), products, &measured, &error)) << error;
+    const auto& m = measured["ortho"];
+    const auto& r = report.ortho;
+    std::printf(
+        "exact cameras, %s: offset %s GSD, all %s, roofs %s; %d standing objects (%d taken whole), %zu seam "
+        "cells, %zu on standing objects\n",
+        objects ? "objects whole" : "per cell", m["offset_gsd"].dump().c_str(), m["all"].dump().c_str(),
+        m["roofs"].dump().c_str(), r.objects, r.objects_taken_whole, r.seam_cells, r.seam_cells_on_objects);
+    EXPECT_GT(m["all"]["patches"].get<int>(), 40);
+    EXPECT_LT(std::hypot(m["offset_gsd"][0].get<double>(), m["offset_gsd"][1].get<double>()), 0.25);
+    EXPECT_LT(m["all"]["rms_gsd"].get<double>(), 0.5);
+    EXPECT_GT(r.seam_cells, 100u);
+    EXPECT_GE(r.objects, o.buildings);  // the buildings (trees may merge with them or each other)
+    if (!objects) {
+      EXPECT_EQ(r.objects_taken_whole, 0);
+      EXPECT_GT(r.seam_cells_on_objects, 0u);  // per cell the seams cross roofs: the test can fail
+    } else {
+      EXPECT_GE(r.objects_taken_whole, r.objects - 1);
+      EXPECT_LT(static_cast<double>(r.seam_cells_on_objects), 0.02 * static_cast<double>(r.seam_cells));
+    }
+  }
   fs::remove_all(dir);
 }
 

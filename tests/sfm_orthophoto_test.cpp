@@ -77,7 +77,7 @@ OrthoOutcome RunOrtho(const ReliefFlight& f, const DsmGrid& grid, OrthoOptions o
   out.mask = cv::Mat1b(grid.height, grid.width, uchar{0});
   std::string error;
   const bool ok = MakeOrthophoto(
-      f.rec, f.dsm, f.dsm_grid, -9999.0f, grid, options, [&](size_t i) { return f.frames[i]; },
+      f.rec, f.dsm, cv::Mat1f(), f.dsm_grid, -9999.0f, grid, options, [&](size_t i) { return f.frames[i]; },
       [&](const cv::Mat& image, const cv::Mat& mask, cv::Point at, std::string*) {
         image.copyTo(out.image(cv::Rect(at, image.size())));
         mask.copyTo(out.mask(cv::Rect(at, mask.size())));
@@ -199,7 +199,7 @@ TEST(Orthophoto, EmptyDsmIsAnError) {
   OrthoReport report;
   std::string error;
   EXPECT_FALSE(MakeOrthophoto(
-      f.rec, cv::Mat1f(), f.dsm_grid, -9999.0f, OrthoGridOver(f.dsm_grid, 0.2), options,
+      f.rec, cv::Mat1f(), cv::Mat1f(), f.dsm_grid, -9999.0f, OrthoGridOver(f.dsm_grid, 0.2), options,
       [&](size_t i) { return f.frames[i]; },
       [](const cv::Mat&, const cv::Mat&, cv::Point, std::string*) { return true; }, &report, &error));
   EXPECT_NE(error.find("no DSM"), std::string::npos);

@@ -145,9 +145,9 @@ bool WriteMbtiles(GDALDatasetH src, const std::string& path, std::string* error)
 }  // namespace
 
 bool WriteOrthophoto(const Reconstruction& rec, const std::vector<std::string>& image_paths, const cv::Mat1f& dsm,
-                     const DsmGrid& dsm_grid, float nodata, const Eigen::Vector2d& offset, const std::string& crs_wkt,
-                     const OrthoOptions& options, const OrthoFiles& files, const OrthoFrameCorrection& correct,
-                     OrthoFilesReport* report, std::string* error) {
+                     const cv::Mat1f& terrain, const DsmGrid& dsm_grid, float nodata, const Eigen::Vector2d& offset,
+                     const std::string& crs_wkt, const OrthoOptions& options, const OrthoFiles& files,
+                     const OrthoFrameCorrection& correct, OrthoFilesReport* report, std::string* error) {
   *report = OrthoFilesReport{};
   const double gsd = options.gsd > 0.0 ? options.gsd : rec.MedianGsd();
   if (gsd <= 0.0 || image_paths.size() != rec.images.size()) {
@@ -181,7 +181,8 @@ bool WriteOrthophoto(const Reconstruction& rec, const std::vector<std::string>& 
     const OrthoTileSink sink = [&](const cv::Mat& image, const cv::Mat& mask, cv::Point at, std::string* why) {
       return writer.Write(image, mask, at, why);
     };
-    if (!MakeOrthophoto(rec, dsm, dsm_grid, nodata, grid, options, load, sink, &report->ortho, error)) return false;
+    if (!MakeOrthophoto(rec, dsm, terrain, dsm_grid, nodata, grid, options, load, sink, &report->ortho, error))
+      return false;
     if (!writer.Close(error)) return false;
   }
   const auto start = std::chrono::steady_clock::now();

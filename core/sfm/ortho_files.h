@@ -36,9 +36,10 @@ struct OrthoFilesReport {
 // `correct` (may be empty) is applied to each frame as it is read, before it is warped (e.g. the onboard radiometry
 // divided out).
 using OrthoFrameCorrection = std::function<void(size_t image, cv::Mat* bgr)>;
+// `terrain` (the DTM on the DSM's grid, or empty) keeps the seams off what stands on it (MakeOrthophoto).
 [[nodiscard]] bool WriteOrthophoto(const Reconstruction& rec, const std::vector<std::string>& image_paths,
-                                   const cv::Mat1f& dsm, const DsmGrid& dsm_grid, float nodata,
-                                   const Eigen::Vector2d& offset, const std::string& crs_wkt,
+                                   const cv::Mat1f& dsm, const cv::Mat1f& terrain, const DsmGrid& dsm_grid,
+                                   float nodata, const Eigen::Vector2d& offset, const std::string& crs_wkt,
                                    const OrthoOptions& options, const OrthoFiles& files,
                                    const OrthoFrameCorrection& correct, OrthoFilesReport* report, std::string* error);
 

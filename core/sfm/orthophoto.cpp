@@ -31,6 +31,7 @@ bool OrthoOptions::Check(std::string* why) const {
   if (zbuffer_mib <= 0.0 || image_cache_mib <= 0.0) return fail("ortho memory caps must be > 0");
   if (occlusion_tolerance_cells <= 0.0) return fail("ortho occlusion tolerance must be > 0");
   if (threads < 1) return fail("ortho threads must be >= 1");
+  if (!(object_height >= 0.0)) return fail("ortho object_height must be >= 0 (0 = seams anywhere)");
   return true;
 }
 
@@ -45,6 +46,10 @@ nlohmann::json OrthoReport::ToJson() const {
           {"pixels_covered", pixels_covered},
           {"seam_cells_taken_from_another_view", cells_taken_from_another_view},
           {"seam_cells_occluded_in_every_view", cells_occluded_everywhere},
+          {"standing_objects", objects},
+          {"standing_objects_taken_whole", objects_taken_whole},
+          {"seam_cells", seam_cells},
+          {"seam_cells_on_standing_objects", seam_cells_on_objects},
           {"image_loads", image_loads},
           {"zbuffer_scale", zbuffer_scale},
           {"zbuffer_mib", zbuffer_mib},
@@ -252,12 +257,25 @@ struct OrthoContext {
   const DsmGrid& ortho;
   const OrthoOptions& options;
   const std::vector<FrameView>& views;
-  double scale;          // z-buffer scale
-  double tolerance = 0;  // depth tolerance, world units
+  double scale;                                     // z-buffer scale
+  double tolerance = 0;                             // depth tolerance, world units
+  const struct StandingObjects* objects = nullptr;  // none: every cell from its own most nadir view
+};
+
+// What stands on the terrain (OrthoOptions::object_height), on the DSM's grid: each connected region above the
+// height, grown by about a metre so that a seam around it runs on the ground beside its walls, with the frame that
+// takes it whole. Made once before the tiles (the DSM's size: int labels and a byte mask); read by every worker.
+struct StandingObjects {
+  cv::Mat1i label;            // object id (1...), 0 = ground
+  cv::Mat1b standing;         // 255 where the surface stands above the height (not grown): the seam counts' "on"
+  std::vector<cv::Rect> box;  // per id (index 0 unused), in DSM cells
+  std::vector<int> owner;     // per id: the image that takes it whole, -1 = none (each cell its own view)
 };
 
 // Counters a worker adds to the report.
 struct TileCounts {
+  size_t seam_cells = 0;
+  size_t seam_cells_on_objects = 0;
   size_t taken_from_another = 0;
   size_t occluded_everywhere = 0;
   size_t covered = 0;
@@ -314,8 +332,136 @@ cv::Mat1b OverlapMap(const OrthoContext& ctx, int threads) {
   return overlap;
 }
 
-// Per seam cell of `roi`, the index (into `candidates`) of the most nadir frame that sees the cell's surface point
-// unoccluded (the most nadir frame that has it in view when none does); -1 = no frame or no surface.
+// The DSM cell under world (x, y); false outside the grid.
+bool DsmCellAt(const OrthoContext& ctx, double x, double y, cv::Point* cell) {
+  const int c = static_cast<int>(std::floor((x - ctx.dsm_grid.x0) / ctx.dsm_grid.cell));
+  const int r = static_cast<int>(std::floor((ctx.dsm_grid.y0 - y) / ctx.dsm_grid.cell));
+  if (c < 0 || r < 0 || c >= ctx.dsm.cols || r >= ctx.dsm.rows) return false;
+  *cell = cv::Point(c, r);
+  return true;
+}
+
+// The regions of `dsm` more than `height` above `terrain` (both on `grid`), grown by ~1 m, as labelled objects of at
+// least ~4 square metres.
+StandingObjects FindStandingObjects(const cv::Mat1f& dsm, const cv::Mat1f& terrain, const DsmGrid& grid, float nodata,
+                                    double height) {
+  StandingObjects objects;
+  objects.standing = cv::Mat1b(dsm.size(), uchar{0});
+  for (int r = 0; r < dsm.rows; ++r)
+    for (int c = 0; c < dsm.cols; ++c) {
+      const float z = dsm(r, c), t = terrain(r, c);
+      if (z != nodata && t != nodata && z - t > height) objects.standing(r, c) = 255;
+    }
+  const int grow = std::max(1, static_cast<int>(std::lround(1.0 / grid.cell)));
+  cv::Mat1b grown;
+  cv::dilate(objects.standing, grown,
+             cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * grow + 1, 2 * grow + 1)));
+  cv::Mat stats, centroids;
+  const int n = cv::connectedComponentsWithStats(grown, objects.label, stats, centroids, 8, CV_32S);
+  const double min_cells = 4.0 / (grid.cell * grid.cell);
+  objects.box.assign(static_cast<size_t>(std::max(n, 1)), cv::Rect());
+  objects.owner.assign(objects.box.size(), -1);
+  for (int id = 1; id < n; ++id) {
+    if (stats.at<int>(id, cv::CC_STAT_AREA) < min_cells) continue;  // a lamp post, a noisy cell: no object
+    objects.box[static_cast<size_t>(id)] =
+        cv::Rect(stats.at<int>(id, cv::CC_STAT_LEFT), stats.at<int>(id, cv::CC_STAT_TOP),
+                 stats.at<int>(id, cv::CC_STAT_WIDTH), stats.at<int>(id, cv::CC_STAT_HEIGHT));
+  }
+  return objects;
+}
+
+// Each object's owner: of the frames that see at least 90 % of it unoccluded (on up to ~400 of its cells), the most
+// nadir on average; else the one that sees most of it, if at least half; else none (its cells each take their own).
+void ChooseObjectOwners(const OrthoContext& ctx, StandingObjects* objects) {
+  ParallelFor(objects->box.size(), ctx.options.threads, [&](size_t id) {
+    const cv::Rect box = objects->box[id];
+    if (box.empty()) return;
+    std::vector<Eigen::Vector3d> samples;
+    const int stride = std::max(1, static_cast<int>(std::sqrt(box.area() / 400.0)));
+    for (int r = box.y; r < box.y + box.height; r += stride)
+      for (int c = box.x; c < box.x + box.width; c += stride)
+        if (objects->label(r, c) == static_cast<int>(id) && ctx.dsm(r, c) != ctx.nodata)
+          samples.emplace_back(ctx.dsm_grid.x0 + (c + 0.5) * ctx.dsm_grid.cell,
+                               ctx.dsm_grid.y0 - (r + 0.5) * ctx.dsm_grid.cell, ctx.dsm(r, c));
+    if (samples.empty()) return;
+    const double k = ctx.dsm_grid.cell / ctx.ortho.cell;
+    const cv::Rect in_ortho(static_cast<int>((ctx.dsm_grid.x0 - ctx.ortho.x0) / ctx.ortho.cell + box.x * k),
+                            static_cast<int>((ctx.ortho.y0 - ctx.dsm_grid.y0) / ctx.ortho.cell + box.y * k),
+                            static_cast<int>(std::ceil(box.width * k)) + 1,
+                            static_cast<int>(std::ceil(box.height * k)) + 1);
+    int best_whole = -1, best_most = -1;
+    double whole_nadir = -1.0;
+    size_t most_seen = 0;
+    for (size_t i = 0; i < ctx.views.size(); ++i) {
+      if ((ctx.views[i].ortho_box & in_ortho).area() == 0) continue;
+      size_t seen = 0;
+      double nadir_sum = 0.0;
+      for (const auto& X : samples) {
+        double nadir = 0.0;
+        if (SightOf(ctx, i, X, &nadir) != Sight::kSeen) continue;
+        ++seen;
+        nadir_sum += nadir;
+      }
+      if (seen >= 0.9 * static_cast<double>(samples.size()) && nadir_sum / static_cast<double>(seen) > whole_nadir) {
+        whole_nadir = nadir_sum / static_cast<double>(seen);
+        best_whole = static_cast<int>(i);
+      }
+      if (seen > most_seen) {
+        most_seen = seen;
+        best_most = static_cast<int>(i);
+      }
+    }
+    objects->owner[id] = best_whole >= 0 ? best_whole : (2 * most_seen >= samples.size() ? best_most : -1);
+  });
+}
+
+// The index into `candidates` of the frame that takes the object under X whole, when there is one and it sees X;
+// -1 otherwise.
+// The index into `candidates` of the frame that takes the standing object under X whole, -1 when none does. On the
+// object itself the owner is kept even where its z-buffer says X is hidden (a crown's or a roof's own far flank,
+// seen past its top: the object hides itself, and another view there would cut it with a seam); on the ring around
+// it only where the owner sees X (ground behind a wall is taken from another frame, as everywhere).
+int ObjectOwnerAt(const OrthoContext& ctx, const std::vector<size_t>& candidates, const Eigen::Vector3d& X) {
+  if (ctx.objects == nullptr) return -1;
+  cv::Point cell;
+  if (!DsmCellAt(ctx, X.x(), X.y(), &cell)) return -1;
+  const int id = ctx.objects->label(cell);
+  const int owner = id > 0 ? ctx.objects->owner[static_cast<size_t>(id)] : -1;
+  if (owner < 0) return -1;
+  const auto it = std::lower_bound(candidates.begin(), candidates.end(), static_cast<size_t>(owner));
+  if (it == candidates.end() || *it != static_cast<size_t>(owner)) return -1;
+  double nadir = 0.0;
+  const Sight sight = SightOf(ctx, static_cast<size_t>(owner), X, &nadir);
+  const bool take = sight == Sight::kSeen || (sight == Sight::kOccluded && ctx.objects->standing(cell) != 0);
+  return take ? static_cast<int>(it - candidates.begin()) : -1;
+}
+
+// Seam cells of the tile's own part (`inner`, in `roi`'s pixels): cells with an owner whose right or lower neighbour
+// has another; and of those the ones that cut a standing object (both cells on it, not its outline).
+void CountSeams(const OrthoContext& ctx, const cv::Mat1s& owner, const cv::Rect& roi, const cv::Rect& inner,
+                TileCounts* counts) {
+  const int cell = ctx.options.seam_cell;
+  const auto standing = [&](int r, int c) {
+    cv::Point dsm_cell;
+    const double x = ctx.ortho.x0 + (roi.x + c * cell + cell / 2 + 0.5) * ctx.ortho.cell;
+    const double y = ctx.ortho.y0 - (roi.y + r * cell + cell / 2 + 0.5) * ctx.ortho.cell;
+    return ctx.objects != nullptr && DsmCellAt(ctx, x, y, &dsm_cell) && ctx.objects->standing(dsm_cell) != 0;
+  };
+  for (int r = 0; r + 1 < owner.rows; ++r)
+    for (int c = 0; c + 1 < owner.cols; ++c) {
+      if (!inner.contains(cv::Point(c * cell + cell / 2, r * cell + cell / 2))) continue;
+      const int16_t o = owner(r, c), right = owner(r, c + 1), down = owner(r + 1, c);
+      const bool cut_right = right >= 0 && right != o, cut_down = down >= 0 && down != o;
+      if (o < 0 || !(cut_right || cut_down)) continue;
+      ++counts->seam_cells;
+      if (standing(r, c) && ((cut_right && standing(r, c + 1)) || (cut_down && standing(r + 1, c))))
+        ++counts->seam_cells_on_objects;
+    }
+}
+
+// Per seam cell of `roi`, the index (into `candidates`, ascending) of the frame that takes the standing object there
+// whole, else of the most nadir frame that sees the cell's surface point unoccluded (the most nadir frame that has it
+// in view when none does); -1 = no frame or no surface.
 cv::Mat1s SeamOwners(const OrthoContext& ctx, const std::vector<size_t>& candidates, const cv::Rect& roi,
                      TileCounts* counts) {
   const int cell = ctx.options.seam_cell;
@@ -327,6 +473,10 @@ cv::Mat1s SeamOwners(const OrthoContext& ctx, const std::vector<size_t>& candida
       const double row = roi.y + std::min(r * cell + 0.5 * (cell - 1), roi.height - 1.0);
       Eigen::Vector3d X;
       if (!SurfacePoint(ctx, col, row, &X)) continue;
+      if (const int whole = ObjectOwnerAt(ctx, candidates, X); whole >= 0) {
+        owner(r, c) = static_cast<int16_t>(whole);
+        continue;
+      }
       int best_seen = -1, best_any = -1;
       double score_seen = -2.0, score_any = -2.0;
       for (size_t k = 0; k < candidates.size(); ++k) {
@@ -357,9 +507,10 @@ cv::Mat1s SeamOwners(const OrthoContext& ctx, const std::vector<size_t>& candida
 // One worker's tile: ownership, then each owner's pixels (and the blend's reach around them) warped from its frame
 // through the DSM and fed to the blender.
 bool OrthoTile(const OrthoContext& ctx, FrameCache* cache, const std::vector<size_t>& candidates, const cv::Rect& roi,
-               TileBlender* blender, TileCounts* counts, cv::Mat* image, cv::Mat* mask) {
+               const cv::Rect& inner, TileBlender* blender, TileCounts* counts, cv::Mat* image, cv::Mat* mask) {
   const int cell = ctx.options.seam_cell;
   const cv::Mat1s cell_owner = SeamOwners(ctx, candidates, roi, counts);
+  CountSeams(ctx, cell_owner, roi, inner, counts);
   cv::Mat1s owner(roi.size());
   for (int r = 0; r < roi.height; ++r)
     for (int c = 0; c < roi.width; ++c) owner(r, c) = cell_owner(r / cell, c / cell);
@@ -472,10 +623,10 @@ bool BlendTiles(const OrthoContext& ctx, const OrthoImageLoad& load, const Ortho
     for (size_t i = 0; i < views.size(); ++i)
       if ((views[i].ortho_box & roi).area() > 0) candidates.push_back(i);
     cv::Mat image, mask;
-    if (candidates.empty() ||
-        !OrthoTile(ctx, &cache, candidates, roi, blenders[worker].get(), &counts[worker], &image, &mask))
-      return;
     const cv::Rect inner(tile.x - roi.x, tile.y - roi.y, tile.width, tile.height);
+    if (candidates.empty() ||
+        !OrthoTile(ctx, &cache, candidates, roi, inner, blenders[worker].get(), &counts[worker], &image, &mask))
+      return;
     const int covered = cv::countNonZero(mask(inner));
     if (covered == 0) return;
     std::lock_guard<std::mutex> lock(sink_mutex);
@@ -498,8 +649,8 @@ bool BlendTiles(const OrthoContext& ctx, const OrthoImageLoad& load, const Ortho
 
 }  // namespace
 
-bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGrid& dsm_grid, float nodata,
-                    const DsmGrid& ortho_grid, const OrthoOptions& options, const OrthoImageLoad& load,
+bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const cv::Mat1f& terrain, const DsmGrid& dsm_grid,
+                    float nodata, const DsmGrid& ortho_grid, const OrthoOptions& options, const OrthoImageLoad& load,
                     const OrthoTileSink& sink, OrthoReport* report, std::string* error) {
   const auto start = std::chrono::steady_clock::now();
   if (!options.Check(error)) return false;
@@ -515,6 +666,16 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
   OrthoContext ctx{
       rec, dsm, dsm_grid, nodata, ortho_grid, options, views, scale, options.occlusion_tolerance_cells * dsm_grid.cell};
   report->overlap = OverlapMap(ctx, options.threads);
+  StandingObjects objects;
+  if (options.object_height > 0.0 && terrain.size() == dsm.size()) {
+    objects = FindStandingObjects(dsm, terrain, dsm_grid, nodata, options.object_height);
+    if (options.seams_off_objects) ChooseObjectOwners(ctx, &objects);
+    ctx.objects = &objects;
+    for (size_t id = 1; id < objects.box.size(); ++id) {
+      report->objects += objects.box[id].empty() ? 0 : 1;
+      report->objects_taken_whole += objects.owner[id] >= 0 ? 1 : 0;
+    }
+  }
   std::vector<TileCounts> counts;
   size_t loads = 0, unreadable = 0;
   if (!BlendTiles(ctx, load, sink, &counts, report, error, &loads, &unreadable)) return false;
@@ -523,6 +684,8 @@ bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGr
     report->pixels_covered += c.covered;
     report->cells_taken_from_another_view += c.taken_from_another;
     report->cells_occluded_everywhere += c.occluded_everywhere;
+    report->seam_cells += c.seam_cells;
+    report->seam_cells_on_objects += c.seam_cells_on_objects;
     for (size_t i = 0; i < used.size(); ++i) used[i] = static_cast<char>(used[i] | c.used[i]);
   }
   report->images_used = static_cast<int>(std::count(used.begin(), used.end(), 1));

@@ -24,6 +24,11 @@ struct OrthoOptions {
   // A surface point is seen by a frame when its depth is within this many DSM cells of the frame's z-buffer there.
   double occlusion_tolerance_cells = 1.5;
   int threads = 2;
+  // Seams keep off what stands on the terrain: a connected region of the surface more than this above the terrain
+  // (world units: metres when georeferenced) is taken whole from one frame, the most nadir one that sees all of it,
+  // so that no seam cuts a roof or a crown; 0 (or no terrain given) = each cell from its own most nadir view.
+  double object_height = 2.5;
+  bool seams_off_objects = true;  // false: objects found and counted (the seams on them), each cell its own view
   [[nodiscard]] bool Check(std::string* why) const;
 };
 
@@ -39,6 +44,12 @@ struct OrthoReport {
   size_t cells_taken_from_another_view = 0;
   // Seam cells that no frame saw unoccluded: filled from the most nadir frame regardless (counted, not hidden).
   size_t cells_occluded_everywhere = 0;
+  // Standing objects (options.object_height): found, and taken whole from one frame; seam cells (a neighbour has
+  // another owner) over the orthophoto, and those on a standing object.
+  int objects = 0;
+  int objects_taken_whole = 0;
+  size_t seam_cells = 0;
+  size_t seam_cells_on_objects = 0;
   size_t image_loads = 0;
   // Frames that see each kOverlapBlock x kOverlapBlock block of the orthophoto unoccluded (at its centre).
   static constexpr int kOverlapBlock = 16;
@@ -64,11 +75,12 @@ using OrthoTileSink =
                                  double* z);
 
 // The orthophoto of `rec`'s posed images over `dsm` (heights, `nodata` where none: those pixels stay empty), on
-// `ortho_grid`, tile by tile into `sink`. Memory: the z-buffers (options.zbuffer_mib), the frame cache
+// `ortho_grid`, tile by tile into `sink`. `terrain` (the DTM on the DSM's grid; empty: none) tells what stands on
+// the ground, for the seams (options.object_height). Memory: the z-buffers (options.zbuffer_mib), the frame cache
 // (options.image_cache_mib) and per worker a tile's blend (~40 bytes a pixel of tile + margin).
-[[nodiscard]] bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const DsmGrid& dsm_grid,
-                                  float nodata, const DsmGrid& ortho_grid, const OrthoOptions& options,
-                                  const OrthoImageLoad& load, const OrthoTileSink& sink, OrthoReport* report,
-                                  std::string* error);
+[[nodiscard]] bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const cv::Mat1f& terrain,
+                                  const DsmGrid& dsm_grid, float nodata, const DsmGrid& ortho_grid,
+                                  const OrthoOptions& options, const OrthoImageLoad& load, const OrthoTileSink& sink,
+                                  OrthoReport* report, std::string* error);
 
 }  // namespace uavm::sfm
