@@ -1,5 +1,6 @@
 #include "firmware_app/access_gate.h"
 
+#include <arpa/inet.h>
 #include <openssl/crypto.h>
 #include <openssl/evp.h>
 #include <spdlog/spdlog.h>
@@ -8,6 +9,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 
 namespace uavm::app {
@@ -24,7 +26,7 @@ std::array<uint8_t, 32> Sha256(std::string_view text) {
   return digest;
 }
 
-bool UrlSafe(char c) {
+bool UrlSafeChar(char c) {
   return std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '.' || c == '_' || c == '~';
 }
 
@@ -46,7 +48,7 @@ bool ReadAccessToken(const std::string& path, std::string* token, std::string* e
   const auto space = [](char c) { return std::isspace(static_cast<unsigned char>(c)) != 0; };
   while (!text.empty() && space(text.back())) text.pop_back();
   text.erase(text.begin(), std::find_if_not(text.begin(), text.end(), space));
-  if (text.size() < kMinToken || text.size() > kMaxToken || !std::all_of(text.begin(), text.end(), UrlSafe)) {
+  if (text.size() < kMinToken || text.size() > kMaxToken || !IsUrlSafe(text)) {
     *error = "--http-token-file " + path + " must hold one token of 16 to 256 letters, digits, '-', '.', '_' or '~' " +
              "(e.g. `openssl rand -hex 32 > " + path + "`)";
     return false;
@@ -56,6 +58,26 @@ bool ReadAccessToken(const std::string& path, std::string* token, std::string* e
     spdlog::warn("--http-token-file {} can be read by other users (mode {:o}): chmod 600 it", path, st.st_mode & 0777);
   *token = text;
   return true;
+}
+
+bool IsUrlSafe(std::string_view text) {
+  return std::all_of(text.begin(), text.end(), UrlSafeChar);
+}
+
+std::string ClientKey(std::string_view address) {
+  const std::string text(address);
+  in6_addr v6{};
+  if (text.find(':') == std::string::npos || inet_pton(AF_INET6, text.c_str(), &v6) != 1) return text;
+  const uint8_t* b = v6.s6_addr;
+  static constexpr uint8_t kMapped[12] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xFF, 0xFF};
+  char out[64];
+  if (std::equal(b, b + 12, kMapped)) {
+    std::snprintf(out, sizeof(out), "%u.%u.%u.%u", b[12], b[13], b[14], b[15]);
+  } else {
+    std::snprintf(out, sizeof(out), "%x:%x:%x:%x::/64", (b[0] << 8) | b[1], (b[2] << 8) | b[3], (b[4] << 8) | b[5],
+                  (b[6] << 8) | b[7]);
+  }
+  return out;
 }
 
 bool IsLoopbackHost(std::string_view host) {
@@ -73,31 +95,33 @@ bool IsLoopbackHost(std::string_view host) {
 
 AccessGate::AccessGate(const std::string& token, Options options) : token_digest_(Sha256(token)), options_(options) {}
 
-const AccessGate::Client* AccessGate::Find(std::string_view address) const {
+const AccessGate::Client* AccessGate::Find(std::string_view key) const {
   for (size_t i = 0; i < client_count_; ++i)
-    if (std::string_view(clients_[i].address.data(), clients_[i].length) == address) return &clients_[i];
+    if (std::string_view(clients_[i].address.data(), clients_[i].length) == key) return &clients_[i];
   return nullptr;
 }
 
-AccessGate::Client* AccessGate::FindOrAdd(std::string_view address, int64_t now_ns) {
-  if (const Client* c = Find(address)) return const_cast<Client*>(c);
+AccessGate::Client* AccessGate::FindOrAdd(std::string_view key, int64_t now_ns) {
+  if (const Client* c = Find(key)) return const_cast<Client*>(c);
   Client* slot = nullptr;
   if (client_count_ < clients_.size()) {
     slot = &clients_[client_count_++];
-  } else {  // full: forget the least recently seen address
-    slot = &*std::min_element(clients_.begin(), clients_.end(),
-                              [](const Client& a, const Client& b) { return a.last_seen_ns < b.last_seen_ns; });
+  } else {  // full: forget the least recently seen client that is not locked out
+    for (Client& c : clients_)
+      if (c.locked_until_ns <= now_ns && (slot == nullptr || c.last_seen_ns < slot->last_seen_ns)) slot = &c;
+    if (slot == nullptr) return nullptr;
   }
   *slot = Client{};
-  slot->length = std::min(address.size(), slot->address.size());
-  std::copy_n(address.begin(), slot->length, slot->address.begin());
+  slot->length = std::min(key.size(), slot->address.size());
+  std::copy_n(key.begin(), slot->length, slot->address.begin());
   slot->window_start_ns = now_ns;
   return slot;
 }
 
-AccessGate::Verdict AccessGate::Check(std::string_view client, std::optional<std::string_view> presented,
-                                      int64_t now_ns) {
+AccessGate::Verdict AccessGate::Check(std::string_view address, std::optional<std::string_view> presented,
+                                      int64_t now_ns, bool guess) {
   const bool right = presented && CRYPTO_memcmp(Sha256(*presented).data(), token_digest_.data(), 32) == 0;
+  const std::string client = ClientKey(address);
   std::lock_guard lock(mutex_);
   const Client* known = Find(client);
   if (known != nullptr && known->locked_until_ns > now_ns) {
@@ -110,9 +134,13 @@ AccessGate::Verdict AccessGate::Check(std::string_view client, std::optional<std
     return Verdict::kAllowed;
   }
   ++counters_.unauthorized;
-  if (!presented) return Verdict::kUnauthorized;
+  if (!presented || !guess) return Verdict::kUnauthorized;
   ++counters_.wrong_token;
   Client* c = FindOrAdd(client, now_ns);
+  if (c == nullptr) {  // every place holds a lockout: no room to count this one, so it is refused as one
+    ++counters_.rate_limited;
+    return Verdict::kRateLimited;
+  }
   c->last_seen_ns = now_ns;
   if (now_ns - c->window_start_ns > Ns(options_.window_s)) {
     c->window_start_ns = now_ns;
@@ -134,7 +162,8 @@ AccessGate::Counters AccessGate::counters() const {
   return counters_;
 }
 
-int AccessGate::RetryAfterSeconds(std::string_view client, int64_t now_ns) const {
+int AccessGate::RetryAfterSeconds(std::string_view address, int64_t now_ns) const {
+  const std::string client = ClientKey(address);
   std::lock_guard lock(mutex_);
   const Client* c = Find(client);
   if (c == nullptr || c->locked_until_ns <= now_ns) return 0;

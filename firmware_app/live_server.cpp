@@ -20,15 +20,21 @@ namespace uavm::app {
 
 namespace {
 
-// Set while the accepting thread itself answers a request the pool had no room for: handlers reply 503 at once.
+// Set while a request the pool had no room for is answered: handlers reply 503 at once.
 thread_local bool t_overflow = false;
 
-// httplib's own ThreadPool queues without limit; this one holds at most `capacity` waiting connections.
+// httplib's own ThreadPool queues without limit; this one holds at most `capacity` waiting connections. A connection
+// beyond that is answered 503 by the accepting thread itself over plain HTTP (at once: the request is read and a few
+// bytes written). Over TLS the handshake comes first and a client may stall it for the read timeout: there the
+// overflow goes to one thread of its own, with a queue of kOverflowQueue, so that accepting never waits on a client;
+// beyond that queue too the accepting thread answers (a flood, bounded by the timeouts).
 class BoundedPool : public httplib::TaskQueue {
  public:
-  BoundedPool(int threads, int capacity, LiveServer::PoolGauge* gauge)
+  static constexpr size_t kOverflowQueue = 8;
+  BoundedPool(int threads, int capacity, LiveServer::PoolGauge* gauge, bool overflow_thread)
       : capacity_(static_cast<size_t>(capacity)), gauge_(gauge) {
-    for (int i = 0; i < threads; ++i) workers_.emplace_back([this] { Work(); });
+    for (int i = 0; i < threads; ++i) workers_.emplace_back([this] { Work(&jobs_, false); });
+    if (overflow_thread) overflow_worker_ = std::thread([this] { Work(&overflow_, true); });
   }
   ~BoundedPool() override { shutdown(); }
 
@@ -38,7 +44,12 @@ class BoundedPool : public httplib::TaskQueue {
       if (!stop_ && jobs_.size() < capacity_) {
         jobs_.push_back(std::move(fn));
         ++gauge_->queued;
-        cv_.notify_one();
+        cv_.notify_all();
+        return;
+      }
+      if (!stop_ && overflow_worker_.joinable() && overflow_.size() < kOverflowQueue) {
+        overflow_.push_back(std::move(fn));
+        cv_.notify_all();
         return;
       }
     }
@@ -56,24 +67,29 @@ class BoundedPool : public httplib::TaskQueue {
     }
     cv_.notify_all();
     for (auto& t : workers_) t.join();
+    if (overflow_worker_.joinable()) overflow_worker_.join();
   }
 
  private:
-  void Work() {
-    pthread_setname_np(pthread_self(), "uavm-http");  // bench/http_load.sh measures these threads' CPU
+  // Serves `queue` until shutdown; the overflow queue's connections are answered 503 (and not counted as working).
+  void Work(std::deque<std::function<void()>>* queue, bool overflow) {
+    pthread_setname_np(pthread_self(), overflow ? "uavm-http-ovf" : "uavm-http");  // bench/http_load.sh: uavm-http
+    t_overflow = overflow;
     for (;;) {
       std::function<void()> fn;
       {
         std::unique_lock<std::mutex> lock(mutex_);
-        cv_.wait(lock, [&] { return stop_ || !jobs_.empty(); });
-        if (jobs_.empty()) return;
-        fn = std::move(jobs_.front());
-        jobs_.pop_front();
-        ++gauge_->working;  // before `queued` drops, so that the two never both miss this connection
-        --gauge_->queued;
+        cv_.wait(lock, [&] { return stop_ || !queue->empty(); });
+        if (queue->empty()) return;
+        fn = std::move(queue->front());
+        queue->pop_front();
+        if (!overflow) {
+          ++gauge_->working;  // before `queued` drops, so that the two never both miss this connection
+          --gauge_->queued;
+        }
       }
       fn();
-      --gauge_->working;
+      if (!overflow) --gauge_->working;
     }
   }
 
@@ -81,7 +97,9 @@ class BoundedPool : public httplib::TaskQueue {
   std::mutex mutex_;
   std::condition_variable cv_;
   std::deque<std::function<void()>> jobs_;
+  std::deque<std::function<void()>> overflow_;
   std::vector<std::thread> workers_;
+  std::thread overflow_worker_;
   bool stop_ = false;
   LiveServer::PoolGauge* gauge_;  // borrowed: the LiveServer outlives its httplib server and this pool
 };
@@ -247,7 +265,9 @@ constexpr int kListenBacklog = 64;
 // The bounded pool, short timeouts, and the listening socket's descriptor once bound (-1 until then).
 std::shared_ptr<int> Configure(httplib::Server* s, const LiveServer::Options& o, LiveServer::PoolGauge* gauge) {
   const int threads = o.threads, queue = o.queue;
-  s->new_task_queue = [threads, queue, gauge] { return new BoundedPool(threads, queue, gauge); };
+  s->new_task_queue = [threads, queue, gauge, tls = !o.cert_file.empty()] {
+    return new BoundedPool(threads, queue, gauge, tls);
+  };
   // Short timeouts and no long keep-alive: a slow or idle client must not hold one of the few workers.
   s->set_keep_alive_max_count(4);
   s->set_keep_alive_timeout(1);
@@ -312,12 +332,10 @@ bool ParseHostPort(const std::string& text, std::string* host, int* port) {
   return true;
 }
 
-constexpr std::string_view kTokenCookie = "uavm_token";
-
 bool LiveServer::Admit(const httplib::Request& req, httplib::Response& res) {
   if (!gate_) return true;
   std::optional<std::string> presented;
-  bool from_query = false;
+  bool from_query = false, from_cookie = false;
   const std::string authorization = req.get_header_value("Authorization");
   if (authorization.rfind("Bearer ", 0) == 0) {
     presented = authorization.substr(7);
@@ -325,15 +343,18 @@ bool LiveServer::Admit(const httplib::Request& req, httplib::Response& res) {
     presented = req.get_param_value("token");
     from_query = true;
   } else {
-    presented = CookieValue(req.get_header_value("Cookie"), kTokenCookie);
+    presented = CookieValue(req.get_header_value("Cookie"), cookie_name_);
+    from_cookie = presented.has_value();
   }
   const int64_t now = SteadyNs();
-  switch (gate_->Check(req.remote_addr, presented, now)) {
+  // A stale cookie (a tab left open after the token changed polls every second) is no guess: it must not lock the
+  // operator's own address out.
+  switch (gate_->Check(req.remote_addr, presented, now, /*guess=*/!from_cookie)) {
     case AccessGate::Verdict::kAllowed:
       // A browser that opened the page with ?token= keeps it for the page's own requests (pictures, tiles, scripts).
       if (from_query)
-        res.set_header("Set-Cookie", std::string(kTokenCookie) + "=" + *presented +
-                                         "; Path=/; HttpOnly; SameSite=Strict" + (tls_ ? "; Secure" : ""));
+        res.set_header("Set-Cookie", cookie_name_ + "=" + *presented + "; Path=/; HttpOnly; SameSite=Strict" +
+                                         (tls_ ? "; Secure" : ""));
       return true;
     case AccessGate::Verdict::kRateLimited:
       res.status = 429;
@@ -346,6 +367,7 @@ bool LiveServer::Admit(const httplib::Request& req, httplib::Response& res) {
   }
   res.status = 401;
   res.set_header("WWW-Authenticate", "Bearer realm=\"uavmosaic\"");
+  if (from_cookie) res.set_header("Set-Cookie", cookie_name_ + "=; Path=/; Max-Age=0");  // forget the stale one
   res.set_content("this live view needs its access token (Authorization: Bearer TOKEN, or ?token=TOKEN)\n",
                   "text/plain");
   return false;
@@ -369,6 +391,7 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     server_ = std::make_unique<httplib::Server>();
   }
   gate_ = o.token.empty() ? nullptr : std::make_unique<AccessGate>(o.token, o.access);
+  cookie_name_ = "uavm_token";  // made per port once bound: two servers on one host must not share it
   auto& s = *server_;
   const auto listen_fd = Configure(&s, o, &gauge_);
   s.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
@@ -406,7 +429,9 @@ bool LiveServer::Start(const Options& o, std::string* error) {
     return false;
   }
   if (*listen_fd >= 0) ::listen(*listen_fd, kListenBacklog);
-  AddTileRoutes(&s, {[this] { return TileSnapshotNow(); }, busy, &served_, o.host + ":" + std::to_string(port_), tls_});
+  cookie_name_ = "uavm_token_" + std::to_string(port_);  // cookies are per host, not per port
+  AddTileRoutes(&s, {[this] { return TileSnapshotNow(); }, busy, &served_, o.host + ":" + std::to_string(port_), tls_,
+                     gate_ != nullptr});
   listener_ = std::thread([this] {
     pthread_setname_np(pthread_self(), "uavm-http-acc");
     server_->listen_after_bind();

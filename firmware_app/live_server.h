@@ -104,6 +104,7 @@ class LiveServer {
   PoolGauge gauge_;                   // before server_: its pool's workers write here until they are joined
   std::unique_ptr<AccessGate> gate_;  // null: no token; before server_, whose handlers use it
   bool tls_ = false;
+  std::string cookie_name_;  // the page's token cookie, named after the port (set before the server listens)
   std::unique_ptr<httplib::Server> server_;
   std::thread listener_;
   int port_ = 0;

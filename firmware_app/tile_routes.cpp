@@ -13,6 +13,8 @@
 #include <string>
 #include <string_view>
 
+#include "firmware_app/access_gate.h"
+
 namespace uavm::app {
 
 namespace {
@@ -336,9 +338,12 @@ void AddTileRoutes(httplib::Server* server, const TileRouteHooks& h) {
     return [h, f](const httplib::Request& req, httplib::Response& res) {
       if (h.busy(res)) return;
       ++*h.served;
-      // A token in the query was checked before any route (and is URL-safe): the URLs handed out carry it on.
+      // A query token that was the request's credential (the gate checked it: no Bearer header took precedence) is
+      // carried on in the URLs handed out; nothing else from the query ever reaches a document.
+      const bool bearer = req.get_header_value("Authorization").rfind("Bearer ", 0) == 0;
+      const std::string token = h.gated && !bearer && req.has_param("token") ? req.get_param_value("token") : "";
       const ServiceUrl url{BaseUrl(req.get_header_value("Host"), h.fallback_host, h.tls),
-                           req.has_param("token") ? "?token=" + req.get_param_value("token") : ""};
+                           !token.empty() && IsUrlSafe(token) ? "?token=" + token : ""};
       Send(f(h.snapshot(), req, url), res);
     };
   };

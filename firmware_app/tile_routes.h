@@ -76,6 +76,7 @@ struct TileRouteHooks {
   std::atomic<long>* served = nullptr;
   std::string fallback_host;  // "HOST:PORT" the server listens on
   bool tls = false;           // the documents' URLs are https://
+  bool gated = false;         // an access token guards the server: a query token that passed is carried on
 };
 void AddTileRoutes(httplib::Server* server, const TileRouteHooks& hooks);
 

@@ -52,20 +52,47 @@ TEST(AccessGate, WrongTokensLockTheirAddressOutForAWhileEvenWithTheRightOne) {
   EXPECT_EQ(c.rate_limited, 1u);
 }
 
-TEST(AccessGate, TheTableIsFixedAndForgetsTheLeastRecentlySeen) {
+TEST(AccessGate, TheTableIsFixedAndAFloodOfAddressesFreesNoLockout) {
   AccessGate gate(kToken, {3, 60.0, 60.0});
-  // The first address locked out, then more addresses than the table holds guess once each.
+  // The first address locked out, then more addresses than the table holds guess once each: the least recently seen
+  // of the unlocked ones make room, the lockout stays.
   for (int i = 0; i < 3; ++i) (void)gate.Check("10.1.0.1", "guess", i);
   EXPECT_EQ(gate.Check("10.1.0.1", kToken, 10), Verdict::kRateLimited);
-  for (size_t i = 0; i < AccessGate::kClients - 1; ++i)
-    (void)gate.Check("10.2.0." + std::to_string(i), "guess", static_cast<int64_t>(20 + i));
-  EXPECT_EQ(gate.Check("10.1.0.1", kToken, 200), Verdict::kRateLimited);  // still known: the table is just full
-  (void)gate.Check("10.3.0.1", "guess", 300);  // one more: the least recently seen (10.2.0.0) is forgotten
+  for (size_t i = 0; i < 2 * AccessGate::kClients; ++i)
+    EXPECT_EQ(gate.Check("10.2." + std::to_string(i / 250) + "." + std::to_string(i % 250), "guess",
+                         static_cast<int64_t>(20 + i)),
+              Verdict::kUnauthorized);
   EXPECT_EQ(gate.Check("10.1.0.1", kToken, 400), Verdict::kRateLimited);
-  // An IPv6 address at its longest fits.
-  const std::string v6 = "ffff:ffff:ffff:ffff:ffff:ffff:255.255.255.255";
-  for (int i = 0; i < 3; ++i) (void)gate.Check(v6, "guess", 500 + i);
-  EXPECT_EQ(gate.Check(v6, kToken, 600), Verdict::kRateLimited);
+  // A table full of lockouts: a new address's wrong token has no place to be counted, so it is refused as locked;
+  // the right token still opens.
+  AccessGate full(kToken, {1, 60.0, 60.0});
+  for (size_t i = 0; i < AccessGate::kClients; ++i)
+    EXPECT_EQ(full.Check("10.3.0." + std::to_string(i), "guess", 0), Verdict::kUnauthorized);
+  EXPECT_EQ(full.Check("10.3.0.0", kToken, 1), Verdict::kRateLimited);
+  EXPECT_EQ(full.Check("10.4.0.1", "guess", 2), Verdict::kRateLimited);
+  EXPECT_EQ(full.Check("10.4.0.1", kToken, 3), Verdict::kAllowed);
+  EXPECT_EQ(full.counters().lockouts, AccessGate::kClients);
+}
+
+TEST(AccessGate, AnIpv6HostIsItsSlash64) {
+  EXPECT_EQ(ClientKey("192.168.1.9"), "192.168.1.9");
+  EXPECT_EQ(ClientKey("::ffff:192.168.1.9"), "192.168.1.9");
+  EXPECT_EQ(ClientKey("2001:db8:1:2:aaaa::1"), "2001:db8:1:2::/64");
+  EXPECT_EQ(ClientKey("2001:0db8:0001:0002:ffff:1:2:3"), "2001:db8:1:2::/64");
+  EXPECT_EQ(ClientKey("fe80::1"), "fe80:0:0:0::/64");
+  // Guesses from many addresses of one /64 add up to one lockout.
+  AccessGate gate(kToken, {3, 60.0, 60.0});
+  for (int i = 0; i < 3; ++i) (void)gate.Check("2001:db8:1:2::" + std::to_string(i + 1), "guess", i);
+  EXPECT_EQ(gate.Check("2001:db8:1:2:ffff::9", kToken, 10), Verdict::kRateLimited);
+  EXPECT_EQ(gate.Check("2001:db8:1:3::1", kToken, 11), Verdict::kAllowed);
+}
+
+TEST(AccessGate, AStaleCookieIsNoGuess) {
+  AccessGate gate(kToken, {3, 60.0, 60.0});
+  for (int i = 0; i < 20; ++i)
+    EXPECT_EQ(gate.Check("10.0.0.7", "old-token-0123456789", i, /*guess=*/false), Verdict::kUnauthorized);
+  EXPECT_EQ(gate.Check("10.0.0.7", kToken, 100), Verdict::kAllowed);
+  EXPECT_EQ(gate.counters().wrong_token, 0u);
 }
 
 TEST(AccessToken, TheFileHoldsOneUrlSafeTokenOfSixteenCharactersOrMore) {

@@ -511,6 +511,10 @@ TEST_F(LiveTilesHttpTest, TileJsonAndStatus) {
   EXPECT_EQ(j["tilejson"], "3.0.0");
   ASSERT_EQ(j["tiles"].size(), 1u);
   EXPECT_EQ(j["tiles"][0], Url("/tiles/{z}/{x}/{y}.png"));
+  // Without an access token a query token is nobody's credential: it never reaches the documents.
+  const auto open_xml = client_->Get("/tiles.xml?token=%22%2F%3E%3Cscript%3E");
+  ASSERT_TRUE(open_xml);
+  EXPECT_EQ(open_xml->body.find("token="), std::string::npos) << open_xml->body;
   EXPECT_EQ(j["minzoom"], 17);
   EXPECT_EQ(j["maxzoom"], kZ);
   EXPECT_EQ(j["scheme"], "xyz");
@@ -773,7 +777,15 @@ TEST_F(LiveTilesHttpTest, HttpsWithATokenForCurlAndGdal) {
   const std::string xyz = base + "/tiles.xml?token=" + token;
   const std::string untrusted_info = test::CommandOutput(Env() + "CPL_CURL_VERBOSE=YES gdalinfo '" + xyz + "' 2>&1");
   EXPECT_EQ(untrusted_info.find("Driver: WMS"), std::string::npos) << untrusted_info;
+  EXPECT_NE(untrusted_info.find("certificate verification failed"), std::string::npos) << untrusted_info;
   ExpectBlockRead(xyz, "via_https_tiles_xml", trusted);
+
+  // A query that was not the credential (a Bearer header was) never reaches a document, whatever it holds.
+  const std::string evil = "%22%2F%3E%3Cscript%3E";
+  const std::string with_bearer = test::CommandOutput("curl -s --noproxy '*'" + ca + " -H 'Authorization: Bearer " +
+                                                      token + "' '" + base + "/tiles.xml?token=" + evil + "'");
+  EXPECT_NE(with_bearer.find("<GDAL_WMS>"), std::string::npos) << with_bearer;
+  EXPECT_EQ(with_bearer.find("token="), std::string::npos) << with_bearer;
 
   // Wrong tokens: refused, then the address is locked out (even with the right token), and it all shows in the status.
   httplib::SSLClient client("127.0.0.1", server_.port());

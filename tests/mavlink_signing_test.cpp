@@ -57,7 +57,11 @@ TEST(SigningKeyFile, TakesRawBytesOrHexAndRefusesTheRest) {
   got = {};
   ASSERT_TRUE(ReadSigningKey(hex_file, &got, &error)) << error;
   EXPECT_EQ(got, want);
-  for (const std::string bad : {raw.substr(1), hex.substr(2), hex.substr(0, 63) + "g", std::string("passphrase")}) {
+  // A passphrase of 31 characters and its newline is 32 bytes, but text: not taken for a raw key.
+  const std::string passphrase = "correct horse battery staple 42\n";
+  ASSERT_EQ(passphrase.size(), 32u);
+  for (const std::string bad :
+       {raw.substr(1), hex.substr(2), hex.substr(0, 63) + "g", std::string("passphrase"), passphrase}) {
     const fs::path f = TempFile("bad", bad);
     error.clear();
     EXPECT_FALSE(ReadSigningKey(f, &got, &error)) << bad;
@@ -86,7 +90,7 @@ TEST(SignatureCheck, SignedFramesRoundTripAndOnlyTheKeyOpensThem) {
   feed(Sign(Position(47.1), key, 0, 100) + Sign(Position(47.2), TestKey(1), 0, 101) +
        Sign(Position(47.3), key, 0, 102));
   std::string altered = Sign(Position(47.4), key, 0, 103);
-  altered[altered.size() - 8] ^= 0x01;  // the timestamp's lowest byte: the signature covers it
+  altered[altered.size() - 12] ^= 0x01;  // the timestamp's lowest byte (after the link id): the signature covers it
   feed(altered);
   ASSERT_EQ(lats.size(), 2u);
   EXPECT_NEAR(lats[0], 47.1, 1e-7);

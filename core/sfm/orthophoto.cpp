@@ -341,46 +341,53 @@ bool DsmCellAt(const OrthoContext& ctx, double x, double y, cv::Point* cell) {
   return true;
 }
 
-// The regions of `dsm` more than `height` above `terrain` (both on `grid`), grown by ~1 m, as labelled objects of at
-// least ~4 square metres.
+// The regions of `dsm` more than `height` above `terrain` (both on `grid`) of at least ~4 square metres (smaller
+// ones, a post or a noisy cell, are no object and not counted as standing), grown by ~1 m, as labelled objects.
 StandingObjects FindStandingObjects(const cv::Mat1f& dsm, const cv::Mat1f& terrain, const DsmGrid& grid, float nodata,
                                     double height) {
   StandingObjects objects;
-  objects.standing = cv::Mat1b(dsm.size(), uchar{0});
+  cv::Mat1b above(dsm.size(), uchar{0});
   for (int r = 0; r < dsm.rows; ++r)
     for (int c = 0; c < dsm.cols; ++c) {
       const float z = dsm(r, c), t = terrain(r, c);
-      if (z != nodata && t != nodata && z - t > height) objects.standing(r, c) = 255;
+      if (z != nodata && t != nodata && z - t > height) above(r, c) = 255;
     }
+  cv::Mat1i blobs;
+  cv::Mat stats, centroids;
+  const int blob_count = cv::connectedComponentsWithStats(above, blobs, stats, centroids, 8, CV_32S);
+  const double min_cells = 4.0 / (grid.cell * grid.cell);
+  objects.standing = cv::Mat1b(dsm.size(), uchar{0});
+  for (int r = 0; r < dsm.rows; ++r)
+    for (int c = 0; c < dsm.cols; ++c)
+      if (blobs(r, c) > 0 && blob_count > 0 && stats.at<int>(blobs(r, c), cv::CC_STAT_AREA) >= min_cells)
+        objects.standing(r, c) = 255;
   const int grow = std::max(1, static_cast<int>(std::lround(1.0 / grid.cell)));
   cv::Mat1b grown;
   cv::dilate(objects.standing, grown,
              cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * grow + 1, 2 * grow + 1)));
-  cv::Mat stats, centroids;
   const int n = cv::connectedComponentsWithStats(grown, objects.label, stats, centroids, 8, CV_32S);
-  const double min_cells = 4.0 / (grid.cell * grid.cell);
   objects.box.assign(static_cast<size_t>(std::max(n, 1)), cv::Rect());
   objects.owner.assign(objects.box.size(), -1);
-  for (int id = 1; id < n; ++id) {
-    if (stats.at<int>(id, cv::CC_STAT_AREA) < min_cells) continue;  // a lamp post, a noisy cell: no object
+  for (int id = 1; id < n; ++id)
     objects.box[static_cast<size_t>(id)] =
         cv::Rect(stats.at<int>(id, cv::CC_STAT_LEFT), stats.at<int>(id, cv::CC_STAT_TOP),
                  stats.at<int>(id, cv::CC_STAT_WIDTH), stats.at<int>(id, cv::CC_STAT_HEIGHT));
-  }
   return objects;
 }
 
-// Each object's owner: of the frames that see at least 90 % of it unoccluded (on up to ~400 of its cells), the most
+// Each object's owner: of the frames that see at least 90 % of it unoccluded (on up to ~400 of its standing cells: the
+// ring of ground around it is not the object), the most
 // nadir on average; else the one that sees most of it, if at least half; else none (its cells each take their own).
 void ChooseObjectOwners(const OrthoContext& ctx, StandingObjects* objects) {
   ParallelFor(objects->box.size(), ctx.options.threads, [&](size_t id) {
     const cv::Rect box = objects->box[id];
     if (box.empty()) return;
     std::vector<Eigen::Vector3d> samples;
-    const int stride = std::max(1, static_cast<int>(std::sqrt(box.area() / 400.0)));
+    const double area = static_cast<double>(box.width) * static_cast<double>(box.height);
+    const int stride = std::max(1, static_cast<int>(std::sqrt(area / 400.0)));
     for (int r = box.y; r < box.y + box.height; r += stride)
       for (int c = box.x; c < box.x + box.width; c += stride)
-        if (objects->label(r, c) == static_cast<int>(id) && ctx.dsm(r, c) != ctx.nodata)
+        if (objects->label(r, c) == static_cast<int>(id) && objects->standing(r, c) != 0 && ctx.dsm(r, c) != ctx.nodata)
           samples.emplace_back(ctx.dsm_grid.x0 + (c + 0.5) * ctx.dsm_grid.cell,
                                ctx.dsm_grid.y0 - (r + 0.5) * ctx.dsm_grid.cell, ctx.dsm(r, c));
     if (samples.empty()) return;
@@ -415,12 +422,27 @@ void ChooseObjectOwners(const OrthoContext& ctx, StandingObjects* objects) {
   });
 }
 
-// The index into `candidates` of the frame that takes the object under X whole, when there is one and it sees X;
-// -1 otherwise.
+// The standing object (its label) whose surface hides X from frame `image`: where the ray to X meets the depth of the
+// frame's z-buffer there; 0 when that is ground, off the grid, or nothing hides X.
+int OccluderLabel(const OrthoContext& ctx, size_t image, const Eigen::Vector3d& X) {
+  const Image& im = ctx.rec.images[image];
+  const FrameView& view = ctx.views[image];
+  Eigen::Vector2d px;
+  double depth = 0.0;
+  if (!ToPixel(ctx.rec.CameraOf(im), im.pose, view.max_radius2, X, &px, &depth)) return 0;
+  const int zx = std::clamp(static_cast<int>(std::lround((px.x() + 0.5) * ctx.scale - 0.5)), 0, view.depth.cols - 1);
+  const int zy = std::clamp(static_cast<int>(std::lround((px.y() + 0.5) * ctx.scale - 0.5)), 0, view.depth.rows - 1);
+  const double nearer = view.depth(zy, zx);
+  if (!(nearer > 0.0 && nearer < depth)) return 0;
+  const Eigen::Vector3d hit = im.pose.c + (X - im.pose.c) * (nearer / depth);  // depths scale along a ray
+  cv::Point cell;
+  return DsmCellAt(ctx, hit.x(), hit.y(), &cell) ? ctx.objects->label(cell) : 0;
+}
+
 // The index into `candidates` of the frame that takes the standing object under X whole, -1 when none does. On the
-// object itself the owner is kept even where its z-buffer says X is hidden (a crown's or a roof's own far flank,
-// seen past its top: the object hides itself, and another view there would cut it with a seam); on the ring around
-// it only where the owner sees X (ground behind a wall is taken from another frame, as everywhere).
+// object itself the owner is kept also where the object hides X from it (a crown's or a roof's own far flank, seen
+// past its top: another view there would cut the object with a seam); not where something else hides it, nor on the
+// ring of ground around the object, where a hidden point comes from another frame as everywhere.
 int ObjectOwnerAt(const OrthoContext& ctx, const std::vector<size_t>& candidates, const Eigen::Vector3d& X) {
   if (ctx.objects == nullptr) return -1;
   cv::Point cell;
@@ -432,7 +454,8 @@ int ObjectOwnerAt(const OrthoContext& ctx, const std::vector<size_t>& candidates
   if (it == candidates.end() || *it != static_cast<size_t>(owner)) return -1;
   double nadir = 0.0;
   const Sight sight = SightOf(ctx, static_cast<size_t>(owner), X, &nadir);
-  const bool take = sight == Sight::kSeen || (sight == Sight::kOccluded && ctx.objects->standing(cell) != 0);
+  const bool take = sight == Sight::kSeen || (sight == Sight::kOccluded && ctx.objects->standing(cell) != 0 &&
+                                              OccluderLabel(ctx, static_cast<size_t>(owner), X) == id);
   return take ? static_cast<int>(it - candidates.begin()) : -1;
 }
 

@@ -5,6 +5,7 @@
 #include <spdlog/spdlog.h>
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cctype>
 #include <fstream>
 #include <memory>
@@ -66,12 +67,17 @@ bool ReadSigningKey(const std::string& path, SigningKey* key, std::string* error
   in.read(text.data(), static_cast<std::streamsize>(text.size()));
   text.resize(static_cast<size_t>(in.gcount()));
   SigningKey parsed{};
-  if (text.size() == parsed.size()) {
+  // 32 bytes of text (a passphrase of 31 characters and a newline, say) are not a key: a random key is all printable
+  // with a probability of (95/256)^32, about 1e-14.
+  const bool printable = std::all_of(text.begin(), text.end(), [](char c) {
+    return std::isprint(static_cast<unsigned char>(c)) || c == '\n' || c == '\r' || c == '\t';
+  });
+  if (text.size() == parsed.size() && !printable) {
     std::copy(text.begin(), text.end(), parsed.begin());
   } else if (!ParseHexKey(text, &parsed)) {
     *error = "telemetry.signing_key_file " + path +
-             " must hold the 32-byte MAVLink signing key: 32 bytes, or 64 hex digits (e.g. `printf %s PASSPHRASE | "
-             "sha256sum`, the key QGroundControl and MAVProxy make of a passphrase)";
+             " must hold the 32-byte MAVLink signing key: 32 raw bytes, or 64 hex digits (e.g. `printf %s "
+             "PASSPHRASE | sha256sum | cut -c1-64`: the key QGroundControl and MAVProxy make of a passphrase)";
     return false;
   }
   struct stat st {};

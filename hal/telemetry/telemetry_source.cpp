@@ -377,15 +377,20 @@ class LinkSource final : public TelemetrySource {
   sockaddr_storage peer_{};  // the vehicle's last datagram's sender (UDP): where STATUSTEXT goes
   socklen_t peer_len_ = 0;
   uint8_t status_seq_ = 0;
+  uint64_t status_timestamp_ = 0;  // the last signed STATUSTEXT's
 };
 
 void LinkSource::SendStatus(const std::string& text) {
   // MAV_SEVERITY_INFO from component 191 (MAV_COMP_ID_ONBOARD_COMPUTER), system 1.
   std::string frame = mavlink::Encode(mavlink::Statustext{6, text}, status_seq_++, 1, 191);
   if (signing_key_) {
+    // Newer than the last one whatever the clock does (a companion computer without a real-time clock reads 1970
+    // until NTP or the GPS sets it; two messages may fall in one 10 us): the ground station refuses a replay.
     const auto now_us =
         std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::system_clock::now().time_since_epoch());
-    frame = mavlink::Sign(frame, *signing_key_, 0, mavlink::SigningTimestamp(static_cast<uint64_t>(now_us.count())));
+    status_timestamp_ =
+        std::max(mavlink::SigningTimestamp(static_cast<uint64_t>(now_us.count())), status_timestamp_ + 1);
+    frame = mavlink::Sign(frame, *signing_key_, 0, status_timestamp_);
   }
   std::lock_guard lock(mutex_);
   if (fd_ < 0) return;
