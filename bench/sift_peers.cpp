@@ -5,7 +5,7 @@
 // with a known homography (each frame against a copy warped by a random rotation, scale and perspective, with noise
 // and a JPEG round trip) the correct matches (mutual nearest neighbours passing Lowe's ratio 0.8, within 1.5 px of the
 // truth), their share, and the RMS of their position error: what the registration's accuracy rests on.
-// Usage: uavm-sift-peers --images DIR [--frames N] [--repeat R] [--work-size PX]
+// Usage: uavm-sift-peers --images DIR [--frames N] [--repeat R] [--work-size PX] [--only N]
 #include <vl/sift.h>
 
 #include <CLI/CLI.hpp>
@@ -148,11 +148,12 @@ double Median(std::vector<double> v) {
 int main(int argc, char** argv) {
   CLI::App cli{"SIFT detectors side by side (issue 40)"};
   std::string images;
-  int frames = 8, repeat = 3, work = 1000;
+  int frames = 8, repeat = 3, work = 1000, only = -1;
   cli.add_option("--images", images, "Folder of frames")->required();
   cli.add_option("--frames", frames, "Frames to use");
   cli.add_option("--repeat", repeat, "Timed runs per frame and detector");
   cli.add_option("--work-size", work, "Long side of the working copy, px (onboard default 1000)");
+  cli.add_option("--only", only, "Run only detector N (0-3, in the table's order; for a profiler)");
   CLI11_PARSE(cli, argc, argv);
   cv::setNumThreads(1);  // one core each: OpenCV's SIFT would otherwise spread over both, VLFeat does not
   std::vector<std::string> files;
@@ -190,7 +191,9 @@ int main(int argc, char** argv) {
       "| detector | ms per frame (median) | keypoints (median) | matches | correct (<1.5 px) | share | RMS of correct, "
       "px |\n");
   std::printf("|---|---:|---:|---:|---:|---:|---:|\n");
-  for (const auto& [name, detect] : detectors) {
+  for (size_t d = 0; d < detectors.size(); ++d) {
+    if (only >= 0 && static_cast<size_t>(only) != d) continue;
+    const auto& [name, detect] = detectors[d];
     std::vector<double> ms, counts;
     PairScore total;
     for (size_t i = 0; i < grays.size(); ++i) {
