@@ -38,6 +38,33 @@ void AddLiveViewOptions(CLI::App* cli, uavm::app::RunConfig* config, bool* no_li
   cli->add_option("--http-key", config->http_key_file, "With --http-cert: its PEM private key");
 }
 
+// What the registration and the mosaic are made with (core's PipelineOptions; the same keys in --config).
+void AddPipelineOptions(CLI::App* cli, uavm::PipelineOptions* p) {
+  cli->add_option("--work-size", p->work_long_side, "Long side of the working copy used for registration, px");
+  cli->add_option("--memory-budget", p->memory_budget_mib,
+                  "Memory budget of the whole program, MiB; caches, pools and feature detection fit into it "
+                  "(0 = none)");
+  cli->add_option("--max-features", p->features.max_features, "Keypoints kept per frame");
+  cli->add_option("--min-features", p->features.target_min_features,
+                  "Below this many keypoints a frame is detected again at a lower contrast threshold (0 = never)");
+  cli->add_option("--mosaic-scale", p->mosaic_scale,
+                  "mosaic.tif resolution relative to the reference frame's original pixels (1 = full resolution)");
+  cli->add_option("--quicklook-size", p->mosaic.quicklook_long_side, "Longest side of mosaic.png, px");
+  cli->add_option("--bands", p->mosaic.num_bands, "Multi-band blending levels (0 = hard seams)");
+  cli->add_option("--preview-every", p->preview_every, "Write live.jpg every N frames (0 = off)");
+  cli->add_option("--recent", p->recent_candidates, "Recent frames matched against each new frame (K)");
+  cli->add_option("--overlap-candidates", p->overlap_candidates, "Extra frames chosen by footprint overlap (M)");
+  const std::map<std::string, uavm::MotionModel> models{{"affine", uavm::MotionModel::kAffine},
+                                                        {"homography", uavm::MotionModel::kHomography}};
+  cli->add_option("--model", p->refine.model,
+                  "Per-frame map of the final solution: homography (refined projectively: tilted cameras) or affine")
+      ->transform(CLI::CheckedTransformer(models, CLI::ignore_case));
+  cli->add_option("--refine-seconds", p->refine.max_seconds,
+                  "Time limit of the end-of-flight refinement, s (0 = none)");
+  cli->add_flag(
+      "--no-tiff", [p](std::int64_t) { p->write_tiff = false; }, "Do not write mosaic.tif");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -81,28 +108,7 @@ int main(int argc, char** argv) {
   cli.add_option("--max-frames", config.max_frames, "Stop after N frames (0 = all)")->check(CLI::NonNegativeNumber);
   cli.add_option("--stride", config.stride, "Take every N-th input of the replay (video frames or files)")
       ->check(CLI::PositiveNumber);
-  cli.add_option("--work-size", p.work_long_side, "Long side of the working copy used for registration, px");
-  cli.add_option("--memory-budget", p.memory_budget_mib,
-                 "Memory budget of the whole program, MiB; caches, pools and feature detection fit into it "
-                 "(0 = none)");
-  cli.add_option("--max-features", p.features.max_features, "Keypoints kept per frame");
-  cli.add_option("--min-features", p.features.target_min_features,
-                 "Below this many keypoints a frame is detected again at a lower contrast threshold (0 = never)");
-  cli.add_option("--mosaic-scale", p.mosaic_scale,
-                 "mosaic.tif resolution relative to the reference frame's original pixels (1 = full resolution)");
-  cli.add_option("--quicklook-size", p.mosaic.quicklook_long_side, "Longest side of mosaic.png, px");
-  cli.add_option("--bands", p.mosaic.num_bands, "Multi-band blending levels (0 = hard seams)");
-  cli.add_option("--preview-every", p.preview_every, "Write live.jpg every N frames (0 = off)");
-  cli.add_option("--recent", p.recent_candidates, "Recent frames matched against each new frame (K)");
-  cli.add_option("--overlap-candidates", p.overlap_candidates, "Extra frames chosen by footprint overlap (M)");
-  const std::map<std::string, uavm::MotionModel> models{{"affine", uavm::MotionModel::kAffine},
-                                                        {"homography", uavm::MotionModel::kHomography}};
-  cli.add_option("--model", p.refine.model,
-                 "Per-frame map of the final solution: homography (refined projectively: tilted cameras) or affine")
-      ->transform(CLI::CheckedTransformer(models, CLI::ignore_case));
-  cli.add_option("--refine-seconds", p.refine.max_seconds, "Time limit of the end-of-flight refinement, s (0 = none)");
-  cli.add_flag(
-      "--no-tiff", [&](std::int64_t) { p.write_tiff = false; }, "Do not write mosaic.tif");
+  AddPipelineOptions(&cli, &p);
   cli.add_option("--telemetry", config.telemetry,
                  "Where the vehicle was for each frame, instead of EXIF GPS: mavlink-udp:HOST:PORT (listen, e.g. "
                  "0.0.0.0:14550), mavlink-serial:DEVICE:BAUD (e.g. /dev/ttyAMA0:921600), tlog:FILE (a MAVLink "
