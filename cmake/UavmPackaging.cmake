@@ -61,8 +61,9 @@ endif()
 if(UAVM_WITH_LENSFUN)  # the camera database of core/lens/lens_database.cpp (the library and its data)
   string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", liblensfun1, liblensfun-data-v1")
 endif()
-# The live view (firmware_app/live_server.cpp) and the Leaflet files each session's index.html uses.
-string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libcpp-httplib0.11, libjs-leaflet")
+# The live view (firmware_app/live_server.cpp; its HTTPS and MAVLink signing link OpenSSL) and the Leaflet files each
+# session's index.html uses.
+string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libcpp-httplib0.11, libssl3, libjs-leaflet")
 # The conffiles dpkg keeps when the operator edited them.
 file(WRITE ${PROJECT_BINARY_DIR}/packaging/conffiles "/etc/uavmosaic/onboard.yaml\n/etc/default/uavmosaic-onboard\n")
 set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA ${PROJECT_BINARY_DIR}/packaging/conffiles ${PROJECT_SOURCE_DIR}/packaging/postinst
