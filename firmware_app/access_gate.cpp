@@ -18,12 +18,10 @@ namespace {
 
 constexpr size_t kMinToken = 16, kMaxToken = 256;
 
-std::array<uint8_t, 32> Sha256(std::string_view text) {
-  std::array<uint8_t, 32> digest{};
+// SHA-256 of `text`; false when OpenSSL could not make it (no memory), and then nothing may match.
+bool Sha256(std::string_view text, std::array<uint8_t, 32>* digest) {
   unsigned int size = 0;
-  if (EVP_Digest(text.data(), text.size(), digest.data(), &size, EVP_sha256(), nullptr) != 1 || size != 32)
-    digest.fill(0);  // no memory: an all-zero digest, which no token's matches by chance
-  return digest;
+  return EVP_Digest(text.data(), text.size(), digest->data(), &size, EVP_sha256(), nullptr) == 1 && size == 32;
 }
 
 bool UrlSafeChar(char c) {
@@ -93,7 +91,8 @@ bool IsLoopbackHost(std::string_view host) {
   return dots == 3;
 }
 
-AccessGate::AccessGate(const std::string& token, Options options) : token_digest_(Sha256(token)), options_(options) {}
+AccessGate::AccessGate(const std::string& token, Options options)
+    : token_ok_(Sha256(token, &token_digest_)), options_(options) {}
 
 const AccessGate::Client* AccessGate::Find(std::string_view key) const {
   for (size_t i = 0; i < client_count_; ++i)
@@ -120,7 +119,9 @@ AccessGate::Client* AccessGate::FindOrAdd(std::string_view key, int64_t now_ns) 
 
 AccessGate::Verdict AccessGate::Check(std::string_view address, std::optional<std::string_view> presented,
                                       int64_t now_ns, bool guess) {
-  const bool right = presented && CRYPTO_memcmp(Sha256(*presented).data(), token_digest_.data(), 32) == 0;
+  std::array<uint8_t, 32> digest{};
+  const bool right = token_ok_ && presented && Sha256(*presented, &digest) &&
+                     CRYPTO_memcmp(digest.data(), token_digest_.data(), digest.size()) == 0;
   const std::string client = ClientKey(address);
   std::lock_guard lock(mutex_);
   const Client* known = Find(client);

@@ -75,6 +75,7 @@ class AccessGate {
   [[nodiscard]] Client* FindOrAdd(std::string_view key, int64_t now_ns);
 
   std::array<uint8_t, 32> token_digest_{};
+  bool token_ok_ = false;  // the token's digest was made: without it nothing is allowed
   Options options_;
   mutable std::mutex mutex_;
   std::array<Client, kClients> clients_{};

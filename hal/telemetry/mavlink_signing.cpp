@@ -9,6 +9,7 @@
 #include <cctype>
 #include <fstream>
 #include <memory>
+#include <optional>
 
 #include "hal/telemetry/mavlink.h"
 
@@ -18,21 +19,19 @@ namespace {
 
 constexpr size_t kSignatureHash = 6;  // the 48 bits of SHA-256 a frame carries
 
-// SHA-256(key || bytes), its first 48 bits (OpenSSL's EVP digest: the one the live server's TLS uses too).
-std::array<uint8_t, kSignatureHash> Signature(const SigningKey& key, const uint8_t* bytes, size_t size) {
+// SHA-256(key || bytes), its first 48 bits (OpenSSL's EVP digest: the one the live server's TLS uses too); nullopt
+// when OpenSSL could not make it (no memory): the frame is then refused, never compared.
+std::optional<std::array<uint8_t, kSignatureHash>> Signature(const SigningKey& key, const uint8_t* bytes, size_t size) {
   std::array<uint8_t, EVP_MAX_MD_SIZE> digest{};
   unsigned int digest_size = 0;
   const std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
   const bool ok = ctx && EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr) == 1 &&
                   EVP_DigestUpdate(ctx.get(), key.data(), key.size()) == 1 &&
                   EVP_DigestUpdate(ctx.get(), bytes, size) == 1 &&
-                  EVP_DigestFinal_ex(ctx.get(), digest.data(), &digest_size) == 1;
+                  EVP_DigestFinal_ex(ctx.get(), digest.data(), &digest_size) == 1 && digest_size >= kSignatureHash;
+  if (!ok) return std::nullopt;
   std::array<uint8_t, kSignatureHash> out{};
-  // A failed digest (no memory) gives all ones: a signature no sender makes by chance, so the frame is refused.
-  if (!ok)
-    out.fill(0xFF);
-  else
-    std::copy_n(digest.begin(), kSignatureHash, out.begin());
+  std::copy_n(digest.begin(), kSignatureHash, out.begin());
   return out;
 }
 
@@ -106,8 +105,9 @@ std::string Sign(const std::string& unsigned_frame, const SigningKey& key, uint8
   b[header + length + 1] = static_cast<uint8_t>(crc >> 8);
   out.push_back(static_cast<char>(link_id));
   for (int i = 0; i < 6; ++i) out.push_back(static_cast<char>((timestamp >> (8 * i)) & 0xFF));
+  // Without a digest the signature stays zero: a frame every receiver refuses, never one signed wrongly on purpose.
   const auto signature = Signature(key, reinterpret_cast<const uint8_t*>(out.data()), out.size());
-  out.append(reinterpret_cast<const char*>(signature.data()), signature.size());
+  out.append(signature ? std::string(signature->begin(), signature->end()) : std::string(kSignatureHash, '\0'));
   return out;
 }
 
@@ -124,7 +124,7 @@ SignatureVerdict SignatureCheck::Check(const uint8_t* frame, size_t size) {
   const uint8_t* block = frame + size - kSignatureBytes;
   const auto want = Signature(key_, frame, size - kSignatureHash);
   // Constant time: how many leading bytes matched must not show in the reply time.
-  if (CRYPTO_memcmp(want.data(), block + 7, kSignatureHash) != 0) {
+  if (!want || CRYPTO_memcmp(want->data(), block + 7, kSignatureHash) != 0) {
     ++counters_.bad_signature;
     return SignatureVerdict::kBadSignature;
   }
