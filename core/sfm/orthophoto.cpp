@@ -376,8 +376,8 @@ StandingObjects FindStandingObjects(const cv::Mat1f& dsm, const cv::Mat1f& terra
 }
 
 // Each object's owner: of the frames that see at least 90 % of it unoccluded (on up to ~400 of its standing cells: the
-// ring of ground around it is not the object), the most
-// nadir on average; else the one that sees most of it, if at least half; else none (its cells each take their own).
+// ring of ground around it is not the object), the most nadir on average; else the one that sees most of it, if at
+// least half; else none (its cells each take their own).
 void ChooseObjectOwners(const OrthoContext& ctx, StandingObjects* objects) {
   ParallelFor(objects->box.size(), ctx.options.threads, [&](size_t id) {
     const cv::Rect box = objects->box[id];
