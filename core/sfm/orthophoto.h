@@ -76,8 +76,9 @@ using OrthoTileSink =
 
 // The orthophoto of `rec`'s posed images over `dsm` (heights, `nodata` where none: those pixels stay empty), on
 // `ortho_grid`, tile by tile into `sink`. `terrain` (the DTM on the DSM's grid; empty: none) tells what stands on
-// the ground, for the seams (options.object_height: 5 bytes a DSM cell for the objects' labels and mask, made once). Memory: the z-buffers (options.zbuffer_mib), the frame cache
-// (options.image_cache_mib) and per worker a tile's blend (~40 bytes a pixel of tile + margin).
+// the ground, for the seams (options.object_height: 5 bytes a DSM cell for the objects' labels and mask, made once).
+// Memory: the z-buffers (options.zbuffer_mib), the frame cache (options.image_cache_mib) and per worker a tile's blend
+// (~40 bytes a pixel of tile + margin).
 [[nodiscard]] bool MakeOrthophoto(const Reconstruction& rec, const cv::Mat1f& dsm, const cv::Mat1f& terrain,
                                   const DsmGrid& dsm_grid, float nodata, const DsmGrid& ortho_grid,
                                   const OrthoOptions& options, const OrthoImageLoad& load, const OrthoTileSink& sink,
