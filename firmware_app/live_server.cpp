@@ -14,6 +14,7 @@
 #include <string_view>
 #include <vector>
 
+#include "core/util/clock.h"
 #include "firmware_app/tile_routes.h"
 
 namespace uavm::app {
@@ -282,11 +283,6 @@ std::shared_ptr<int> Configure(httplib::Server* s, const LiveServer::Options& o,
   return fd;
 }
 
-int64_t SteadyNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
-
 // The value of cookie `name` in a Cookie header ("a=1; b=2"); nullopt when absent.
 std::optional<std::string> CookieValue(const std::string& header, std::string_view name) {
   for (size_t at = 0; at < header.size();) {
@@ -346,7 +342,7 @@ bool LiveServer::Admit(const httplib::Request& req, httplib::Response& res) {
     presented = CookieValue(req.get_header_value("Cookie"), cookie_name_);
     from_cookie = presented.has_value();
   }
-  const int64_t now = SteadyNs();
+  const int64_t now = MonotonicNs();
   // A stale cookie (a tab left open after the token changed polls every second) is no guess: it must not lock the
   // operator's own address out.
   switch (gate_->Check(req.remote_addr, presented, now, /*guess=*/!from_cookie)) {

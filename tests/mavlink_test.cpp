@@ -19,6 +19,7 @@
 #include "hal/telemetry/mavlink_signing.h"
 #include "hal/telemetry/telemetry_source.h"
 #include "hal/telemetry/tlog.h"
+#include "tests/signing_key_util.h"
 #include "tests/test_net.h"
 
 namespace uavm::hal::mavlink {
@@ -427,15 +428,11 @@ TEST(MavlinkSigningPeer, SignaturesAgreeWithNodeMavlink) {
   const fs::path dir = fs::temp_directory_path() / ("uavm_signing_" + std::to_string(getpid()));
   fs::create_directories(dir);
   SigningKey key{}, other{};
-  std::string hex;
   for (size_t i = 0; i < key.size(); ++i) {
     key[i] = static_cast<uint8_t>(17 * i + 3);
     other[i] = static_cast<uint8_t>(key[i] ^ 0x80);
-    char digits[3];
-    std::snprintf(digits, sizeof(digits), "%02x", key[i]);
-    hex += digits;
   }
-  WriteAll(dir / "key.hex", hex + "\n");
+  WriteAll(dir / "key.hex", test::HexKeyFileText(key));
   std::string ours;
   const auto add = [&ours](const std::string& frame) {
     ours += std::string{static_cast<char>(frame.size() & 0xFF), static_cast<char>(frame.size() >> 8)} + frame;

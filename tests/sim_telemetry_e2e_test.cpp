@@ -29,6 +29,7 @@
 #include "tests/geo_txt_test_util.h"
 #include "tests/gpsfake_test_util.h"
 #include "tests/process_util.h"
+#include "tests/signing_key_util.h"
 #include "tests/test_env.h"
 #include "tests/test_net.h"
 #include "tools/sim_writer.h"
@@ -349,17 +350,13 @@ TEST(SimTelemetryE2ETest, LiveSimStreamsMavlinkInStepWithTheFrames) {
 TEST(SimTelemetryE2ETest, LiveSignedFlightRefusesUnsignedWrongKeyAndReplayedPackets) {
   const fs::path dir = TestDir("live_signed");
   hal::mavlink::SigningKey key{}, other{};
-  std::string hex;
   for (size_t i = 0; i < key.size(); ++i) {
     key[i] = static_cast<uint8_t>(29 * i + 1);
     other[i] = static_cast<uint8_t>(~key[i]);
-    char digits[3];
-    std::snprintf(digits, sizeof(digits), "%02x", key[i]);
-    hex += digits;
   }
   fs::create_directories(dir.parent_path());
   const fs::path key_file = dir.string() + ".key";
-  std::ofstream(key_file) << hex << "\n";
+  std::ofstream(key_file) << test::HexKeyFileText(key);
   fs::permissions(key_file, fs::perms::owner_read | fs::perms::owner_write);
   // The stream's first packet (1 s before the first frame): what a recorder on the link would have kept.
   const uint64_t recorded = hal::mavlink::SigningTimestamp(hal::SimTelemetry::UnixUs(-1.0));
