@@ -9,6 +9,7 @@
 
 #include "core/util/clock.h"
 #include "core/util/memory.h"
+#include "core/util/record_arena.h"
 
 namespace uavm {
 
@@ -201,6 +202,9 @@ SessionFrame& FlightSession::RecordFrame(int id, const PreparedFrame& prepared) 
 }
 
 FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
+  // The records this frame leaves for the rest of the flight (session and engine records, names, paths, edges, map
+  // nodes) go to pages of their own, not between the frame's transient buffers (see RecordArena).
+  const RecordArena::Scope records_on_their_own_pages;
   // The rule for frames of one colour (the capture threads apply it too, before spending work on them); a frame the
   // journal accepted is registered again as it was.
   if (const char* why = WhyNotRegistrable(prepared.flatness, prepared.frame.metadata); why && !prepared.resumed) {

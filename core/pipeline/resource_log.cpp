@@ -15,6 +15,7 @@ void ResourceLog::FlightEnd() {
   FlushMatPool();  // the flight's pooled detector buffers: the solves start without them
   flight_end_rss_mib_ = CurrentRssMiB();
   flight_end_heap_ = CurrentHeapStats();
+  flight_end_arena_ = RecordArena::counters();
   fds_at_flight_end_ = OpenFileDescriptors();
 }
 
@@ -67,6 +68,13 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
            {{"in_use_mib", flight_end_heap_.in_use_mib},
             {"arena_mib", flight_end_heap_.arena_mib},
             {"mmapped_mib", flight_end_heap_.mmapped_mib}}},
+          // The small records the flight keeps to its end, on pages of their own (RecordArena): what its runs hold
+          // resident at most, what is in use, and the blocks that went to malloc because its range was full.
+          {"flight_end_record_arena",
+           {{"carved_mib", static_cast<double>(flight_end_arena_.carved_bytes) / (1024.0 * 1024.0)},
+            {"in_use_mib", static_cast<double>(flight_end_arena_.in_use_bytes) / (1024.0 * 1024.0)},
+            {"blocks", flight_end_arena_.blocks_in_use},
+            {"fallbacks", flight_end_arena_.fallbacks}}},
           {"mat_pool", MatPoolJson()},
           {"plan_flight_mib", mp.FlightMiB()},
           {"plan_end_mib", mp.EndMiB()},

@@ -4,6 +4,7 @@
 #include "core/pipeline/memory_budget.h"
 #include "core/util/memory.h"
 #include "core/util/memory_watch.h"
+#include "core/util/record_arena.h"
 
 namespace uavm {
 
@@ -34,6 +35,7 @@ class ResourceLog {
   int fds_at_flight_end_ = -1;
   double flight_end_rss_mib_ = 0.0;  // RSS when the last frame was registered
   HeapStats flight_end_heap_;
+  RecordArena::Counters flight_end_arena_;
   MemoryWatch watch_;
 };
 

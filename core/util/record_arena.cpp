@@ -1,0 +1,225 @@
+#include "core/util/record_arena.h"
+
+#include <sys/mman.h>
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <cstdlib>
+#include <mutex>
+#include <new>
+
+#if defined(__SANITIZE_ADDRESS__)
+#define UAVM_RECORD_ARENA 0
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define UAVM_RECORD_ARENA 0
+#endif
+#endif
+#ifndef UAVM_RECORD_ARENA
+#define UAVM_RECORD_ARENA 1
+#endif
+
+namespace uavm {
+namespace {
+
+// Block sizes: multiples of 16 (operator new's alignment), four steps per doubling above 128 bytes, so a block wastes
+// at most a fifth of itself. A frame's 16-character name (17 bytes) takes 32, where glibc takes a 48-byte chunk.
+constexpr std::array<uint16_t, 20> kClassBytes = {16,  32,  48,  64,  80,  96,  112, 128, 160, 192,
+                                                  224, 256, 320, 384, 448, 512, 640, 768, 896, 1024};
+static_assert(kClassBytes.back() == RecordArena::kMaxBlockBytes);
+// A class takes the range in runs of this size; a run's pages become resident as its blocks are handed out.
+constexpr size_t kRunBytes = size_t{64} << 10;
+constexpr size_t kRuns = RecordArena::kReservedBytes / kRunBytes;
+
+size_t ClassOf(size_t bytes) {
+  size_t c = 0;
+  while (kClassBytes[c] < bytes) ++c;
+  return c;
+}
+
+struct FreeBlock {
+  FreeBlock* next;
+};
+
+struct SizeClass {
+  FreeBlock* free = nullptr;
+  char* next = nullptr;  // the class's current run, not yet handed out
+  char* end = nullptr;
+};
+
+class Arena {
+ public:
+  constexpr Arena() = default;
+
+  // nullptr when the range is full or cannot be reserved: the caller takes the block from malloc.
+  void* Allocate(size_t bytes) {
+    const std::lock_guard lock(mutex_);
+    if (base_.load(std::memory_order_relaxed) == nullptr && !Reserve()) return Fallback();
+    const size_t c = ClassOf(bytes);
+    SizeClass& sc = classes_[c];
+    void* block = nullptr;
+    if (sc.free != nullptr) {
+      block = sc.free;
+      sc.free = sc.free->next;
+    } else {
+      if (sc.next == nullptr || static_cast<size_t>(sc.end - sc.next) < kClassBytes[c]) {
+        if (runs_carved_ == kRuns) return Fallback();
+        char* run = base_.load(std::memory_order_relaxed) + runs_carved_ * kRunBytes;
+        class_of_run_[runs_carved_++] = static_cast<uint8_t>(c);
+        sc.next = run;
+        sc.end = run + kRunBytes;
+        counters_.carved_bytes += kRunBytes;
+      }
+      block = sc.next;
+      sc.next += kClassBytes[c];
+    }
+    counters_.in_use_bytes += kClassBytes[c];
+    ++counters_.blocks_in_use;
+    return block;
+  }
+
+  [[nodiscard]] bool Owns(const void* p) const {
+    const char* base = base_.load(std::memory_order_relaxed);
+    const auto* q = static_cast<const char*>(p);
+    return base != nullptr && q >= base && q < base + RecordArena::kReservedBytes;
+  }
+
+  void Free(void* p) {
+    const std::lock_guard lock(mutex_);
+    const auto run = static_cast<size_t>(static_cast<char*>(p) - base_.load(std::memory_order_relaxed)) / kRunBytes;
+    const size_t c = class_of_run_[run];
+    auto* block = static_cast<FreeBlock*>(p);
+    block->next = classes_[c].free;
+    classes_[c].free = block;
+    counters_.in_use_bytes -= kClassBytes[c];
+    --counters_.blocks_in_use;
+  }
+
+  RecordArena::Counters counters() {
+    const std::lock_guard lock(mutex_);
+    return counters_;
+  }
+
+ private:
+  bool Reserve() {
+    if (reserve_failed_) return false;
+    // Reserved without swap accounting; untouched pages cost nothing. No huge pages: a 2 MiB page made resident for
+    // a few records is the slack this arena exists to avoid.
+    void* range = mmap(nullptr, RecordArena::kReservedBytes, PROT_READ | PROT_WRITE,
+                       MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+    if (range == MAP_FAILED) {
+      reserve_failed_ = true;
+      return false;
+    }
+    madvise(range, RecordArena::kReservedBytes, MADV_NOHUGEPAGE);
+    base_.store(static_cast<char*>(range), std::memory_order_relaxed);
+    return true;
+  }
+  void* Fallback() {
+    ++counters_.fallbacks;
+    return nullptr;
+  }
+
+  std::mutex mutex_;
+  std::atomic<char*> base_{nullptr};
+  bool reserve_failed_ = false;
+  size_t runs_carved_ = 0;
+  std::array<uint8_t, kRuns> class_of_run_{};
+  std::array<SizeClass, kClassBytes.size()> classes_{};
+  RecordArena::Counters counters_{};
+};
+
+// Never destroyed: a block may be deleted during static destruction, after any destructor of the arena would run.
+union ArenaStorage {
+  constexpr ArenaStorage() : arena() {}
+  ~ArenaStorage() {}  // NOLINT(modernize-use-equals-default): must not destroy the member
+  Arena arena;
+};
+constinit ArenaStorage g_storage;
+constinit thread_local int t_scope_depth = 0;
+
+#if UAVM_RECORD_ARENA
+void* MallocOrThrow(size_t bytes) {
+  for (;;) {
+    if (void* p = std::malloc(bytes == 0 ? 1 : bytes)) return p;
+    const std::new_handler handler = std::get_new_handler();
+    if (handler == nullptr) throw std::bad_alloc();
+    handler();
+  }
+}
+
+void* NewBlock(size_t bytes) {
+  if (t_scope_depth > 0 && bytes <= RecordArena::kMaxBlockBytes) {
+    if (void* p = g_storage.arena.Allocate(bytes)) return p;
+  }
+  return MallocOrThrow(bytes);
+}
+
+void DeleteBlock(void* p) noexcept {
+  if (g_storage.arena.Owns(p)) {
+    g_storage.arena.Free(p);
+    return;
+  }
+  std::free(p);
+}
+#endif
+
+}  // namespace
+
+RecordArena::Scope::Scope() {
+  ++t_scope_depth;
+}
+RecordArena::Scope::~Scope() {
+  --t_scope_depth;
+}
+RecordArena::Counters RecordArena::counters() {
+  return g_storage.arena.counters();
+}
+bool RecordArena::Owns(const void* p) {
+  return g_storage.arena.Owns(p);
+}
+bool RecordArena::Enabled() {
+  return UAVM_RECORD_ARENA != 0;
+}
+
+}  // namespace uavm
+
+#if UAVM_RECORD_ARENA
+// The replaceable global allocation functions, so that every std container and string made in a Scope takes part.
+// The aligned forms are left to the library: they never see an arena block.
+void* operator new(std::size_t bytes) {
+  return uavm::NewBlock(bytes);
+}
+void* operator new[](std::size_t bytes) {
+  return uavm::NewBlock(bytes);
+}
+void* operator new(std::size_t bytes, const std::nothrow_t& /*tag*/) noexcept {
+  try {
+    return uavm::NewBlock(bytes);
+  } catch (...) {
+    return nullptr;
+  }
+}
+void* operator new[](std::size_t bytes, const std::nothrow_t& tag) noexcept {
+  return operator new(bytes, tag);
+}
+void operator delete(void* p) noexcept {
+  uavm::DeleteBlock(p);
+}
+void operator delete[](void* p) noexcept {
+  uavm::DeleteBlock(p);
+}
+void operator delete(void* p, std::size_t /*bytes*/) noexcept {
+  uavm::DeleteBlock(p);
+}
+void operator delete[](void* p, std::size_t /*bytes*/) noexcept {
+  uavm::DeleteBlock(p);
+}
+void operator delete(void* p, const std::nothrow_t& /*tag*/) noexcept {
+  uavm::DeleteBlock(p);
+}
+void operator delete[](void* p, const std::nothrow_t& /*tag*/) noexcept {
+  uavm::DeleteBlock(p);
+}
+#endif

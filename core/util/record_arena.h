@@ -1,0 +1,47 @@
+#pragma once
+#include <cstddef>
+
+namespace uavm {
+
+// Pages of their own for the small records that live to the end of the flight: the session's and the engine's
+// per-frame records, their names and paths, the edge deque's nodes, the maps' hash nodes.
+//
+// Why: glibc places such records between the flight's transient buffers (features, matches, solver blocks). At 5000
+// frames a few records per page then keep ~1000 pages of the main arena resident through every end phase, pages a
+// trim cannot give back (bench/results/memory-20261130-heap-slack-vm.md). Copying them after the flight does not pack
+// them: glibc serves the copies from the same scattered holes.
+//
+// How: an allocation by operator new of at most kMaxBlockBytes, made on a thread while a Scope is open there, comes
+// from a size-class page run carved from one reserved address range; anything larger, anything made outside a Scope
+// and anything once the range is full goes to malloc as before (the last is counted). A block goes back to its
+// class's free list wherever and whenever it is deleted, so the range's pages hold small blocks made in a Scope and
+// nothing else, and a freed one is reused by the next. The range is reserved, not committed: only the pages in use
+// are resident. Under AddressSanitizer the arena is off (Scope does nothing), so that the sanitizer sees every block.
+class RecordArena {
+ public:
+  static constexpr size_t kMaxBlockBytes = 1024;
+  static constexpr size_t kReservedBytes = size_t{256} << 20;  // address range, not memory
+
+  // Opens the arena for this thread's allocations until it closes; nests.
+  class Scope {
+   public:
+    Scope();
+    ~Scope();
+    Scope(const Scope&) = delete;
+    Scope& operator=(const Scope&) = delete;
+  };
+
+  struct Counters {
+    size_t carved_bytes = 0;  // page runs carved from the range so far (what it can hold resident at most)
+    size_t in_use_bytes = 0;  // blocks handed out and not freed, by their class size
+    size_t blocks_in_use = 0;
+    size_t fallbacks = 0;  // blocks made in a Scope that went to malloc because the range was full
+  };
+  [[nodiscard]] static Counters counters();
+  // Whether p is a block of the arena (for tests and the report; delete finds its blocks by this test).
+  [[nodiscard]] static bool Owns(const void* p);
+  // False where the arena is compiled out (AddressSanitizer builds).
+  [[nodiscard]] static bool Enabled();
+};
+
+}  // namespace uavm

@@ -1,0 +1,136 @@
+#include "core/util/record_arena.h"
+
+#include <gtest/gtest.h>
+
+#include <cstdint>
+#include <cstring>
+#include <memory>
+#include <random>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+namespace uavm {
+namespace {
+
+class RecordArenaTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (!RecordArena::Enabled()) GTEST_SKIP() << "the arena is compiled out under AddressSanitizer";
+  }
+};
+
+TEST_F(RecordArenaTest, SmallBlocksInAScopeComeFromTheArenaOthersFromMalloc) {
+  std::string name_outside(20, 'a');
+  std::vector<int> large_in_scope;
+  std::string name_inside;
+  std::unordered_map<int, double> map_inside;
+  {
+    const RecordArena::Scope scope;
+    name_inside.assign(20, 'b');
+    map_inside.emplace(7, 1.5);
+    large_in_scope.resize(600);  // 2400 bytes: above kMaxBlockBytes
+  }
+  EXPECT_FALSE(RecordArena::Owns(name_outside.data()));
+  EXPECT_TRUE(RecordArena::Owns(name_inside.data()));
+  EXPECT_FALSE(RecordArena::Owns(large_in_scope.data()));
+  EXPECT_EQ(name_inside, std::string(20, 'b'));
+  EXPECT_EQ(map_inside.at(7), 1.5);
+  // Grown outside the scope, the string moves to malloc and its arena block is freed.
+  const size_t blocks = RecordArena::counters().blocks_in_use;
+  name_inside.append(40, 'c');
+  EXPECT_FALSE(RecordArena::Owns(name_inside.data()));
+  EXPECT_EQ(RecordArena::counters().blocks_in_use, blocks - 1);
+}
+
+TEST_F(RecordArenaTest, AFreedBlockIsReusedByTheNextOfItsClass) {
+  const RecordArena::Scope scope;
+  const RecordArena::Counters before = RecordArena::counters();
+  auto* first = new char[100];
+  EXPECT_EQ(RecordArena::counters().in_use_bytes, before.in_use_bytes + 112);  // the 112-byte class
+  const auto first_address = reinterpret_cast<uintptr_t>(first);
+  delete[] first;
+  EXPECT_EQ(RecordArena::counters().in_use_bytes, before.in_use_bytes);
+  auto* second = new char[110];
+  EXPECT_EQ(reinterpret_cast<uintptr_t>(second), first_address);
+  delete[] second;
+}
+
+TEST_F(RecordArenaTest, ScopesNestAndBelongToTheirThread) {
+  std::unique_ptr<int> outer;
+  std::unique_ptr<int> inner;
+  std::unique_ptr<int> after_inner;
+  std::unique_ptr<int> other_thread;
+  {
+    const RecordArena::Scope a;
+    {
+      const RecordArena::Scope b;
+      inner = std::make_unique<int>(1);
+    }
+    after_inner = std::make_unique<int>(2);
+    std::thread([&other_thread] { other_thread = std::make_unique<int>(3); }).join();
+  }
+  outer = std::make_unique<int>(4);
+  EXPECT_TRUE(RecordArena::Owns(inner.get()));
+  EXPECT_TRUE(RecordArena::Owns(after_inner.get()));
+  EXPECT_FALSE(RecordArena::Owns(other_thread.get()));
+  EXPECT_FALSE(RecordArena::Owns(outer.get()));
+  // A block made in a scope goes back to the arena when another thread deletes it.
+  const size_t blocks = RecordArena::counters().blocks_in_use;
+  std::thread([&inner] { inner.reset(); }).join();
+  EXPECT_EQ(RecordArena::counters().blocks_in_use, blocks - 1);
+}
+
+// Random sizes made and freed in a scope, each block filled with its own byte: no two live blocks overlap, and every
+// block keeps its bytes (checked against what was written, block by block).
+TEST_F(RecordArenaTest, LiveBlocksNeverOverlap) {
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<size_t> size(1, 1200);
+  struct Block {
+    std::unique_ptr<unsigned char[]> bytes;
+    size_t n;
+    unsigned char fill;
+  };
+  std::vector<Block> live;
+  const RecordArena::Scope scope;
+  for (int i = 0; i < 20000; ++i) {
+    if (!live.empty() && rng() % 3 == 0) {
+      live.erase(live.begin() + static_cast<std::ptrdiff_t>(rng() % live.size()));
+      continue;
+    }
+    Block b{nullptr, size(rng), static_cast<unsigned char>(rng())};
+    b.bytes.reset(new unsigned char[b.n]);
+    std::memset(b.bytes.get(), b.fill, b.n);
+    live.push_back(std::move(b));
+  }
+  for (const Block& b : live)
+    for (size_t k = 0; k < b.n; ++k) ASSERT_EQ(b.bytes[k], b.fill);
+}
+
+// The flight's pattern: each frame leaves a few small records for the rest of the flight and frees its small
+// transients. The records fill the arena's pages: what it carves stays within one run per class of what is in use.
+TEST_F(RecordArenaTest, RecordsKeptBesideTransientsFillTheirPages) {
+  const RecordArena::Counters before = RecordArena::counters();
+  std::vector<std::string> names;
+  std::vector<std::vector<size_t>> adjacency;
+  names.reserve(5000);
+  adjacency.reserve(5000);
+  for (int frame = 0; frame < 5000; ++frame) {
+    const RecordArena::Scope scope;
+    std::vector<std::string> transients(8, std::string(40, 't'));
+    names.push_back("frame_" + std::to_string(100000 + frame) + ".png");
+    adjacency.emplace_back();
+    for (size_t e = 0; e < 6; ++e) adjacency.back().push_back(e);
+  }
+  const RecordArena::Counters after = RecordArena::counters();
+  const size_t in_use = after.in_use_bytes - before.in_use_bytes;
+  const size_t carved = after.carved_bytes - before.carved_bytes;
+  EXPECT_GE(in_use, 5000u * (32 + 64));  // 17-byte names and 48-byte lists
+  EXPECT_LE(carved, in_use + 4 * (size_t{64} << 10));
+  EXPECT_EQ(names[4999], "frame_104999.png");
+  EXPECT_EQ(after.fallbacks, before.fallbacks);
+}
+
+}  // namespace
+}  // namespace uavm
