@@ -345,6 +345,77 @@ TEST(CompositorTest, CanvasWiderThan32767PxComposesCorrectly) {
   std::filesystem::remove(path);
 }
 
+// The TIFF writer gives each block to the file once all of its pixels are written: GDAL's cache holds the blocks in
+// progress, not the mosaic (before, every block stayed until Close). The file still holds every pixel as written, its
+// overviews each tile's reduction, and no block written twice (its size is that of a copy GDAL writes block by block).
+TEST(GdalTiffWriterTest, ReleasesEachBlockOnceWrittenWhole) {
+  const cv::Size canvas(1536 + 100, 1280 + 60);  // clipped tiles and blocks at the right and bottom
+  const int tile = 512;
+  cv::Mat image(canvas, CV_8UC3);
+  cv::randu(image, 0, 255);
+  cv::GaussianBlur(image, image, cv::Size(5, 5), 0);  // compressible, like a photograph
+  cv::Mat mask(canvas, CV_8U, cv::Scalar(255));
+  const auto dir = std::filesystem::temp_directory_path() / ("uavm_blocks_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const std::string path = (dir / "m.tif").string();
+  GdalTiffWriter tiff;
+  std::string err;
+  ASSERT_TRUE(tiff.Open(path, canvas, 256, tile, true, 64, &err)) << err;
+  const size_t canvas_bytes = static_cast<size_t>(canvas.area()) * 4;
+  GIntBig most_cached = 0;
+  for (const cv::Rect& t : TilesAlongHilbertCurve(canvas, tile)) {
+    ASSERT_TRUE(tiff.Write(image(t), mask(t), t.tl(), &err)) << err;
+    most_cached = std::max(most_cached, GDALGetCacheUsed64());
+  }
+  // At most about a tile and the overview blocks it has begun: a fraction of the canvas.
+  EXPECT_LT(static_cast<size_t>(most_cached), canvas_bytes / 3) << most_cached << " of " << canvas_bytes;
+  EXPECT_LT(static_cast<size_t>(GDALGetCacheUsed64()), canvas_bytes / 10);
+  ASSERT_TRUE(tiff.Close(&err)) << err;
+
+  GDALAllRegister();
+  auto* ds = static_cast<GDALDataset*>(GDALOpen(path.c_str(), GA_ReadOnly));
+  ASSERT_NE(ds, nullptr);
+  cv::Mat rgba(canvas, CV_8UC4);
+  ASSERT_EQ(ds->RasterIO(GF_Read, 0, 0, canvas.width, canvas.height, rgba.data, canvas.width, canvas.height, GDT_Byte,
+                         4, nullptr, 4, static_cast<GSpacing>(rgba.step[0]), 1, nullptr),
+            CE_None);
+  cv::Mat bgr;
+  cv::cvtColor(rgba, bgr, cv::COLOR_RGBA2BGR);
+  EXPECT_EQ(cv::norm(bgr, image, cv::NORM_INF), 0.0);
+  // The first overview: each tile reduced on its own, as written.
+  GDALRasterBand* ov = ds->GetRasterBand(2)->GetOverview(0);
+  ASSERT_NE(ov, nullptr);
+  const cv::Size half(ov->GetXSize(), ov->GetYSize());
+  cv::Mat green(half, CV_8U);
+  ASSERT_EQ(ov->RasterIO(GF_Read, 0, 0, half.width, half.height, green.data, half.width, half.height, GDT_Byte, 0, 0),
+            CE_None);
+  cv::Mat expected(half, CV_8U);
+  for (const cv::Rect& t : TilesAlongHilbertCurve(canvas, tile)) {
+    const cv::Rect o(t.x / 2, t.y / 2, std::min((t.width + 1) / 2, half.width - t.x / 2),
+                     std::min((t.height + 1) / 2, half.height - t.y / 2));
+    cv::Mat small;
+    cv::resize(image(t), small, o.size(), 0, 0, cv::INTER_AREA);
+    cv::extractChannel(small, expected(o), 1);
+  }
+  EXPECT_EQ(cv::norm(green, expected, cv::NORM_INF), 0.0);
+  // Every block compressed once: the file is no larger than GDAL's own block-by-block copy of it.
+  const std::string copy_path = (dir / "copy.tif").string();
+  char** opts = nullptr;
+  for (const char* kv : {"TILED=YES", "BLOCKXSIZE=256", "BLOCKYSIZE=256", "COMPRESS=DEFLATE", "ZLEVEL=1", "PREDICTOR=2",
+                         "PHOTOMETRIC=RGB", "ALPHA=YES", "COPY_SRC_OVERVIEWS=YES"})
+    opts = CSLAddString(opts, kv);
+  GDALDataset* copy = GetGDALDriverManager()->GetDriverByName("GTiff")->CreateCopy(copy_path.c_str(), ds, FALSE, opts,
+                                                                                   nullptr, nullptr);
+  CSLDestroy(opts);
+  ASSERT_NE(copy, nullptr);
+  GDALClose(copy);
+  GDALClose(ds);
+  const auto ours = std::filesystem::file_size(path);
+  const auto gdal = std::filesystem::file_size(copy_path);
+  EXPECT_LT(static_cast<double>(ours), 1.02 * static_cast<double>(gdal)) << ours << " against " << gdal;
+  std::filesystem::remove_all(dir);
+}
+
 // The tile order: every tile once, clipped at the canvas; consecutive tiles share an edge on a power-of-two grid; and
 // each aligned 2x2 block of tiles comes in one run (what keeps a TIFF overview block open only briefly).
 TEST(CompositorTest, TilesFollowAHilbertCurve) {

@@ -8,14 +8,70 @@
 
 namespace uavm {
 
+// Pixels written so far into each block of one level (full resolution or an overview): a block goes to the file,
+// and out of GDAL's cache, once all of its pixels are written.
+struct BlockFill {
+  cv::Size block;
+  cv::Size level;
+  int blocks_across = 0;
+  std::vector<int64_t> written;  // per block, row-major
+};
+
 struct GdalTiffWriter::Impl {
   GDALDataset* ds = nullptr;
   cv::Size canvas;
   std::vector<int> overview_factors;  // written tile by tile, alongside the full resolution
+  std::vector<BlockFill> fill;        // [0] full resolution, [1 + i] overview i
   std::string path;                   // final name; GDAL writes path + ".part"
 };
 
 namespace {
+
+GDALRasterBand* LevelBand(GDALDataset* ds, int band, int overview) {
+  GDALRasterBand* b = ds->GetRasterBand(band);
+  return overview >= 0 && b != nullptr ? b->GetOverview(overview) : b;
+}
+
+BlockFill MakeBlockFill(GDALRasterBand* band) {
+  BlockFill f;
+  int bw = 0;
+  int bh = 0;
+  band->GetBlockSize(&bw, &bh);
+  f.block = cv::Size(bw, bh);
+  f.level = cv::Size(band->GetXSize(), band->GetYSize());
+  f.blocks_across = (f.level.width + bw - 1) / bw;
+  const int blocks_down = (f.level.height + bh - 1) / bh;
+  f.written.assign(static_cast<size_t>(f.blocks_across) * static_cast<size_t>(blocks_down), 0);
+  return f;
+}
+
+// Counts the region's pixels into its blocks and writes every block it completes to the file, dropping it from GDAL's
+// cache (all four bands: the file interleaves them, and the first band's flush takes the others' pixels along). A
+// block is complete once written whole, so it is compressed once; without this GDAL kept every block until Close,
+// the whole mosaic and its overviews up to the cache's cap, a compose line that grew with the canvas.
+bool ReleaseCompleteBlocks(GDALDataset* ds, int overview, cv::Rect region, BlockFill* fill, std::string* error) {
+  const cv::Rect level(cv::Point(0, 0), fill->level);
+  region &= level;
+  if (region.empty()) return true;
+  const int bw = fill->block.width;
+  const int bh = fill->block.height;
+  for (int by = region.y / bh; by <= (region.br().y - 1) / bh; ++by) {
+    for (int bx = region.x / bw; bx <= (region.br().x - 1) / bw; ++bx) {
+      const cv::Rect block = cv::Rect(bx * bw, by * bh, bw, bh) & level;
+      int64_t& written =
+          fill->written[static_cast<size_t>(by) * static_cast<size_t>(fill->blocks_across) + static_cast<size_t>(bx)];
+      written += (block & region).area();
+      if (written < block.area()) continue;
+      for (int b = 1; b <= 4; ++b) {
+        if (LevelBand(ds, b, overview)->FlushBlock(bx, by, TRUE) != CE_None) {
+          *error = std::string("GDAL write failed (disk full?): ") + CPLGetLastErrorMsg();
+          return false;
+        }
+      }
+    }
+  }
+  return true;
+}
 
 bool WriteRgba(GDALDataset* ds, int overview, const cv::Mat& image, const cv::Mat& mask, cv::Point tl,
                std::string* error) {
@@ -26,8 +82,7 @@ bool WriteRgba(GDALDataset* ds, int overview, const cv::Mat& image, const cv::Ma
   cv::insertChannel(mask, rgba, 3);
   CPLErr err = CE_None;
   for (int b = 1; b <= 4 && err == CE_None; ++b) {
-    GDALRasterBand* band = ds->GetRasterBand(b);
-    if (overview >= 0) band = band->GetOverview(overview);
+    GDALRasterBand* band = LevelBand(ds, b, overview);
     if (band == nullptr) {
       *error = "GDAL: missing overview band";
       return false;
@@ -95,12 +150,17 @@ bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_si
       return false;
     }
   }
+  impl_->fill.push_back(MakeBlockFill(impl_->ds->GetRasterBand(1)));
+  for (size_t i = 0; i < impl_->overview_factors.size(); ++i)
+    impl_->fill.push_back(MakeBlockFill(LevelBand(impl_->ds, 1, static_cast<int>(i))));
   return true;
 }
 
 bool GdalTiffWriter::Write(const cv::Mat& image, const cv::Mat& mask, cv::Point tl, std::string* error) {
   if (impl_->ds == nullptr) return false;
-  if (!WriteRgba(impl_->ds, -1, image, mask, tl, error)) return false;
+  if (!WriteRgba(impl_->ds, -1, image, mask, tl, error) ||
+      !ReleaseCompleteBlocks(impl_->ds, -1, cv::Rect(tl, image.size()), &impl_->fill[0], error))
+    return false;
   // Overviews from the tile in hand: tiles start at multiples of every factor, so each level gets exact blocks and
   // nothing is read back at the end.
   for (size_t level = 0; level < impl_->overview_factors.size(); ++level) {
@@ -114,7 +174,9 @@ bool GdalTiffWriter::Write(const cv::Mat& image, const cv::Mat& mask, cv::Point 
     cv::Mat small_mask;
     cv::resize(image, small, osz, 0, 0, cv::INTER_AREA);
     cv::resize(mask, small_mask, osz, 0, 0, cv::INTER_AREA);
-    if (!WriteRgba(impl_->ds, static_cast<int>(level), small, small_mask, otl, error)) return false;
+    if (!WriteRgba(impl_->ds, static_cast<int>(level), small, small_mask, otl, error) ||
+        !ReleaseCompleteBlocks(impl_->ds, static_cast<int>(level), cv::Rect(otl, osz), &impl_->fill[level + 1], error))
+      return false;
   }
   return true;
 }
