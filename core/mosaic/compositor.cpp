@@ -48,7 +48,6 @@ bool CompositorOptions::Check(std::string* why) const {
 
 namespace {
 
-constexpr double kMiB = 1024.0 * 1024.0;
 // Per tile pixel (tile + margin) and worker: the worker's own buffers (TileWork) at their largest, ~55 bytes (the
 // blender's 16-bit sums and float weights, the fed piece's pyramids, each 4/3 of a level: 27; its bordered copy,
 // mask and expanded level: 10; owner, mask, maps, warp, blended image and mask: 18), and the quick-look's share of a

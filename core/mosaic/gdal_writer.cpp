@@ -150,9 +150,14 @@ bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_si
       return false;
     }
   }
-  impl_->fill.push_back(MakeBlockFill(impl_->ds->GetRasterBand(1)));
-  for (size_t i = 0; i < impl_->overview_factors.size(); ++i)
-    impl_->fill.push_back(MakeBlockFill(LevelBand(impl_->ds, 1, static_cast<int>(i))));
+  for (int level = -1; level < static_cast<int>(impl_->overview_factors.size()); ++level) {
+    GDALRasterBand* band = LevelBand(impl_->ds, 1, level);
+    if (band == nullptr) {
+      *error = "GDAL: missing overview band";
+      return false;
+    }
+    impl_->fill.push_back(MakeBlockFill(band));
+  }
   return true;
 }
 

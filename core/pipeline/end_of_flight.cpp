@@ -255,7 +255,7 @@ bool EndOfFlight::WriteReport(const CompositeResult& composite, nlohmann::json p
                       {"image_loads", composite.image_loads},
                       {"reloads_from_memory", composite.reloads_from_memory},
                       {"parts_released", composite.parts_released},
-                      {"frame_cache_peak_mib", static_cast<double>(composite.cache_peak_bytes) / (1024.0 * 1024.0)},
+                      {"frame_cache_peak_mib", static_cast<double>(composite.cache_peak_bytes) / kMiB},
                       {"image_load_ms", composite.load_ms}};
   report["radiometry"] = RadiometryJson(radiometry_, options_.radiometry);
   report["lens"] = LensJson(*in_.lens, in_.solution->lens);

@@ -402,11 +402,11 @@ nlohmann::json FlightSession::ReportMemory(const Solution& solution, const Compo
       {"relocalization_thinnings", rc.relocalization_thinnings},
       {"frames_not_indexed_same_ground", rc.frames_not_indexed},
       {"edges_to_disk", rc.edges_released},
-      {"edge_mib_to_disk", static_cast<double>(rc.edge_bytes_released) / (1 << 20)},
+      {"edge_mib_to_disk", static_cast<double>(rc.edge_bytes_released) / kMiB},
       {"edges_reloaded_in_flight", rc.edges_reloaded},
       {"end_points_left_on_disk", rc.end_points_thinned},
       {"end_points_per_edge", rc.end_points_per_edge},
-      {"edges_bin_mib", static_cast<double>(stores_.edges().bytes_written()) / (1 << 20)},
+      {"edges_bin_mib", static_cast<double>(stores_.edges().bytes_written()) / kMiB},
       {"frame_redecodes", std::max(0, composite.image_loads - composite.frames_used)},
       {"refine_correspondences_skipped", refine.num_residuals - std::min(refine.num_residuals, refine.num_used)},
       {"frames_dropped_by_queue", counters_.dropped_frames}};

@@ -3,11 +3,12 @@
 #include <algorithm>
 #include <cmath>
 
+#include "core/util/memory.h"
+
 namespace uavm {
 
 namespace {
 
-constexpr double kMiB = 1024.0 * 1024.0;
 // Measured on x86-64 Debian 12 (bench/memory.sh): the onboard program with its libraries loaded and its threads
 // started, before the first frame.
 constexpr double kBaselineMiB = 72.0;

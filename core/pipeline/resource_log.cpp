@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include "core/buffers/mat_pool.h"
+#include "core/util/memory.h"
 
 namespace uavm {
 
@@ -29,7 +30,6 @@ nlohmann::json MatPoolJson() {
   const MatPool* pool = InstalledMatPool();
   if (pool == nullptr) return nullptr;
   const MatPoolStats s = pool->Stats();
-  constexpr double kMiB = 1024.0 * 1024.0;
   return {{"hits", s.hits},
           {"misses", s.misses},
           {"evictions", s.evictions},
@@ -71,8 +71,8 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
           // The small records the flight keeps to its end, on pages of their own (RecordArena): what its runs hold
           // resident at most, what is in use, and the blocks that went to malloc because its range was full.
           {"flight_end_record_arena",
-           {{"carved_mib", static_cast<double>(flight_end_arena_.carved_bytes) / (1024.0 * 1024.0)},
-            {"in_use_mib", static_cast<double>(flight_end_arena_.in_use_bytes) / (1024.0 * 1024.0)},
+           {{"carved_mib", static_cast<double>(flight_end_arena_.carved_bytes) / kMiB},
+            {"in_use_mib", static_cast<double>(flight_end_arena_.in_use_bytes) / kMiB},
             {"blocks", flight_end_arena_.blocks_in_use},
             {"fallbacks", flight_end_arena_.fallbacks}}},
           {"mat_pool", MatPoolJson()},

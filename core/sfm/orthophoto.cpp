@@ -15,6 +15,7 @@
 
 #include "core/mosaic/compositor.h"
 #include "core/mosaic/tile_blender.h"
+#include "core/util/memory.h"
 #include "core/util/parallel.h"
 
 namespace uavm::sfm {
@@ -94,7 +95,6 @@ bool SurfaceHeight(const cv::Mat1f& dsm, const DsmGrid& grid, float nodata, doub
 namespace {
 
 constexpr float kFar = std::numeric_limits<float>::infinity();
-constexpr double kMiB = 1024.0 * 1024.0;
 
 // A frame as the orthophoto sees it: its z-buffer of the DSM and the ortho pixels its view of the DSM reaches.
 struct FrameView {

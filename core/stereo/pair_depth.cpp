@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/util/fail.h"
+#include "core/util/memory.h"
 
 namespace uavm::stereo {
 namespace {
@@ -137,8 +138,8 @@ bool DensePointsFromPair(const cv::Mat& img1, const StereoCamera& cam1, const cv
       sgm.min_disparity = std::max(0, d_min - 1);
       sgm.num_disparities = std::clamp(d_max + 2 - sgm.min_disparity, 2, opts.max_disparity_cap);
     }
-    const double mib = 5.0 * (rect.size.width * s) * (rect.size.height * s) * ((sgm.num_disparities + 15) / 16 * 16) /
-                       (1024.0 * 1024.0);
+    const double mib =
+        5.0 * (rect.size.width * s) * (rect.size.height * s) * ((sgm.num_disparities + 15) / 16 * 16) / kMiB;
     if (mib <= 0.95 * sgm.max_memory_mib || s < 0.05) break;
     s *= 0.9;
   }

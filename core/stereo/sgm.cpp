@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "core/util/fail.h"
+#include "core/util/memory.h"
 
 // The hot loops are plain C++ that the compiler vectorises; on x86-64 an AVX2 clone is chosen at run time (the
 // baseline build targets SSE2 only, and the census cost needs a hardware popcount to be cheap).
@@ -521,9 +522,9 @@ bool SgmMatcher::Compute(const cv::Mat& left, const cv::Mat& right, cv::Mat* dis
   p.gradient_weight = options.gradient_weight;
 
   const size_t volume = static_cast<size_t>(p.width) * p.height * p.stride;
-  double need_mib = 5.0 * static_cast<double>(volume) / (1024.0 * 1024.0);
+  double need_mib = 5.0 * static_cast<double>(volume) / kMiB;
   if (options.cost == SgmOptions::Cost::kDaisy) {
-    need_mib += 2.0 * static_cast<double>(DenseDaisy::LayerBytes(options.daisy, p.width, p.height)) / (1024.0 * 1024.0);
+    need_mib += 2.0 * static_cast<double>(DenseDaisy::LayerBytes(options.daisy, p.width, p.height)) / kMiB;
   }
   if (need_mib > options.max_memory_mib) {
     if (options.threads > 0) cv::setNumThreads(saved_threads);

@@ -49,13 +49,12 @@ double CurrentRssMiB() {
   const int n = std::fscanf(f, "%ld %ld", &pages_total, &pages_resident);
   std::fclose(f);
   if (n != 2) return 0.0;
-  return static_cast<double>(pages_resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+  return static_cast<double>(pages_resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / kMiB;
 }
 
 HeapStats CurrentHeapStats() {
   HeapStats h;
   const struct mallinfo2 mi = mallinfo2();
-  constexpr double kMiB = 1024.0 * 1024.0;
   h.in_use_mib = static_cast<double>(mi.uordblks) / kMiB;
   h.arena_mib = static_cast<double>(mi.arena) / kMiB;
   h.mmapped_mib = static_cast<double>(mi.hblkhd) / kMiB;

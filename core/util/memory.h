@@ -3,6 +3,8 @@
 
 namespace uavm {
 
+inline constexpr double kMiB = 1024.0 * 1024.0;  // bytes in a MiB: every figure the program reports in MiB
+
 // Peak resident set size of this process in MiB (getrusage ru_maxrss). Nothing in the program resets the kernel's
 // high-water mark (/proc/self/clear_refs), so this is the run's peak over every phase, as an outside tool sees it;
 // per-phase peaks come from a MemoryWatch.
