@@ -13,13 +13,15 @@
 namespace uavm {
 
 bool LensCalibrationOptions::Check(std::string* why) const {
-  if (min_frames < 2 || max_correspondences < 100 || !(min_holdout_gain >= 0 && min_holdout_gain < 1) ||
-      !(min_holdout_t >= 0) || !(max_distortion > 0 && max_distortion < 1) || !(prior_weight >= 0) ||
-      !(min_effect_px >= 0) || !(max_halves_disagreement >= 0) || !(halves_below_gain >= 0 && halves_below_gain < 1) ||
+  if (min_frames < 2 || max_frames < min_frames || max_correspondences < 100 ||
+      !(min_holdout_gain >= 0 && min_holdout_gain < 1) || !(min_holdout_t >= 0) ||
+      !(max_distortion > 0 && max_distortion < 1) || !(prior_weight >= 0) || !(min_effect_px >= 0) ||
+      !(max_halves_disagreement >= 0) || !(halves_below_gain >= 0 && halves_below_gain < 1) ||
       !(rematch_holdout_tolerance >= 0)) {
     if (why != nullptr)
       *why =
-          "lens_calibration: min_frames >= 2, max_correspondences >= 100, min_holdout_gain in [0,1), min_holdout_t >= "
+          "lens_calibration: min_frames >= 2, max_frames >= min_frames, max_correspondences >= 100, min_holdout_gain "
+          "in [0,1), min_holdout_t >= "
           "0, max_distortion in (0,1), prior_weight >= 0, min_effect_px >= 0, max_halves_disagreement >= 0, "
           "halves_below_gain in [0,1), rematch_holdout_tolerance >= 0";
     return false;

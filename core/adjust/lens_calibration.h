@@ -17,6 +17,10 @@ struct LensCalibrationOptions {
   bool enabled = true;
   int min_frames = 6;               // fewer frames rarely see the same ground at enough different radii
   int max_correspondences = 20000;  // a strided subset: the estimate needs spread, not every point
+  // A longer flight calibrates its one lens on this many consecutive frames in its middle (and never more than
+  // refine.max_frames_per_solve): the points are capped anyway, and the window's edges are resident while it runs, so
+  // the phase costs what a flight of this length costs whatever the flight's length.
+  int max_frames = 200;
   // The lens is accepted when the held-out points agree better with it, by more than chance: the per-edge mean drop
   // of their squared transfer error, over the edges, must be min_holdout_t standard errors above zero (edges, not
   // points, are the samples: the points of one edge share its errors), and the held-out RMS drop at least
@@ -64,7 +68,8 @@ struct LensCalibration {
   // The lens estimated on each half of the frames alone (distortion at the half-diagonal; NaN: not estimated).
   double half_a_at_half_diagonal = std::nan("");
   double half_b_at_half_diagonal = std::nan("");
-  size_t used = 0;  // correspondences in the two solves
+  size_t used = 0;    // correspondences in the two solves
+  size_t frames = 0;  // frames calibrated on (the flight's middle, at most LensCalibrationOptions::max_frames)
   // With options.rematch: the pairs matched again under the first estimate, that estimate (NaN: not rematched), and
   // the held-out RMS of the correction estimated on them after it (without, with; 0: none kept).
   size_t rematched_edges = 0;

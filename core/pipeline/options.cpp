@@ -37,6 +37,7 @@ std::vector<Field> LensFields(PipelineOptions& o) {
       {"camera", "database", &o.camera.database},
       {"camera", "self_calibrate", &o.lens_calibration.enabled},
       {"lens_calibration", "min_frames", &o.lens_calibration.min_frames},
+      {"lens_calibration", "max_frames", &o.lens_calibration.max_frames},
       {"lens_calibration", "max_correspondences", &o.lens_calibration.max_correspondences},
       {"lens_calibration", "min_holdout_gain", &o.lens_calibration.min_holdout_gain},
       {"lens_calibration", "min_holdout_t", &o.lens_calibration.min_holdout_t},

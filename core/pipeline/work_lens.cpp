@@ -69,6 +69,7 @@ nlohmann::json LensJson(const WorkLens& lens, const LensCalibration& cal) {
         {"holdout_gain_t", cal.holdout_gain_t},
         {"halves_distortion_at_half_diagonal", {cal.half_a_at_half_diagonal, cal.half_b_at_half_diagonal}},
         {"correspondences", cal.used},
+        {"frames", cal.frames},
         {"rematched_edges", cal.rematched_edges},
         {"first_distortion_at_half_diagonal", cal.first_at_half_diagonal},
         {"correction_holdout_rms_px", {cal.residual_holdout_without_px, cal.residual_holdout_with_px}},

@@ -864,7 +864,8 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
       return true;
     }
   EnterPhase("lens");
-  LensWindow w = MiddleWindow(s->component, edges, static_cast<size_t>(options_.refine.max_frames_per_solve));
+  const int window = std::min(options_.lens_calibration.max_frames, options_.refine.max_frames_per_solve);
+  LensWindow w = MiddleWindow(s->component, edges, static_cast<size_t>(window));
   // The window's points are resident (bounded by the window): the calibration reads them many times, and a rematch
   // replaces some, which edges.bin does not hold.
   const size_t max_points = counters_.end_points_per_edge;
@@ -875,6 +876,7 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
   }
   s->lens = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, *camera_,
                           options_.lens_calibration, mosaic_from_work_);
+  s->lens.frames = w.variable.size() + 1;
   if (s->lens.accepted && options_.lens_calibration.rematch)
     CorrectLensAfterRematch(w.edges, w.variable, w.anchor, half_diag, &s->lens);
   const bool has_radial = camera_->distortion.k1 != 0.0 || camera_->distortion.k2 != 0.0;
