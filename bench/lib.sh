@@ -123,9 +123,10 @@ run_stitcher() {
 }
 
 # run_phased PREFIX CMD...: runs CMD (stdout/stderr to PREFIX.{stdout,stderr}) and samples it from outside every
-# 50 ms: VmRSS and RssAnon from /proc/PID/status, and the phase the program is in from the name of its memory
-# watch's thread ("mem:<phase>" in /proc/PID/task/*/comm, see core/util/memory_watch.h). Writes PREFIX.phases.tsv
-# (phase, peak VmRSS kB, peak RssAnon kB, samples, first and last sample's second) in the order the phases ran.
+# SAMPLE_S seconds (default 0.05; a phase shorter than that is seen once or not at all): VmRSS and RssAnon from
+# /proc/PID/status, and the phase the program is in from the name of its memory watch's thread ("mem:<phase>" in
+# /proc/PID/task/*/comm, see core/util/memory_watch.h). Writes PREFIX.phases.tsv (phase, peak VmRSS kB, peak RssAnon
+# kB, samples, first and last sample's second) in the order the phases ran.
 # Sets W_RC, W_WALL_S, W_PEAK_KB (largest VmRSS or VmHWM sampled), W_PEAK_ANON_KB.
 run_phased() {
   local prefix=$1
@@ -165,7 +166,7 @@ run_phased() {
     ((rss > W_PEAK_KB)) && W_PEAK_KB=$rss
     ((hwm > W_PEAK_KB)) && W_PEAK_KB=$hwm
     ((anon > W_PEAK_ANON_KB)) && W_PEAK_ANON_KB=$anon
-    sleep 0.05
+    sleep "${SAMPLE_S:-0.05}"
   done
   { wait "$pid"; } 2>/dev/null || W_RC=$?
   W_WALL_S=$(awk -v d=$(($(now_us) - t0)) 'BEGIN { printf "%.2f", d / 1e6 }')

@@ -10,15 +10,16 @@
 # peak against the same phase of the first FRAMES given (default: every sim_* in MEMORY_RUN_DIR, smallest first).
 #
 # Environment: REPEAT (runs of each flight, default 1; each phase's figure is the median of its runs), BUDGET_MIB
-# (default 256), EXTRA_ARGS (e.g. "--config exp.yaml"), UAVM_BUILD_DIR, TMPDIR (the copies), REPORTS_DIR (keeps each
-# run's report.json and log there as sim_FRAMES[.RUN].report.json / .log).
+# (default 256), SAMPLE_S (seconds between samples, default 0.05: 0.02 sees the 200-frame flight's 28 ms `adjust`),
+# EXTRA_ARGS (e.g. "--config exp.yaml"), UAVM_BUILD_DIR, TMPDIR (the copies), REPORTS_DIR (keeps each run's
+# report.json and log there as sim_FRAMES[.RUN].report.json / .log).
 set -euo pipefail
 export LC_ALL=C
 
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 if [[ $# -lt 1 || $1 == -h || $1 == --help ]]; then
-  sed -n '2,14p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,15p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 # shellcheck source=bench/lib.sh
