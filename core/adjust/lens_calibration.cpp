@@ -20,10 +20,10 @@ bool LensCalibrationOptions::Check(std::string* why) const {
       !(rematch_holdout_tolerance >= 0)) {
     if (why != nullptr)
       *why =
-          "lens_calibration: min_frames >= 2, max_frames >= min_frames, max_correspondences >= 100, min_holdout_gain "
-          "in [0,1), min_holdout_t >= "
-          "0, max_distortion in (0,1), prior_weight >= 0, min_effect_px >= 0, max_halves_disagreement >= 0, "
-          "halves_below_gain in [0,1), rematch_holdout_tolerance >= 0";
+          "lens_calibration: min_frames >= 2, max_frames >= min_frames, max_correspondences >= 100, "
+          "min_holdout_gain in [0,1), min_holdout_t >= 0, max_distortion in (0,1), prior_weight >= 0, "
+          "min_effect_px >= 0, max_halves_disagreement >= 0, halves_below_gain in [0,1), "
+          "rematch_holdout_tolerance >= 0";
     return false;
   }
   return true;
