@@ -346,6 +346,7 @@ class FakeSessionEnd final : public SessionEnd {
     tables_for = in_component.size();
     return true;
   }
+  void DropEdgeRecords() override { phases.push_back("edges_dropped"); }
   nlohmann::json Report(const Solution&, const CompositeResult& composite) const override {
     return {{"from_session", true}, {"frames_blended_seen", composite.frames_used}};
   }
@@ -390,7 +391,7 @@ TEST(EndOfFlightTest, WritesTheMapFromARecordAndASolutionAlone) {
   ASSERT_TRUE(end.Run(&error)) << error;
 
   EXPECT_EQ(fake_session.phases,
-            std::vector<std::string>({"radiometry", "outputs", "compose", "compose_end", "products"}));
+            std::vector<std::string>({"radiometry", "outputs", "edges_dropped", "compose", "compose_end", "products"}));
   EXPECT_EQ(fake_session.tables_for, 10u);
   // transforms.csv: every frame in the map, their offsets on the canvas as in the photograph (the canvas is
   // georeferenced by 3 frames' GPS and turned north-up: the photograph is north-up already).

@@ -1,6 +1,8 @@
 #include "core/util/record_arena.h"
 
 #include <gtest/gtest.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include <cstdint>
 #include <cstring>
@@ -130,6 +132,63 @@ TEST_F(RecordArenaTest, RecordsKeptBesideTransientsFillTheirPages) {
   EXPECT_LE(carved, in_use + 4 * (size_t{64} << 10));
   EXPECT_EQ(names[4999], "frame_104999.png");
   EXPECT_EQ(after.fallbacks, before.fallbacks);
+}
+
+// Whether the page holding p is resident (mincore).
+bool Resident(const void* p) {
+  const auto page = static_cast<uintptr_t>(sysconf(_SC_PAGESIZE));
+  unsigned char in_core = 0;
+  void* start = reinterpret_cast<void*>(reinterpret_cast<uintptr_t>(p) & ~(page - 1));
+  return mincore(start, page, &in_core) == 0 && (in_core & 1) != 0;
+}
+
+// The end of a flight deletes most of its edge records at once: the runs left with no live block go back to the
+// system, the blocks still alive keep their bytes, and the runs are carved again before any new one.
+TEST_F(RecordArenaTest, RunsWithNoLiveBlockGoBackToTheSystemAndAreReused) {
+  constexpr size_t kBlocks = 3000;
+  constexpr size_t kKept = 100;
+  constexpr size_t kBytes = 900;  // the 1024-byte class: 64 blocks a 64 KiB run
+  std::vector<std::unique_ptr<unsigned char[]>> blocks;
+  // Earlier tests' freed blocks go first, so that this test's blocks fill runs of their own, in order.
+  (void)RecordArena::ReturnFreeRuns();
+  {
+    const RecordArena::Scope scope;
+    for (size_t i = 0; i < kBlocks; ++i) {
+      blocks.emplace_back(new unsigned char[kBytes]);
+      std::memset(blocks.back().get(), static_cast<int>(i % 251), kBytes);
+    }
+  }
+  for (const auto& b : blocks) ASSERT_TRUE(RecordArena::Owns(b.get()));
+  std::vector<const void*> freed;
+  for (size_t i = kKept; i < kBlocks; ++i) {
+    freed.push_back(blocks[i].get());
+    blocks[i].reset();
+  }
+  const RecordArena::Counters before = RecordArena::counters();
+  const size_t returned = RecordArena::ReturnFreeRuns();
+  // Of 2900 freed blocks, all but those sharing a run with a kept block or the class's current run lie in runs
+  // wholly free: at least (2900 - 64 x 4) / 64 runs.
+  EXPECT_GE(returned, (kBlocks - kKept - 256) / 64 * (size_t{64} << 10));
+  EXPECT_EQ(RecordArena::counters().returned_bytes, before.returned_bytes + returned);
+  size_t not_resident = 0;
+  for (const void* p : freed) not_resident += Resident(p) ? 0 : 1;
+  // All but those sharing a run with a kept block or sitting in the current run: ~2 and 1 runs of 64 blocks.
+  EXPECT_GE(not_resident, kBlocks - kKept - 3 * 64);
+  for (size_t i = 0; i < kKept; ++i)
+    for (size_t k = 0; k < kBytes; ++k) ASSERT_EQ(blocks[i][k], static_cast<unsigned char>(i % 251));
+  // New records take the returned runs first: nothing new is carved while they last.
+  const size_t carved = RecordArena::counters().carved_bytes;
+  {
+    const RecordArena::Scope scope;
+    for (size_t i = kKept; i < kBlocks; ++i) {
+      blocks[i].reset(new unsigned char[kBytes]);
+      std::memset(blocks[i].get(), static_cast<int>(i % 251), kBytes);
+    }
+  }
+  EXPECT_EQ(RecordArena::counters().carved_bytes, carved);
+  EXPECT_LT(RecordArena::counters().returned_bytes, before.returned_bytes + returned);
+  for (size_t i = 0; i < kBlocks; ++i)
+    for (size_t k = 0; k < kBytes; ++k) ASSERT_EQ(blocks[i][k], static_cast<unsigned char>(i % 251));
 }
 
 }  // namespace

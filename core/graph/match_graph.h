@@ -145,6 +145,8 @@ class MatchGraph {
   // Every connected component over the edges that count, largest first (ties: lowest first id), members ascending.
   [[nodiscard]] std::vector<std::vector<int>> ComponentsBySize(double relative, int absolute_floor) const;
   [[nodiscard]] bool EdgeCounts(const Edge& e, double relative, int absolute_floor) const;
+  // Frees every edge record (the end of the flight, once its tables are written: edges.bin and graph.csv keep them).
+  void ReleaseEdges() { std::deque<Edge>().swap(edges_); }
 
  private:
   std::vector<int> nodes_;

@@ -46,12 +46,25 @@ bool EndOfFlight::WriteTables(std::string* error) {
   const IdSet in_component(component);
   const IdSet in_map(placement_.placed());
   const std::string camera_yaml = CameraYaml(*in_.lens, in_.solution->lens);
-  return WriteTransformsCsv(paths_.Join("transforms.csv"), *in_.record, in_map, placement_.canvas_from_original(),
-                            placement_.placed_by_telemetry(), error) &&
-         in_.session->WriteEdgeTables(in_component, error) &&
-         WriteFramesCsv(paths_.Join("frames.csv"), *in_.record, in_map, error) &&
-         (camera_yaml.empty() || WriteFileAtomic(paths_.Join("camera.yaml"), camera_yaml, error)) &&
-         WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_) + in_.additions.config_yaml, error);
+  const bool written = WriteTransformsCsv(paths_.Join("transforms.csv"), *in_.record, in_map,
+                                          placement_.canvas_from_original(), placement_.placed_by_telemetry(), error) &&
+                       in_.session->WriteEdgeTables(in_component, error) &&
+                       WriteFramesCsv(paths_.Join("frames.csv"), *in_.record, in_map, error) &&
+                       (camera_yaml.empty() || WriteFileAtomic(paths_.Join("camera.yaml"), camera_yaml, error)) &&
+                       WriteFileAtomic(paths_.Join("config.yaml"), ToYaml(options_) + in_.additions.config_yaml, error);
+  if (!written) return false;
+  // The edges are in edges.bin and graph.csv now: the map page keeps what it draws of them, and compositing gets the
+  // records' memory.
+  const RegistrationEngine& engine = in_.record->engine();
+  map_edges_.clear();
+  if (options_.write_products) {
+    map_edges_.reserve(engine.edges().size());
+    for (const Edge& e : engine.edges())
+      map_edges_.push_back(
+          {e.src, e.tgt, e.num_inliers, in_map.contains(e.src) && in_map.contains(e.tgt) && engine.EdgeCounts(e)});
+  }
+  in_.session->DropEdgeRecords();
+  return true;
 }
 
 // The mosaic, tile by tile: mosaic.tiled.tif (MakeProducts() turns it into the COG mosaic.tif) and mosaic.png.
@@ -215,12 +228,9 @@ bool EndOfFlight::WriteMapPage(const TileSet& tiles) const {
     m.height = f.original_size.height;
     frames.push_back(m);
   }
-  std::vector<MapEdge> edges;
-  const RegistrationEngine& engine = in_.record->engine();
-  for (const Edge& e : engine.edges())
-    edges.push_back({e.src, e.tgt, e.num_inliers, in.contains(e.src) && in.contains(e.tgt) && engine.EdgeCounts(e)});
   std::string err;
-  const bool page = WriteWebPage(paths_.root, options_.leaflet_dir, tiles, placement_.georef(), frames, edges, &err);
+  const bool page =
+      WriteWebPage(paths_.root, options_.leaflet_dir, tiles, placement_.georef(), frames, map_edges_, &err);
   if (!page) spdlog::warn("index.html: {}", err);
   return page;
 }

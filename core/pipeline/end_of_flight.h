@@ -25,6 +25,8 @@ class SessionEnd {
   virtual void EnterPhase(const std::string& name) = 0;
   virtual void ComposeEnd() = 0;
   [[nodiscard]] virtual bool WriteEdgeTables(const IdSet& in_component, std::string* error) = 0;
+  // Once the tables are written nothing reads the edge records again: they are freed and their pages given back.
+  virtual void DropEdgeRecords() = 0;
   [[nodiscard]] virtual nlohmann::json Report(const Solution& solution, const CompositeResult& composite) const = 0;
 };
 
@@ -86,6 +88,8 @@ class EndOfFlight {
   Inputs in_;
   EndRadiometry radiometry_;
   CanvasPlacement placement_;
+  // The match graph as index.html draws it, kept from the edge records before they are dropped (16 bytes an edge).
+  std::vector<MapEdge> map_edges_;
 };
 
 }  // namespace uavm

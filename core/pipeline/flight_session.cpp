@@ -305,6 +305,16 @@ bool FlightSession::WriteEdgeTables(const IdSet& in_component, std::string* erro
   return corr_csv.Commit(error) && graph_csv.Commit(error);
 }
 
+void FlightSession::DropEdgeRecords() {
+  edge_records_dropped_ += engine_.edges().size();
+  engine_.ReleaseEdgeRecords();
+  // Most of the freed records sat on pages of their own (RecordArena): those pages go back to the system now, not
+  // when records of the same size come to reuse them (none will).
+  const size_t returned = RecordArena::ReturnFreeRuns();
+  spdlog::debug("{} edge records dropped, {:.1f} MiB of record pages given back", edge_records_dropped_,
+                static_cast<double>(returned) / kMiB);
+}
+
 namespace {
 
 nlohmann::json SummaryJson(const Summary& s) {
@@ -374,7 +384,7 @@ void FlightSession::ReportRegistration(const Solution& solution, nlohmann::json*
   report["joined_on_retry"] = rc.joined_on_retry;
   report["joined_where_telemetry_placed"] = rc.joined_where_telemetry_placed;
   report["component_merges"] = rc.component_merges;
-  report["edges"] = engine_.edges().size();
+  report["edges"] = engine_.edges().size() + edge_records_dropped_;
   report["edges_added_at_end"] = rc.edges_added_at_end;
   report["feature_store"] = {{"disk_loads", stores_.features().disk_loads()},
                              {"evictions", stores_.features().evictions()}};

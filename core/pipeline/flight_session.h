@@ -110,6 +110,7 @@ class FlightSession final : public SessionEnd {
   void EnterPhase(const std::string& name) override { resources_.EnterPhase(name); }
   void ComposeEnd() override { resources_.ComposeEnd(); }
   [[nodiscard]] bool WriteEdgeTables(const IdSet& in_component, std::string* error) override;
+  void DropEdgeRecords() override;
   [[nodiscard]] nlohmann::json Report(const Solution& solution, const CompositeResult& composite) const override;
   // The journal says the flight was finished (a resumed run knows it has nothing to add).
   void MarkFinished();
@@ -158,6 +159,7 @@ class FlightSession final : public SessionEnd {
   StageStats stats_;
   Counters counters_;
   std::string storage_failure_;
+  size_t edge_records_dropped_ = 0;  // by DropEdgeRecords: report.json still counts them
   struct Events {
     Signal<const RegisteredFrame&> registered;
     Signal<HintRequest&> hint_request;

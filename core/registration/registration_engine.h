@@ -200,6 +200,12 @@ class RegistrationEngine {
   [[nodiscard]] const std::deque<Edge>& edges() const { return graph_.edges(); }
   // For writers after Finish(): they load an edge's points through the spill, AsSolved(), and give them back.
   [[nodiscard]] std::deque<Edge>& mutable_edges() { return graph_.mutable_edges(); }
+  // Frees the edge records and the frames' edge lists once nothing reads them again (the end of the flight, after its
+  // tables): ~150 bytes an edge, 3-4 MiB at 5000 frames, that compositing can use. edges() is empty after.
+  void ReleaseEdgeRecords() {
+    graph_.ReleaseEdges();
+    std::vector<std::vector<uint32_t>>().swap(adjacency_);
+  }
   // An edge read back from the spill after Finish(), in the pixels of the final solution (the self-calibrated lens's
   // ideal pixels when it was accepted or the prepared lens dropped; else as stored).
   void AsSolved(Edge* edge) const;

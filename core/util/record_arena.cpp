@@ -64,12 +64,19 @@ class Arena {
       sc.free = sc.free->next;
     } else {
       if (sc.next == nullptr || static_cast<size_t>(sc.end - sc.next) < kClassBytes[c]) {
-        if (runs_carved_ == kRuns) return Fallback();
-        char* run = base_.load(std::memory_order_relaxed) + runs_carved_ * kRunBytes;
-        class_of_run_[runs_carved_++] = static_cast<uint8_t>(c);
+        size_t run_index = 0;
+        if (returned_count_ > 0) {
+          run_index = returned_[--returned_count_];  // a run given back to the system, taken again
+          counters_.returned_bytes -= kRunBytes;
+        } else {
+          if (runs_carved_ == kRuns) return Fallback();
+          run_index = runs_carved_++;
+          counters_.carved_bytes += kRunBytes;
+        }
+        class_of_run_[run_index] = static_cast<uint8_t>(c);
+        char* run = base_.load(std::memory_order_relaxed) + run_index * kRunBytes;
         sc.next = run;
         sc.end = run + kRunBytes;
-        counters_.carved_bytes += kRunBytes;
       }
       block = sc.next;
       sc.next += kClassBytes[c];
@@ -101,6 +108,44 @@ class Arena {
     return counters_;
   }
 
+  // Gives the pages of every run whose blocks are all free back to the system. The free lists run through the free
+  // blocks themselves, so a run's blocks leave its class's list before its pages are dropped (they read as zeros
+  // after). Walks the free blocks once: for the end of a flight, after its records are deleted, not per frame.
+  size_t ReturnFreeRuns() {
+    const std::lock_guard lock(mutex_);
+    char* base = base_.load(std::memory_order_relaxed);
+    if (base == nullptr) return 0;
+    // On the stack, not the heap: an allocation here would come back to this arena's lock.
+    std::array<uint16_t, kRuns> free_in_run{};
+    for (const SizeClass& sc : classes_)
+      for (const FreeBlock* b = sc.free; b != nullptr; b = b->next) ++free_in_run[RunOf(b)];
+    std::array<bool, kRuns> whole{};
+    for (size_t c = 0; c < classes_.size(); ++c) {
+      SizeClass& sc = classes_[c];
+      // The class's current run is still being carved: its blocks beyond sc.next were never handed out.
+      const size_t current = sc.next != nullptr ? RunOf(sc.next - 1) : kRuns;
+      FreeBlock** link = &sc.free;
+      while (*link != nullptr) {
+        const size_t run = RunOf(*link);
+        if (run != current && free_in_run[run] == kRunBytes / kClassBytes[c]) {
+          whole[run] = true;
+          *link = (*link)->next;
+        } else {
+          link = &(*link)->next;
+        }
+      }
+    }
+    size_t returned = 0;
+    for (size_t run = 0; run < runs_carved_; ++run) {
+      if (!whole[run]) continue;
+      madvise(base + run * kRunBytes, kRunBytes, MADV_DONTNEED);
+      returned_[returned_count_++] = static_cast<uint16_t>(run);
+      returned += kRunBytes;
+    }
+    counters_.returned_bytes += returned;
+    return returned;
+  }
+
  private:
   bool Reserve() {
     if (reserve_failed_) return false;
@@ -116,6 +161,9 @@ class Arena {
     base_.store(static_cast<char*>(range), std::memory_order_relaxed);
     return true;
   }
+  [[nodiscard]] size_t RunOf(const void* p) const {
+    return static_cast<size_t>(static_cast<const char*>(p) - base_.load(std::memory_order_relaxed)) / kRunBytes;
+  }
   void* Fallback() {
     ++counters_.fallbacks;
     return nullptr;
@@ -126,6 +174,8 @@ class Arena {
   bool reserve_failed_ = false;
   size_t runs_carved_ = 0;
   std::array<uint8_t, kRuns> class_of_run_{};
+  std::array<uint16_t, kRuns> returned_{};  // runs given back to the system, to be carved again first
+  size_t returned_count_ = 0;
   std::array<SizeClass, kClassBytes.size()> classes_{};
   RecordArena::Counters counters_{};
 };
@@ -175,6 +225,9 @@ RecordArena::Scope::~Scope() {
 }
 RecordArena::Counters RecordArena::counters() {
   return g_storage.arena.counters();
+}
+size_t RecordArena::ReturnFreeRuns() {
+  return g_storage.arena.ReturnFreeRuns();
 }
 bool RecordArena::Owns(const void* p) {
   return g_storage.arena.Owns(p);

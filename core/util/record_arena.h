@@ -35,9 +35,14 @@ class RecordArena {
     size_t carved_bytes = 0;  // page runs carved from the range so far (what it can hold resident at most)
     size_t in_use_bytes = 0;  // blocks handed out and not freed, by their class size
     size_t blocks_in_use = 0;
-    size_t fallbacks = 0;  // blocks made in a Scope that went to malloc because the range was full
+    size_t fallbacks = 0;       // blocks made in a Scope that went to malloc because the range was full
+    size_t returned_bytes = 0;  // of carved_bytes, runs whose pages were given back (ReturnFreeRuns) and not reused
   };
   [[nodiscard]] static Counters counters();
+  // Gives the pages of runs whose blocks are all free back to the system (madvise DONTNEED); returns their bytes. For
+  // when many records have just been deleted (the end of the flight drops its edge records): the free blocks would
+  // otherwise stay resident until records of the same size reuse them. O(free blocks), under the arena's lock.
+  static size_t ReturnFreeRuns();
   // Whether p is a block of the arena (for tests and the report; delete finds its blocks by this test).
   [[nodiscard]] static bool Owns(const void* p);
   // False where the arena is compiled out (AddressSanitizer builds).
