@@ -840,7 +840,8 @@ struct LensWindow {
 // first the anchor) with the edges between them, so the solves' memory has a fixed bound; a shorter one on all of it.
 LensWindow MiddleWindow(const std::vector<int>& component, const std::vector<const Edge*>& edges, size_t window) {
   LensWindow w;
-  const bool whole = component.size() <= window + 1;  // the anchor and at most `window` variable frames
+  // `window` frames in all, the anchor one of them (a component of window + 1 frames once took every frame).
+  const bool whole = component.size() <= window;
   const size_t first = whole ? 0 : (component.size() - window) / 2;
   const size_t end = whole ? component.size() : first + window;
   w.anchor = component[first];
