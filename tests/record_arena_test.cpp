@@ -191,5 +191,36 @@ TEST_F(RecordArenaTest, RunsWithNoLiveBlockGoBackToTheSystemAndAreReused) {
     for (size_t k = 0; k < kBytes; ++k) ASSERT_EQ(blocks[i][k], static_cast<unsigned char>(i % 251));
 }
 
+// Edge records and frame records of the same size, made in turn as a flight makes them: in groups of their own, the
+// edges' runs hold no frame record, so dropping every edge at once leaves their runs wholly free (in one group, each
+// run would keep frame records and none could go back).
+TEST_F(RecordArenaTest, AGroupFreedAtOnceLeavesItsRunsWhollyFree) {
+  constexpr size_t kEach = 2000;
+  constexpr size_t kBytes = 500;  // the 512-byte class: 128 blocks a run
+  (void)RecordArena::ReturnFreeRuns();
+  std::vector<std::unique_ptr<char[]>> frames;
+  std::vector<std::unique_ptr<char[]>> edges;
+  {
+    const RecordArena::Scope flight;
+    for (size_t i = 0; i < kEach; ++i) {
+      frames.emplace_back(new char[kBytes]);
+      const RecordArena::Scope edge_records(RecordArena::Group::kEdges);
+      edges.emplace_back(new char[kBytes]);
+    }
+  }
+  std::vector<const void*> freed;
+  for (auto& e : edges) {
+    ASSERT_TRUE(RecordArena::Owns(e.get()));
+    freed.push_back(e.get());
+    e.reset();
+  }
+  const size_t returned = RecordArena::ReturnFreeRuns();
+  EXPECT_GE(returned, (kEach - 2 * 128) / 128 * (size_t{64} << 10));
+  size_t not_resident = 0;
+  for (const void* p : freed) not_resident += Resident(p) ? 0 : 1;
+  EXPECT_GE(not_resident, kEach - 2 * 128);  // all but the first run's (earlier blocks) and the current one's
+  for (const auto& f : frames) EXPECT_TRUE(RecordArena::Owns(f.get()));
+}
+
 }  // namespace
 }  // namespace uavm

@@ -14,6 +14,7 @@
 #include "core/util/fail.h"
 #include "core/util/id_set.h"
 #include "core/util/memory.h"
+#include "core/util/record_arena.h"
 
 namespace uavm {
 
@@ -121,6 +122,8 @@ void RegistrationEngine::AddEdge(Edge edge) {
       spill_ = nullptr;
     }
   }
+  // The edge's record and list entries are freed together at the end of the flight (ReleaseEdgeRecords).
+  const RecordArena::Scope edge_records(RecordArena::Group::kEdges);
   const auto index = static_cast<uint32_t>(graph_.edges().size());
   adjacency_.at(static_cast<size_t>(edge.src)).push_back(index);
   adjacency_.at(static_cast<size_t>(edge.tgt)).push_back(index);

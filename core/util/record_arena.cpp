@@ -53,11 +53,12 @@ class Arena {
   constexpr Arena() = default;
 
   // nullptr when the range is full or cannot be reserved: the caller takes the block from malloc.
-  void* Allocate(size_t bytes) {
+  void* Allocate(size_t bytes, RecordArena::Group group) {
     const std::lock_guard lock(mutex_);
     if (base_.load(std::memory_order_relaxed) == nullptr && !Reserve()) return Fallback();
     const size_t c = ClassOf(bytes);
-    SizeClass& sc = classes_[c];
+    const size_t slot = static_cast<size_t>(group) * kClassBytes.size() + c;
+    SizeClass& sc = classes_[slot];
     void* block = nullptr;
     if (sc.free != nullptr) {
       block = sc.free;
@@ -73,7 +74,7 @@ class Arena {
           run_index = runs_carved_++;
           counters_.carved_bytes += kRunBytes;
         }
-        class_of_run_[run_index] = static_cast<uint8_t>(c);
+        class_of_run_[run_index] = static_cast<uint8_t>(slot);
         char* run = base_.load(std::memory_order_relaxed) + run_index * kRunBytes;
         sc.next = run;
         sc.end = run + kRunBytes;
@@ -95,11 +96,11 @@ class Arena {
   void Free(void* p) {
     const std::lock_guard lock(mutex_);
     const auto run = static_cast<size_t>(static_cast<char*>(p) - base_.load(std::memory_order_relaxed)) / kRunBytes;
-    const size_t c = class_of_run_[run];
+    const size_t slot = class_of_run_[run];
     auto* block = static_cast<FreeBlock*>(p);
-    block->next = classes_[c].free;
-    classes_[c].free = block;
-    counters_.in_use_bytes -= kClassBytes[c];
+    block->next = classes_[slot].free;
+    classes_[slot].free = block;
+    counters_.in_use_bytes -= kClassBytes[slot % kClassBytes.size()];
     --counters_.blocks_in_use;
   }
 
@@ -120,8 +121,9 @@ class Arena {
     for (const SizeClass& sc : classes_)
       for (const FreeBlock* b = sc.free; b != nullptr; b = b->next) ++free_in_run[RunOf(b)];
     std::array<bool, kRuns> whole{};
-    for (size_t c = 0; c < classes_.size(); ++c) {
-      SizeClass& sc = classes_[c];
+    for (size_t slot = 0; slot < classes_.size(); ++slot) {
+      SizeClass& sc = classes_[slot];
+      const size_t c = slot % kClassBytes.size();
       // The class's current run is still being carved: its blocks beyond sc.next were never handed out.
       const size_t current = sc.next != nullptr ? RunOf(sc.next - 1) : kRuns;
       FreeBlock** link = &sc.free;
@@ -176,7 +178,7 @@ class Arena {
   std::array<uint8_t, kRuns> class_of_run_{};
   std::array<uint16_t, kRuns> returned_{};  // runs given back to the system, to be carved again first
   size_t returned_count_ = 0;
-  std::array<SizeClass, kClassBytes.size()> classes_{};
+  std::array<SizeClass, RecordArena::kGroups * kClassBytes.size()> classes_{};  // by group, then size class
   RecordArena::Counters counters_{};
 };
 
@@ -188,6 +190,7 @@ union ArenaStorage {
 };
 constinit ArenaStorage g_storage;
 constinit thread_local int t_scope_depth = 0;
+constinit thread_local RecordArena::Group t_group = RecordArena::Group::kFlight;
 
 #if UAVM_RECORD_ARENA
 void* MallocOrThrow(size_t bytes) {
@@ -201,7 +204,7 @@ void* MallocOrThrow(size_t bytes) {
 
 void* NewBlock(size_t bytes) {
   if (t_scope_depth > 0 && bytes <= RecordArena::kMaxBlockBytes) {
-    if (void* p = g_storage.arena.Allocate(bytes)) return p;
+    if (void* p = g_storage.arena.Allocate(bytes, t_group)) return p;
   }
   return MallocOrThrow(bytes);
 }
@@ -217,11 +220,13 @@ void DeleteBlock(void* p) noexcept {
 
 }  // namespace
 
-RecordArena::Scope::Scope() {
+RecordArena::Scope::Scope(Group group) : outer_(t_group) {
   ++t_scope_depth;
+  t_group = group;
 }
 RecordArena::Scope::~Scope() {
   --t_scope_depth;
+  t_group = outer_;
 }
 RecordArena::Counters RecordArena::counters() {
   return g_storage.arena.counters();
