@@ -16,12 +16,9 @@ class ResourceLog {
   void FlightStart();
   void FlightEnd();  // after the last frame
   // The end of the flight's steps, in order (the engine's solves, radiometry, outputs, compositing, products). Each
-  // starts with the pages the last one freed given back (TrimHeap): a phase's peak is its own working set on top of
-  // what stays, not the previous phase's holes.
-  void EnterPhase(const std::string& name) {
-    TrimHeap();
-    watch_.Enter(name);
-  }
+  // starts with the pages the last one freed given back (the image pool's free blocks, then TrimHeap): a phase's peak
+  // is its own working set on top of what stays, not the previous phase's holes.
+  void EnterPhase(const std::string& name);
   void ComposeEnd();  // after the mosaic is written
   // The run's peak RSS over every phase so far, MiB.
   [[nodiscard]] double PeakRssMiB() const { return watch_.PeakRssMiB(); }
