@@ -40,6 +40,7 @@ bool CompositorOptions::Check(std::string* why) const {
   if (threads < 1 || threads > 64) return fail("mosaic.threads must be in [1,64]");
   if (gdal_cache_mib < 1) return fail("mosaic.gdal_cache_mib must be >= 1");
   if (!(compressed_share >= 0.0 && compressed_share <= 1.0)) return fail("mosaic.compressed_share must be in [0, 1]");
+  if (!(decoded_cache_mib >= 0.0)) return fail("mosaic.decoded_cache_mib must be >= 0");
   if (!(max_covered_fraction > 0.0 && max_covered_fraction <= 1.0))
     return fail("mosaic.max_covered_fraction must be in (0,1]");
   if (quicklook_long_side < 16) return fail("mosaic.quicklook_long_side must be >= 16");
@@ -867,11 +868,14 @@ CompositeResult Composite(std::vector<CompositeInput> frames, cv::Size canvas, c
   const bool parallel_loads =
       !used.empty() && std::all_of(used.begin(), used.end(), [](const CompositeInput& in) { return in.region_loads; });
   const CompositorMemory memory = PlanMemory(used, need, parallel_loads, tiff != nullptr, resident_mib, options);
-  // The decoded tier keeps at least one part per worker; the second tier a share of the rest.
+  // The decoded tier keeps at least one part per worker and at most decoded_cache_mib more; the second tier a share
+  // of the rest.
   const size_t floor = static_cast<size_t>(memory.threads) * memory.largest_part;
-  const auto compressed = static_cast<size_t>(
-      options.compressed_share * static_cast<double>(memory.cache_bytes > floor ? memory.cache_bytes - floor : 0));
-  PartCache cache(load, memory.cache_bytes - compressed, compressed, memory.parallel_loads);
+  const double rest = static_cast<double>(memory.cache_bytes > floor ? memory.cache_bytes - floor : 0);
+  const auto compressed = static_cast<size_t>(options.compressed_share * rest);
+  const auto decoded =
+      floor + static_cast<size_t>(std::min((1.0 - options.compressed_share) * rest, options.decoded_cache_mib * kMiB));
+  PartCache cache(load, decoded, compressed, memory.parallel_loads);
   std::mutex report_mutex;
   std::vector<bool> reported_unreadable(used.size(), false);
   auto image_of = [&](size_t i, cv::Point2d* origin) -> cv::Mat {

@@ -31,6 +31,10 @@ struct CompositorOptions {
   // Share of the frame cache, beyond one decoded part per worker, that keeps parts as in-memory JPEG (reloaded by a
   // small decode instead of the stored frame's); 0 = decoded parts only.
   double compressed_share = 0.75;
+  // The decoded tier's bytes beyond one part per worker, MiB at most (0 = none): a fixed line of the plan. Without it
+  // the tier took its share of whatever the budget left, and a long flight (more frames about each tile) filled it
+  // where a short one did not: 20 MiB at 5000 frames against 14 at 200. A part it evicts is a small JPEG decode away.
+  double decoded_cache_mib = 8;
   bool build_overviews = true;
   int threads = 2;          // tile workers
   int gdal_cache_mib = 64;  // GDAL's block cache while the TIFF is written (tiles are written once)

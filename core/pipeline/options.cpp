@@ -152,6 +152,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"mosaic", "quicklook_long_side", &o.mosaic.quicklook_long_side},
       {"mosaic", "image_cache_bytes", &o.mosaic.image_cache_bytes},
       {"mosaic", "compressed_share", &o.mosaic.compressed_share},
+      {"mosaic", "decoded_cache_mib", &o.mosaic.decoded_cache_mib},
       {"mosaic", "build_overviews", &o.mosaic.build_overviews},
       {"mosaic", "threads", &o.mosaic.threads},
       {"mosaic", "gdal_cache_mib", &o.mosaic.gdal_cache_mib},
