@@ -212,10 +212,10 @@ TEST(CompositorTest, PartLoadsComposeLikeWholeFrames) {
   EXPECT_EQ(cv::countNonZero(diff.reshape(1)), 0);
 }
 
-// With room for one decoded part only, parts evicted between tiles come back from the cache's in-memory JPEG: each
-// frame is loaded once, and the mosaic differs from the all-decoded one by about a grey level at most on average.
-TEST(CompositorTest, EvictedPartsComeBackFromMemory) {
-  Scene s = MakeScene();
+// The frame cache's tests: small tiles over the scene, so that each frame's part serves several of them, one worker,
+// every frame kept; each load reported as `kPart` bytes.
+constexpr size_t kPart = 520 * 420 * 3;
+CompositorOptions CacheTestOptions(Scene* s) {
   CompositorOptions o;
   o.tiff_block = 128;
   o.tile_size = 128;
@@ -223,9 +223,17 @@ TEST(CompositorTest, EvictedPartsComeBackFromMemory) {
   o.threads = 1;
   o.max_covered_fraction = 1.0;
   o.quicklook_long_side = 4096;
+  for (auto& in : s->inputs) in.load_bytes = kPart;
+  return o;
+}
+
+// With room for one decoded part only, parts evicted between tiles come back from the cache's in-memory JPEG: each
+// frame is loaded once, and the mosaic differs from the all-decoded one by about a grey level at most on average.
+TEST(CompositorTest, EvictedPartsComeBackFromMemory) {
+  Scene s = MakeScene();
+  CompositorOptions o = CacheTestOptions(&s);
   const cv::Size canvas(s.ground.cols, s.ground.rows);
-  const size_t part = 520 * 420 * 3;
-  for (auto& in : s.inputs) in.load_bytes = part;
+  const size_t part = kPart;
   o.image_cache_bytes = part + part + part / 2;  // one load in flight, one decoded part and a half
   int loads_decoded_only = 0;
   o.compressed_share = 0.0;
@@ -264,16 +272,9 @@ TEST(CompositorTest, EvictedPartsComeBackFromMemory) {
 // the decoded tier never holds more than that one part.
 TEST(CompositorTest, TheDecodedTierStaysWithinItsOwnCap) {
   Scene s = MakeScene();
-  CompositorOptions o;
-  o.tiff_block = 128;
-  o.tile_size = 128;
-  o.num_bands = 3;
-  o.threads = 1;
-  o.max_covered_fraction = 1.0;
+  CompositorOptions o = CacheTestOptions(&s);
   const cv::Size canvas(s.ground.cols, s.ground.rows);
-  const size_t part = 520 * 420 * 3;
-  for (auto& in : s.inputs) in.load_bytes = part;
-  o.image_cache_bytes = 40 * part;  // room for every part, decoded or not
+  o.image_cache_bytes = 40 * kPart;  // room for every part, decoded or not
   const auto compose = [&](double decoded_cache_mib, int* loads) {
     o.decoded_cache_mib = decoded_cache_mib;
     return Composite(
