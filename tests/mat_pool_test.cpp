@@ -183,7 +183,9 @@ TEST(MatPoolTest, TwoThreadsShareItSafely) {
 }
 
 TEST(MatPoolTest, OpenCvComputesTheSameOnPooledBuffers) {
-  cv::Mat image(600, 800, CV_8UC1);
+  // Three SIFT runs: a quarter of the pixels under emulation (24 s under qemu at 800x600).
+  const int cols = static_cast<int>(800 * test::EmulationImageScale());
+  cv::Mat image(cols * 3 / 4, cols, CV_8UC1);
   cv::randu(image, 0, 255);
   cv::GaussianBlur(image, image, cv::Size(0, 0), 2.0);
   auto detect = [&](std::vector<cv::KeyPoint>* kps, cv::Mat* desc) {
