@@ -56,7 +56,6 @@ bool EndOfFlight::WriteTables(std::string* error) {
   // The edges are in edges.bin and graph.csv now: the map page keeps what it draws of them, and compositing gets the
   // records' memory.
   const RegistrationEngine& engine = in_.record->engine();
-  map_edges_.clear();
   if (options_.write_products) {
     map_edges_.reserve(engine.edges().size());
     for (const Edge& e : engine.edges())

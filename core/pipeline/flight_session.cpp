@@ -311,8 +311,8 @@ void FlightSession::DropEdgeRecords() {
   // Most of the freed records sat on pages of their own (RecordArena): those pages go back to the system now, not
   // when records of the same size come to reuse them (none will).
   const size_t returned = RecordArena::ReturnFreeRuns();
-  spdlog::debug("{} edge records dropped, {:.1f} MiB of record pages given back", edge_records_dropped_,
-                static_cast<double>(returned) / kMiB);
+  spdlog::info("end of flight: {} edge records dropped after the tables, {:.1f} MiB of record pages given back",
+               edge_records_dropped_, static_cast<double>(returned) / kMiB);
 }
 
 namespace {

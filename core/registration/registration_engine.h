@@ -201,7 +201,8 @@ class RegistrationEngine {
   // For writers after Finish(): they load an edge's points through the spill, AsSolved(), and give them back.
   [[nodiscard]] std::deque<Edge>& mutable_edges() { return graph_.mutable_edges(); }
   // Frees the edge records and the frames' edge lists once nothing reads them again (the end of the flight, after its
-  // tables): ~150 bytes an edge, 3-4 MiB at 5000 frames, that compositing can use. edges() is empty after.
+  // tables): a 128-byte record and two adjacency entries an edge, 3-4 MiB at 5000 frames, that compositing can use.
+  // edges() is empty after.
   void ReleaseEdgeRecords() {
     graph_.ReleaseEdges();
     std::vector<std::vector<uint32_t>>().swap(adjacency_);

@@ -27,7 +27,7 @@ class RecordArena {
   // once its runs are wholly free and ReturnFreeRuns can give their pages back (the edge records, dropped at the end
   // of the flight, shared their 512-byte class with the frames' deque nodes: freeing them gave back 0.5 of 3 MiB).
   enum class Group : uint8_t { kFlight = 0, kEdges = 1 };
-  static constexpr size_t kGroups = 2;
+  static constexpr size_t kGroups = static_cast<size_t>(Group::kEdges) + 1;  // the last group's + 1
 
   // Opens the arena for this thread's allocations until it closes, for `group`'s records; nests (the innermost
   // scope's group applies).
