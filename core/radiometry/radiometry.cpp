@@ -11,6 +11,8 @@
 #include <unordered_map>
 #include <vector>
 
+#include "core/util/memory.h"
+
 namespace uavm {
 
 namespace {
@@ -724,6 +726,9 @@ RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std
   if (options.flat_field || options.hotspot) {
     std::string why;
     terms = ChooseTerms(Grey(used), index, terms, options, &m.holdout_cost, &why);
+    // The choice's copies of the samples and its trial solves are freed: their pages go back before the final solves
+    // touch new ones (at 5000 frames the trial solves' equations are ~1 MB each, placed wherever the heap has room).
+    TrimHeap();
     if (!why.empty()) m.note += (m.note.empty() ? "" : "; ") + why;
   }
   ColourSolve solved = SolveColour(used, index, terms, options);
