@@ -17,7 +17,7 @@
 namespace uavm {
 
 namespace {
-constexpr size_t kTrimEveryEdges = 500;
+constexpr size_t kTrimEveryEdges = 5000;
 }  // namespace
 
 EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<int>& component,
@@ -62,11 +62,14 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
                   count, &samples);
     // A long flight's edges to earlier strips load most thumbnails again (~15 000 loads at 5000 frames, 300 at 200),
     // and each decode's short-lived buffers landed in other free holes of the heap: without giving the free pages
-    // back as it goes, the sampling left ~9 MiB more resident at 5000 frames than it holds (malloc_trim: ~1 ms).
+    // back as it goes, the sampling left ~9 MiB more resident at 5000 frames than it holds. A trim of that fragmented
+    // heap costs ~0.35 s (every 500 edges took the phase from 5 to 22 s), so every 5000.
     if ((k + 1) % kTrimEveryEdges == 0) TrimHeap();
   }
   TrimHeap();
-  radiometry = SolveRadiometry(std::move(samples), component, options);
+  // The choice of terms' copies of the samples and trial solves (~1 MB of equations each at 5000 frames, placed
+  // wherever the heap had room) give their pages back before the final solves touch new ones.
+  radiometry = SolveRadiometry(std::move(samples), component, options, [] { TrimHeap(); });
   out.ms = timer.ElapsedMs();
   if (!radiometry.ok) {
     spdlog::warn("radiometry: not corrected ({})", radiometry.note);

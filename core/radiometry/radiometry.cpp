@@ -11,8 +11,6 @@
 #include <unordered_map>
 #include <vector>
 
-#include "core/util/memory.h"
-
 namespace uavm {
 
 namespace {
@@ -699,7 +697,7 @@ void SampleOverlap(const OverlapView& a, const OverlapView& b, const Mat3& b_fro
 }
 
 RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std::vector<int>& frames,
-                                const RadiometryOptions& options) {
+                                const RadiometryOptions& options, const std::function<void()>& terms_chosen) {
   RadiometryModel m;
   std::unordered_map<int, int> index;
   for (int id : frames) index.emplace(id, static_cast<int>(index.size()));
@@ -726,9 +724,7 @@ RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std
   if (options.flat_field || options.hotspot) {
     std::string why;
     terms = ChooseTerms(Grey(used), index, terms, options, &m.holdout_cost, &why);
-    // The choice's copies of the samples and its trial solves are freed: their pages go back before the final solves
-    // touch new ones (at 5000 frames the trial solves' equations are ~1 MB each, placed wherever the heap has room).
-    TrimHeap();
+    if (terms_chosen) terms_chosen();
     if (!why.empty()) m.note += (m.note.empty() ? "" : "; ") + why;
   }
   ColourSolve solved = SolveColour(used, index, terms, options);

@@ -5,6 +5,7 @@
 // a darkening that every frame repeats at its corners, a bright mound that every frame repeats around the antisolar
 // point, or a step between exposures.
 #include <array>
+#include <functional>
 #include <opencv2/core.hpp>
 #include <string>
 #include <unordered_map>
@@ -131,9 +132,12 @@ void SampleOverlap(const OverlapView& a, const OverlapView& b, const Mat3& b_fro
 // Least squares over the pairs' log differences (iteratively reweighted with a Huber loss): the exposure (grey) with
 // a log gain per frame in `frames` (prior towards 0), the falloff when options.vignetting and the samples span enough
 // radii, the flat field and the hotspot when the held-out pairs keep them (the antisolar point searched on a grid,
-// then refined); then each channel's deviation (white balance, the falloff's tint).
+// then refined); then each channel's deviation (white balance, the falloff's tint). `terms_chosen`, when given, runs
+// once the choice of terms has freed its copies of the samples and its trial solves (the end of the flight gives the
+// heap's free pages back there; the live fits, every 20 frames, do not pay for it).
 [[nodiscard]] RadiometryModel SolveRadiometry(std::vector<RadiometrySample> samples, const std::vector<int>& frames,
-                                              const RadiometryOptions& options);
+                                              const RadiometryOptions& options,
+                                              const std::function<void()>& terms_chosen = nullptr);
 
 // The shading during the flight, for the live view (vignetting, flat field, the sun's hotspot): the lens does not
 // change and the sun moves slowly, so a fit over the recent frames' overlaps, refreshed every `solve_every` frames,
