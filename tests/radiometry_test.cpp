@@ -313,6 +313,28 @@ TEST(RadiometryTest, NoSunNoHotspot) {
   EXPECT_LT(ShadingError(m, flight), 0.01);
 }
 
+// The end of the flight gives the heap's pages back once the terms are chosen (a hook): it runs once, after the
+// held-out pairs were tried, and the model is the one without it to the last bit.
+TEST(RadiometryTest, TheHookAfterTheChoiceOfTermsRunsOnceAndChangesNothing) {
+  std::mt19937 rng(7);
+  SunFlight flight;
+  std::vector<double> log_gain;
+  const auto samples = SunFlightSamples(flight, &log_gain, &rng);
+  const std::vector<int> frames = SunFlightFrames();
+  const RadiometryModel plain = SolveRadiometry(samples, frames, RadiometryOptions{});
+  int calls = 0;
+  const RadiometryModel hooked = SolveRadiometry(samples, frames, RadiometryOptions{}, [&] { ++calls; });
+  EXPECT_EQ(calls, 1);
+  ASSERT_TRUE(plain.ok && hooked.ok) << plain.note;
+  EXPECT_EQ(hooked.holdout_cost, plain.holdout_cost);
+  for (int id : frames) EXPECT_EQ(hooked.Gain(id), plain.Gain(id)) << id;
+  RadiometryOptions gains_only;
+  gains_only.flat_field = gains_only.hotspot = false;  // no choice to make: no hook
+  calls = 0;
+  EXPECT_TRUE(SolveRadiometry(samples, frames, gains_only, [&] { ++calls; }).ok);
+  EXPECT_EQ(calls, 0);
+}
+
 // The correction of a frame with every term: a uniform grey ground comes back uniform, and the avoid disc sits at
 // the antisolar point.
 TEST(RadiometryTest, CorrectionRemovesTheHotspotAndFlatField) {
