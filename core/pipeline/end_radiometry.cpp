@@ -69,7 +69,7 @@ EndRadiometry SolveEndRadiometry(const FlightRecord& record, const std::vector<i
   TrimHeap();
   // The choice of terms' copies of the samples and trial solves (~1 MB of equations each at 5000 frames, placed
   // wherever the heap had room) give their pages back before the final solves touch new ones.
-  radiometry = SolveRadiometry(std::move(samples), component, options, [] { TrimHeap(); });
+  radiometry = SolveRadiometry(std::move(samples), component, options, TrimHeap);
   out.ms = timer.ElapsedMs();
   if (!radiometry.ok) {
     spdlog::warn("radiometry: not corrected ({})", radiometry.note);
