@@ -2,10 +2,15 @@
 
 #include <gtest/gtest.h>
 #include <sys/mman.h>
+#include <sys/resource.h>
+#include <sys/vfs.h>
 #include <unistd.h>
 
+#include <csignal>
 #include <cstdint>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <random>
 #include <string>
@@ -220,6 +225,84 @@ TEST_F(RecordArenaTest, AGroupFreedAtOnceLeavesItsRunsWhollyFree) {
   for (const void* p : freed) not_resident += Resident(p) ? 0 : 1;
   EXPECT_GE(not_resident, kEach - 2 * 128);  // all but the first run's (earlier blocks) and the current one's
   for (const auto& f : frames) EXPECT_TRUE(RecordArena::Owns(f.get()));
+}
+
+// /proc/self/status's figure `key` ("RssAnon:", "RssFile:"), MiB.
+double StatusMiB(const std::string& key) {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind(key, 0) == 0) return std::stod(line.substr(key.size())) / 1024.0;
+  return -1.0;
+}
+
+// The arena backed by a file: the records are file pages, not anonymous memory, the file is never seen in the
+// directory, a run given back leaves the resident set, and runs the disk cannot hold go to malloc instead of faulting.
+// The arena is reserved once per process, at its first record: CTest runs each test in a process of its own, and a
+// run of the whole binary skips this one (its earlier tests made records).
+TEST_F(RecordArenaTest, BackedByAFileTheRecordsAreReclaimableFilePagesNotAnonymousMemory) {
+  const std::filesystem::path dir = std::filesystem::current_path() / "record_arena_file_test";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  struct statfs fs {};
+  ASSERT_EQ(statfs(dir.c_str(), &fs), 0);
+  // tmpfs pages are memory: the arena refuses them, and nothing is left to test here.
+  if (fs.f_type == 0x01021994) GTEST_SKIP() << "the build directory is on tmpfs";
+  std::string why;
+  EXPECT_FALSE(RecordArena::BackWithFile((dir / "missing").string(), &why));
+  if (statfs("/dev/shm", &fs) == 0 && fs.f_type == 0x01021994)
+    EXPECT_FALSE(RecordArena::BackWithFile("/dev/shm", &why)) << "a memory filesystem was taken";
+  if (!RecordArena::BackWithFile(dir.string(), &why)) {
+    ASSERT_EQ(why, "records exist already");
+    GTEST_SKIP() << "this process made records before the test (run it alone, as CTest does)";
+  }
+  EXPECT_TRUE(RecordArena::counters().file_backed);
+  EXPECT_TRUE(std::filesystem::is_empty(dir)) << "the file is visible in the directory";
+  EXPECT_FALSE(RecordArena::BackWithFile(dir.string(), &why));
+  constexpr size_t kBlocks = 40000;  // x 512 bytes: 20 MiB of records
+  const double anon_before = StatusMiB("RssAnon:");
+  const double file_before = StatusMiB("RssFile:");
+  std::vector<char*> blocks;
+  blocks.reserve(kBlocks);
+  {
+    const RecordArena::Scope records;
+    for (size_t i = 0; i < kBlocks; ++i) {
+      blocks.push_back(new char[500]);
+      std::memset(blocks.back(), static_cast<int>(i & 0x7f), 500);
+    }
+  }
+  EXPECT_TRUE(RecordArena::Owns(blocks.front()));
+  EXPECT_TRUE(RecordArena::Owns(blocks.back()));
+  EXPECT_LT(StatusMiB("RssAnon:") - anon_before, 3.0);
+  EXPECT_GT(StatusMiB("RssFile:") - file_before, 18.0);
+  for (size_t i = 0; i < kBlocks; i += 997) EXPECT_EQ(blocks[i][499], static_cast<char>(i & 0x7f));
+  for (char* b : blocks) delete[] b;
+  blocks.clear();
+  EXPECT_GE(RecordArena::ReturnFreeRuns(), size_t{18} << 20);
+  EXPECT_LT(StatusMiB("RssFile:") - file_before, 3.0) << "the runs' pages stayed resident";
+  // A disk that fills: the file may not grow now (a 1 MiB file-size limit, below its ~20 MiB). The runs given back are
+  // taken again within its length; the ones past its end come from malloc, counted.
+  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
+  rlimit old_limit{};
+  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &old_limit), 0);
+  const rlimit one_mib{1 << 20, old_limit.rlim_max};
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &one_mib), 0);
+  const size_t fallbacks = RecordArena::counters().fallbacks;
+  std::vector<std::unique_ptr<char[]>> more;
+  {
+    const RecordArena::Scope records;
+    for (size_t i = 0; i < kBlocks + 8000; ++i) {
+      more.emplace_back(new char[500]);
+      std::memset(more.back().get(), 1, 500);
+    }
+  }
+  setrlimit(RLIMIT_FSIZE, &old_limit);
+  std::signal(SIGXFSZ, old_handler);
+  EXPECT_GT(RecordArena::counters().fallbacks, fallbacks) << "no block went to malloc past the disk's end";
+  EXPECT_TRUE(RecordArena::Owns(more.front().get()));
+  EXPECT_FALSE(RecordArena::Owns(more.back().get()));
+  more.clear();
+  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

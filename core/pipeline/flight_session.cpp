@@ -49,6 +49,13 @@ FlightSession::FlightSession(const PipelineOptions& options, const MemoryPlan& p
 FlightSession::~FlightSession() = default;
 
 FlightSession::StartStatus FlightSession::Start(bool resume, StoredFrameReader* stored, std::string* error) {
+  // The records the flight keeps to its end go to file pages in the session directory (reclaimable), not anonymous
+  // memory, where the directory is on a disk. Once per process: a second session's records share the first's file.
+  std::string why;
+  if (RecordArena::BackWithFile(paths_.root, &why))
+    spdlog::debug("flight records: file-backed pages in {}", paths_.root);
+  else
+    spdlog::debug("flight records: anonymous memory ({})", why);
   const std::string journal_path = paths_.Join("journal.jsonl");
   JournalContents journal;
   if (resume) {

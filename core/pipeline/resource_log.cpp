@@ -83,10 +83,12 @@ nlohmann::json ResourceLog::MemoryJson(const MemoryPlan& mp) const {
            {{"in_use_mib", flight_end_heap_.in_use_mib},
             {"arena_mib", flight_end_heap_.arena_mib},
             {"mmapped_mib", flight_end_heap_.mmapped_mib}}},
-          // The small records the flight keeps to its end, on pages of their own (RecordArena): what its runs hold
-          // resident at most, what is in use, and the blocks that went to malloc because its range was full.
+          // The small records the flight keeps to its end, on pages of their own (RecordArena): whether those are a
+          // file's (reclaimable) or anonymous memory, what its runs hold resident at most, what is in use, and the
+          // blocks that went to malloc because its range (or the disk) was full.
           {"flight_end_record_arena",
-           {{"carved_mib", static_cast<double>(flight_end_arena_.carved_bytes) / kMiB},
+           {{"file_backed", flight_end_arena_.file_backed},
+            {"carved_mib", static_cast<double>(flight_end_arena_.carved_bytes) / kMiB},
             {"in_use_mib", static_cast<double>(flight_end_arena_.in_use_bytes) / kMiB},
             {"blocks", flight_end_arena_.blocks_in_use},
             {"fallbacks", flight_end_arena_.fallbacks}}},

@@ -1,6 +1,10 @@
 #include "core/util/record_arena.h"
 
+#include <fcntl.h>
+#include <linux/magic.h>
 #include <sys/mman.h>
+#include <sys/vfs.h>
+#include <unistd.h>
 
 #include <array>
 #include <atomic>
@@ -67,10 +71,12 @@ class Arena {
       if (sc.next == nullptr || static_cast<size_t>(sc.end - sc.next) < kClassBytes[c]) {
         size_t run_index = 0;
         if (returned_count_ > 0) {
-          run_index = returned_[--returned_count_];  // a run given back to the system, taken again
+          run_index = returned_[returned_count_ - 1];  // a run given back to the system, taken again
+          if (!AllocateDisk(run_index)) return Fallback();
+          --returned_count_;
           counters_.returned_bytes -= kRunBytes;
         } else {
-          if (runs_carved_ == kRuns) return Fallback();
+          if (runs_carved_ == kRuns || !AllocateDisk(runs_carved_)) return Fallback();
           run_index = runs_carved_++;
           counters_.carved_bytes += kRunBytes;
         }
@@ -140,6 +146,11 @@ class Arena {
     size_t returned = 0;
     for (size_t run = 0; run < runs_carved_; ++run) {
       if (!whole[run]) continue;
+      // A file's run: its disk blocks and cached pages go too (a filesystem that cannot punch holes keeps them on
+      // disk, still reclaimable; the run's reuse rewrites them).
+      if (fd_ >= 0)
+        (void)fallocate(fd_, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, static_cast<off_t>(run * kRunBytes),
+                        static_cast<off_t>(kRunBytes));
       madvise(base + run * kRunBytes, kRunBytes, MADV_DONTNEED);
       returned_[returned_count_++] = static_cast<uint16_t>(run);
       returned += kRunBytes;
@@ -148,7 +159,52 @@ class Arena {
     return returned;
   }
 
+  // See RecordArena::BackWithFile. `path` is the file to make (mkostemp's template) in `dir`.
+  bool BackWithFile(const char* dir, char* path, std::string* why) {
+    const std::lock_guard lock(mutex_);
+    if (base_.load(std::memory_order_relaxed) != nullptr || reserve_failed_) {
+      *why = "records exist already";
+      return false;
+    }
+    struct statfs fs {};
+    if (statfs(dir, &fs) != 0) {
+      *why = "cannot stat the directory";
+      return false;
+    }
+    if (fs.f_type == TMPFS_MAGIC || fs.f_type == RAMFS_MAGIC) {
+      *why = "the directory is in memory (tmpfs or ramfs)";
+      return false;
+    }
+    const int fd = mkostemp(path, O_CLOEXEC);
+    if (fd < 0) {
+      *why = "cannot create a file there";
+      return false;
+    }
+    // No one else ever sees the file. It is empty: each run extends it as the run is carved (AllocateDisk), and the
+    // arena touches no page of the range beyond the runs it carved (past the end of the file it would fault).
+    (void)unlink(path);
+    void* range = mmap(nullptr, RecordArena::kReservedBytes, PROT_READ | PROT_WRITE, MAP_SHARED | MAP_NORESERVE, fd, 0);
+    if (range == MAP_FAILED) {
+      close(fd);
+      *why = "cannot map a file there";
+      return false;
+    }
+    madvise(range, RecordArena::kReservedBytes, MADV_NOHUGEPAGE);
+    // A child process must not share the records' pages (nothing forks without exec today).
+    madvise(range, RecordArena::kReservedBytes, MADV_DONTFORK);
+    fd_ = fd;
+    counters_.file_backed = true;
+    base_.store(static_cast<char*>(range), std::memory_order_relaxed);
+    return true;
+  }
+
  private:
+  // A file's run gets its disk blocks (and the file its length) before any of its pages is written: a write to a page
+  // the filesystem could not back would fault the process. A full disk or a file-size limit fails here instead. No
+  // file: nothing to do.
+  [[nodiscard]] bool AllocateDisk(size_t run) const {
+    return fd_ < 0 || posix_fallocate(fd_, static_cast<off_t>(run * kRunBytes), static_cast<off_t>(kRunBytes)) == 0;
+  }
   bool Reserve() {
     if (reserve_failed_) return false;
     // Reserved without swap accounting; untouched pages cost nothing. No huge pages: a 2 MiB page made resident for
@@ -173,6 +229,7 @@ class Arena {
 
   std::mutex mutex_;
   std::atomic<char*> base_{nullptr};
+  int fd_ = -1;  // the file behind the range (BackWithFile), else -1: anonymous memory
   bool reserve_failed_ = false;
   size_t runs_carved_ = 0;
   std::array<uint8_t, kRuns> class_of_run_{};
@@ -236,6 +293,17 @@ size_t RecordArena::ReturnFreeRuns() {
 }
 bool RecordArena::Owns(const void* p) {
   return g_storage.arena.Owns(p);
+}
+bool RecordArena::BackWithFile(const std::string& dir, std::string* why) {
+#if UAVM_RECORD_ARENA
+  // Built before the arena's lock is taken (this string's own memory comes from malloc, not the arena).
+  std::string path = dir + "/.uavm-records-XXXXXX";
+  return g_storage.arena.BackWithFile(dir.c_str(), path.data(), why);
+#else
+  (void)dir;
+  *why = "the arena is compiled out";
+  return false;
+#endif
 }
 bool RecordArena::Enabled() {
   return UAVM_RECORD_ARENA != 0;

@@ -1,6 +1,7 @@
 #pragma once
 #include <cstddef>
 #include <cstdint>
+#include <string>
 
 namespace uavm {
 
@@ -42,9 +43,19 @@ class RecordArena {
     Group outer_;
   };
 
+  // Before the first record: the range becomes the pages of a file in `dir`, unlinked at once, instead of anonymous
+  // memory. The records stay resident while memory allows, but as file pages the kernel can write back and reclaim
+  // under a memory limit, where anonymous pages (no swap on the drone) could only be killed with the process: the
+  // records a long flight keeps to its end (~1 KiB a frame) no longer add to its unreclaimable memory. Each run's disk
+  // blocks are allocated before its first block is handed out, so a full disk means a malloc fallback (counted), never
+  // a fault. False, with why, and the arena stays anonymous: on tmpfs or ramfs (their pages are memory, not disk),
+  // when the file cannot be made or mapped, when records already exist, or where the arena is compiled out.
+  static bool BackWithFile(const std::string& dir, std::string* why);
+
   struct Counters {
-    size_t carved_bytes = 0;  // page runs carved from the range so far (what it can hold resident at most)
-    size_t in_use_bytes = 0;  // blocks handed out and not freed, by their class size
+    bool file_backed = false;  // BackWithFile took
+    size_t carved_bytes = 0;   // page runs carved from the range so far (what it can hold resident at most)
+    size_t in_use_bytes = 0;   // blocks handed out and not freed, by their class size
     size_t blocks_in_use = 0;
     size_t fallbacks = 0;       // blocks made in a Scope that went to malloc because the range was full
     size_t returned_bytes = 0;  // of carved_bytes, runs whose pages were given back (ReturnFreeRuns) and not reused
