@@ -14,7 +14,9 @@ namespace {
 constexpr double kBaselineMiB = 72.0;
 // Per-frame state that lives through the flight and its end (edge records without their points, frame records,
 // maps, footprints, index entries) with the heap it fragments: the resident set at the flight's end grew by 6.2 KiB per
-// frame from 200 to 5000 frames (bench/memory.sh, sim_memory.yaml). Reserved for max_flight_frames.
+// frame from 200 to 5000 frames (bench/memory.sh, sim_memory.yaml). Reserved for max_flight_frames. The small records
+// among it are file pages where the session is on a disk (RecordArena::BackWithFile): resident, so counted here, but
+// reclaimable under a memory limit.
 constexpr double kGraphBytesPerFrame = 6.5 * 1024;
 // Relocalisation index per descriptor: 8-bit copy, float copy for FLANN, 4 kd-trees.
 constexpr double kBytesPerIndexedDescriptor = 128 + 512 + 160;
