@@ -1,6 +1,7 @@
 #include "core/util/record_arena.h"
 
 #include <gtest/gtest.h>
+#include <linux/magic.h>
 #include <sys/mman.h>
 #include <sys/resource.h>
 #include <sys/vfs.h>
@@ -247,11 +248,12 @@ TEST_F(RecordArenaTest, BackedByAFileTheRecordsAreReclaimableFilePagesNotAnonymo
   struct statfs fs {};
   ASSERT_EQ(statfs(dir.c_str(), &fs), 0);
   // tmpfs pages are memory: the arena refuses them, and nothing is left to test here.
-  if (fs.f_type == 0x01021994) GTEST_SKIP() << "the build directory is on tmpfs";
+  if (fs.f_type == TMPFS_MAGIC) GTEST_SKIP() << "the build directory is on tmpfs";
   std::string why;
   EXPECT_FALSE(RecordArena::BackWithFile((dir / "missing").string(), &why));
-  if (statfs("/dev/shm", &fs) == 0 && fs.f_type == 0x01021994)
+  if (statfs("/dev/shm", &fs) == 0 && fs.f_type == TMPFS_MAGIC) {
     EXPECT_FALSE(RecordArena::BackWithFile("/dev/shm", &why)) << "a memory filesystem was taken";
+  }
   if (!RecordArena::BackWithFile(dir.string(), &why)) {
     ASSERT_EQ(why, "records exist already");
     GTEST_SKIP() << "this process made records before the test (run it alone, as CTest does)";

@@ -57,7 +57,7 @@ class RecordArena {
     size_t carved_bytes = 0;   // page runs carved from the range so far (what it can hold resident at most)
     size_t in_use_bytes = 0;   // blocks handed out and not freed, by their class size
     size_t blocks_in_use = 0;
-    size_t fallbacks = 0;       // blocks made in a Scope that went to malloc because the range was full
+    size_t fallbacks = 0;       // blocks made in a Scope that went to malloc: the range, or the disk, was full
     size_t returned_bytes = 0;  // of carved_bytes, runs whose pages were given back (ReturnFreeRuns) and not reused
   };
   [[nodiscard]] static Counters counters();
