@@ -11,13 +11,14 @@
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <memory>
 #include <random>
 #include <string>
 #include <thread>
 #include <unordered_map>
 #include <vector>
+
+#include "core/util/memory.h"
 
 namespace uavm {
 namespace {
@@ -228,13 +229,9 @@ TEST_F(RecordArenaTest, AGroupFreedAtOnceLeavesItsRunsWhollyFree) {
   for (const auto& f : frames) EXPECT_TRUE(RecordArena::Owns(f.get()));
 }
 
-// /proc/self/status's figure `key` ("RssAnon:", "RssFile:"), MiB.
-double StatusMiB(const std::string& key) {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind(key, 0) == 0) return std::stod(line.substr(key.size())) / 1024.0;
-  return -1.0;
+// The process's resident file pages, MiB: VmRSS less RssAnon (no shared memory here).
+double FileMiB(const RssSample& s) {
+  return s.rss_mib - s.anon_mib;
 }
 
 // The arena backed by a file: the records are file pages, not anonymous memory, the file is never seen in the
@@ -262,8 +259,7 @@ TEST_F(RecordArenaTest, BackedByAFileTheRecordsAreReclaimableFilePagesNotAnonymo
   EXPECT_TRUE(std::filesystem::is_empty(dir)) << "the file is visible in the directory";
   EXPECT_FALSE(RecordArena::BackWithFile(dir.string(), &why));
   constexpr size_t kBlocks = 40000;  // x 512 bytes: 20 MiB of records
-  const double anon_before = StatusMiB("RssAnon:");
-  const double file_before = StatusMiB("RssFile:");
+  const RssSample before = SampleRss();
   std::vector<char*> blocks;
   blocks.reserve(kBlocks);
   {
@@ -275,13 +271,14 @@ TEST_F(RecordArenaTest, BackedByAFileTheRecordsAreReclaimableFilePagesNotAnonymo
   }
   EXPECT_TRUE(RecordArena::Owns(blocks.front()));
   EXPECT_TRUE(RecordArena::Owns(blocks.back()));
-  EXPECT_LT(StatusMiB("RssAnon:") - anon_before, 3.0);
-  EXPECT_GT(StatusMiB("RssFile:") - file_before, 18.0);
+  const RssSample grown = SampleRss();
+  EXPECT_LT(grown.anon_mib - before.anon_mib, 3.0);
+  EXPECT_GT(FileMiB(grown) - FileMiB(before), 18.0);
   for (size_t i = 0; i < kBlocks; i += 997) EXPECT_EQ(blocks[i][499], static_cast<char>(i & 0x7f));
   for (char* b : blocks) delete[] b;
   blocks.clear();
   EXPECT_GE(RecordArena::ReturnFreeRuns(), size_t{18} << 20);
-  EXPECT_LT(StatusMiB("RssFile:") - file_before, 3.0) << "the runs' pages stayed resident";
+  EXPECT_LT(FileMiB(SampleRss()) - FileMiB(before), 3.0) << "the runs' pages stayed resident";
   // A disk that fills: the file may not grow now (a 1 MiB file-size limit, below its ~20 MiB). The runs given back are
   // taken again within its length; the ones past its end come from malloc, counted.
   const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
