@@ -76,8 +76,9 @@ int main(int argc, char** argv) {
   // one of them faulted in and zeroed its pages on each use (256 KiB was the threshold until 2026-11-26: caliterra
   // 12 MP spent ~9 s of its ~40 s of CPU in the kernel; 4 MiB: ~3.5 s, 19.9 s wall instead of 24-27, the same phase
   // peaks within the budget; 16 MiB was faster still but passed the 256 MiB budget).
+  // The end's solves map from a lower threshold (ResourceLog::EnterPhase, core/util/memory.h).
   mallopt(M_ARENA_MAX, 2);
-  if (std::getenv("MALLOC_MMAP_THRESHOLD_") == nullptr) mallopt(M_MMAP_THRESHOLD, 4 << 20);  // glibc's env wins
+  MapAllocationsFrom(kFlightMappedAllocation);
   // Image buffers of 1 MiB and more are pooled besides (core/buffers/mat_pool.h): a phase's scale spaces and blend
   // pyramids reuse their pages rather than fault in and zero fresh ones every frame and tile.
   InstallMatPool();

@@ -22,6 +22,17 @@ void ResourceLog::FlightEnd() {
   fds_at_flight_end_ = OpenFileDescriptors();
 }
 
+namespace {
+
+// The phases between the flight and the mosaic: solves whose blocks come and go a solve at a time.
+bool IsEndSolve(const std::string& phase) {
+  for (const char* solve : {"end_match", "end_load", "adjust", "lens", "refine", "radiometry"})
+    if (phase == solve) return true;
+  return false;
+}
+
+}  // namespace
+
 void ResourceLog::EnterPhase(const std::string& name) {
   // The pool may keep free blocks up to the in-use peak since its last flush: without a flush here, blocks an earlier
   // phase freed stayed resident through the next ones, however little those used.
@@ -32,6 +43,7 @@ void ResourceLog::EnterPhase(const std::string& name) {
   }
   FlushMatPool();
   TrimHeap();
+  MapAllocationsFrom(IsEndSolve(name) ? kEndSolvesMappedAllocation : kFlightMappedAllocation);
   watch_.Enter(name);
 }
 

@@ -8,6 +8,7 @@
 
 #include <atomic>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 
@@ -63,6 +64,11 @@ HeapStats CurrentHeapStats() {
 
 void TrimHeap() {
   malloc_trim(0);
+}
+
+bool MapAllocationsFrom(size_t bytes) {
+  if (std::getenv("MALLOC_MMAP_THRESHOLD_") != nullptr) return false;
+  return mallopt(M_MMAP_THRESHOLD, static_cast<int>(bytes)) == 1;
 }
 
 namespace {
