@@ -5,9 +5,9 @@
 // solved by conjugate gradients preconditioned by a spanning tree of the edges, factored leaves first (no fill-in).
 //
 // Memory, all of it linear in the frames and edges and none in the correspondences: 64 floats per edge (its coupling
-// block), 2 x 64 + 24 doubles per frame (its block, its tree factor built in place, its lens coupling) and ten vectors
-// of 8 doubles per frame: ~3.1 KiB a frame at five edges a frame (was ~4.8, with double couplings and a second copy of
-// each frame's block while factoring).
+// block), 2 x 36 + 24 doubles per frame (its symmetric block and its tree factor, each as a packed lower triangle; its
+// lens coupling) and ten vectors of 8 doubles per frame: ~2.6 KiB a frame at five edges a frame (was ~4.8 with double
+// couplings and a second copy of each frame's block while factoring, ~3.1 with full 8x8 frame blocks).
 // Ceres' CGNR held the Jacobian (32 doubles per correspondence) and its subset preconditioner a copy of it.
 #include <array>
 #include <cstddef>
