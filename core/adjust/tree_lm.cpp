@@ -56,6 +56,31 @@ class PackedLower {
     SetZero();
     AddLower(b);
   }
+  // y += S v, S the symmetric block, from the packed entries (the conjugate gradients' every step: no unpacking).
+  void MultiplyAdd(const FrameVector& v, FrameVector* y) const {
+    for (int c = 0; c < kFrameParams; ++c) {
+      const double* column = entries_.data() + Index(c, c);
+      (*y)(c) += column[0] * v(c);
+      for (int r = c + 1; r < kFrameParams; ++r) {
+        (*y)(r) += column[r - c] * v(c);
+        (*y)(c) += column[r - c] * v(r);
+      }
+    }
+  }
+  // (L L^T)^-1 b, L the lower-triangular factor held: forward then backward substitution, column by column.
+  [[nodiscard]] FrameVector SolveFactored(FrameVector b) const {
+    for (int c = 0; c < kFrameParams; ++c) {
+      const double* column = entries_.data() + Index(c, c);
+      b(c) /= column[0];
+      for (int r = c + 1; r < kFrameParams; ++r) b(r) -= column[r - c] * b(c);
+    }
+    for (int c = kFrameParams - 1; c >= 0; --c) {
+      const double* column = entries_.data() + Index(c, c);
+      for (int r = c + 1; r < kFrameParams; ++r) b(c) -= column[r - c] * b(r);
+      b(c) /= column[0];
+    }
+    return b;
+  }
 
  private:
   static int Index(int row, int col) { return col * kFrameParams - col * (col - 1) / 2 + (row - col); }
@@ -216,8 +241,11 @@ class Evaluator {
 // y = (J^T J + mu D) v.
 void Multiply(const FrameGraphTerms& terms, const NormalEquations& h, double mu, const Vec& v, Vec* y) {
   *y = (mu * h.diagonal.array() * v.array()).matrix();
-  for (size_t f = 0; f < h.frame.size(); ++f)
-    FrameSegment(*y, f).noalias() += h.frame[f].Symmetric() * FrameSegment(v, f);
+  for (size_t f = 0; f < h.frame.size(); ++f) {
+    FrameVector product = FrameVector::Zero();
+    h.frame[f].MultiplyAdd(FrameSegment(v, f), &product);
+    FrameSegment(*y, f) += product;
+  }
   for (size_t e = 0; e < h.edge.size(); ++e) {
     const size_t a = terms.EdgeSrc(e);
     const size_t b = terms.EdgeTgt(e);
@@ -327,6 +355,7 @@ class TreePreconditioner {
   // (L L^T)^-1 b with frame f's factor L (the lower triangle of its block).
   template <typename Rhs>
   Eigen::Matrix<double, kFrameParams, Rhs::ColsAtCompileTime> Solve(size_t f, const Rhs& b) const {
+    if constexpr (Rhs::ColsAtCompileTime == 1) return factor_[f].SolveFactored(b);  // every step: packed
     const Block factor = factor_[f].Lower();
     const auto lower = factor.triangularView<Eigen::Lower>();
     return lower.transpose().solve(lower.solve(b));
