@@ -78,7 +78,7 @@ int main(int argc, char** argv) {
   // peaks within the budget; 16 MiB was faster still but passed the 256 MiB budget).
   // The end's solves map from a lower threshold (ResourceLog::EnterPhase, core/util/memory.h).
   mallopt(M_ARENA_MAX, 2);
-  MapAllocationsFrom(kFlightMappedAllocation);
+  SetMmapThreshold(kFlightMmapThreshold);
   // Image buffers of 1 MiB and more are pooled besides (core/buffers/mat_pool.h): a phase's scale spaces and blend
   // pyramids reuse their pages rather than fault in and zero fresh ones every frame and tile.
   InstallMatPool();

@@ -355,10 +355,13 @@ class TreePreconditioner {
   // (L L^T)^-1 b with frame f's factor L (the lower triangle of its block).
   template <typename Rhs>
   Eigen::Matrix<double, kFrameParams, Rhs::ColsAtCompileTime> Solve(size_t f, const Rhs& b) const {
-    if constexpr (Rhs::ColsAtCompileTime == 1) return factor_[f].SolveFactored(b);  // every step: packed
-    const Block factor = factor_[f].Lower();
-    const auto lower = factor.triangularView<Eigen::Lower>();
-    return lower.transpose().solve(lower.solve(b));
+    if constexpr (Rhs::ColsAtCompileTime == 1) {
+      return factor_[f].SolveFactored(b);  // every conjugate-gradient step: in place
+    } else {
+      const Block factor = factor_[f].Lower();
+      const auto lower = factor.triangularView<Eigen::Lower>();
+      return lower.transpose().solve(lower.solve(b));
+    }
   }
 
   const FrameGraphTerms& terms_;
@@ -368,7 +371,8 @@ class TreePreconditioner {
   // Per frame: its Schur complement's Cholesky factor L.
   std::vector<PackedLower> factor_;
   Eigen::LDLT<SharedSquare> shared_;
-  mutable Vec forward_;  // Apply's forward pass, kept from one conjugate-gradient step to the next
+  // Apply's forward pass, kept from one conjugate-gradient step to the next: a preconditioner serves one thread.
+  mutable Vec forward_;
 };
 
 // Preconditioned conjugate gradients on (J^T J + mu D) x = b from x = 0; returns the steps taken.

@@ -24,10 +24,11 @@ void ResourceLog::FlightEnd() {
 
 namespace {
 
-// The end's solves, whose blocks come and go a solve at a time. Not `end_match` and `radiometry`: they decode and match
-// frames as the flight does, and mapping each of their buffers cost `radiometry` 5 -> 12.6 s at 5000 frames.
+// The end's solves, whose blocks come and go a solve at a time. Not `end_match`, `lens` and `radiometry`: they load,
+// decode or match frames as the flight does (the lens rematches its window's edges), and mapping each of their buffers
+// cost `radiometry` 5 -> 12.6 s at 5000 frames.
 bool IsEndSolve(const std::string& phase) {
-  for (const char* solve : {"end_load", "adjust", "lens", "refine"})
+  for (const char* solve : {"end_load", "adjust", "refine"})
     if (phase == solve) return true;
   return false;
 }
@@ -43,8 +44,8 @@ void ResourceLog::EnterPhase(const std::string& name) {
                   static_cast<double>(s.pooled_bytes) / kMiB, static_cast<double>(s.in_use_bytes) / kMiB);
   }
   FlushMatPool();
-  TrimHeap();
-  MapAllocationsFrom(IsEndSolve(name) ? kEndSolvesMappedAllocation : kFlightMappedAllocation);
+  TrimHeap();  // first: a block the trimmed arena cannot serve is mapped
+  SetMmapThreshold(IsEndSolve(name) ? kEndSolvesMmapThreshold : kFlightMmapThreshold);
   watch_.Enter(name);
 }
 

@@ -9,6 +9,7 @@
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <memory>
 
@@ -66,8 +67,11 @@ void TrimHeap() {
   malloc_trim(0);
 }
 
-bool MapAllocationsFrom(size_t bytes) {
-  if (std::getenv("MALLOC_MMAP_THRESHOLD_") != nullptr) return false;
+bool SetMmapThreshold(size_t bytes) {
+  const char* tunables = std::getenv("GLIBC_TUNABLES");
+  if (std::getenv("MALLOC_MMAP_THRESHOLD_") != nullptr ||
+      (tunables != nullptr && std::strstr(tunables, "mmap_threshold") != nullptr))
+    return false;
   return mallopt(M_MMAP_THRESHOLD, static_cast<int>(bytes)) == 1;
 }
 

@@ -41,16 +41,18 @@ void CountLogWarnings();
 // blocks leave holes in the arenas that RSS would otherwise keep counting.
 void TrimHeap();
 
-// Allocations of `bytes` and more are mapped from the kernel and unmapped when freed (glibc's M_MMAP_THRESHOLD)
-// instead of being carved from an arena. Left as it is when the environment set MALLOC_MMAP_THRESHOLD_ (glibc's
-// variable wins). Returns whether it was set.
-bool MapAllocationsFrom(size_t bytes);
+// glibc's M_MMAP_THRESHOLD: an allocation of `bytes` or more that no free chunk of the arena can serve is mapped from
+// the kernel and unmapped when freed, instead of growing the arena. Call TrimHeap() first, so that the arena's free
+// space is given back and such blocks are mapped. Left as it is when the environment sets the threshold
+// (MALLOC_MMAP_THRESHOLD_, or glibc.malloc.mmap_threshold in GLIBC_TUNABLES: the environment wins). Another thread's
+// allocation at the moment of the change may still use the old threshold. Returns whether it was set.
+bool SetMmapThreshold(size_t bytes);
 // The flight's threshold: a detector pyramid, tile or descriptor index of this size leaves the RSS when freed; smaller
 // buffers reuse heap pages (mapped afresh, each would fault in and zero its pages on every frame).
-constexpr size_t kFlightMappedAllocation = size_t{4} << 20;
+constexpr size_t kFlightMmapThreshold = size_t{4} << 20;
 // The end's solves' threshold: their per-frame blocks and vectors (a few hundred KiB at thousands of frames) are
 // allocated and freed a solve at a time; from the heap, the second solve's blocks could land beside the first's holes
 // and the phase kept both resident (refine at 5000 frames: 57-77 MiB anonymous between runs of the same build).
-constexpr size_t kEndSolvesMappedAllocation = size_t{128} << 10;
+constexpr size_t kEndSolvesMmapThreshold = size_t{128} << 10;
 
 }  // namespace uavm
