@@ -36,6 +36,10 @@ TEST(GlobalIndexTest, RelocalisesARotatedFrameAmongRealFrames) {
   cv::warpAffine(probe_src, rotated, r, probe_src.size());
   const auto ranked = index.Query(sift.Extract(rotated), 3);
   ASSERT_FALSE(ranked.empty());
+  // The memory plan's line for the index (core/pipeline/memory_budget.cpp) counts 80 bytes a descriptor for the
+  // forest: 4 trees of row orders (16) and one reserved node a row each (64). More means its nodes outgrew the reserve.
+  EXPECT_GT(index.forest_bytes(), 0u);
+  EXPECT_LE(index.forest_bytes(), 80 * index.size() + 64);
   // Frame 27 or a frame of the next strip that covers the same ground (the return pass overlaps it).
   EXPECT_NE(std::find(ranked.begin(), ranked.end(), 27), ranked.end());
 }

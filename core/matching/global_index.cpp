@@ -98,32 +98,24 @@ std::vector<int> GlobalIndex::Query(const Features& features, int max_results, b
     // Rebuilt lazily: relocalisation is rare, adding frames is not.
     index_frame_of_row_.assign(frame_of_row_.begin(), frame_of_row_.end());  // within the reserved capacity
     index_.reset();
-    const cvflann::Matrix<unsigned char> rows(descriptors_.ptr<unsigned char>(), static_cast<size_t>(rows_),
-                                              static_cast<size_t>(kDescriptorSize));
-    index_ = std::make_unique<Tree>(rows, cvflann::KDTreeIndexParams(4));
-    index_->buildIndex();
+    index_ = std::make_unique<KdForest>(descriptors_.rowRange(0, rows_), kForest);
     index_rows_ = rows_;
     dirty_ = false;
   }
-  cv::Mat query = QuantizeDescriptors(features.descriptors);
-  if (!query.isContinuous()) query = query.clone();
-  cv::Mat indices(query.rows, 2, CV_32S);
-  cv::Mat dists(query.rows, 2, CV_32F);
-  cvflann::Matrix<unsigned char> query_rows(query.ptr<unsigned char>(), static_cast<size_t>(query.rows),
-                                            static_cast<size_t>(kDescriptorSize));
-  cvflann::Matrix<int> index_rows(indices.ptr<int>(), static_cast<size_t>(query.rows), 2);
-  cvflann::Matrix<float> dist_rows(dists.ptr<float>(), static_cast<size_t>(query.rows), 2);
-  index_->knnSearch(query_rows, index_rows, dist_rows, 2, cvflann::SearchParams(64));
-  const float ratio_sq = static_cast<float>(options_.ratio * options_.ratio);
+  const cv::Mat query = QuantizeDescriptors(features.descriptors);
+  const double ratio_sq = options_.ratio * options_.ratio;  // of squared distances
   std::map<int, int> votes;
   for (int q = 0; q < query.rows; ++q) {
-    const int t0 = indices.at<int>(q, 0);
-    const int t1 = indices.at<int>(q, 1);
+    int nearest[2];
+    uint32_t dist[2];
+    index_->Nearest2(query.ptr<uint8_t>(q), kChecks, nearest, dist);
+    const int t0 = nearest[0];
+    const int t1 = nearest[1];
     if (t0 < 0 || t0 >= index_rows_) continue;
     const int f0 = index_frame_of_row_[static_cast<size_t>(t0)];
     // Two neighbours from the same frame do not make the match ambiguous.
     const bool same_frame = t1 >= 0 && t1 < index_rows_ && index_frame_of_row_[static_cast<size_t>(t1)] == f0;
-    if (same_frame || dists.at<float>(q, 0) < ratio_sq * dists.at<float>(q, 1)) ++votes[f0];
+    if (same_frame || static_cast<double>(dist[0]) < ratio_sq * static_cast<double>(dist[1])) ++votes[f0];
   }
   std::vector<std::pair<int, int>> ranked;
   for (const auto& [frame, v] : votes)

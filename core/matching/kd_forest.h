@@ -27,6 +27,10 @@ class KdForest {
   void Nearest2(const uint8_t* query, int checks, int index[2], uint32_t dist[2]) const;
 
   [[nodiscard]] int rows() const { return rows_; }
+  // Bytes the forest holds (its trees; the descriptors are borrowed).
+  [[nodiscard]] size_t bytes() const {
+    return order_.capacity() * sizeof(int32_t) + nodes_.capacity() * sizeof(Node) + roots_.capacity() * sizeof(int32_t);
+  }
 
  private:
   // Inner node: children `first` and `second` (indices into nodes_), split on `dim` at `value` (below: first).
