@@ -142,6 +142,27 @@ TEST(MatPoolTest, FlushReturnsEveryBlockAndStartsANewPeak) {
   EXPECT_EQ(pool.Stats().pooled_bytes, 0u);
 }
 
+TEST(MatPoolTest, AWindowKeepsOnlyItsOwnPeak) {
+  MatPool pool(MatPoolOptions{});
+  {
+    cv::Mat a = Make(pool, 4);
+    cv::Mat b = Make(pool, 6);
+  }                        // a rare peak of 10 MiB in use, now pooled (the 6 MiB block freed first)
+  pool.StartPeakWindow();  // the first window's peak was 10: both blocks stay
+  EXPECT_EQ(pool.Stats().pooled_bytes, 10 * kMiB);
+  EXPECT_EQ(pool.Stats().evictions, 0u);
+  { cv::Mat c = Make(pool, 4); }  // this window needs 4 MiB at most
+  pool.StartPeakWindow();
+  EXPECT_EQ(pool.Stats().pooled_bytes, 4 * kMiB);  // the 6 MiB block, unused in this window, went back
+  EXPECT_EQ(pool.Stats().evictions, 1u);
+  EXPECT_EQ(pool.Stats().peak_in_use_bytes, 4 * kMiB);
+  cv::Mat d = Make(pool, 4);  // the kept block serves the working set again
+  EXPECT_EQ(pool.Stats().hits, 2u);
+  pool.StartPeakWindow();  // a window that only held d: d stays in use, nothing is pooled
+  EXPECT_EQ(pool.Stats().pooled_bytes, 0u);
+  EXPECT_EQ(pool.Stats().in_use_bytes, 4 * kMiB);
+}
+
 TEST(MatPoolTest, SmallMatsAndUserDataAreLeftAlone) {
   MatPool pool(MatPoolOptions{});
   { cv::Mat small = Make(pool, 0.25); }

@@ -62,6 +62,7 @@ void* MatPool::Take(size_t bytes) const {
   }
   stats_.in_use_bytes += capacity_[block];
   stats_.peak_in_use_bytes = std::max(stats_.peak_in_use_bytes, stats_.in_use_bytes);
+  stats_.window_peak_in_use_bytes = std::max(stats_.window_peak_in_use_bytes, stats_.in_use_bytes);
   return block;
 }
 
@@ -148,6 +149,14 @@ void MatPool::Flush() const {
   std::lock_guard<std::mutex> lock(mutex_);
   while (!free_.empty()) EraseLocked(free_.begin());
   stats_.peak_in_use_bytes = stats_.in_use_bytes;
+  stats_.window_peak_in_use_bytes = stats_.in_use_bytes;
+}
+
+void MatPool::StartPeakWindow() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  stats_.peak_in_use_bytes = std::max(stats_.window_peak_in_use_bytes, stats_.in_use_bytes);
+  EvictLocked(0, stats_.peak_in_use_bytes);
+  stats_.window_peak_in_use_bytes = stats_.in_use_bytes;
 }
 
 MatPoolStats MatPool::Stats() const {

@@ -31,8 +31,9 @@ struct MatPoolStats {
   uint64_t evictions = 0;  // pooled blocks returned to the kernel to make room, to respect the cap or by Flush()
   size_t pooled_bytes = 0;
   size_t in_use_bytes = 0;       // blocks the pool made that Mats hold
-  size_t peak_in_use_bytes = 0;  // since the last Flush()
-  size_t peak_pooled_bytes = 0;  // over the run
+  size_t peak_in_use_bytes = 0;  // the limit: since the last Flush(), or the last window's peak (StartPeakWindow)
+  size_t window_peak_in_use_bytes = 0;  // since the last StartPeakWindow() or Flush()
+  size_t peak_pooled_bytes = 0;         // over the run
 };
 
 class MatPool final : public cv::MatAllocator {
@@ -50,6 +51,11 @@ class MatPool final : public cv::MatAllocator {
 
   // Returns every pooled block to the kernel and starts a new peak.
   void Flush() const;
+  // Lowers the limit to the peak of in-use bytes since the last call (or Flush), returning the oldest pooled blocks
+  // above it, and starts a new window. Called every so many frames, the pool keeps the flight's recent working set:
+  // without it a rare coincidence of large buffers (a relocalisation beside a reload) set a limit the pool kept to the
+  // end, and a longer flight met a rarer one (+3 MiB pooled at 5000 frames against 200).
+  void StartPeakWindow() const;
   [[nodiscard]] MatPoolStats Stats() const;
 
  private:

@@ -7,6 +7,7 @@
 #include <sstream>
 #include <string_view>
 
+#include "core/buffers/mat_pool.h"
 #include "core/util/clock.h"
 #include "core/util/memory.h"
 #include "core/util/record_arena.h"
@@ -14,6 +15,12 @@
 namespace uavm {
 
 namespace fs = std::filesystem;
+
+namespace {
+// Frames per window of the large-buffer pool's peak (MatPool::StartPeakWindow): long enough that every frame's
+// detector and matching buffers recur in it, short enough that a rare peak is forgotten within minutes.
+constexpr int kPoolWindowFrames = 100;
+}  // namespace
 
 std::unique_ptr<FlightSession> FlightSession::Create(const PipelineOptions& options, SessionPaths paths,
                                                      std::string* error) {
@@ -247,6 +254,9 @@ FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
   stats_.Add("matching", timing.matching_ms);
   stats_.Add("adjust", timing.adjust_ms);
   events_.registered.Emit(RegisteredFrame{id, &prepared.work_bgr, &thumb, edges_before, engine_.TakeMoved()});
+  // The pool first, so that the blocks it gives back are trimmed with the rest.
+  if (id % kPoolWindowFrames == kPoolWindowFrames - 1)
+    if (const MatPool* pool = InstalledMatPool()) pool->StartPeakWindow();
   // Every few frames, not every frame: a trim walks the arenas (~1 ms).
   if (options_.trim_heap_every > 0 && id % options_.trim_heap_every == 0) TrimHeap();
   const double frame_ms = frame_timer.ElapsedMs();
