@@ -7,16 +7,7 @@
 #include <cstring>
 #include <memory>
 
-#if defined(__SANITIZE_ADDRESS__)
-#define UAVM_GLIBC_MALLOC 0
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define UAVM_GLIBC_MALLOC 0
-#endif
-#endif
-#ifndef UAVM_GLIBC_MALLOC
-#define UAVM_GLIBC_MALLOC 1
-#endif
+#include "core/util/sanitizers.h"
 
 namespace uavm {
 namespace {
@@ -33,7 +24,7 @@ size_t MappedWhileHolding(size_t bytes) {
 }
 
 TEST(ResourceLogTest, TheEndSolvesMapTheirBlocksAndThePhasesThatDecodeFramesCarveThemFromTheHeap) {
-  if (!UAVM_GLIBC_MALLOC) GTEST_SKIP() << "AddressSanitizer's allocator: glibc's threshold does not apply";
+  if (UAVM_ADDRESS_SANITIZER) GTEST_SKIP() << "AddressSanitizer's allocator: glibc's threshold does not apply";
   if (std::getenv("MALLOC_MMAP_THRESHOLD_") != nullptr || std::getenv("GLIBC_TUNABLES") != nullptr)
     GTEST_SKIP() << "the environment sets malloc's threshold: it wins";
   ResourceLog log;

@@ -53,8 +53,8 @@ class PackedLower {
   [[nodiscard]] Block Symmetric() const { return Unpacked(true); }
   [[nodiscard]] Block Lower() const { return Unpacked(false); }
   void StoreLower(const Block& b) {
-    SetZero();
-    AddLower(b);
+    for (int c = 0; c < kFrameParams; ++c)
+      for (int r = c; r < kFrameParams; ++r) entries_[Index(r, c)] = b(r, c);
   }
   // y += S v, S the symmetric block, from the packed entries (the conjugate gradients' every step: no unpacking).
   void MultiplyAdd(const FrameVector& v, FrameVector* y) const {

@@ -13,16 +13,9 @@
 #include <mutex>
 #include <new>
 
-#if defined(__SANITIZE_ADDRESS__)
-#define UAVM_RECORD_ARENA 0
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define UAVM_RECORD_ARENA 0
-#endif
-#endif
-#ifndef UAVM_RECORD_ARENA
-#define UAVM_RECORD_ARENA 1
-#endif
+#include "core/util/sanitizers.h"
+
+#define UAVM_RECORD_ARENA (!UAVM_ADDRESS_SANITIZER)
 
 namespace uavm {
 namespace {
