@@ -1,9 +1,11 @@
 #include "core/buffers/mat_pool.h"
 
 #include <sys/mman.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
+#include <cstdint>
 #include <cstdlib>
 
 namespace uavm {
@@ -11,27 +13,39 @@ namespace uavm {
 namespace {
 
 constexpr size_t kHugePage = size_t{2} << 20;
+size_t MappedLength(size_t bytes) {
+  static const auto page = static_cast<size_t>(sysconf(_SC_PAGESIZE));  // 4 KiB, or 16/64 KiB on some arm64 kernels
+  return (bytes + page - 1) & ~(page - 1);
+}
 
-// A block starts on a 2 MiB boundary and its whole 2 MiB pages are advised as transparent huge pages (where the
-// kernel offers them on request, THP "madvise", as Debian's and Raspberry Pi OS's kernels do): a 3 MB scale-space
-// image then costs one page fault for its first 2 MiB instead of 512. The tail stays in 4 KiB pages, so the resident
-// memory is what the Mat touches, as before.
+// Every block is a mapping of its own, not a heap chunk: a block the pool gives back goes to the kernel whole, and
+// the heap never holds large blocks between the flight's small records (an evicted block freed into the heap left
+// pages there that small records then pinned, and the arena grew with the flight). A block of 2 MiB or more starts on
+// a 2 MiB boundary (mapped 2 MiB longer, the ends unmapped) and its whole 2 MiB pages are advised as transparent huge
+// pages (where the kernel offers them on request, THP "madvise", as Debian's and Raspberry Pi OS's kernels do): a 3 MB
+// scale-space image then costs one page fault for its first 2 MiB instead of 512. The tail stays in 4 KiB pages, so
+// the resident memory is what the Mat touches.
 void* AllocateBlock(size_t bytes) {
-  if (bytes < kHugePage) return cv::fastMalloc(bytes);
-  void* block = nullptr;
-  if (posix_memalign(&block, kHugePage, bytes) != 0 || block == nullptr)
+  const size_t length = MappedLength(bytes);
+  const size_t span = length >= kHugePage ? length + kHugePage : length;
+  void* mapped = mmap(nullptr, span, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (mapped == MAP_FAILED)
     CV_Error_(cv::Error::StsNoMem, ("failed to allocate %zu bytes", bytes));  // as cv::fastMalloc does
+  if (span == length) return mapped;
+  auto* raw = static_cast<char*>(mapped);
+  const auto start = (reinterpret_cast<uintptr_t>(raw) + kHugePage - 1) & ~(kHugePage - 1);
+  auto* block = reinterpret_cast<char*>(start);
+  const auto head = static_cast<size_t>(block - raw);
+  if (head > 0) (void)munmap(raw, head);
+  if (span - head > length) (void)munmap(block + length, span - head - length);
 #ifdef MADV_HUGEPAGE
-  (void)madvise(block, bytes & ~(kHugePage - 1), MADV_HUGEPAGE);  // advice only: without THP nothing changes
+  (void)madvise(block, length & ~(kHugePage - 1), MADV_HUGEPAGE);  // advice only: without THP nothing changes
 #endif
   return block;
 }
 
 void ReleaseBlock(void* block, size_t bytes) {
-  if (bytes < kHugePage)
-    cv::fastFree(block);
-  else
-    std::free(block);  // NOLINT(cppcoreguidelines-no-malloc): posix_memalign's
+  (void)munmap(block, MappedLength(bytes));
 }
 
 }  // namespace

@@ -3,8 +3,9 @@
 //
 // The program maps large buffers straight from the kernel (main.cpp's mallopt; 256 KiB and more when the pool was
 // written, 4 MiB now) so that freed memory leaves the RSS. Every SIFT call then mapped its scale space afresh (tens of
-// MiB a frame) and the kernel zeroed every page on first touch: a fifth of the run's CPU went to page faults. Blocks
-// of 2 MiB and more start on a 2 MiB boundary and are advised as transparent huge pages (one fault per 2 MiB). The pool
+// MiB a frame) and the kernel zeroed every page on first touch: a fifth of the run's CPU went to page faults. Each
+// block is a mapping of its own (never a heap chunk, so that giving one back leaves no hole in the heap); blocks of
+// 2 MiB and more start on a 2 MiB boundary and are advised as transparent huge pages (one fault per 2 MiB). The pool
 // keeps the large blocks that Mats free and hands them to the next Mat of about the same size. It never makes the RSS
 // exceed what the program's pooled-size buffers reached without it: pooled + in-use bytes stay within the peak of
 // in-use bytes since the last Flush() (least recently freed blocks go first), and the pool holds at most
