@@ -43,8 +43,12 @@ TEST(MatPoolTest, AFreedBlockServesTheNextRequestOfAboutItsSize) {
 }
 
 // Where the kernel offers transparent huge pages on request, a block's whole 2 MiB pages are huge: /proc/self/smaps
-// shows the mapping holding the touched block with AnonHugePages. Alignment is asserted everywhere.
+// shows the mapping holding the touched block with AnonHugePages. Alignment is asserted wherever that page is 2 MiB.
 TEST(MatPoolTest, LargeBlocksAreAlignedForHugePages) {
+  std::ifstream pmd("/sys/kernel/mm/transparent_hugepage/hpage_pmd_size");
+  size_t huge_page = 0;
+  if (!(pmd >> huge_page) || huge_page != 2 * kMiB)
+    GTEST_SKIP() << "this kernel's huge page is not 2 MiB (" << huge_page << " bytes): blocks are not aligned for it";
   MatPool pool(MatPoolOptions{});
   cv::Mat m = Make(pool, 5);
   m.setTo(1);  // touch every page
@@ -158,9 +162,18 @@ TEST(MatPoolTest, AWindowKeepsOnlyItsOwnPeak) {
   EXPECT_EQ(pool.Stats().peak_in_use_bytes, 4 * kMiB);
   cv::Mat d = Make(pool, 4);  // the kept block serves the working set again
   EXPECT_EQ(pool.Stats().hits, 2u);
-  pool.StartPeakWindow();  // a window that only held d: d stays in use, nothing is pooled
+  cv::Mat e = Make(pool, 5);  // a miss: 4 in use + 5 passes nothing pooled, so nothing goes
+  EXPECT_EQ(pool.Stats().misses, 3u);
+  e.release();  // pooled 5 beside d's 4: within this window's peak of 9
+  EXPECT_EQ(pool.Stats().pooled_bytes, 5 * kMiB);
+  pool.StartPeakWindow();  // this window's peak was 9: the 5 MiB block stays
+  EXPECT_EQ(pool.Stats().pooled_bytes, 5 * kMiB);
+  d.release();
+  pool.StartPeakWindow();  // nothing was taken in this window: its peak is the 4 MiB d held
+  EXPECT_EQ(pool.Stats().pooled_bytes, 4 * kMiB);
+  pool.StartPeakWindow();  // a window with nothing in use: every block goes back
   EXPECT_EQ(pool.Stats().pooled_bytes, 0u);
-  EXPECT_EQ(pool.Stats().in_use_bytes, 4 * kMiB);
+  EXPECT_EQ(pool.Stats().evictions, 3u);
 }
 
 TEST(MatPoolTest, SmallMatsAndUserDataAreLeftAlone) {

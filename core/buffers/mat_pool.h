@@ -4,12 +4,14 @@
 // The program maps large buffers straight from the kernel (main.cpp's mallopt; 256 KiB and more when the pool was
 // written, 4 MiB now) so that freed memory leaves the RSS. Every SIFT call then mapped its scale space afresh (tens of
 // MiB a frame) and the kernel zeroed every page on first touch: a fifth of the run's CPU went to page faults. Each
-// block is a mapping of its own (never a heap chunk, so that giving one back leaves no hole in the heap); blocks of
-// 2 MiB and more start on a 2 MiB boundary and are advised as transparent huge pages (one fault per 2 MiB). The pool
+// block is a mapping of its own (never a heap chunk, so that giving one back leaves no hole in the heap; under
+// AddressSanitizer its allocator's, which guards the ends); where the kernel's huge page is 2 MiB, blocks of 2 MiB and
+// more start on a 2 MiB boundary and are advised as transparent huge pages (one fault per 2 MiB). The pool
 // keeps the large blocks that Mats free and hands them to the next Mat of about the same size. It never makes the RSS
 // exceed what the program's pooled-size buffers reached without it: pooled + in-use bytes stay within the peak of
-// in-use bytes since the last Flush() (least recently freed blocks go first), and the pool holds at most
-// `max_pooled_bytes`. Flush() returns every pooled block to the kernel and starts a new peak (at the end of a phase).
+// in-use bytes since the last Flush() or the window before the last StartPeakWindow() (least recently freed blocks go
+// first), and the pool holds at most `max_pooled_bytes`. Flush() returns every pooled block to the kernel and starts a
+// new peak (at the end of a phase).
 #include <cstddef>
 #include <cstdint>
 #include <list>
@@ -55,7 +57,8 @@ class MatPool final : public cv::MatAllocator {
   // Lowers the limit to the peak of in-use bytes since the last call (or Flush), returning the oldest pooled blocks
   // above it, and starts a new window. Called every so many frames, the pool keeps the flight's recent working set:
   // without it a rare coincidence of large buffers (a relocalisation beside a reload) set a limit the pool kept to the
-  // end, and a longer flight met a rarer one (+3 MiB pooled at 5000 frames against 200).
+  // end, and a longer flight met a rarer one (heaptrack: +2.8 MiB of the pool's blocks in the flight's heap peak at
+  // 1000 frames against 200).
   void StartPeakWindow() const;
   [[nodiscard]] MatPoolStats Stats() const;
 

@@ -254,7 +254,7 @@ FrameOutcome FlightSession::AddFrame(PreparedFrame prepared) {
   stats_.Add("matching", timing.matching_ms);
   stats_.Add("adjust", timing.adjust_ms);
   events_.registered.Emit(RegisteredFrame{id, &prepared.work_bgr, &thumb, edges_before, engine_.TakeMoved()});
-  // The pool first, so that the blocks it gives back are trimmed with the rest.
+  // Blocks the pool did not need in the last window go back to the kernel (each is a mapping of its own).
   if (id % kPoolWindowFrames == kPoolWindowFrames - 1)
     if (const MatPool* pool = InstalledMatPool()) pool->StartPeakWindow();
   // Every few frames, not every frame: a trim walks the arenas (~1 ms).
