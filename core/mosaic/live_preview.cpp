@@ -39,19 +39,38 @@ void LivePreview::Add(const cv::Mat& thumb, const Mat3& mosaic_from_thumb) {
     view_from_mosaic_ = next;
   }
   const Mat3 view_from_thumb = view_from_mosaic_ * mosaic_from_thumb;
+  // Only the thumbnail's box in the view is warped, with 2 px of room so that the erosion below sees the
+  // footprint's edge: warping the whole canvas cost two canvas-sized buffers (4 MiB at 1024 px) and a canvas-wide
+  // warp, erosion and copy per frame.
+  const cv::Rect2d box = cv::boundingRect(Footprint(view_from_thumb, thumb.cols, thumb.rows));
+  const cv::Rect roi =
+      cv::Rect(cv::Point(static_cast<int>(std::floor(box.x)) - 2, static_cast<int>(std::floor(box.y)) - 2),
+               cv::Point(static_cast<int>(std::ceil(box.x + box.width)) + 3,
+                         static_cast<int>(std::ceil(box.y + box.height)) + 3)) &
+      cv::Rect(0, 0, canvas_.cols, canvas_.rows);
+  if (roi.empty()) {
+    content_ = wanted;
+    empty_ = false;
+    return;
+  }
+  Mat3 roi_from_view = Mat3::Identity();
+  roi_from_view(0, 2) = -roi.x;
+  roi_from_view(1, 2) = -roi.y;
+  const Mat3 roi_from_thumb = roi_from_view * view_from_thumb;
   cv::Mat mask(thumb.size(), CV_8U, cv::Scalar(255));
   cv::Mat warped;
   cv::Mat warped_mask;
-  if (IsAffine(view_from_thumb, 1e-12)) {
-    cv::warpAffine(thumb, warped, cv::Mat(ToCvAffine(view_from_thumb)), canvas_.size(), cv::INTER_LINEAR);
-    cv::warpAffine(mask, warped_mask, cv::Mat(ToCvAffine(view_from_thumb)), canvas_.size(), cv::INTER_NEAREST);
+  if (IsAffine(roi_from_thumb, 1e-12)) {
+    cv::warpAffine(thumb, warped, cv::Mat(ToCvAffine(roi_from_thumb)), roi.size(), cv::INTER_LINEAR);
+    cv::warpAffine(mask, warped_mask, cv::Mat(ToCvAffine(roi_from_thumb)), roi.size(), cv::INTER_NEAREST);
   } else {
-    cv::warpPerspective(thumb, warped, cv::Mat(ToCv(view_from_thumb)), canvas_.size(), cv::INTER_LINEAR);
-    cv::warpPerspective(mask, warped_mask, cv::Mat(ToCv(view_from_thumb)), canvas_.size(), cv::INTER_NEAREST);
+    cv::warpPerspective(thumb, warped, cv::Mat(ToCv(roi_from_thumb)), roi.size(), cv::INTER_LINEAR);
+    cv::warpPerspective(mask, warped_mask, cv::Mat(ToCv(roi_from_thumb)), roi.size(), cv::INTER_NEAREST);
   }
   // Bilinear warping blends the thumbnail's edge with black: leave that 1 px rim out.
   cv::erode(warped_mask, warped_mask, cv::Mat());
-  warped.copyTo(canvas_, warped_mask);
+  cv::Mat target = canvas_(roi);
+  warped.copyTo(target, warped_mask);
   content_ = wanted;
   empty_ = false;
 }

@@ -273,17 +273,17 @@ cv::Mat SimSource::SunLight(const SimPose& pose) const {
 // Vignetting, exposure and white balance, the sun's hotspot and the drone's shadow, sensor noise. The falloff is
 // applied after the motion blur, not before as in a real camera: it is smooth, so over a blur of a few pixels the order
 // changes nothing measurable.
-void SimSource::Expose(size_t i, cv::Mat* frame) const {
+void SimSource::Expose(size_t i, cv::Mat* frame) {
   const SimPose& pose = poses_[i];
   const auto& wb = pose.white_balance;
   const cv::Mat sun = SunLight(pose);
   const bool colour = !falloff_.empty() || !sun.empty() || wb[0] != 1.0 || wb[1] != 1.0 || wb[2] != 1.0;
   if (!colour && pose.gain == 1.0 && pose.offset == 0.0 && !(plan_.noise_sigma > 0)) return;
-  cv::Mat f;
+  cv::Mat& f = exposure_;
   if (colour) {
     frame->convertTo(f, CV_32F);
-    if (!falloff_.empty()) f = f.mul(falloff_);
-    if (!sun.empty()) f = f.mul(sun);
+    if (!falloff_.empty()) cv::multiply(f, falloff_, f);
+    if (!sun.empty()) cv::multiply(f, sun, f);
     cv::multiply(f, cv::Scalar(pose.gain * wb[0], pose.gain * wb[1], pose.gain * wb[2]), f);
     f += cv::Scalar::all(pose.offset);
   } else {
@@ -292,9 +292,9 @@ void SimSource::Expose(size_t i, cv::Mat* frame) const {
   if (plan_.noise_sigma > 0) {
     // Per-frame generator: frame i's noise does not depend on which frames were rendered before.
     cv::RNG rng(plan_.seed * 1000003ULL + i + 1);
-    cv::Mat noise(f.size(), f.type());
-    rng.fill(noise, cv::RNG::NORMAL, 0.0, plan_.noise_sigma);
-    f += noise;
+    noise_.create(f.size(), f.type());
+    rng.fill(noise_, cv::RNG::NORMAL, 0.0, plan_.noise_sigma);
+    f += noise_;
   }
   f.convertTo(*frame, CV_8U);
 }

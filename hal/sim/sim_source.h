@@ -91,7 +91,7 @@ class SimSource final : public FrameSource {
   void PrepareLens();
   [[nodiscard]] cv::Mat SunLight(const SimPose& pose) const;
   [[nodiscard]] cv::Mat Project(const cv::Mat& src, const Mat3& src_from_frame) const;
-  void Expose(size_t i, cv::Mat* frame) const;
+  void Expose(size_t i, cv::Mat* frame);
   [[nodiscard]] Vec2 GroundOf(size_t i) const;                 // canvas point under frame i's centre
   [[nodiscard]] Vec2 GpsErrorM(double f, cv::RNG* rng) const;  // east, north metres at fractional frame index f
   const cv::Mat& CanvasLevel(int level);
@@ -107,6 +107,10 @@ class SimSource final : public FrameSource {
   size_t next_ = 0;
   SimTruth truth_;
   std::vector<uchar> encoded_;
+  // Expose's float frame and noise, kept between frames: made afresh they were 2 MB each per 480x360 frame, sizes the
+  // program's buffer pool then had to map anew beside the detector's.
+  cv::Mat exposure_;
+  cv::Mat noise_;
   std::unique_ptr<SimUdpLink> link_;  // the plan's mavlink_udp
   std::optional<mavlink::SigningKey> signing_key_;
   int64_t live_start_ns_ = 0;  // live_camera: monotonic time of the first frame
