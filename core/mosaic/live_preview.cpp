@@ -1,11 +1,46 @@
 #include "core/mosaic/live_preview.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 namespace uavm {
+
+namespace {
+
+// The part of the canvas a paste of a `thumb`-sized image by `view_from_thumb` touches, with 2 px of room so that the
+// erosion of its mask sees the footprint's edge; empty when nothing lands (or the map is not finite, or puts a corner
+// behind the camera). Warping the whole canvas instead cost two canvas-sized buffers (4 MiB at 1024 px) and a
+// canvas-wide warp, erosion and copy per frame.
+cv::Rect PasteBox(const Mat3& view_from_thumb, cv::Size thumb, cv::Size canvas) {
+  if (!view_from_thumb.allFinite()) return {};
+  // The pixels' outer edges, not their centres: a nearest-neighbour mask reaches half a source pixel beyond them.
+  const double x1 = thumb.width - 0.5;
+  const double y1 = thumb.height - 0.5;
+  double x_min = std::numeric_limits<double>::infinity();
+  double y_min = x_min;
+  double x_max = -x_min;
+  double y_max = -x_min;
+  for (const Vec2& corner : {Vec2(-0.5, -0.5), Vec2(x1, -0.5), Vec2(x1, y1), Vec2(-0.5, y1)}) {
+    const Eigen::Vector3d h = view_from_thumb * Eigen::Vector3d(corner.x(), corner.y(), 1.0);
+    if (!(h.z() > 0)) return {};
+    x_min = std::min(x_min, h.x() / h.z());
+    x_max = std::max(x_max, h.x() / h.z());
+    y_min = std::min(y_min, h.y() / h.z());
+    y_max = std::max(y_max, h.y() / h.z());
+  }
+  constexpr double kRoom = 2.0;
+  const double limit = 4.0 * std::max(canvas.width, canvas.height);  // keeps the casts below in range
+  const auto at = [limit](double v) { return static_cast<int>(std::clamp(v, -limit, limit)); };
+  const cv::Point lo(at(std::floor(x_min - kRoom)), at(std::floor(y_min - kRoom)));
+  const cv::Point hi(at(std::ceil(x_max + kRoom)) + 1, at(std::ceil(y_max + kRoom)) + 1);
+  return cv::Rect(lo, hi) & cv::Rect(cv::Point(0, 0), canvas);
+}
+
+}  // namespace
 
 LivePreview::LivePreview(int canvas_side)
     : side_(canvas_side), canvas_(canvas_side, canvas_side, CV_8UC3, cv::Scalar::all(0)) {}
@@ -39,15 +74,7 @@ void LivePreview::Add(const cv::Mat& thumb, const Mat3& mosaic_from_thumb) {
     view_from_mosaic_ = next;
   }
   const Mat3 view_from_thumb = view_from_mosaic_ * mosaic_from_thumb;
-  // Only the thumbnail's box in the view is warped, with 2 px of room so that the erosion below sees the
-  // footprint's edge: warping the whole canvas cost two canvas-sized buffers (4 MiB at 1024 px) and a canvas-wide
-  // warp, erosion and copy per frame.
-  const cv::Rect2d box = cv::boundingRect(Footprint(view_from_thumb, thumb.cols, thumb.rows));
-  const cv::Rect roi =
-      cv::Rect(cv::Point(static_cast<int>(std::floor(box.x)) - 2, static_cast<int>(std::floor(box.y)) - 2),
-               cv::Point(static_cast<int>(std::ceil(box.x + box.width)) + 3,
-                         static_cast<int>(std::ceil(box.y + box.height)) + 3)) &
-      cv::Rect(0, 0, canvas_.cols, canvas_.rows);
+  const cv::Rect roi = PasteBox(view_from_thumb, thumb.size(), canvas_.size());
   if (roi.empty()) {
     content_ = wanted;
     empty_ = false;

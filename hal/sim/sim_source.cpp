@@ -403,6 +403,8 @@ void SimSource::Close() {
   link_.reset();
   canvas_.release();
   levels_.clear();
+  exposure_.release();
+  noise_.release();
 }
 
 }  // namespace uavm::hal
