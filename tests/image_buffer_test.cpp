@@ -3,8 +3,12 @@
 #include "core/buffers/image_buffer.h"
 
 #include <gtest/gtest.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
+#include <cstdint>
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 namespace uavm {
 namespace {
@@ -50,6 +54,34 @@ TEST(ImageBufferTest, AnEmptyViewNeedsNoBlock) {
   const cv::Mat v = buffer.View({0, 0}, CV_8U);
   EXPECT_TRUE(v.empty());
   EXPECT_EQ(buffer.capacity(), 0u);
+}
+
+// Share of the pages under `view` that are resident (mincore).
+double ResidentShare(const cv::Mat& view) {
+  const auto page = static_cast<uintptr_t>(sysconf(_SC_PAGESIZE));
+  const auto begin = reinterpret_cast<uintptr_t>(view.data) / page * page;
+  const auto end = (reinterpret_cast<uintptr_t>(view.data) + view.total() * view.elemSize() + page - 1) / page * page;
+  std::vector<unsigned char> resident((end - begin) / page);
+  if (mincore(reinterpret_cast<void*>(begin), end - begin, resident.data()) != 0) return -1.0;
+  size_t count = 0;
+  for (unsigned char r : resident) count += r & 1U;
+  return static_cast<double>(count) / static_cast<double>(resident.size());
+}
+
+// A reserved block is mapped, not resident, until written; ReserveResident writes it all (zeros), so that the holder's
+// memory does not depend on how much of it later views touch.
+TEST(ImageBufferTest, ReserveResidentMakesTheWholeBlockResident) {
+  constexpr size_t kBytes = size_t{48} << 20;  // above glibc's largest mmap threshold: a fresh mapping either way
+  const cv::Size whole(4096, static_cast<int>(kBytes / 4096));
+  ImageBuffer lazy;
+  lazy.Reserve(kBytes);
+  EXPECT_LT(ResidentShare(lazy.View(whole, CV_8U)), 0.5);
+  ImageBuffer resident;
+  resident.ReserveResident(kBytes);
+  const cv::Mat view = resident.View(whole, CV_8U);
+  EXPECT_EQ(ResidentShare(view), 1.0);
+  EXPECT_EQ(cv::countNonZero(view.reshape(1, 1024)), 0);
+  EXPECT_GE(resident.capacity(), kBytes);
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include <opencv2/stitching/detail/blenders.hpp>
 #include <random>
 
+#include "core/buffers/mat_pool.h"
 #include "tests/test_env.h"
 
 namespace uavm {
@@ -137,6 +138,67 @@ TEST(TileBlenderTest, SeamOnlyTakesEachPixelFromItsOwner) {
     EXPECT_EQ(image.at<cv::Vec3b>(1, roi.width - 1), cv::Vec3b(200, 100, 50));
     EXPECT_EQ(mask.at<uchar>(roi.height - 1, roi.width - 1), 0);
     EXPECT_EQ(cv::countNonZero(mask), cv::countNonZero(a_mask) + cv::countNonZero(b_mask));
+  }
+}
+
+// Blends `rois` one after another, each from `pieces_per_roi` pieces and one piece over the whole ROI (the largest a
+// tile can feed); returns the blended images, and in *requests the large buffers asked of the pool meanwhile.
+std::vector<cv::Mat> BlendTiles(TileBlender* blender, const cv::Mat& ground, const std::vector<cv::Rect>& rois,
+                                uint64_t* requests) {
+  std::mt19937 rng(11);
+  std::vector<std::vector<Piece>> pieces;
+  std::vector<cv::Mat> images;
+  std::vector<cv::Mat> masks;
+  for (const cv::Rect& roi : rois) {  // made before counting: the test's own Mats are not the blender's
+    pieces.push_back(MakePieces(ground, roi, 5, &rng));
+    Piece whole;
+    cv::resize(ground, whole.image, roi.size(), 0, 0, cv::INTER_AREA);
+    whole.mask = cv::Mat(roi.size(), CV_8U, cv::Scalar(0));
+    cv::circle(whole.mask, {roi.width / 2, roi.height / 2}, std::min(roi.width, roi.height) / 3, cv::Scalar(255), -1);
+    whole.top_left = roi.tl();
+    pieces.back().push_back(whole);
+    images.emplace_back(roi.size(), CV_8UC3);  // the compositor's views: of the ROI's size and type
+    masks.emplace_back(roi.size(), CV_8U);
+  }
+  const MatPoolStats before = InstalledMatPool()->Stats();
+  for (size_t t = 0; t < rois.size(); ++t) {
+    blender->Prepare(rois[t]);
+    for (const Piece& p : pieces[t]) blender->Feed(p.image, p.mask, p.top_left);
+    blender->Blend(&images[t], &masks[t]);
+  }
+  const MatPoolStats after = InstalledMatPool()->Stats();
+  *requests = after.hits + after.misses - before.hits - before.misses;
+  return images;
+}
+
+// Reserved for the largest ROI, a blender asks for no buffer however its tiles and pieces come (its memory is then the
+// same at any flight length), and blends the same pixels as one that grows its buffers as pieces come.
+TEST(TileBlenderTest, ReservedBuffersServeEveryTileWithoutGrowing) {
+  MatPoolOptions pool_options;
+  pool_options.min_block_bytes = 4 << 10;  // every buffer but the coarsest levels' counts
+  ASSERT_NE(InstallMatPool(pool_options), nullptr);
+  const cv::Mat ground = cv::imread(std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg");
+  ASSERT_FALSE(ground.empty());
+  const cv::Size largest(704, 704);
+  // Smaller first, then the largest, then smaller again and odd sizes; every ROI within `largest`.
+  const std::vector<cv::Rect> rois = {
+      {0, 0, 300, 200}, {37, 1000, 704, 704}, {5, 9, 211, 517}, {-40, 1200, 64, 33}, {300, 300, 703, 701}};
+  for (int bands : {5, 0}) {
+    auto make = [bands] { return bands > 0 ? MakeMultiBandBlender(bands) : MakeSeamOnlyBlender(); };
+    auto growing = make();
+    uint64_t growing_requests = 0;
+    const std::vector<cv::Mat> want = BlendTiles(growing.get(), ground, rois, &growing_requests);
+    EXPECT_GT(growing_requests, 0U) << "bands " << bands << ": the unreserved blender grows (the count can fail)";
+    auto reserved = make();
+    const MatPoolStats before = InstalledMatPool()->Stats();
+    reserved->Reserve(largest);
+    const MatPoolStats after = InstalledMatPool()->Stats();
+    EXPECT_GT(after.in_use_bytes, before.in_use_bytes) << "bands " << bands;
+    uint64_t reserved_requests = 0;
+    const std::vector<cv::Mat> got = BlendTiles(reserved.get(), ground, rois, &reserved_requests);
+    EXPECT_EQ(reserved_requests, 0U) << "bands " << bands;
+    for (size_t t = 0; t < rois.size(); ++t)
+      EXPECT_EQ(cv::norm(got[t], want[t], cv::NORM_INF), 0.0) << "bands " << bands << " roi " << rois[t];
   }
 }
 

@@ -13,6 +13,11 @@ void ImageBuffer::Reserve(size_t bytes) {
   block_.create(static_cast<int>((bytes + kRow - 1) / kRow), static_cast<int>(kRow), CV_8U);
 }
 
+void ImageBuffer::ReserveResident(size_t bytes) {
+  Reserve(bytes);
+  block_.setTo(0);
+}
+
 cv::Mat ImageBuffer::View(cv::Size size, int type) {
   CV_Assert(size.width >= 0 && size.height >= 0);
   const size_t bytes = static_cast<size_t>(size.width) * static_cast<size_t>(size.height) * CV_ELEM_SIZE(type);

@@ -17,6 +17,9 @@ class ImageBuffer {
   [[nodiscard]] cv::Mat View(cv::Size size, int type);
   // Grows the block to `bytes` now (e.g. for the largest piece a worker will see).
   void Reserve(size_t bytes);
+  // Reserve, and writes the whole block so that its pages are resident now: the holder's memory is then the same
+  // whatever it views later (a pool's block is mapped afresh and is resident only where it has been written).
+  void ReserveResident(size_t bytes);
   [[nodiscard]] size_t capacity() const { return block_.total(); }
 
  private:

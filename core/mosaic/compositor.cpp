@@ -204,9 +204,34 @@ void BorderDistance(const FrameGeometry& g, const cv::Mat& map_x, const cv::Mat&
 // that of its largest tile, however many tiles and frames the mosaic has.
 struct TileWork {
   explicit TileWork(int num_bands) : blender(num_bands > 0 ? MakeMultiBandBlender(num_bands) : MakeSeamOnlyBlender()) {}
+  // Every buffer at what a ROI of up to `largest_roi` needs, resident (see TileBlender::Reserve): per ROI pixel the
+  // views BlendRoi takes (maps 8 bytes, owner 2, mask 1, warped image 3, blended image and mask 4) and per seam cell
+  // its distances (best and current 4 each, owner 2; the cell maps share the pixel maps).
+  void Reserve(cv::Size largest_roi);
   std::unique_ptr<TileBlender> blender;
   ImageBuffer best_dist, cell_owner, map_x, map_y, dist, owner, mask, warped, image, image_mask;
 };
+
+// Seam cells over a ROI (see BlendRoi): every cell a pixel of it falls in, for any position of the ROI on the canvas.
+cv::Size SeamCellsCovering(cv::Size roi) {
+  return {(roi.width + kSeamStep - 1) / kSeamStep + 1, (roi.height + kSeamStep - 1) / kSeamStep + 1};
+}
+
+void TileWork::Reserve(cv::Size largest_roi) {
+  const auto pixels = static_cast<size_t>(largest_roi.area());
+  const auto cells = static_cast<size_t>(SeamCellsCovering(largest_roi).area());
+  best_dist.ReserveResident(cells * CV_ELEM_SIZE(CV_32F));
+  cell_owner.ReserveResident(cells * CV_ELEM_SIZE(CV_16S));
+  dist.ReserveResident(cells * CV_ELEM_SIZE(CV_32F));
+  map_x.ReserveResident(std::max(pixels, cells) * CV_ELEM_SIZE(CV_32F));
+  map_y.ReserveResident(std::max(pixels, cells) * CV_ELEM_SIZE(CV_32F));
+  owner.ReserveResident(pixels * CV_ELEM_SIZE(CV_16S));
+  mask.ReserveResident(pixels * CV_ELEM_SIZE(CV_8U));
+  warped.ReserveResident(pixels * CV_ELEM_SIZE(CV_8UC3));
+  image.ReserveResident(pixels * CV_ELEM_SIZE(CV_8UC3));
+  image_mask.ReserveResident(pixels * CV_ELEM_SIZE(CV_8U));
+  blender->Reserve(largest_roi);
+}
 
 // Each cell's owner among `candidates`: the frame whose border is farthest (-1: none reaches kSeamMargin).
 cv::Mat SeamCellOwners(const std::vector<FrameGeometry>& geometry, const std::vector<size_t>& candidates,
@@ -905,8 +930,23 @@ CompositeResult Composite(std::vector<CompositeInput> frames, cv::Size canvas, c
     return cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & canvas_rect;
   };
   TileFrames frames_of(tiles, geometry, roi_of);
+  // Under a budget the workers' buffers are the plan's line (BlendMiBPerWorker), resident from the phase's start: a
+  // tile's ROI with its margins, whatever the canvas. Grown as pieces came, they were what the flight's canvas and
+  // largest pieces happened to need: a short flight narrower than one tile composed in less (5.5 MiB of 41 less at 200
+  // frames than at 5000), so the phase grew with the flight. Without a budget, the largest ROI of this canvas.
+  cv::Size largest_roi(options.tile_size + 2 * margin, options.tile_size + 2 * margin);
+  if (options.memory_budget_mib <= 0) {
+    largest_roi = cv::Size();
+    for (const cv::Rect& tile : tiles) {
+      const cv::Size roi = roi_of(tile).size();
+      largest_roi = cv::Size(std::max(largest_roi.width, roi.width), std::max(largest_roi.height, roi.height));
+    }
+  }
   std::vector<TileWork> works;
-  for (int w = 0; w < memory.threads; ++w) works.emplace_back(options.num_bands);
+  for (int w = 0; w < memory.threads; ++w) {
+    works.emplace_back(options.num_bands);
+    works.back().Reserve(largest_roi);
+  }
   ParallelForOnWorkers(tiles.size(), memory.threads, [&](size_t t, size_t worker) {
     if (sink.failed()) return;
     const cv::Rect tile = tiles[t];

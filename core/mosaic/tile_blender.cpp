@@ -22,6 +22,7 @@ class MultiBand final : public TileBlender {
   void Prepare(const cv::Rect& roi) override;
   void Feed(const cv::Mat& image, const cv::Mat& mask, cv::Point top_left) override;
   void Blend(cv::Mat* image, cv::Mat* mask) override;
+  void Reserve(cv::Size largest_roi) override;
 
  private:
   static constexpr float kWeightEps = 1e-5f;  // OpenCV's WEIGHT_EPS
@@ -49,14 +50,48 @@ class MultiBand final : public TileBlender {
   ImageBuffer up_buffer_;        // a level expanded to the one below
 };
 
+namespace {
+
+// Pyramid levels for a ROI: no more than halvings of its longer side (as OpenCV counts them).
+int BandsFor(cv::Size roi, int max_bands) {
+  const double longest = std::max(1, std::max(roi.width, roi.height));
+  return std::max(0, std::min(max_bands, static_cast<int>(std::ceil(std::log(longest) / std::log(2.0)))));
+}
+
+// The ROI grown at its bottom right to a multiple of 2^bands. A smaller ROI's padded size is never larger (its step
+// divides the larger one's).
+cv::Size PaddedSize(cv::Size roi, int bands) {
+  const int step = 1 << bands;
+  return {(roi.width + step - 1) / step * step, (roi.height + step - 1) / step * step};
+}
+
+}  // namespace
+
+void MultiBand::Reserve(cv::Size largest_roi) {
+  const int bands = BandsFor(largest_roi, max_bands_);
+  cv::Size size = PaddedSize(largest_roi, bands);
+  // Pieces, their borders and the expanded level are at most the padded ROI (see Feed).
+  const auto padded_area = static_cast<size_t>(size.area());
+  bordered_buffer_.ReserveResident(padded_area * CV_ELEM_SIZE(CV_8UC3));
+  mask_buffer_.ReserveResident(padded_area * CV_ELEM_SIZE(CV_8U));
+  up_buffer_.ReserveResident(padded_area * CV_ELEM_SIZE(CV_16SC3));
+  if (levels_.size() < static_cast<size_t>(bands + 1)) levels_.resize(static_cast<size_t>(bands + 1));
+  for (int i = 0; i <= bands; ++i) {
+    Level& level = levels_[static_cast<size_t>(i)];
+    const auto area = static_cast<size_t>(size.area());
+    level.sum_buffer.ReserveResident(area * CV_ELEM_SIZE(CV_16SC3));
+    level.piece_buffer.ReserveResident(area * CV_ELEM_SIZE(CV_16SC3));
+    level.weight_sum_buffer.ReserveResident(area * CV_ELEM_SIZE(CV_32F));
+    level.piece_weight_buffer.ReserveResident(area * CV_ELEM_SIZE(CV_32F));
+    size = cv::Size((size.width + 1) / 2, (size.height + 1) / 2);
+  }
+}
+
 void MultiBand::Prepare(const cv::Rect& roi) {
   CV_Assert(!roi.empty());
   roi_ = roi;
-  // No more levels than halvings of the longer side (as OpenCV counts them).
-  const double longest = std::max(1, std::max(roi.width, roi.height));
-  bands_ = std::max(0, std::min(max_bands_, static_cast<int>(std::ceil(std::log(longest) / std::log(2.0)))));
-  const int step = 1 << bands_;
-  padded_ = cv::Rect(roi.x, roi.y, (roi.width + step - 1) / step * step, (roi.height + step - 1) / step * step);
+  bands_ = BandsFor(roi.size(), max_bands_);
+  padded_ = cv::Rect(roi.tl(), PaddedSize(roi.size(), bands_));
   if (levels_.size() < static_cast<size_t>(bands_ + 1)) levels_.resize(static_cast<size_t>(bands_ + 1));
   cv::Size size = padded_.size();
   for (int i = 0; i <= bands_; ++i) {
@@ -181,6 +216,10 @@ class SeamOnly final : public TileBlender {
   void Blend(cv::Mat* image, cv::Mat* mask) override {
     image_.copyTo(*image);
     mask_.copyTo(*mask);
+  }
+  void Reserve(cv::Size largest_roi) override {
+    image_buffer_.ReserveResident(static_cast<size_t>(largest_roi.area()) * CV_ELEM_SIZE(CV_8UC3));
+    mask_buffer_.ReserveResident(static_cast<size_t>(largest_roi.area()) * CV_ELEM_SIZE(CV_8U));
   }
 
  private:
