@@ -860,6 +860,30 @@ void KeepByOverlap(cv::Size canvas, double max_covered_fraction, std::vector<Com
   result->frames_used = static_cast<int>(kept);
 }
 
+// One TileWork per worker, reserved. Under a budget the workers' buffers are the plan's line (BlendMiBPerWorker),
+// resident from the phase's start: a tile's ROI with its margins, whatever the canvas. Grown as pieces came, they were
+// what the flight's canvas and largest pieces happened to need: a short flight narrower than one tile composed in less
+// (5.5 MiB of 41 less at 200 frames than at 5000), so the phase grew with the flight. Without a budget, the largest
+// ROI of this canvas.
+template <typename RoiOf>
+std::vector<TileWork> MakeTileWorks(const CompositorOptions& options, int threads, const std::vector<cv::Rect>& tiles,
+                                    const RoiOf& roi_of) {
+  cv::Size largest_roi(options.tile_size + 2 * options.Margin(), options.tile_size + 2 * options.Margin());
+  if (options.memory_budget_mib <= 0) {
+    largest_roi = cv::Size();
+    for (const cv::Rect& tile : tiles) {
+      const cv::Size roi = roi_of(tile).size();
+      largest_roi = cv::Size(std::max(largest_roi.width, roi.width), std::max(largest_roi.height, roi.height));
+    }
+  }
+  std::vector<TileWork> works;
+  for (int w = 0; w < threads; ++w) {
+    works.emplace_back(options.num_bands);
+    works.back().Reserve(largest_roi);
+  }
+  return works;
+}
+
 }  // namespace
 
 CompositeResult Composite(std::vector<CompositeInput> frames, cv::Size canvas, const ImageLoadFn& load,
@@ -930,23 +954,7 @@ CompositeResult Composite(std::vector<CompositeInput> frames, cv::Size canvas, c
     return cv::Rect(tile.x - margin, tile.y - margin, tile.width + 2 * margin, tile.height + 2 * margin) & canvas_rect;
   };
   TileFrames frames_of(tiles, geometry, roi_of);
-  // Under a budget the workers' buffers are the plan's line (BlendMiBPerWorker), resident from the phase's start: a
-  // tile's ROI with its margins, whatever the canvas. Grown as pieces came, they were what the flight's canvas and
-  // largest pieces happened to need: a short flight narrower than one tile composed in less (5.5 MiB of 41 less at 200
-  // frames than at 5000), so the phase grew with the flight. Without a budget, the largest ROI of this canvas.
-  cv::Size largest_roi(options.tile_size + 2 * margin, options.tile_size + 2 * margin);
-  if (options.memory_budget_mib <= 0) {
-    largest_roi = cv::Size();
-    for (const cv::Rect& tile : tiles) {
-      const cv::Size roi = roi_of(tile).size();
-      largest_roi = cv::Size(std::max(largest_roi.width, roi.width), std::max(largest_roi.height, roi.height));
-    }
-  }
-  std::vector<TileWork> works;
-  for (int w = 0; w < memory.threads; ++w) {
-    works.emplace_back(options.num_bands);
-    works.back().Reserve(largest_roi);
-  }
+  std::vector<TileWork> works = MakeTileWorks(options, memory.threads, tiles, roi_of);
   ParallelForOnWorkers(tiles.size(), memory.threads, [&](size_t t, size_t worker) {
     if (sink.failed()) return;
     const cv::Rect tile = tiles[t];
