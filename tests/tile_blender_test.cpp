@@ -175,7 +175,7 @@ std::vector<cv::Mat> BlendTiles(TileBlender* blender, const cv::Mat& ground, con
 // same at any flight length), and blends the same pixels as one that grows its buffers as pieces come.
 TEST(TileBlenderTest, ReservedBuffersServeEveryTileWithoutGrowing) {
   MatPoolOptions pool_options;
-  pool_options.min_block_bytes = 4 << 10;  // every buffer but the coarsest levels' counts
+  pool_options.min_block_bytes = 4 << 10;  // every buffer counts (ImageBuffer's blocks are whole 4 KiB rows)
   ASSERT_NE(InstallMatPool(pool_options), nullptr);
   const cv::Mat ground = cv::imread(std::string(UAVM_TEST_DATA) + "/caliterra_small/images/IMG_9360.jpg");
   ASSERT_FALSE(ground.empty());

@@ -18,7 +18,7 @@ class ImageBuffer {
   // Grows the block to `bytes` now (e.g. for the largest piece a worker will see).
   void Reserve(size_t bytes);
   // Reserve, and writes the whole block so that its pages are resident now: the holder's memory is then the same
-  // whatever it views later (a pool's block is mapped afresh and is resident only where it has been written).
+  // whatever it views later (a block mapped afresh is resident only where it has been written).
   void ReserveResident(size_t bytes);
   [[nodiscard]] size_t capacity() const { return block_.total(); }
 

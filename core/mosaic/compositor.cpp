@@ -200,8 +200,8 @@ void BorderDistance(const FrameGeometry& g, const cv::Mat& map_x, const cv::Mat&
   }
 }
 
-// One worker's buffers, reused for every tile it blends (core/buffers/image_buffer.h): a worker's working set is
-// that of its largest tile, however many tiles and frames the mosaic has.
+// One worker's buffers, reused for every tile it blends (core/buffers/image_buffer.h) and reserved before the first
+// (MakeTileWorks): a worker's working set is fixed by the tile's ROI, however many tiles and frames the mosaic has.
 struct TileWork {
   explicit TileWork(int num_bands) : blender(num_bands > 0 ? MakeMultiBandBlender(num_bands) : MakeSeamOnlyBlender()) {}
   // Every buffer at what a ROI of up to `largest_roi` needs, resident (see TileBlender::Reserve): per ROI pixel the
@@ -863,7 +863,7 @@ void KeepByOverlap(cv::Size canvas, double max_covered_fraction, std::vector<Com
 // One TileWork per worker, reserved. Under a budget the workers' buffers are the plan's line (BlendMiBPerWorker),
 // resident from the phase's start: a tile's ROI with its margins, whatever the canvas. Grown as pieces came, they were
 // what the flight's canvas and largest pieces happened to need: a short flight narrower than one tile composed in less
-// (5.5 MiB of 41 less at 200 frames than at 5000), so the phase grew with the flight. Without a budget, the largest
+// (~9 MiB less of them at 200 frames than at 5000), so the phase grew with the flight. Without a budget, the largest
 // ROI of this canvas.
 template <typename RoiOf>
 std::vector<TileWork> MakeTileWorks(const CompositorOptions& options, int threads, const std::vector<cv::Rect>& tiles,
@@ -877,6 +877,7 @@ std::vector<TileWork> MakeTileWorks(const CompositorOptions& options, int thread
     }
   }
   std::vector<TileWork> works;
+  works.reserve(static_cast<size_t>(threads));
   for (int w = 0; w < threads; ++w) {
     works.emplace_back(options.num_bands);
     works.back().Reserve(largest_roi);

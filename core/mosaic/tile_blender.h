@@ -6,7 +6,7 @@ namespace uavm {
 
 // One stage of the compositor, with OpenCV stitching's small lifecycle, applied to one tile (plus margin) at a time:
 // prepare(roi) -> feed(image, mask, top_left) ... -> blend(). Nothing here ever sees the whole canvas. A blender is
-// used for tile after tile (one per worker) and keeps its buffers between them: its memory is its largest tile's.
+// used for tile after tile (one per worker) and keeps its buffers between them, reserved (Reserve) for the largest ROI.
 class TileBlender {
  public:
   virtual ~TileBlender() = default;
@@ -18,7 +18,7 @@ class TileBlender {
   virtual void Blend(cv::Mat* image, cv::Mat* mask) = 0;
   // Makes every buffer a ROI of up to `largest_roi` can need now, resident: the blender then allocates nothing per
   // tile, and its memory is the same for every tile and flight (else it grew with the largest piece a flight happened
-  // to feed: 1.3-1.5 MiB more per worker at 5000 frames than at 200).
+  // to feed: 1.4-1.6 MiB more per worker at 5000 frames than at 200).
   virtual void Reserve(cv::Size largest_roi) = 0;
 };
 
