@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/QR>
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -137,6 +138,115 @@ TEST(AffineAdjusterTest, LocalUpdateMovesOnlyTheVariableFrame) {
   ASSERT_TRUE(r.ok);
   EXPECT_LT(MaxCornerError(T[5], scene.truth[5]), 1e-3);
   EXPECT_LT(MaxCornerError(T[4], scene.truth[4]), 1e-12);
+}
+
+// The adjustment's normal equations are built in blocks and never as rows (BlockSystem): checked here against the rows
+// themselves, written out one by one from the terms the options describe, and solved densely by QR. One unweighted
+// pass (robust_iterations 0), a frame fixed besides the reference, frames of different half-diagonals (the rigidity
+// and relative-linear weights), a loop with its chords, both solvers.
+TEST(AffineAdjusterTest, BlocksGiveTheLeastSquaresSolutionOfTheRowsWrittenOut) {
+  LoopScene scene = MakeLoop(12, 0.8, 31);
+  for (int i = 0; i + 3 < 12; i += 2) {  // chords: i -> i + 2, from the two edges' points
+    Edge e = scene.edges[static_cast<size_t>(i)];
+    const Edge& next = scene.edges[static_cast<size_t>(i + 1)];
+    e.tgt = i + 2;
+    test::EdgeLists lists = test::ListsOf(e.points);
+    for (Vec2f& q : lists.tgt) q = Apply(next.tgt_from_src, q.cast<double>()).cast<float>();
+    e.points = lists.Build();
+    e.tgt_from_src = next.tgt_from_src * e.tgt_from_src;
+    scene.edges.push_back(e);
+  }
+  std::vector<const Edge*> edges;
+  for (const auto& e : scene.edges) edges.push_back(&e);
+  const std::vector<int> column{1, 2, 3, 4, 5, 7, 8, 9, 10, 11};  // 0 and 6 fixed
+  const std::unordered_set<int> variable(column.begin(), column.end());
+  std::unordered_map<int, double> half_diag;
+  for (int i = 0; i < 12; ++i) half_diag[i] = 300.0 + 40.0 * i;
+  AdjustOptions options;
+  options.robust_iterations = 0;
+  options.rigidity_weight = 0.3;  // strong enough to matter in the solution
+  options.relative_linear_weight = 0.1;
+  const std::unordered_map<int, Mat3> start = scene.chained;
+
+  // The rows: a variable frame's parameters a00 a01 a02 a10 a11 a12 at 6 x its position in `column`.
+  const auto index = [&](int id) {
+    const auto it = std::find(column.begin(), column.end(), id);
+    return it == column.end() ? -1 : static_cast<int>(it - column.begin());
+  };
+  std::vector<std::pair<Eigen::VectorXd, double>> rows;  // (coefficients, right-hand side)
+  const long n = static_cast<long>(column.size()) * 6;
+  // coefficient c on parameter (r, k) of frame id: into the row, or onto the right-hand side when the frame is fixed
+  const auto term = [&](Eigen::VectorXd* row, double* rhs, int id, int r, int k, double c) {
+    if (index(id) >= 0)
+      (*row)(6 * index(id) + 3 * r + k) += c;
+    else
+      *rhs -= c * start.at(id)(r, k);
+  };
+  for (const Edge* e : edges)
+    for (int r = 0; r < 2; ++r) {
+      for (size_t k = 0; k < e->points.size(); ++k) {  // T_src p - T_tgt q = 0
+        Eigen::VectorXd row = Eigen::VectorXd::Zero(n);
+        double rhs = 0;
+        const Vec2f p = e->points.src(k), q = e->points.tgt(k);
+        const double ph[3] = {p.x(), p.y(), 1.0}, qh[3] = {q.x(), q.y(), 1.0};
+        for (int c = 0; c < 3; ++c) {
+          term(&row, &rhs, e->src, r, c, ph[c]);
+          term(&row, &rhs, e->tgt, r, c, -qh[c]);
+        }
+        rows.emplace_back(row, rhs);
+      }
+      const double scale = options.relative_linear_weight * half_diag.at(index(e->src) >= 0 ? e->src : e->tgt);
+      for (int c = 0; c < 2; ++c) {  // L_src - L_tgt R = 0
+        Eigen::VectorXd row = Eigen::VectorXd::Zero(n);
+        double rhs = 0;
+        term(&row, &rhs, e->src, r, c, scale);
+        for (int k = 0; k < 2; ++k) term(&row, &rhs, e->tgt, r, k, -scale * e->tgt_from_src(k, c));
+        rows.emplace_back(row, rhs);
+      }
+    }
+  for (int id : column) {
+    const double scale = options.rigidity_weight * half_diag.at(id);
+    const int a = 6 * index(id);
+    Eigen::VectorXd same_scale = Eigen::VectorXd::Zero(n), no_shear = Eigen::VectorXd::Zero(n);
+    same_scale(a + 0) = scale;  // a00 - a11
+    same_scale(a + 4) = -scale;
+    no_shear(a + 1) = scale;  // a01 + a10
+    no_shear(a + 3) = scale;
+    rows.emplace_back(same_scale, 0.0);
+    rows.emplace_back(no_shear, 0.0);
+    for (int r = 0; r < 2; ++r)
+      for (int c = 0; c < 3; ++c) {  // the faint pull to the current value
+        Eigen::VectorXd row = Eigen::VectorXd::Zero(n);
+        row(a + 3 * r + c) = 1e-6;
+        rows.emplace_back(row, 1e-6 * start.at(id)(r, c));
+      }
+  }
+  Eigen::MatrixXd A(static_cast<long>(rows.size()), n);
+  Eigen::VectorXd b(static_cast<long>(rows.size()));
+  for (size_t i = 0; i < rows.size(); ++i) {
+    A.row(static_cast<long>(i)) = rows[i].first.transpose();
+    b(static_cast<long>(i)) = rows[i].second;
+  }
+  const Eigen::VectorXd x = A.colPivHouseholderQr().solve(b);
+
+  for (const int direct_max_frames : {1000, 0}) {
+    options.direct_max_frames = direct_max_frames;
+    auto T = start;
+    const AdjustResult result = AdjustAffine(edges, variable, half_diag, options, &T);
+    ASSERT_TRUE(result.ok) << result.failure;
+    EXPECT_EQ(result.iterative, direct_max_frames == 0);
+    double worst = 0, moved = 0;
+    for (int id : column) {
+      Mat3 reference = Mat3::Identity();
+      for (int r = 0; r < 2; ++r)
+        for (int c = 0; c < 3; ++c) reference(r, c) = x(6 * index(id) + 3 * r + c);
+      worst = std::max(worst, MaxCornerError(T.at(id), reference));
+      moved = std::max(moved, MaxCornerError(start.at(id), reference));
+    }
+    EXPECT_LT(worst, 1e-6) << "pixels at the frame corners, direct_max_frames " << direct_max_frames;
+    EXPECT_GT(moved, 1.0) << "the solution is not the start";
+    EXPECT_EQ(T.at(6), start.at(6)) << "the fixed frame stays";
+  }
 }
 
 // Beyond direct_max_frames the normal equations are solved by conjugate gradients instead of a factorisation (bounded

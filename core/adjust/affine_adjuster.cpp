@@ -37,24 +37,42 @@ using Vec6 = Eigen::Matrix<double, kDof, 1>;
 using ColumnOf = std::vector<int>;
 
 // The normal equations in blocks: a 6x6 block on the diagonal per variable frame, one off-diagonal block per edge
-// between two variable frames (an edge's correspondence and relative-linear terms couple only its two frames). Both of
-// an edge's terms act alike on the two rows of the maps, so its off-diagonal block is I2 (x) B with B 3x3: 72 bytes per
-// edge (a quarter of the 6x6 block) and ~300 per frame, whatever the points: the Jacobian, a row per point, is never
-// built.
+// between two variable frames (an edge's correspondence and relative-linear terms couple only its two frames). Every
+// term but the rigidity acts alike on the two rows of the maps, so the off-diagonal blocks are I2 (x) B with B 3x3, and
+// a diagonal block is I2 (x) D plus the rigidity's coupling of the two rows (one weight, see AddFramePriors): 72 bytes
+// per edge and 128 per frame, whatever the points. The Jacobian, a row per point, is never built, nor a 6x6 block.
 struct BlockSystem {
-  std::vector<Block, Eigen::aligned_allocator<Block>> diagonal;
+  std::vector<Eigen::Matrix3d> diagonal;  // D: the diagonal block is I2 (x) D + rigidity * C
+  std::vector<double> rigidity;           // the weight of C, which couples a00 with a11 and a01 with a10
   std::vector<Vec6, Eigen::aligned_allocator<Vec6>> rhs;
   std::vector<std::pair<int, int>> pairs;     // (row frame, column frame) of each off-diagonal block: x_row, x_col
   std::vector<Eigen::Matrix3d> off_diagonal;  // B: the block is I2 (x) B
 
-  explicit BlockSystem(size_t frames) : diagonal(frames, Block::Zero()), rhs(frames, Vec6::Zero()) {}
+  explicit BlockSystem(size_t frames)
+      : diagonal(frames, Eigen::Matrix3d::Zero()), rigidity(frames, 0.0), rhs(frames, Vec6::Zero()) {}
+
+  // Frame i's 6x6 diagonal block, written out (for the direct solve's matrix).
+  [[nodiscard]] Block FullDiagonal(size_t i) const {
+    Block d = Block::Zero();
+    d.block<3, 3>(0, 0) = diagonal[i];
+    d.block<3, 3>(3, 3) = diagonal[i];
+    d(0, 4) = d(4, 0) = -rigidity[i];
+    d(1, 3) = d(3, 1) = rigidity[i];
+    return d;
+  }
 
   // y = N x, with N the symmetric matrix of the blocks.
   void Multiply(const Eigen::VectorXd& x, Eigen::VectorXd* y) const {
     y->setZero(x.size());
-    for (size_t i = 0; i < diagonal.size(); ++i)
-      y->segment<kDof>(static_cast<long>(i) * kDof).noalias() +=
-          diagonal[i] * x.segment<kDof>(static_cast<long>(i) * kDof);
+    for (size_t i = 0; i < diagonal.size(); ++i) {
+      const long a = static_cast<long>(i) * kDof;
+      y->segment<3>(a).noalias() += diagonal[i] * x.segment<3>(a);
+      y->segment<3>(a + 3).noalias() += diagonal[i] * x.segment<3>(a + 3);
+      (*y)(a) -= rigidity[i] * x(a + 4);
+      (*y)(a + 4) -= rigidity[i] * x(a);
+      (*y)(a + 1) += rigidity[i] * x(a + 3);
+      (*y)(a + 3) += rigidity[i] * x(a + 1);
+    }
     for (size_t k = 0; k < pairs.size(); ++k) {
       const long a = static_cast<long>(pairs[k].first) * kDof;
       const long b = static_cast<long>(pairs[k].second) * kDof;
@@ -76,10 +94,10 @@ int VariableIndex(const ColumnOf& column, int id) {
   return it != column.end() && *it == id ? static_cast<int>(it - column.begin()) : -1;
 }
 
-// One edge's share of the normal equations: its frames' diagonal blocks and right-hand sides, and their coupling
-// I2 (x) st.
+// One edge's share of the normal equations: its frames' diagonal blocks I2 (x) ss and I2 (x) tt, their right-hand
+// sides, and their coupling I2 (x) st.
 struct EdgeBlocks {
-  Block ss = Block::Zero(), tt = Block::Zero();
+  Eigen::Matrix3d ss = Eigen::Matrix3d::Zero(), tt = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d st = Eigen::Matrix3d::Zero();
   Vec6 bs = Vec6::Zero(), bt = Vec6::Zero();
 };
@@ -98,11 +116,12 @@ void AddRelativeLinear(const Edge& e, const Mat3& Ts, const Mat3& Tt, bool src_f
       if (src_fixed) b -= scale * Ts(r, c);
       if (tgt_fixed)
         for (int k = 0; k < 2; ++k) b -= jt(3 * r + k) * Tt(r, k);
-      blocks->ss += js * js.transpose();
-      blocks->tt += jt * jt.transpose();
-      // js * jt^T: rows 3r + c, columns 3r + k, the same for both r.
-      if (r == 0)
+      // js * js^T, jt * jt^T and js * jt^T: rows 3r + c, columns 3r + k, the same for both r.
+      if (r == 0) {
+        blocks->ss += js.head<3>() * js.head<3>().transpose();
+        blocks->tt += jt.head<3>() * jt.head<3>().transpose();
         for (int k = 0; k < 2; ++k) blocks->st(c, k) += js(c) * jt(k);
+      }
       blocks->bs += js * b;
       blocks->bt += jt * b;
     }
@@ -140,9 +159,9 @@ void AddEdge(const Edge& e, const EdgePoints& points, const ColumnOf& column, co
   const int t = VariableIndex(column, e.tgt);
   EdgeBlocks blocks;
   blocks.st = -Spq;
+  blocks.ss = Spp;
+  blocks.tt = Sqq;
   for (int r = 0; r < 2; ++r) {
-    blocks.ss.block<3, 3>(3 * r, 3 * r) = Spp;
-    blocks.tt.block<3, 3>(3 * r, 3 * r) = Sqq;
     if (s < 0) blocks.bt.segment<3>(3 * r) += Spq.transpose() * Ts.row(r).transpose();
     if (t < 0) blocks.bs.segment<3>(3 * r) += Spq * Tt.row(r).transpose();
   }
@@ -164,30 +183,26 @@ void AddEdge(const Edge& e, const EdgePoints& points, const ColumnOf& column, co
 }
 
 // Rigidity (a00 - a11 = 0 and a01 + a10 = 0, in pixels at the frame's half-diagonal) and a faint pull to the current
-// value, which keeps frames without constraints solvable (the gauge of a detached frame).
+// value, which keeps frames without constraints solvable (the gauge of a detached frame). The rigidity rows' squares
+// put w = scale^2 on the diagonal of a00, a01, a10 and a11 (D's (0,0) and (1,1), for both rows of the map), -w
+// between a00 and a11 and +w between a01 and a10 (the block's coupling, BlockSystem::rigidity).
 void AddFramePriors(const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
                     const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
                     BlockSystem* sys) {
   constexpr double kDamping = 1e-6;
   for (size_t index = 0; index < column.size(); ++index) {
     const int id = column[index];
-    Block& d = sys->diagonal[index];
+    Eigen::Matrix3d& d = sys->diagonal[index];
     Vec6& b = sys->rhs[index];
     const double scale = options.rigidity_weight * HalfDiagonal(half_diagonal, id);
-    if (scale > 0) {
-      Vec6 j1 = Vec6::Zero(), j2 = Vec6::Zero();
-      j1(0) = scale;
-      j1(4) = -scale;
-      j2(1) = scale;
-      j2(3) = scale;
-      d += j1 * j1.transpose() + j2 * j2.transpose();
-    }
+    const double w = scale > 0 ? scale * scale : 0.0;
+    d(0, 0) += w;
+    d(1, 1) += w;
+    sys->rigidity[index] = w;
+    for (int c = 0; c < 3; ++c) d(c, c) += kDamping * kDamping;
     const Mat3& t = T.at(id);
     for (int r = 0; r < 2; ++r)
-      for (int c = 0; c < 3; ++c) {
-        d(3 * r + c, 3 * r + c) += kDamping * kDamping;
-        b(3 * r + c) += kDamping * kDamping * t(r, c);
-      }
+      for (int c = 0; c < 3; ++c) b(3 * r + c) += kDamping * kDamping * t(r, c);
   }
 }
 
@@ -202,7 +217,7 @@ std::string SolveDirect(const BlockSystem& sys, Eigen::VectorXd* x) {
         if (const double v = transpose ? b(j, i) : b(i, j); v != 0.0) triplets.emplace_back(r0 + i, c0 + j, v);
   };
   for (size_t i = 0; i < sys.diagonal.size(); ++i)
-    add(static_cast<long>(i) * kDof, static_cast<long>(i) * kDof, sys.diagonal[i], false);
+    add(static_cast<long>(i) * kDof, static_cast<long>(i) * kDof, sys.FullDiagonal(i), false);
   for (size_t k = 0; k < sys.pairs.size(); ++k) {
     const long a = static_cast<long>(sys.pairs[k].first) * kDof;
     const long b = static_cast<long>(sys.pairs[k].second) * kDof;
@@ -223,33 +238,35 @@ std::string SolveDirect(const BlockSystem& sys, Eigen::VectorXd* x) {
   return {};
 }
 
-// Iterative: conjugate gradients preconditioned by the inverse diagonal blocks, from `x` (the current maps, already
-// close). Memory is the blocks and five vectors: it grows with the frames and edges by a few hundred bytes each,
-// never with a factor's fill.
+// Iterative: conjugate gradients from `x` (the current maps, already close), preconditioned by I2 (x) D^-1 per frame
+// (the diagonal block without the rigidity's coupling of the two rows, a few thousandths of D's linear terms). Memory
+// is the blocks, a 3x3 inverse per frame and four vectors (q holds the preconditioned residual once r is updated): it
+// grows with the frames and edges by a few hundred bytes each, never with a factor's fill.
 std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options, Eigen::VectorXd* x, int* iterations) {
   const size_t frames = sys.diagonal.size();
   const long n = static_cast<long>(frames) * kDof;
-  std::vector<Block, Eigen::aligned_allocator<Block>> inverse(frames);
+  std::vector<Eigen::Matrix3d> inverse(frames);
   for (size_t i = 0; i < frames; ++i) {
-    const Eigen::LDLT<Block> ldlt(sys.diagonal[i]);
-    if (ldlt.info() != Eigen::Success) return "normal equations are singular";
-    inverse[i] = ldlt.solve(Block::Identity());
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(sys.diagonal[i]);
+    if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return "normal equations are singular";
+    inverse[i] = ldlt.solve(Eigen::Matrix3d::Identity());
   }
   const auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd* z) {
     z->resize(n);
     for (size_t i = 0; i < frames; ++i)
-      z->segment<kDof>(static_cast<long>(i) * kDof).noalias() =
-          inverse[i] * r.segment<kDof>(static_cast<long>(i) * kDof);
+      for (long row = 0; row < kDof; row += 3) {
+        const long a = static_cast<long>(i) * kDof + row;
+        z->segment<3>(a).noalias() = inverse[i] * r.segment<3>(a);
+      }
   };
   // The residual starts as the right-hand side (no copy of it is kept: its norm is all the stop needs).
-  Eigen::VectorXd r(n), z, p, q;
+  Eigen::VectorXd r(n), p, q;
   for (size_t i = 0; i < frames; ++i) r.segment<kDof>(static_cast<long>(i) * kDof) = sys.rhs[i];
   const double stop = options.iterative_tolerance * options.iterative_tolerance * r.squaredNorm();
   sys.Multiply(*x, &q);
   r -= q;
-  precondition(r, &z);
-  p = z;
-  double rz = r.dot(z);
+  precondition(r, &p);
+  double rz = r.dot(p);
   *iterations = 0;
   while (r.squaredNorm() > stop && *iterations < options.max_iterative_steps) {
     sys.Multiply(p, &q);
@@ -258,9 +275,9 @@ std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options,
     const double alpha = rz / pq;
     *x += alpha * p;
     r -= alpha * q;
-    precondition(r, &z);
-    const double rz_next = r.dot(z);
-    p = z + (rz_next / rz) * p;
+    precondition(r, &q);  // z, in q's room: N p is spent
+    const double rz_next = r.dot(q);
+    p = q + (rz_next / rz) * p;
     rz = rz_next;
     ++*iterations;
   }
@@ -342,7 +359,8 @@ AdjustResult AdjustAffine(const std::vector<const Edge*>& edges, const std::unor
 ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::unordered_map<int, Mat3>& T,
                             EdgePointSource* points) {
   ResidualStats s;
-  std::vector<float> r;  // for the median only: the sums are taken in double as the residuals come
+  // The median from a fixed histogram, the sums in double as the residuals come: nothing here grows with the points.
+  LogHistogram r = ResidualHistogram();
   double sq = 0.0;
   for (const Edge* e : edges) {
     const auto ts = T.find(e->src);
@@ -352,15 +370,14 @@ ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::un
     for (size_t k = 0; k < p.size(); ++k) {
       const double v = (Apply(ts->second, p.src(k).cast<double>()) - Apply(tt->second, p.tgt(k).cast<double>())).norm();
       sq += v * v;
-      s.max = std::max(s.max, v);
-      r.push_back(static_cast<float>(v));
+      r.Add(v);
     }
   }
-  s.count = r.size();
-  if (r.empty()) return s;
-  s.rms = std::sqrt(sq / static_cast<double>(r.size()));
-  std::nth_element(r.begin(), r.begin() + static_cast<long>(r.size() / 2), r.end());
-  s.median = r[r.size() / 2];
+  s.count = r.count();
+  if (s.count == 0) return s;
+  s.max = r.max();
+  s.rms = std::sqrt(sq / static_cast<double>(s.count));
+  s.median = r.Median();
   return s;
 }
 

@@ -6,6 +6,7 @@
 
 #include "core/geometry/transform.h"
 #include "core/graph/match_graph.h"
+#include "core/util/stats.h"
 
 namespace uavm {
 
@@ -56,7 +57,13 @@ struct ResidualStats {
                                         const AdjustOptions& options, std::unordered_map<int, Mat3>* mosaic_from_frame,
                                         EdgePointSource* points = nullptr);
 
-// Residuals |T_src p - T_tgt q| over all edge correspondences whose frames both have transforms.
+// A histogram for residuals in pixels: 10^-6 to 10^6 px, within 0.12 % (48 KiB, whatever the count).
+[[nodiscard]] inline LogHistogram ResidualHistogram() {
+  return LogHistogram(1e-6, 12, 1000);
+}
+
+// Residuals |T_src p - T_tgt q| over all edge correspondences whose frames both have transforms. The median is
+// ResidualHistogram's.
 [[nodiscard]] ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges,
                                           const std::unordered_map<int, Mat3>& mosaic_from_frame,
                                           EdgePointSource* points = nullptr);

@@ -10,6 +10,7 @@
 #include <map>
 #include <optional>
 
+#include "core/adjust/affine_adjuster.h"  // ResidualHistogram
 #include "core/adjust/tree_lm.h"
 #include "core/util/clock.h"
 
@@ -327,12 +328,6 @@ class RefineTerms final : public FrameGraphTerms {
   const LensRefine* lens_;
   std::optional<LensPrior> lens_prior_;
 };
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
-  return v[v.size() / 2];
-}
 
 // The refinement's problem: the edges used, a copy of the correspondences each contributes (`kept`: the edges' own
 // points may be read back one edge at a time, see EdgePointSource), the frames' parameters.
@@ -697,7 +692,8 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
                              const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout, double max_px,
                              const LensRefine* lens, EdgePointSource* source) {
   TransferStats s;
-  std::vector<double> r;
+  LogHistogram r = ResidualHistogram();  // the median in fixed memory, the sum in double as the errors come
+  double sq = 0.0;
   for (const Edge* e : edges) {
     const auto ts = mosaic_from_frame.find(e->src);
     const auto tt = mosaic_from_frame.find(e->tgt);
@@ -710,15 +706,15 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
       const Vec2 q = (holdout ? points.holdout_tgt(k) : points.tgt(k)).cast<double>();
       const double d = lens != nullptr ? (Apply(tgt_from_src, lens->Ideal(p)) - lens->Ideal(q)).norm()
                                        : (Apply(tgt_from_src, p) - q).norm();
-      if (max_px <= 0 || d <= max_px) r.push_back(d);
+      if (max_px > 0 && d > max_px) continue;
+      r.Add(d);
+      sq += d * d;
     }
   }
-  s.count = r.size();
-  if (r.empty()) return s;
-  double sq = 0.0;
-  for (double v : r) sq += v * v;
-  s.rms = std::sqrt(sq / static_cast<double>(r.size()));
-  s.median = Median(std::move(r));
+  s.count = r.count();
+  if (s.count == 0) return s;
+  s.rms = std::sqrt(sq / static_cast<double>(s.count));
+  s.median = r.Median();
   return s;
 }
 

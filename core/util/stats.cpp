@@ -5,58 +5,59 @@
 
 namespace uavm {
 
-namespace {
+LogHistogram::LogHistogram(double min_value, int decades, int bins_per_decade)
+    : min_value_(min_value),
+      bins_per_decade_(bins_per_decade),
+      bins_(static_cast<size_t>(std::max(1, decades * bins_per_decade)), 0) {}
 
-constexpr int kBins = StageStats::kBinsPerDecade * StageStats::kDecades;
-
-int BinOf(double ms) {
-  if (!(ms > StageStats::kMinMs)) return 0;
-  const double b = std::floor(std::log10(ms / StageStats::kMinMs) * StageStats::kBinsPerDecade);
-  return static_cast<int>(std::min<double>(b, kBins - 1));
+int LogHistogram::BinOf(double value) const {
+  if (!(value > min_value_)) return 0;
+  const double b = std::floor(std::log10(value / min_value_) * bins_per_decade_);
+  return static_cast<int>(std::min<double>(b, static_cast<double>(bins_.size() - 1)));
 }
 
-// The bin's geometric centre.
-double CentreOf(int bin) {
-  return StageStats::kMinMs * std::pow(10.0, (bin + 0.5) / StageStats::kBinsPerDecade);
+void LogHistogram::Add(double value) {
+  if (count_ == 0) min_ = max_ = value;
+  ++bins_[static_cast<size_t>(BinOf(value))];
+  ++count_;
+  min_ = std::min(min_, value);
+  max_ = std::max(max_, value);
 }
 
-}  // namespace
+double LogHistogram::AtRank(size_t rank) const {
+  if (count_ == 0) return 0.0;
+  rank = std::clamp<size_t>(rank, 1, count_);
+  size_t seen = 0;
+  for (size_t b = 0; b < bins_.size(); ++b) {
+    seen += bins_[b];
+    if (seen >= rank) {
+      // The end bins take the values beyond the range: of those, the smallest and the largest are the ones known.
+      if (b == 0) return min_;
+      if (b + 1 == bins_.size()) return max_;
+      const double centre = min_value_ * std::pow(10.0, (static_cast<double>(b) + 0.5) / bins_per_decade_);
+      return std::clamp(centre, min_, max_);
+    }
+  }
+  return max_;
+}
 
 void StageStats::Add(const std::string& stage, double ms) {
   auto [it, inserted] = stages_.try_emplace(stage);
-  Histogram& h = it->second;
-  if (inserted) {
-    order_.push_back(stage);
-    h.bins.assign(kBins, 0);
-    h.min = ms;
-    h.max = ms;
-  }
-  ++h.bins[static_cast<size_t>(BinOf(ms))];
-  ++h.count;
-  h.total += ms;
-  h.min = std::min(h.min, ms);
-  h.max = std::max(h.max, ms);
+  if (inserted) order_.push_back(stage);
+  it->second.histogram.Add(ms);
+  it->second.total += ms;
 }
 
 Summary StageStats::Get(const std::string& stage) const {
   const auto it = stages_.find(stage);
   if (it == stages_.end()) return {};
-  const Histogram& h = it->second;
+  const LogHistogram& h = it->second.histogram;
   Summary s;
-  s.count = h.count;
-  s.total = h.total;
-  s.max = h.max;
-  // The value of nearest rank `rank` (1-based), clamped to what was seen.
-  const auto value_at = [&](size_t rank) {
-    size_t seen = 0;
-    for (int b = 0; b < kBins; ++b) {
-      seen += h.bins[static_cast<size_t>(b)];
-      if (seen >= rank) return std::clamp(CentreOf(b), h.min, h.max);
-    }
-    return h.max;
-  };
-  s.median = value_at((h.count + 1) / 2);
-  s.p95 = value_at(static_cast<size_t>(std::ceil(0.95 * static_cast<double>(h.count))));
+  s.count = h.count();
+  s.total = it->second.total;
+  s.max = h.max();
+  s.median = h.Median();
+  s.p95 = h.AtRank(static_cast<size_t>(std::ceil(0.95 * static_cast<double>(h.count()))));
   return s;
 }
 

@@ -6,6 +6,34 @@
 
 namespace uavm {
 
+// Quantiles of non-negative values in fixed memory: `bins_per_decade` log-spaced bins a decade over `decades` decades
+// from `min_value` (the first bin takes the values below and reports the smallest seen, the last those above and
+// reports the largest). A quantile is its bin's geometric centre clamped to the values seen: within half a bin of the
+// exact figure (10^(0.5 / bins_per_decade) - 1 relative), and exact for a single value. Count, min and max are exact.
+// What it holds does not grow with the values added.
+class LogHistogram {
+ public:
+  LogHistogram(double min_value, int decades, int bins_per_decade);
+
+  void Add(double value);
+  [[nodiscard]] size_t count() const { return count_; }
+  [[nodiscard]] double min() const { return min_; }
+  [[nodiscard]] double max() const { return max_; }
+  // The value of nearest rank `rank` (1-based, clamped to [1, count]); 0 when empty.
+  [[nodiscard]] double AtRank(size_t rank) const;
+  [[nodiscard]] double Median() const { return AtRank((count_ + 1) / 2); }
+
+ private:
+  [[nodiscard]] int BinOf(double value) const;
+
+  double min_value_;
+  int bins_per_decade_;
+  std::vector<uint32_t> bins_;
+  size_t count_ = 0;
+  double min_ = 0.0;
+  double max_ = 0.0;
+};
+
 struct Summary {
   size_t count = 0;
   double median = 0.0;
@@ -15,9 +43,9 @@ struct Summary {
 };
 
 // Per-stage timing samples (ms), one sample per frame and stage; insertion order of stages is kept for reports. Count,
-// total and max are exact; the median and p95 (nearest rank) come from a fixed histogram of kBinsPerDecade
-// log-spaced bins a decade (within 0.6 % of the exact figure), so a flight of any length holds the same few KiB per
-// stage and reading a median on every frame costs the same at frame 5 as at frame 50 000.
+// total and max are exact; the median and p95 (nearest rank) come from a LogHistogram of kBinsPerDecade bins a decade
+// (within 0.6 % of the exact figure), so a flight of any length holds the same few KiB per stage and reading a median
+// on every frame costs the same at frame 5 as at frame 50 000.
 class StageStats {
  public:
   static constexpr int kBinsPerDecade = 200;
@@ -29,15 +57,12 @@ class StageStats {
   [[nodiscard]] Summary Get(const std::string& stage) const;
 
  private:
-  struct Histogram {
-    std::vector<uint32_t> bins;
-    size_t count = 0;
+  struct Stage {
+    LogHistogram histogram{kMinMs, kDecades, kBinsPerDecade};
     double total = 0.0;
-    double min = 0.0;
-    double max = 0.0;
   };
   std::vector<std::string> order_;
-  std::map<std::string, Histogram> stages_;
+  std::map<std::string, Stage> stages_;
 };
 
 }  // namespace uavm
