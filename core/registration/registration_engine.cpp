@@ -634,24 +634,30 @@ Solution RegistrationEngine::FinishSolve() {
     if (in_component.contains(e.src) && in_component.contains(e.tgt) && EdgeCounts(e)) edges.push_back(&e);
   // The final solves use every edge: the points given back during the flight come back from the spill (an even share
   // of each edge's when all of them would outgrow end_correspondences).
-  EnterPhase("end_load");
   const auto [max_points, max_holdout] = EndPointsPerEdge(edges);
   counters_.end_points_per_edge = max_points;
   // All of the points when they fit end_correspondences. Beyond, the solves read an edge's share from the spill each
   // time they need it (edges.bin is read a few dozen times, from the page cache): what they hold stops growing with
-  // the flight's edges, except the share of those still resident from the flight, thinned in place.
+  // the flight's edges, except the share of those still resident from the flight, thinned in place before the solves
+  // begin (the matching's window, up to ~1 MiB of points, is not carried into them).
   std::optional<EndPointReader> reader;
-  std::vector<const Edge*> to_load = edges;
+  bool loaded = true;
   if (max_points > 0 && spill_ != nullptr) {
-    reader.emplace(spill_, this, max_points, max_holdout);
-    std::erase_if(to_load, [](const Edge* e) { return !e->points_resident; });
+    std::vector<const Edge*> resident;
+    for (const Edge* e : edges)
+      if (e->points_resident) resident.push_back(e);
+    loaded = LoadEdgePoints(resident, max_points, max_holdout, &counters_.end_points_thinned);
     thinned_ = true;
+    EnterPhase("end_load");
+    reader.emplace(spill_, this, max_points, max_holdout);
     // One read of each: the pairs left on disk counted, and an unreadable edges.bin said before the solves.
     for (const Edge* e : edges) (void)reader->Points(*e);
     counters_.end_points_thinned += reader->dropped();
+  } else {
+    EnterPhase("end_load");
+    loaded = LoadEdgePoints(edges, max_points, max_holdout, &counters_.end_points_thinned);
   }
-  if (!LoadEdgePoints(to_load, max_points, max_holdout, &counters_.end_points_thinned) ||
-      (reader && reader->failed() > 0))
+  if (!loaded || (reader && reader->failed() > 0))
     spdlog::warn("final adjustment without some edges (edges.bin unreadable)");
   s.ok = true;
   if (s.component.size() >= 2) {
