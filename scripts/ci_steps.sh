@@ -89,13 +89,12 @@ ci_tier() {
 # The full tier's additions (scripts/test_full.sh): the rest of the suite under qemu-aarch64, the whole suite under
 # ASan + UBSan, and a longer fuzzing run.
 # The memory test's long flight at the length: 5000 frames under a hard cgroup limit of the budget + 16 MiB;
-# and a 12 MP real flight under the same limit (UAVM_FULL_RES_FLIGHT, default ../shared/data/caliterra/images; the
-# test says it skipped when the folder is missing).
+# and a 12 MP real flight under the same limit (UAVM_MEMORY_TEST_FULL_RES, default ../shared/data/caliterra/images:
+# the test fails when the folder is missing).
 long_flight_memory() {
-  local full_res="${UAVM_FULL_RES_FLIGHT:-$ROOT/../shared/data/caliterra/images}"
-  [[ -d $full_res ]] || echo "long flight memory: no full-resolution flight at $full_res: its test is skipped" >&2
-  UAVM_MEMORY_TEST_FRAMES=5000 UAVM_MEMORY_TEST_FULL_RES="$full_res" "$BUILD_DIR/tests/memory_limit_test" \
-    --gtest_filter='*LongSimulatedFlight*:*TwelveMegapixel*'
+  UAVM_MEMORY_TEST_FRAMES=5000 \
+    UAVM_MEMORY_TEST_FULL_RES="${UAVM_MEMORY_TEST_FULL_RES:-$ROOT/../shared/data/caliterra/images}" \
+    "$BUILD_DIR/tests/memory_limit_test" --gtest_filter='*LongSimulatedFlight*:*TwelveMegapixel*'
 }
 
 full_extras() {

@@ -1,6 +1,6 @@
 #include "core/adjust/affine_adjuster.h"
 
-#include <Eigen/Cholesky>  // LDLT of the 6x6 blocks
+#include <Eigen/Cholesky>  // LDLT of the 3x3 blocks D
 #include <Eigen/Core>
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
@@ -10,6 +10,8 @@
 #include <unordered_map>
 #include <utility>
 #include <vector>
+
+#include "core/util/stats.h"
 
 namespace uavm {
 
@@ -36,28 +38,29 @@ using Vec6 = Eigen::Matrix<double, kDof, 1>;
 // hash map: at the end of a long flight every frame is variable, and a map's node per frame was the solve's own.
 using ColumnOf = std::vector<int>;
 
-// The normal equations in blocks: a 6x6 block on the diagonal per variable frame, one off-diagonal block per edge
-// between two variable frames (an edge's correspondence and relative-linear terms couple only its two frames). Every
-// term but the rigidity acts alike on the two rows of the maps, so the off-diagonal blocks are I2 (x) B with B 3x3, and
-// a diagonal block is I2 (x) D plus the rigidity's coupling of the two rows (one weight, see AddFramePriors): 72 bytes
-// per edge and 128 per frame, whatever the points. The Jacobian, a row per point, is never built, nor a 6x6 block.
+// The normal equations in blocks: one on the diagonal per variable frame, one off the diagonal per edge between two
+// variable frames (an edge's correspondence and relative-linear terms couple only its two frames). Every term but the
+// rigidity acts alike on the two rows of the maps, so an off-diagonal block is I2 (x) B with B 3x3, and a diagonal
+// block is I2 (x) D plus the rigidity's coupling of the two rows (one weight, see AddFramePriors): 80 bytes per edge
+// (B and its frames) and 128 per frame (D, the weight, the right-hand side), whatever the points. Neither the Jacobian
+// (a row per point) nor a 6x6 block is held.
 struct BlockSystem {
-  std::vector<Eigen::Matrix3d> diagonal;  // D: the diagonal block is I2 (x) D + rigidity * C
-  std::vector<double> rigidity;           // the weight of C, which couples a00 with a11 and a01 with a10
+  std::vector<Eigen::Matrix3d> diagonal;  // D: the diagonal block is I2 (x) D + rigidity_coupling * C
+  std::vector<double> rigidity_coupling;  // w = (rigidity_weight * half-diagonal)^2: C couples a00-a11 and a01-a10
   std::vector<Vec6, Eigen::aligned_allocator<Vec6>> rhs;
   std::vector<std::pair<int, int>> pairs;     // (row frame, column frame) of each off-diagonal block: x_row, x_col
   std::vector<Eigen::Matrix3d> off_diagonal;  // B: the block is I2 (x) B
 
   explicit BlockSystem(size_t frames)
-      : diagonal(frames, Eigen::Matrix3d::Zero()), rigidity(frames, 0.0), rhs(frames, Vec6::Zero()) {}
+      : diagonal(frames, Eigen::Matrix3d::Zero()), rigidity_coupling(frames, 0.0), rhs(frames, Vec6::Zero()) {}
 
   // Frame i's 6x6 diagonal block, written out (for the direct solve's matrix).
   [[nodiscard]] Block FullDiagonal(size_t i) const {
     Block d = Block::Zero();
     d.block<3, 3>(0, 0) = diagonal[i];
     d.block<3, 3>(3, 3) = diagonal[i];
-    d(0, 4) = d(4, 0) = -rigidity[i];
-    d(1, 3) = d(3, 1) = rigidity[i];
+    d(0, 4) = d(4, 0) = -rigidity_coupling[i];
+    d(1, 3) = d(3, 1) = rigidity_coupling[i];
     return d;
   }
 
@@ -68,10 +71,11 @@ struct BlockSystem {
       const long a = static_cast<long>(i) * kDof;
       y->segment<3>(a).noalias() += diagonal[i] * x.segment<3>(a);
       y->segment<3>(a + 3).noalias() += diagonal[i] * x.segment<3>(a + 3);
-      (*y)(a) -= rigidity[i] * x(a + 4);
-      (*y)(a + 4) -= rigidity[i] * x(a);
-      (*y)(a + 1) += rigidity[i] * x(a + 3);
-      (*y)(a + 3) += rigidity[i] * x(a + 1);
+      const double w = rigidity_coupling[i];
+      (*y)(a) -= w * x(a + 4);
+      (*y)(a + 4) -= w * x(a);
+      (*y)(a + 1) += w * x(a + 3);
+      (*y)(a + 3) += w * x(a + 1);
     }
     for (size_t k = 0; k < pairs.size(); ++k) {
       const long a = static_cast<long>(pairs[k].first) * kDof;
@@ -185,7 +189,7 @@ void AddEdge(const Edge& e, const EdgePoints& points, const ColumnOf& column, co
 // Rigidity (a00 - a11 = 0 and a01 + a10 = 0, in pixels at the frame's half-diagonal) and a faint pull to the current
 // value, which keeps frames without constraints solvable (the gauge of a detached frame). The rigidity rows' squares
 // put w = scale^2 on the diagonal of a00, a01, a10 and a11 (D's (0,0) and (1,1), for both rows of the map), -w
-// between a00 and a11 and +w between a01 and a10 (the block's coupling, BlockSystem::rigidity).
+// between a00 and a11 and +w between a01 and a10 (BlockSystem::rigidity_coupling).
 void AddFramePriors(const ColumnOf& column, const std::unordered_map<int, Mat3>& T,
                     const std::unordered_map<int, double>& half_diagonal, const AdjustOptions& options,
                     BlockSystem* sys) {
@@ -198,7 +202,7 @@ void AddFramePriors(const ColumnOf& column, const std::unordered_map<int, Mat3>&
     const double w = scale > 0 ? scale * scale : 0.0;
     d(0, 0) += w;
     d(1, 1) += w;
-    sys->rigidity[index] = w;
+    sys->rigidity_coupling[index] = w;
     for (int c = 0; c < 3; ++c) d(c, c) += kDamping * kDamping;
     const Mat3& t = T.at(id);
     for (int r = 0; r < 2; ++r)
@@ -239,16 +243,16 @@ std::string SolveDirect(const BlockSystem& sys, Eigen::VectorXd* x) {
 }
 
 // Iterative: conjugate gradients from `x` (the current maps, already close), preconditioned by I2 (x) D^-1 per frame
-// (the diagonal block without the rigidity's coupling of the two rows, a few thousandths of D's linear terms). Memory
-// is the blocks, a 3x3 inverse per frame and four vectors (q holds the preconditioned residual once r is updated): it
-// grows with the frames and edges by a few hundred bytes each, never with a factor's fill.
+// (the diagonal block without the rigidity's coupling of the two rows, small beside D's linear entries wherever a frame
+// has points). Memory is the blocks, a 3x3 inverse per frame and four vectors (q holds N p, then the preconditioned
+// residual once r is updated): ~200 bytes a frame beyond the blocks, never a factor's fill.
 std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options, Eigen::VectorXd* x, int* iterations) {
   const size_t frames = sys.diagonal.size();
   const long n = static_cast<long>(frames) * kDof;
   std::vector<Eigen::Matrix3d> inverse(frames);
   for (size_t i = 0; i < frames; ++i) {
     const Eigen::LDLT<Eigen::Matrix3d> ldlt(sys.diagonal[i]);
-    if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return "normal equations are singular";
+    if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0)) return "normal equations are singular";
     inverse[i] = ldlt.solve(Eigen::Matrix3d::Identity());
   }
   const auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd* z) {
@@ -360,7 +364,7 @@ ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::un
                             EdgePointSource* points) {
   ResidualStats s;
   // The median from a fixed histogram, the sums in double as the residuals come: nothing here grows with the points.
-  LogHistogram r = ResidualHistogram();
+  LogHistogram histogram = ResidualHistogram();
   double sq = 0.0;
   for (const Edge* e : edges) {
     const auto ts = T.find(e->src);
@@ -370,14 +374,14 @@ ResidualStats EdgeResiduals(const std::vector<const Edge*>& edges, const std::un
     for (size_t k = 0; k < p.size(); ++k) {
       const double v = (Apply(ts->second, p.src(k).cast<double>()) - Apply(tt->second, p.tgt(k).cast<double>())).norm();
       sq += v * v;
-      r.Add(v);
+      histogram.Add(v);
     }
   }
-  s.count = r.count();
+  s.count = histogram.count();
   if (s.count == 0) return s;
-  s.max = r.max();
+  s.max = histogram.max();
   s.rms = std::sqrt(sq / static_cast<double>(s.count));
-  s.median = r.Median();
+  s.median = histogram.Median();
   return s;
 }
 

@@ -10,9 +10,9 @@
 #include <map>
 #include <optional>
 
-#include "core/adjust/affine_adjuster.h"  // ResidualHistogram
 #include "core/adjust/tree_lm.h"
 #include "core/util/clock.h"
+#include "core/util/stats.h"
 
 namespace uavm {
 
@@ -692,7 +692,7 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
                              const std::unordered_map<int, Mat3>& mosaic_from_frame, bool holdout, double max_px,
                              const LensRefine* lens, EdgePointSource* source) {
   TransferStats s;
-  LogHistogram r = ResidualHistogram();  // the median in fixed memory, the sum in double as the errors come
+  LogHistogram histogram = ResidualHistogram();  // the median in fixed memory, the sum in double as the errors come
   double sq = 0.0;
   for (const Edge* e : edges) {
     const auto ts = mosaic_from_frame.find(e->src);
@@ -706,15 +706,15 @@ TransferStats TransferErrors(const std::vector<const Edge*>& edges,
       const Vec2 q = (holdout ? points.holdout_tgt(k) : points.tgt(k)).cast<double>();
       const double d = lens != nullptr ? (Apply(tgt_from_src, lens->Ideal(p)) - lens->Ideal(q)).norm()
                                        : (Apply(tgt_from_src, p) - q).norm();
-      if (max_px > 0 && d > max_px) continue;
-      r.Add(d);
+      if (max_px > 0 && !(d <= max_px)) continue;  // a NaN is no inlier
+      histogram.Add(d);
       sq += d * d;
     }
   }
-  s.count = r.count();
+  s.count = histogram.count();
   if (s.count == 0) return s;
   s.rms = std::sqrt(sq / static_cast<double>(s.count));
-  s.median = r.Median();
+  s.median = histogram.Median();
   return s;
 }
 

@@ -6,19 +6,24 @@
 namespace uavm {
 
 LogHistogram::LogHistogram(double min_value, int decades, int bins_per_decade)
-    : min_value_(min_value),
-      bins_per_decade_(bins_per_decade),
-      bins_(static_cast<size_t>(std::max(1, decades * bins_per_decade)), 0) {}
+    : min_value_(min_value > 0 ? min_value : 1e-300),
+      bins_per_decade_(std::max(1, bins_per_decade)),
+      bins_(static_cast<size_t>(std::max(1, decades) * bins_per_decade_) + 2, 0) {}
 
-int LogHistogram::BinOf(double value) const {
-  if (!(value > min_value_)) return 0;
+size_t LogHistogram::BinOf(double value) const {
+  if (!(value >= min_value_)) return 0;
   const double b = std::floor(std::log10(value / min_value_) * bins_per_decade_);
-  return static_cast<int>(std::min<double>(b, static_cast<double>(bins_.size() - 1)));
+  const auto last = static_cast<double>(bins_.size() - 1);
+  return b + 1 >= last ? bins_.size() - 1 : static_cast<size_t>(b) + 1;
 }
 
 void LogHistogram::Add(double value) {
+  if (!std::isfinite(value)) {
+    ++non_finite_;
+    return;
+  }
   if (count_ == 0) min_ = max_ = value;
-  ++bins_[static_cast<size_t>(BinOf(value))];
+  ++bins_[BinOf(value)];
   ++count_;
   min_ = std::min(min_, value);
   max_ = std::max(max_, value);
@@ -30,13 +35,11 @@ double LogHistogram::AtRank(size_t rank) const {
   size_t seen = 0;
   for (size_t b = 0; b < bins_.size(); ++b) {
     seen += bins_[b];
-    if (seen >= rank) {
-      // The end bins take the values beyond the range: of those, the smallest and the largest are the ones known.
-      if (b == 0) return min_;
-      if (b + 1 == bins_.size()) return max_;
-      const double centre = min_value_ * std::pow(10.0, (static_cast<double>(b) + 0.5) / bins_per_decade_);
-      return std::clamp(centre, min_, max_);
-    }
+    if (seen < rank) continue;
+    if (b == 0) return min_;
+    if (b + 1 == bins_.size()) return max_;
+    const double centre = min_value_ * std::pow(10.0, (static_cast<double>(b - 1) + 0.5) / bins_per_decade_);
+    return std::clamp(centre, min_, max_);
   }
   return max_;
 }

@@ -6,33 +6,42 @@
 
 namespace uavm {
 
-// Quantiles of non-negative values in fixed memory: `bins_per_decade` log-spaced bins a decade over `decades` decades
-// from `min_value` (the first bin takes the values below and reports the smallest seen, the last those above and
-// reports the largest). A quantile is its bin's geometric centre clamped to the values seen: within half a bin of the
-// exact figure (10^(0.5 / bins_per_decade) - 1 relative), and exact for a single value. Count, min and max are exact.
-// What it holds does not grow with the values added.
+// Quantiles of values in fixed memory: `bins_per_decade` log-spaced bins a decade over `decades` decades from
+// `min_value` (> 0), and two more for what falls outside: values below `min_value` (zero, negatives) and values beyond
+// the last decade, which report the smallest and the largest seen. A quantile in the range is its bin's geometric
+// centre clamped to the values seen: within half a bin of the exact figure (10^(0.5 / bins_per_decade) - 1 relative),
+// and exact for a single value. A NaN or an infinity is not added (counted apart). Count, min and max are exact. What
+// it holds does not grow with the values added.
 class LogHistogram {
  public:
   LogHistogram(double min_value, int decades, int bins_per_decade);
 
   void Add(double value);
   [[nodiscard]] size_t count() const { return count_; }
+  [[nodiscard]] size_t non_finite() const { return non_finite_; }
   [[nodiscard]] double min() const { return min_; }
   [[nodiscard]] double max() const { return max_; }
   // The value of nearest rank `rank` (1-based, clamped to [1, count]); 0 when empty.
   [[nodiscard]] double AtRank(size_t rank) const;
+  // Nearest rank (count + 1) / 2: of an even count, the lower of the two middle values.
   [[nodiscard]] double Median() const { return AtRank((count_ + 1) / 2); }
 
  private:
-  [[nodiscard]] int BinOf(double value) const;
+  [[nodiscard]] size_t BinOf(double value) const;
 
   double min_value_;
   int bins_per_decade_;
-  std::vector<uint32_t> bins_;
+  std::vector<uint32_t> bins_;  // [0] below min_value, [1, n] the decades, [n + 1] beyond
   size_t count_ = 0;
+  size_t non_finite_ = 0;
   double min_ = 0.0;
   double max_ = 0.0;
 };
+
+// A histogram for residuals in pixels: 10^-6 to 10^6 px within 0.12 % (47 KiB, whatever the count).
+[[nodiscard]] inline LogHistogram ResidualHistogram() {
+  return LogHistogram(1e-6, 12, 1000);
+}
 
 struct Summary {
   size_t count = 0;
