@@ -638,8 +638,9 @@ Solution RegistrationEngine::FinishSolve() {
   counters_.end_points_per_edge = max_points;
   // All of the points when they fit end_correspondences. Beyond, the solves read an edge's share from the spill each
   // time they need it (edges.bin is read a few dozen times, from the page cache): what they hold stops growing with
-  // the flight's edges, except the share of those still resident from the flight, thinned in place before the solves
-  // begin (the matching's window, up to ~1 MiB of points, is not carried into them).
+  // the flight's edges, except the share of those still resident from the flight, thinned in place just before
+  // end_load begins (the matching's window, up to ~1 MiB of points: that moment counts in end_match, whose peak is
+  // higher).
   std::optional<EndPointReader> reader;
   bool loaded = true;
   if (max_points > 0 && spill_ != nullptr) {
