@@ -83,6 +83,21 @@ LoopScene MakeLoop(int n, double noise_px, unsigned seed) {
   return scene;
 }
 
+// Chords i -> i + 2 for i = 0, stride, 2 stride, ... below `end`, from the loop edges i -> i + 1 -> i + 2: the first
+// edge's points carried through the second's transform.
+void AddChords(LoopScene* scene, int end, int stride) {
+  for (int i = 0; i < end; i += stride) {
+    Edge e = scene->edges[static_cast<size_t>(i)];
+    const Edge& next = scene->edges[static_cast<size_t>(i + 1)];
+    e.tgt = i + 2;
+    test::EdgeLists lists = test::ListsOf(e.points);
+    for (Vec2f& q : lists.tgt) q = Apply(next.tgt_from_src, q.cast<double>()).cast<float>();
+    e.points = lists.Build();
+    e.tgt_from_src = next.tgt_from_src * e.tgt_from_src;
+    scene->edges.push_back(e);
+  }
+}
+
 TEST(AffineAdjusterTest, ClosedLoopOf50FramesReturnsToItsStart) {
   LoopScene scene = MakeLoop(50, 0.5, 11);
   std::vector<const Edge*> edges;
@@ -146,16 +161,7 @@ TEST(AffineAdjusterTest, LocalUpdateMovesOnlyTheVariableFrame) {
 // and relative-linear weights), a loop with its chords, both solvers.
 TEST(AffineAdjusterTest, BlocksGiveTheLeastSquaresSolutionOfTheRowsWrittenOut) {
   LoopScene scene = MakeLoop(12, 0.8, 31);
-  for (int i = 0; i + 3 < 12; i += 2) {  // chords: i -> i + 2, from the two edges' points
-    Edge e = scene.edges[static_cast<size_t>(i)];
-    const Edge& next = scene.edges[static_cast<size_t>(i + 1)];
-    e.tgt = i + 2;
-    test::EdgeLists lists = test::ListsOf(e.points);
-    for (Vec2f& q : lists.tgt) q = Apply(next.tgt_from_src, q.cast<double>()).cast<float>();
-    e.points = lists.Build();
-    e.tgt_from_src = next.tgt_from_src * e.tgt_from_src;
-    scene.edges.push_back(e);
-  }
+  AddChords(&scene, 9, 2);
   std::vector<const Edge*> edges;
   for (const auto& e : scene.edges) edges.push_back(&e);
   const std::vector<int> column{1, 2, 3, 4, 5, 7, 8, 9, 10, 11};  // 0 and 6 fixed
@@ -255,16 +261,7 @@ TEST(AffineAdjusterTest, BlocksGiveTheLeastSquaresSolutionOfTheRowsWrittenOut) {
 // reference (the right-hand side of a fixed side).
 TEST(AffineAdjusterTest, ConjugateGradientsGiveTheFactorisationsSolution) {
   LoopScene scene = MakeLoop(300, 0.5, 23);
-  for (int i = 0; i + 2 < 300; i += 3) {
-    Edge e = scene.edges[static_cast<size_t>(i)];
-    const Edge& next = scene.edges[static_cast<size_t>(i + 1)];
-    e.tgt = i + 2;
-    test::EdgeLists lists = test::ListsOf(e.points);
-    for (Vec2f& q : lists.tgt) q = Apply(next.tgt_from_src, q.cast<double>()).cast<float>();
-    e.points = lists.Build();
-    e.tgt_from_src = next.tgt_from_src * e.tgt_from_src;
-    scene.edges.push_back(e);
-  }
+  AddChords(&scene, 298, 3);
   std::vector<const Edge*> edges;
   for (const auto& e : scene.edges) edges.push_back(&e);
   std::unordered_set<int> variable;

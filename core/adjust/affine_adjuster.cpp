@@ -257,11 +257,8 @@ std::string SolveIterative(const BlockSystem& sys, const AdjustOptions& options,
   }
   const auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd* z) {
     z->resize(n);
-    for (size_t i = 0; i < frames; ++i)
-      for (long row = 0; row < kDof; row += 3) {
-        const long a = static_cast<long>(i) * kDof + row;
-        z->segment<3>(a).noalias() = inverse[i] * r.segment<3>(a);
-      }
+    for (long a = 0; a < n; a += 3)
+      z->segment<3>(a).noalias() = inverse[static_cast<size_t>(a / kDof)] * r.segment<3>(a);
   };
   // The residual starts as the right-hand side (no copy of it is kept: its norm is all the stop needs).
   Eigen::VectorXd r(n), p, q;
