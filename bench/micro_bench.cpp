@@ -66,15 +66,16 @@ bool Ready(benchmark::State& state) {
   return true;
 }
 
-// Arg: bands (1 = whole frame).
+// Args: bands (1 = whole frame), 1 = OpenCV 4.6's SIFT instead of ours.
 void BM_SiftExtract(benchmark::State& state) {
   if (!Ready(state)) return;
   const cv::Mat& gray = Frames().gray[0];
   uavm::FeatureOptions options;
+  options.opencv_sift = state.range(1) == 1;
   const int bands = static_cast<int>(state.range(0));
   if (bands > 1) {
     // The largest cap that still gives `bands` bands.
-    int mib = static_cast<int>(uavm::SiftScaleSpaceMiB(gray.cols, gray.rows));
+    int mib = static_cast<int>(uavm::SiftScaleSpaceMiB(gray.cols, gray.rows, options));
     options.max_scale_space_mib = mib;
     while (mib > 1 && uavm::SiftBands(gray.cols, gray.rows, options) < bands) options.max_scale_space_mib = --mib;
   }
@@ -84,9 +85,10 @@ void BM_SiftExtract(benchmark::State& state) {
   state.counters["bands"] = uavm::SiftBands(gray.cols, gray.rows, options);
 }
 BENCHMARK(BM_SiftExtract)
-    ->Arg(1)
-    ->Arg(2)
-    ->Arg(3)
+    ->Args({1, 0})
+    ->Args({2, 0})
+    ->Args({1, 1})
+    ->Args({3, 1})
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime();

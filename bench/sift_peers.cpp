@@ -41,8 +41,9 @@ void RootSift(cv::Mat* d) {
   }
 }
 
-Detected Ours(const cv::Mat& gray, bool half) {
+Detected Ours(const cv::Mat& gray, bool opencv, bool half) {
   uavm::FeatureOptions o;
+  o.opencv_sift = opencv;
   o.half_size = half;
   o.target_min_features = 0;  // one pass at the onboard threshold, as for the VLFeat runs
   const uavm::Features f = uavm::SiftExtractor(o).Extract(gray);
@@ -153,7 +154,7 @@ int main(int argc, char** argv) {
   cli.add_option("--frames", frames, "Frames to use");
   cli.add_option("--repeat", repeat, "Timed runs per frame and detector");
   cli.add_option("--work-size", work, "Long side of the working copy, px (onboard default 1000)");
-  cli.add_option("--only", only, "Run only detector N (0-3, in the table's order; for a profiler)");
+  cli.add_option("--only", only, "Run only detector N (0-4, in the table's order; for a profiler)");
   CLI11_PARSE(cli, argc, argv);
   cv::setNumThreads(1);  // one core each: OpenCV's SIFT would otherwise spread over both, VLFeat does not
   std::vector<std::string> files;
@@ -161,8 +162,9 @@ int main(int argc, char** argv) {
   std::sort(files.begin(), files.end());
   if (static_cast<int>(files.size()) > frames) files.resize(static_cast<size_t>(frames));
   const std::vector<std::pair<std::string, Detector>> detectors = {
-      {"opencv 4.6 (doubled, onboard today)", [](const cv::Mat& g) { return Ours(g, false); }},
-      {"opencv 4.6 on a half-size copy", [](const cv::Mat& g) { return Ours(g, true); }},
+      {"ours (core/features/dog_sift, doubled)", [](const cv::Mat& g) { return Ours(g, false, false); }},
+      {"opencv 4.6 (doubled)", [](const cv::Mat& g) { return Ours(g, true, false); }},
+      {"opencv 4.6 on a half-size copy", [](const cv::Mat& g) { return Ours(g, true, true); }},
       {"vlfeat 0.9.21, first octave -1", [](const cv::Mat& g) { return Vl(g, -1, 0.01, 3000); }},
       {"vlfeat 0.9.21, first octave 0", [](const cv::Mat& g) { return Vl(g, 0, 0.01, 3000); }}};
   std::mt19937 rng(40);

@@ -16,9 +16,12 @@ TEST(MemoryBudgetTest, DefaultBudgetFitsBothPhasesOfA12MpFlight) {
   ASSERT_TRUE(ApplyMemoryBudget(1000, 750, &o, &plan, &why)) << why;
   EXPECT_LE(plan.FlightMiB(), 256.0);
   EXPECT_LE(plan.EndMiB(), 256.0);
-  // The whole-image scale space of a 1000x750 frame (173 MiB) cannot fit: the detector works in bands.
-  EXPECT_GE(plan.sift_bands, 2);
+  // Our detector's scale space of a 1000x750 frame (92 MiB) fits whole; OpenCV's (173 MiB) would need bands.
+  EXPECT_EQ(plan.sift_bands, 1);
   EXPECT_EQ(SiftBands(1000, 750, o.features), plan.sift_bands);
+  FeatureOptions opencv = o.features;
+  opencv.opencv_sift = true;
+  EXPECT_GE(SiftBands(1000, 750, opencv), 2);
   EXPECT_LE(o.queue_capacity, 2);
   EXPECT_LT(o.feature_cache_mib, 192);
   EXPECT_LT(o.relocalization.max_descriptors, 131072);

@@ -46,14 +46,14 @@ TEST(SiftTest, BandedDetectionAgreesWithTheWholeImage) {
   FeatureOptions banded;
   // A cap that splits detection into 3 bands (80 MiB at 1000 px).
   const int cap =
-      static_cast<int>(std::ceil(SiftScaleSpaceMiB(gray.cols, (gray.rows + 2) / 3 + 2 * banded.band_margin)));
+      static_cast<int>(std::ceil(SiftScaleSpaceMiB(gray.cols, (gray.rows + 2) / 3 + 2 * banded.band_margin, banded)));
   banded.max_scale_space_mib = cap;
   ASSERT_EQ(SiftBands(gray.cols, gray.rows, whole), 1);
   const int bands = SiftBands(gray.cols, gray.rows, banded);
   EXPECT_GE(bands, 2);
   const int band_rows = (gray.rows + bands - 1) / bands + 2 * banded.band_margin;
-  EXPECT_LE(SiftScaleSpaceMiB(gray.cols, band_rows), cap);
-  EXPECT_GT(SiftScaleSpaceMiB(gray.cols, gray.rows), cap);
+  EXPECT_LE(SiftScaleSpaceMiB(gray.cols, band_rows, banded), cap);
+  EXPECT_GT(SiftScaleSpaceMiB(gray.cols, gray.rows, banded), cap);
 
   const Features a = SiftExtractor(whole).Extract(gray);
   const Features b = SiftExtractor(banded).Extract(gray);

@@ -4,6 +4,8 @@
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "core/features/dog_sift.h"
+
 namespace uavm {
 
 bool FeatureOptions::Check(std::string* why) const {
@@ -23,7 +25,8 @@ bool FeatureOptions::Check(std::string* why) const {
   return true;
 }
 
-double SiftScaleSpaceMiB(int width, int height) {
+double SiftScaleSpaceMiB(int width, int height, const FeatureOptions& options) {
+  if (!options.opencv_sift) return DogSiftScaleSpaceMiB(width, height);
   // Octave -1 is 2w x 2h; each further octave a quarter of the previous: 4/3 of the first in all.
   constexpr double kImagesPerOctave = 11.0;  // 6 Gaussian + 5 difference-of-Gaussian, float
   const double first = 4.0 * static_cast<double>(width) * static_cast<double>(height) * sizeof(float);
@@ -35,20 +38,53 @@ int SiftBands(int width, int height, const FeatureOptions& options) {
   constexpr int kMaxBands = 16;
   for (int bands = 1; bands <= kMaxBands; ++bands) {
     const int rows = (height + bands - 1) / bands + (bands > 1 ? 2 * options.band_margin : 0);
-    if (SiftScaleSpaceMiB(width, std::min(rows, height)) <= options.max_scale_space_mib) return bands;
+    if (SiftScaleSpaceMiB(width, std::min(rows, height), options) <= options.max_scale_space_mib) return bands;
   }
   return kMaxBands;
 }
 
 SiftExtractor::SiftExtractor(const FeatureOptions& options) : options_(options) {}
 
+namespace {
+
+// One SIFT pass over `gray`: at most max_features keypoints (OpenCV keeps ties at the cut, so it may return a few
+// more), positions in pixel-centre coordinates. With `ladder` (ours only), the threshold is lowered within the pass
+// as Extract's loop would (DogSiftOptions::target_min_features); *threshold_used says where it stopped.
+void DetectOnce(const cv::Mat& gray, const FeatureOptions& options, int max_features, double threshold,
+                std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors, bool ladder = false,
+                double* threshold_used = nullptr) {
+  keypoints->clear();
+  if (threshold_used != nullptr) *threshold_used = threshold;
+  if (options.opencv_sift) {
+    auto sift = cv::SIFT::create(max_features, options.octave_layers, threshold, 10.0, 1.6);
+    sift->detectAndCompute(gray, cv::noArray(), *keypoints, *descriptors);
+    // OpenCV's SIFT reports positions as doubled-image index / 2, while pixel centres of the doubled image sit at
+    // (i + 0.5) / 2 - 0.5: every keypoint is 0.25 px too far right and down. Harmless for a pure translation, but
+    // with rotation or scale it biases the fitted transform by (I - L) * 0.25 px.
+    for (auto& k : *keypoints) k.pt -= cv::Point2f(0.25f, 0.25f);
+    return;
+  }
+  DogSiftOptions o;
+  o.octave_layers = options.octave_layers;
+  o.contrast_threshold = threshold;
+  o.max_features = max_features;
+  if (ladder) {
+    o.target_min_features = options.target_min_features;
+    o.min_contrast_threshold = options.min_contrast_threshold;
+  }
+  std::vector<SiftKeypoint> found;
+  DetectAndDescribeSift(gray, o, &found, descriptors, threshold_used);
+  keypoints->reserve(found.size());
+  for (const auto& k : found) keypoints->emplace_back(k.point, k.size, k.angle, k.response, k.octave);
+}
+
+}  // namespace
+
 void SiftExtractor::Detect(const cv::Mat& gray, double threshold, std::vector<cv::KeyPoint>* keypoints,
                            cv::Mat* descriptors) const {
   const int bands = SiftBands(gray.cols, gray.rows, options_);
   if (bands <= 1) {
-    auto sift = cv::SIFT::create(options_.max_features, options_.octave_layers, threshold, 10.0, 1.6);
-    sift->detectAndCompute(gray, cv::noArray(), *keypoints, *descriptors);
-    // OpenCV keeps ties at the cut, so it may return a few more than asked.
+    DetectOnce(gray, options_, options_.max_features, threshold, keypoints, descriptors);
     if (keypoints->size() > static_cast<size_t>(options_.max_features)) {
       std::vector<size_t> order(keypoints->size());
       for (size_t i = 0; i < order.size(); ++i) order[i] = i;
@@ -79,10 +115,9 @@ void SiftExtractor::Detect(const cv::Mat& gray, double threshold, std::vector<cv
     const int ry0 = std::max(0, y0 - options_.band_margin);
     const int ry1 = std::min(gray.rows, y1 + options_.band_margin);
     const int share = static_cast<int>(1.5 * options_.max_features * (y1 - y0) / gray.rows) + 16;
-    auto sift = cv::SIFT::create(share, options_.octave_layers, threshold, 10.0, 1.6);
     std::vector<cv::KeyPoint> kps;
     cv::Mat desc;
-    sift->detectAndCompute(gray.rowRange(ry0, ry1), cv::noArray(), kps, desc);
+    DetectOnce(gray.rowRange(ry0, ry1), options_, share, threshold, &kps, &desc);
     for (size_t i = 0; i < kps.size(); ++i) {
       cv::KeyPoint kp = kps[i];
       kp.pt.y += static_cast<float>(ry0);
@@ -112,21 +147,23 @@ Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
   if (half) cv::resize(gray_in, gray, cv::Size((gray_in.cols + 1) / 2, (gray_in.rows + 1) / 2), 0, 0, cv::INTER_AREA);
   std::vector<cv::KeyPoint> keypoints;
   double threshold = options_.contrast_threshold;
-  for (;;) {
-    keypoints.clear();
-    Detect(gray, threshold, &keypoints, &out.descriptors);
-    out.contrast_threshold_used = threshold;
-    if (static_cast<int>(keypoints.size()) >= options_.target_min_features) break;
-    const double next = threshold / 3.0;
-    if (next < options_.min_contrast_threshold) break;
-    threshold = next;
+  if (!options_.opencv_sift && SiftBands(gray.cols, gray.rows, options_) == 1) {
+    // Ours lowers the threshold on one scale space instead of detecting again.
+    DetectOnce(gray, options_, options_.max_features, threshold, &keypoints, &out.descriptors, true,
+               &out.contrast_threshold_used);
+  } else {
+    for (;;) {
+      keypoints.clear();
+      Detect(gray, threshold, &keypoints, &out.descriptors);
+      out.contrast_threshold_used = threshold;
+      if (static_cast<int>(keypoints.size()) >= options_.target_min_features) break;
+      const double next = threshold / 3.0;
+      if (next < options_.min_contrast_threshold) break;
+      threshold = next;
+    }
   }
-  // OpenCV's SIFT doubles the image first and reports positions as doubled-image index / 2, while pixel centres of
-  // the doubled image sit at (i + 0.5) / 2 - 0.5: every keypoint is 0.25 px too far right and down. Harmless for a
-  // pure translation, but with rotation or scale it biases the fitted transform by (I - L) * 0.25 px.
-  constexpr float kSiftCentreShift = 0.25f;
   out.points.reserve(keypoints.size());
-  for (const auto& kp : keypoints) out.points.emplace_back(kp.pt.x - kSiftCentreShift, kp.pt.y - kSiftCentreShift);
+  for (const auto& kp : keypoints) out.points.push_back(kp.pt);
   // Pixel centres map as (p + 0.5) * s - 0.5 with s the exact size ratio (2 for an even side: 2p + 0.5; an odd side
   // is shrunk by slightly less than 2).
   if (half) {

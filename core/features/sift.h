@@ -16,10 +16,12 @@ struct FeatureOptions {
   int octave_layers = 3;
   // L1-normalise and square-root descriptors (RootSIFT): better ratio-test matching at no cost.
   bool root_sift = true;
-  // Memory cap on OpenCV's scale space (it doubles the image, then keeps 11 float images per octave: ~240 bytes per
-  // working pixel, 173 MiB for 1000x750). Above it the frame is processed in horizontal bands with an overlap
-  // (band_margin px) that covers the detection and descriptor support of all but the coarsest octaves; 0 = no cap.
-  // Set from the memory budget.
+  // OpenCV 4.6's SIFT instead of ours (core/features/dog_sift.h), for comparison: the same conventions, ~3x the time.
+  bool opencv_sift = false;
+  // Memory cap on the scale space (ours keeps 8 float images of the doubled first octave: 128 bytes per working
+  // pixel, 92 MiB for 1000x750; OpenCV's 11 per octave of the whole pyramid, 235 bytes, 173 MiB). Above it the frame is
+  // processed in horizontal bands with an overlap (band_margin px) that covers the detection and descriptor support of
+  // all but the coarsest octaves; 0 = no cap. Set from the memory budget.
   int max_scale_space_mib = 0;
   int band_margin = 48;
   // Detect and describe on a half-size copy (area-averaged): SIFT doubles its input first, so this is SIFT's scale
@@ -30,9 +32,9 @@ struct FeatureOptions {
   [[nodiscard]] bool Check(std::string* why) const;
 };
 
-// Bytes of OpenCV's SIFT scale space for a width x height image (doubled first octave, 6 Gaussian + 5 DoG images per
-// octave, float).
-[[nodiscard]] double SiftScaleSpaceMiB(int width, int height);
+// MiB of the scale space for a width x height image (ours: DogSiftScaleSpaceMiB; OpenCV's: doubled first octave, 6
+// Gaussian + 5 DoG float images per octave, the whole pyramid at once).
+[[nodiscard]] double SiftScaleSpaceMiB(int width, int height, const FeatureOptions& options);
 // Number of horizontal bands Extract() uses for a width x height image under `options`.
 [[nodiscard]] int SiftBands(int width, int height, const FeatureOptions& options);
 
@@ -55,7 +57,8 @@ class SiftExtractor {
   [[nodiscard]] Features Extract(const cv::Mat& gray) const;
 
  private:
-  // One detection at `threshold`, whole image or banded; strongest max_features kept.
+  // One detection at `threshold`, whole image or banded; strongest max_features kept. Positions in pixel-centre
+  // coordinates.
   void Detect(const cv::Mat& gray, double threshold, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors) const;
 
   FeatureOptions options_;

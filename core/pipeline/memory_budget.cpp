@@ -99,7 +99,7 @@ MemoryPlan DescribeUnbudgeted(const PipelineOptions& o, int work_width, int work
   p.queue_mib = queue_mib;
   const cv::Size sift = SiftInput(work_width, work_height, o.features);
   p.sift_bands = SiftBands(sift.width, sift.height, o.features);
-  p.sift_mib = SiftScaleSpaceMiB(sift.width, sift.height) / p.sift_bands;
+  p.sift_mib = SiftScaleSpaceMiB(sift.width, sift.height, o.features) / p.sift_bands;
   p.feature_cache_mib = o.feature_cache_mib;
   p.subpixel_frames = o.subpixel.enabled ? o.subpixel.cache_frames : 0;
   p.subpixel_mib = p.subpixel_frames * GrayMiB(work_width, work_height);
@@ -163,7 +163,7 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
     p.subpixel_mib = p.subpixel_frames * GrayMiB(work_width, work_height);
   }
   const cv::Size sift = SiftInput(work_width, work_height, o.features);
-  const double smallest_band = SiftScaleSpaceMiB(sift.width, 2 * o.features.band_margin + 32);
+  const double smallest_band = SiftScaleSpaceMiB(sift.width, 2 * o.features.band_margin + 32, o.features);
   // No slack is taken from the detector: a 4 % slack turned caliterra-sized frames' 3 bands into 4, which moved
   // keypoints and cost brighton_beach's held-out RMS 0.98 -> 1.21 px, for no measurable drop of the flight's peak
   // (what held the 5000-frame flight within the budget was trimming the heap after every frame).
@@ -180,7 +180,7 @@ bool ApplyMemoryBudget(int work_width, int work_height, PipelineOptions* options
   p.sift_bands = SiftBands(sift.width, sift.height, features);
   const int band_rows =
       (sift.height + p.sift_bands - 1) / p.sift_bands + (p.sift_bands > 1 ? 2 * features.band_margin : 0);
-  p.sift_mib = SiftScaleSpaceMiB(sift.width, std::min(sift.height, band_rows));
+  p.sift_mib = SiftScaleSpaceMiB(sift.width, std::min(sift.height, band_rows), features);
 
   // End of flight: what the flight leaves, then the TIFF writer, the tile workers and frame pixels (one load, the
   // cache; the quick-look is made on disk). The plan cannot know the frames' size (the compositor loads them at the

@@ -1,0 +1,190 @@
+#include "core/features/dog_sift.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <iostream>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/features2d.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <vector>
+
+#include "tests/test_env.h"
+
+namespace uavm {
+namespace {
+
+const std::string kData = UAVM_TEST_DATA;
+
+cv::Mat WorkingGray(int long_side) {
+  cv::Mat img = cv::imread(kData + "/caliterra_small/images/IMG_9360.jpg", cv::IMREAD_GRAYSCALE);
+  EXPECT_FALSE(img.empty());
+  const double s = static_cast<double>(long_side) / std::max(img.cols, img.rows);
+  cv::Mat out;
+  cv::resize(img, out, cv::Size(), s, s, cv::INTER_AREA);
+  return out;
+}
+
+// Synthetic truth: a dark Gaussian blob at a known sub-pixel centre is one keypoint there, of its scale.
+TEST(DogSiftTest, FindsABlobAtItsSubPixelCentre) {
+  const cv::Point2d centre(61.37, 47.81);
+  const double sigma = 4.0;
+  cv::Mat img(96, 128, CV_8U);
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x) {
+      const double r2 = (x - centre.x) * (x - centre.x) + (y - centre.y) * (y - centre.y);
+      img.at<uchar>(y, x) = cv::saturate_cast<uchar>(200.0 - 150.0 * std::exp(-r2 / (2 * sigma * sigma)));
+    }
+  std::vector<SiftKeypoint> kps;
+  cv::Mat desc;
+  DetectAndDescribeSift(img, DogSiftOptions{}, &kps, &desc);
+  ASSERT_FALSE(kps.empty());
+  const SiftKeypoint& best = kps.front();  // strongest first
+  EXPECT_NEAR(best.point.x, centre.x, 0.05);
+  EXPECT_NEAR(best.point.y, centre.y, 0.05);
+  // A blob of sigma s answers the scale-normalised Laplacian most at scale s; OpenCV's size is twice the scale.
+  EXPECT_NEAR(best.size, 2.0 * sigma, 0.2 * 2.0 * sigma);
+  EXPECT_EQ(desc.rows, static_cast<int>(kps.size()));
+  EXPECT_EQ(desc.cols, 128);
+}
+
+// The same keypoints as OpenCV 4.6's SIFT with the same settings: nearly all at the same place (OpenCV's positions
+// moved to pixel centres by -0.25 px), of the same size, and no offset between the two.
+TEST(DogSiftTest, KeypointsAgreeWithOpenCvSift) {
+  const cv::Mat gray = WorkingGray(static_cast<int>(800 * test::EmulationImageScale()));
+  DogSiftOptions o;
+  std::vector<SiftKeypoint> ours;
+  cv::Mat ours_desc;
+  DetectAndDescribeSift(gray, o, &ours, &ours_desc);
+  std::vector<cv::KeyPoint> theirs;
+  cv::Mat theirs_desc;
+  cv::SIFT::create(o.max_features, o.octave_layers, o.contrast_threshold, o.edge_threshold, o.sigma)
+      ->detectAndCompute(gray, cv::noArray(), theirs, theirs_desc);
+  ASSERT_GT(theirs.size(), 1000u);
+  EXPECT_NEAR(static_cast<double>(ours.size()), static_cast<double>(theirs.size()),
+              0.03 * static_cast<double>(theirs.size()));
+  int same = 0;
+  double sum_dx = 0.0;
+  double sum_dy = 0.0;
+  for (const auto& k : ours) {
+    for (const auto& t : theirs) {
+      const cv::Point2f d = k.point - (t.pt - cv::Point2f(0.25f, 0.25f));
+      if (std::abs(d.x) > 0.05f || std::abs(d.y) > 0.05f) continue;
+      if (std::abs(k.size / t.size - 1.f) > 0.01f) continue;
+      ++same;
+      sum_dx += d.x;
+      sum_dy += d.y;
+      break;
+    }
+  }
+  std::cerr << same << " of " << ours.size() << " keypoints as OpenCV's (" << theirs.size() << ")\n";
+  EXPECT_GT(same, static_cast<int>(0.9 * static_cast<double>(ours.size())));
+  EXPECT_LT(std::abs(sum_dx / same), 0.002);
+  EXPECT_LT(std::abs(sum_dy / same), 0.002);
+}
+
+struct PairScore {
+  int matches = 0;
+  int correct = 0;
+};
+
+// Mutual ratio-test matches between two images, scored against the homography b_from_a (correct within 2 px).
+PairScore ScorePair(const std::vector<cv::Point2f>& a, const cv::Mat& da, const std::vector<cv::Point2f>& b,
+                    const cv::Mat& db, const cv::Mat& b_from_a) {
+  cv::BFMatcher matcher(cv::NORM_L2);
+  std::vector<std::vector<cv::DMatch>> ab, ba;
+  matcher.knnMatch(da, db, ab, 2);
+  matcher.knnMatch(db, da, ba, 1);
+  PairScore s;
+  for (const auto& m : ab) {
+    if (m.size() < 2 || m[0].distance > 0.8f * m[1].distance) continue;
+    if (ba[static_cast<size_t>(m[0].trainIdx)].empty() ||
+        ba[static_cast<size_t>(m[0].trainIdx)][0].trainIdx != m[0].queryIdx)
+      continue;
+    ++s.matches;
+    std::vector<cv::Point2f> in{a[static_cast<size_t>(m[0].queryIdx)]}, out;
+    cv::perspectiveTransform(in, out, b_from_a);
+    if (cv::norm(out[0] - b[static_cast<size_t>(m[0].trainIdx)]) < 2.0) ++s.correct;
+  }
+  return s;
+}
+
+// OpenCV's graf pair (a 40-degree change of viewpoint, its exact homography): at least as many correct matches as
+// OpenCV's SIFT (within 5 %), and as large a share of them correct.
+TEST(DogSiftTest, MatchesTheGrafPairAsWellAsOpenCvSift) {
+  const cv::Mat a = cv::imread(kData + "/opencv_samples/graf1.png", cv::IMREAD_GRAYSCALE);
+  const cv::Mat b = cv::imread(kData + "/opencv_samples/graf3.png", cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(a.empty());
+  ASSERT_FALSE(b.empty());
+  cv::Mat h;
+  cv::FileStorage fs(kData + "/opencv_samples/H1to3p.xml", cv::FileStorage::READ);
+  fs.getFirstTopLevelNode() >> h;
+  ASSERT_EQ(h.rows, 3);
+  h.convertTo(h, CV_64F);
+  DogSiftOptions o;
+  auto ours = [&](const cv::Mat& img, std::vector<cv::Point2f>* pts, cv::Mat* desc) {
+    std::vector<SiftKeypoint> kps;
+    DetectAndDescribeSift(img, o, &kps, desc);
+    for (const auto& k : kps) pts->push_back(k.point);
+  };
+  auto theirs = [&](const cv::Mat& img, std::vector<cv::Point2f>* pts, cv::Mat* desc) {
+    std::vector<cv::KeyPoint> kps;
+    cv::SIFT::create(o.max_features, o.octave_layers, o.contrast_threshold, o.edge_threshold, o.sigma)
+        ->detectAndCompute(img, cv::noArray(), kps, *desc);
+    for (const auto& k : kps) pts->push_back(k.pt - cv::Point2f(0.25f, 0.25f));
+  };
+  std::vector<cv::Point2f> pa, pb, qa, qb;
+  cv::Mat da, db, ea, eb;
+  ours(a, &pa, &da);
+  ours(b, &pb, &db);
+  theirs(a, &qa, &ea);
+  theirs(b, &qb, &eb);
+  // Pixel centres: the homography maps pixel indices, as do both sets of points.
+  const PairScore s_ours = ScorePair(pa, da, pb, db, h);
+  const PairScore s_theirs = ScorePair(qa, ea, qb, eb, h);
+  std::cerr << "graf1-3: ours " << s_ours.correct << " / " << s_ours.matches << ", OpenCV " << s_theirs.correct << " / "
+            << s_theirs.matches << "\n";
+  ASSERT_GT(s_theirs.correct, 50);
+  EXPECT_GE(s_ours.correct, static_cast<int>(0.95 * s_theirs.correct));
+  EXPECT_GE(static_cast<double>(s_ours.correct) / s_ours.matches,
+            0.97 * static_cast<double>(s_theirs.correct) / s_theirs.matches);
+}
+
+// The result does not depend on the number of threads (each task computes whole rows or whole keypoints).
+TEST(DogSiftTest, SameBitsWithOneThreadOrMany) {
+  const cv::Mat gray = WorkingGray(static_cast<int>(500 * test::EmulationImageScale()));
+  std::vector<SiftKeypoint> many, one;
+  cv::Mat dm, d1;
+  DetectAndDescribeSift(gray, DogSiftOptions{}, &many, &dm);
+  const int threads = cv::getNumThreads();
+  cv::setNumThreads(1);
+  DetectAndDescribeSift(gray, DogSiftOptions{}, &one, &d1);
+  cv::setNumThreads(threads);
+  ASSERT_EQ(many.size(), one.size());
+  for (size_t i = 0; i < many.size(); ++i) {
+    EXPECT_EQ(many[i].point, one[i].point);
+    EXPECT_EQ(many[i].angle, one[i].angle);
+  }
+  EXPECT_EQ(cv::norm(dm, d1, cv::NORM_INF), 0.0);
+}
+
+TEST(DogSiftTest, TinyAndFlatImagesGiveNothing) {
+  std::vector<SiftKeypoint> kps;
+  cv::Mat desc;
+  DetectAndDescribeSift(cv::Mat(5, 5, CV_8U, cv::Scalar(7)), DogSiftOptions{}, &kps, &desc);
+  EXPECT_TRUE(kps.empty());
+  DetectAndDescribeSift(cv::Mat(300, 400, CV_8U, cv::Scalar(128)), DogSiftOptions{}, &kps, &desc);
+  EXPECT_TRUE(kps.empty());
+  EXPECT_EQ(desc.rows, 0);
+}
+
+// The scale space's figure is what the memory plan reserves: 8 float images of the doubled first octave.
+TEST(DogSiftTest, ScaleSpaceFigure) {
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750), 8.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, false), 8.0 * 1000 * 750 * 4 / (1024.0 * 1024.0), 1e-9);
+}
+
+}  // namespace
+}  // namespace uavm
