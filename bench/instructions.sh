@@ -246,9 +246,12 @@ row() {
 {
   echo "| stage (one call) | x86-64 instructions (callgrind) | aarch64 instructions (meas. = qemu plugin; est. = x86 x 1.0) | a64/x86 | A72 ms @ ${A72_GHZ} GHz | A76 ms @ ${A76_GHZ} GHz | IPC type (A72 / A76) |"
   echo "|---|---:|---:|---:|---:|---:|---|"
-  row "SIFT whole frame (BM_SiftExtract/1)" "$(x86 BM_SiftExtract/1/)" "$(a64 BM_SiftExtract/1/)" SIMD
-  row "SIFT 2 bands (BM_SiftExtract/2)" "$(x86 BM_SiftExtract/2/)" "$(a64 BM_SiftExtract/2/)" SIMD
-  row "SIFT 3 bands (BM_SiftExtract/3) — the default plan" "$(x86 BM_SiftExtract/3/)" "$(a64 BM_SiftExtract/3/)" SIMD
+  row "SIFT whole frame, ours (BM_SiftExtract/1/0) — the default plan" "$(x86 BM_SiftExtract/1/0/)" \
+    "$(a64 BM_SiftExtract/1/0/)" SIMD
+  row "SIFT 2 bands, ours (BM_SiftExtract/2/0)" "$(x86 BM_SiftExtract/2/0/)" "$(a64 BM_SiftExtract/2/0/)" SIMD
+  row "SIFT whole frame, OpenCV 4.6 (BM_SiftExtract/1/1)" "$(x86 BM_SiftExtract/1/1/)" "$(a64 BM_SiftExtract/1/1/)" SIMD
+  row "SIFT 3 bands, OpenCV 4.6 (BM_SiftExtract/3/1) — the plan before issue 40" "$(x86 BM_SiftExtract/3/1/)" \
+    "$(a64 BM_SiftExtract/3/1/)" SIMD
   row "descriptor index build (BM_IndexBuild)" "$(x86 BM_IndexBuild/)" "$(a64 BM_IndexBuild/)" BRANCHY
   row "index query, all points (BM_IndexQuery)" "$(x86 BM_IndexQuery/)" "$(a64 BM_IndexQuery/)" BRANCHY
   row "pair match unguided (BM_MatchPair/0)" "$(x86 BM_MatchPair/0/)" "$(a64 BM_MatchPair/0/)" BRANCHY
@@ -263,8 +266,8 @@ row() {
 } >"$OUT_DIR/table.md"
 
 # --- per frame and frames/s --------------------------------------------------------------------------------------
-# In-flight work per frame of the default onboard run at the working size (1000x750, sift_bands 3):
-#   decode + SIFT (3 bands) + one index build + EDGES_PER_FRAME pair matches (guided; the pessimistic case unguided)
+# In-flight work per frame of the default onboard run at the working size (1000x750, sift_bands 1 with our SIFT):
+#   decode + SIFT (whole frame) + one index build + EDGES_PER_FRAME pair matches (guided; the pessimistic case unguided)
 #   + OTHER_SHARE for the stages the micro-bench lacks (prepare, preview, adjust, live georef).
 # Defaults from the caliterra_small run of 2026-11-24 (report.json: 67 edges / 20 frames; stage medians: prepare +
 # preview + adjust + georef = 6.4 % of decode + features + matching).
@@ -276,14 +279,14 @@ OTHER_SHARE=${OTHER_SHARE:-0.064}
   echo ""
   echo "Per frame (aarch64 instructions; \"est.\" = x86-64 count used) and frames/s, optimistic / nominal / pessimistic:"
   echo ""
-  echo "| frame source | decode | SIFT/3 | matching (guided; unguided) | other | total | A72 @ ${A72_GHZ} GHz frames/s | A76 @ ${A76_GHZ} GHz frames/s |"
+  echo "| frame source | decode | SIFT | matching (guided; unguided) | other | total | A72 @ ${A72_GHZ} GHz frames/s | A76 @ ${A76_GHZ} GHz frames/s |"
   echo "|---|---:|---:|---:|---:|---:|---|---|"
   for src in "1000x750 JPEG (replay)|$(a64 BM_JpegDecode/1/)|$(x86 BM_JpegDecode/1/)|1" \
     "12 MP photo, 1/4 DCT decode|$(a64 BM_JpegDecode/4/ a64_12mp)|$(x86 BM_JpegDecode/4/ x86_12mp)|1" \
     "20 MP photo, 1/4 DCT decode (12 MP x 20/12)|$(a64 BM_JpegDecode/4/ a64_12mp)|$(x86 BM_JpegDecode/4/ x86_12mp)|1.6667"; do
     IFS='|' read -r label dec_a dec_x dec_k <<<"$src"
-    awk -v l="$label" -v dec="${dec_a:-$dec_x}" -v k="$dec_k" -v sift="$(a64 BM_SiftExtract/3/)" \
-      -v sift_x="$(x86 BM_SiftExtract/3/)" -v idx="$(a64 BM_IndexBuild/)" -v idx_x="$(x86 BM_IndexBuild/)" \
+    awk -v l="$label" -v dec="${dec_a:-$dec_x}" -v k="$dec_k" -v sift="$(a64 BM_SiftExtract/1/0/)" \
+      -v sift_x="$(x86 BM_SiftExtract/1/0/)" -v idx="$(a64 BM_IndexBuild/)" -v idx_x="$(x86 BM_IndexBuild/)" \
       -v g="$(a64 BM_MatchPair/1/)" -v g_x="$(x86 BM_MatchPair/1/)" -v u="$(a64 BM_MatchPair/0/)" \
       -v u_x="$(x86 BM_MatchPair/0/)" -v e="$EDGES_PER_FRAME" -v o="$OTHER_SHARE" -v f72="$A72_GHZ" -v f76="$A76_GHZ" '
       function fps(simd, br, oth, cores, mem, f, m) {
