@@ -515,28 +515,22 @@ struct DescriptorWindow {
   std::vector<float> weight;  // e^(-k^2 / (2 (d/2 cells)^2)) for offsets k in [0, radius]
 };
 
-// For the pixels j = jb .. jb + count - 1 of window row i (gradients in s->magnitude, s->degrees): the first histogram
-// bin of each pixel's votes (-1 outside the cells) and its 8 trilinear weights (two cells in each direction, two of
-// the 8 direction bins), four pixels at a time with universal intrinsics; the same operations, in the same order, as
-// the scalar loop for the rest.
-void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, GradientScratch* s) {
-  constexpr int d = kDescriptorWidth;
-  constexpr int n = kDescriptorBins;
-  const float bins_per_degree = n / 360.f;
-  const float fi_sin = fi * win.sin_t;
-  const float fi_cos = fi * win.cos_t;
-  const auto stride = static_cast<size_t>(count);
-  float* votes = s->votes.data();
+// The vector part of DescriptorVotes: pixels [0, returned count).
+int DescriptorVotes4(const DescriptorWindow& win, float fi, int jb, int count, GradientScratch* s) {
   int t = 0;
 #if CV_SIMD128
+  constexpr int d = kDescriptorWidth;
+  constexpr int n = kDescriptorBins;
+  const auto stride = static_cast<size_t>(count);
+  float* votes = s->votes.data();
   using cv::v_float32x4;
   using cv::v_int32x4;
   const v_float32x4 cos_t = cv::v_setall_f32(win.cos_t), sin_t = cv::v_setall_f32(win.sin_t);
-  const v_float32x4 vfi_sin = cv::v_setall_f32(fi_sin), vfi_cos = cv::v_setall_f32(fi_cos);
+  const v_float32x4 vfi_sin = cv::v_setall_f32(fi * win.sin_t), vfi_cos = cv::v_setall_f32(fi * win.cos_t);
   const v_float32x4 centre = cv::v_setall_f32(static_cast<float>(d / 2)), half = cv::v_setall_f32(0.5f);
   const v_float32x4 minus_one = cv::v_setall_f32(-1.f), cells = cv::v_setall_f32(static_cast<float>(d));
   const v_float32x4 one = cv::v_setall_f32(1.f), bins = cv::v_setall_f32(static_cast<float>(n));
-  const v_float32x4 ori = cv::v_setall_f32(win.ori), per_degree = cv::v_setall_f32(bins_per_degree);
+  const v_float32x4 ori = cv::v_setall_f32(win.ori), per_degree = cv::v_setall_f32(n / 360.f);
   const v_float32x4 zero = cv::v_setzero_f32(), row_bins = cv::v_setall_f32(static_cast<float>(d + 2));
   const v_float32x4 dir_bins = cv::v_setall_f32(static_cast<float>(n + 2));
   const v_int32x4 ione = cv::v_setall_s32(1), in = cv::v_setall_s32(n), izero = cv::v_setzero_s32();
@@ -573,7 +567,29 @@ void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, G
     cv::v_store(votes + 6 * stride + t, v_rc11 - v_rco111);
     cv::v_store(votes + 7 * stride + t, v_rco111);
   }
+#else
+  (void)win;
+  (void)fi;
+  (void)jb;
+  (void)count;
+  (void)s;
 #endif
+  return t;
+}
+
+// For the pixels j = jb .. jb + count - 1 of window row i (gradients in s->magnitude, s->degrees): the first histogram
+// bin of each pixel's votes (-1 outside the cells) and its 8 trilinear weights (two cells in each direction, two of
+// the 8 direction bins), four pixels at a time with universal intrinsics; the same operations, in the same order, as
+// the scalar loop for the rest.
+void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, GradientScratch* s) {
+  constexpr int d = kDescriptorWidth;
+  constexpr int n = kDescriptorBins;
+  const float bins_per_degree = n / 360.f;
+  const float fi_sin = fi * win.sin_t;
+  const float fi_cos = fi * win.cos_t;
+  const auto stride = static_cast<size_t>(count);
+  float* votes = s->votes.data();
+  int t = DescriptorVotes4(win, fi, jb, count, s);
   for (; t < count; ++t) {
     const auto fj = static_cast<float>(jb + t);
     float rbin = ((fj * win.sin_t + fi_cos) + static_cast<float>(d / 2)) - 0.5f;
