@@ -78,13 +78,17 @@ void AddOrthoOptions(CLI::App* app, sfm::OrthoOptions* ortho, bool* no_ortho, bo
   app->add_flag("--no-mbtiles", *no_mbtiles, "no ortho.mbtiles");
 }
 
-// The camera model (for the sensor table) from the first stored frame's EXIF; empty when none says.
+// The camera model (for the sensor table) from the stored frames' EXIF; empty when none says.
 std::string CameraModelOf(const std::string& session_dir) {
   sfm::Session s;
   std::string error;
   if (!sfm::ReadSession(session_dir, &s, &error)) return {};
+  // The first frame that names its camera: one without EXIF (re-encoded, another camera's) must not hide the
+  // flight's model, which sets the focal length's prior (a 10x weaker one let a mixed-size flight's drift 17 %).
   for (const auto& f : s.frames) {
-    if (!f.stored_file.empty()) return hal::ReadMetadata(session_dir + "/" + f.stored_file).model;
+    if (f.stored_file.empty()) continue;
+    std::string model = hal::ReadMetadata(session_dir + "/" + f.stored_file).model;
+    if (!model.empty()) return model;
   }
   return {};
 }

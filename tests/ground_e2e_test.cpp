@@ -269,7 +269,9 @@ void CheckMixedSizeRun(const fs::path& tmp, const fs::path& session, int frames)
   // A crop keeps the focal length in pixels: the onboard maps' scale says so, and the odd shot's focal length stays
   // tied to the main camera's (free, it went 10-12 % off and took the main camera's 18 % with it).
   EXPECT_NEAR(small["fx"].get<double>() / large["fx"].get<double>(), 1.0, 0.03);
-  EXPECT_NEAR(large["fx"].get<double>(), 608.0, 0.03 * 608.0);  // the single-size run's (summary of BrightonBeachSmall)
+  // The main camera near its EXIF focal length (3.61 mm on the FC300S's 6.17 mm sensor: 583.5 px at 1000 px; the
+  // single-size run finds 607-609): the weak prior of a flight whose first frame hides its model let it drift 13-17 %.
+  EXPECT_NEAR(large["fx"].get<double>(), 583.5, 0.05 * 583.5);
   EXPECT_LT(js["ba_rms_after_px"].get<double>(), 0.6);
   EXPECT_GT(js["dense_points"].get<size_t>(), 1000u) << log;
   EXPECT_EQ(js["dsm_source"].get<std::string>(), "dense");
