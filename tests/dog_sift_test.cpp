@@ -170,6 +170,37 @@ TEST(DogSiftTest, SameBitsWithOneThreadOrMany) {
   EXPECT_EQ(cv::norm(dm, d1, cv::NORM_INF), 0.0);
 }
 
+// The threshold lowered on one scale space gives what detecting again at a third of it gives, on a frame too soft
+// for the first threshold.
+TEST(DogSiftTest, LoweredThresholdIsASecondDetection) {
+  cv::Mat gray = WorkingGray(static_cast<int>(480 * test::EmulationImageScale()));
+  gray.convertTo(gray, CV_8U, 0.25, 96);  // a quarter of the contrast
+  DogSiftOptions ladder;
+  ladder.target_min_features = 1500;
+  ladder.min_contrast_threshold = 0.001;
+  std::vector<SiftKeypoint> once;
+  cv::Mat d_once;
+  double used = 0.0;
+  DetectAndDescribeSift(gray, ladder, &once, &d_once, &used);
+  // The loop SiftExtractor ran before: detect, and again at a third while too few.
+  DogSiftOptions plain;
+  std::vector<SiftKeypoint> again;
+  cv::Mat d_again;
+  for (;;) {
+    DetectAndDescribeSift(gray, plain, &again, &d_again);
+    if (static_cast<int>(again.size()) >= ladder.target_min_features) break;
+    if (plain.contrast_threshold / 3.0 < ladder.min_contrast_threshold) break;
+    plain.contrast_threshold /= 3.0;
+  }
+  EXPECT_LT(used, ladder.contrast_threshold) << "the frame should need a lower threshold";
+  EXPECT_DOUBLE_EQ(used, plain.contrast_threshold);
+  ASSERT_NEAR(static_cast<double>(once.size()), static_cast<double>(again.size()),
+              0.01 * static_cast<double>(again.size()));
+  size_t same = 0;
+  for (size_t i = 0; i < std::min(once.size(), again.size()); ++i) same += once[i].point == again[i].point ? 1 : 0;
+  EXPECT_GT(same, static_cast<size_t>(0.97 * static_cast<double>(again.size())));
+}
+
 TEST(DogSiftTest, TinyAndFlatImagesGiveNothing) {
   std::vector<SiftKeypoint> kps;
   cv::Mat desc;
@@ -180,10 +211,11 @@ TEST(DogSiftTest, TinyAndFlatImagesGiveNothing) {
   EXPECT_EQ(desc.rows, 0);
 }
 
-// The scale space's figure is what the memory plan reserves: 8 float images of the doubled first octave.
+// The scale space's figure is what the memory plan reserves: 2 L + 2 float images of the doubled first octave.
 TEST(DogSiftTest, ScaleSpaceFigure) {
   EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750), 8.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
-  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, false), 8.0 * 1000 * 750 * 4 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 3, false), 8.0 * 1000 * 750 * 4 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 4), 10.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
 }
 
 }  // namespace

@@ -529,20 +529,20 @@ int DescriptorVotes4(const DescriptorWindow& win, float fi, int jb, int count, G
   const v_float32x4 vfi_sin = cv::v_setall_f32(fi * win.sin_t), vfi_cos = cv::v_setall_f32(fi * win.cos_t);
   const v_float32x4 centre = cv::v_setall_f32(static_cast<float>(d / 2)), half = cv::v_setall_f32(0.5f);
   const v_float32x4 minus_one = cv::v_setall_f32(-1.f), cells = cv::v_setall_f32(static_cast<float>(d));
-  const v_float32x4 one = cv::v_setall_f32(1.f), bins = cv::v_setall_f32(static_cast<float>(n));
+  const v_float32x4 one = cv::v_setall_f32(1.f);
   const v_float32x4 ori = cv::v_setall_f32(win.ori), per_degree = cv::v_setall_f32(n / 360.f);
   const v_float32x4 zero = cv::v_setzero_f32(), row_bins = cv::v_setall_f32(static_cast<float>(d + 2));
   const v_float32x4 dir_bins = cv::v_setall_f32(static_cast<float>(n + 2));
-  const v_int32x4 ione = cv::v_setall_s32(1), in = cv::v_setall_s32(n), izero = cv::v_setzero_s32();
+  const v_int32x4 in = cv::v_setall_s32(n), izero = cv::v_setzero_s32();
   for (; t + 4 <= count; t += 4) {
     const v_float32x4 fj = cv::v_cvt_f32(cv::v_setall_s32(jb + t) + v_int32x4(0, 1, 2, 3));
     v_float32x4 rbin = ((fj * sin_t + vfi_cos) + centre) - half;
     v_float32x4 cbin = ((fj * cos_t - vfi_sin) + centre) - half;
     const v_float32x4 inside = (rbin > minus_one) & (rbin < cells) & (cbin > minus_one) & (cbin < cells);
     v_float32x4 obin = (cv::v_load(s->degrees.data() + t) - ori) * per_degree;
-    const v_int32x4 r0 = cv::v_trunc(rbin + one) - ione;
-    const v_int32x4 c0 = cv::v_trunc(cbin + one) - ione;
-    v_int32x4 o0 = cv::v_trunc(obin + bins) - in;
+    const v_int32x4 r0 = cv::v_floor(rbin);
+    const v_int32x4 c0 = cv::v_floor(cbin);
+    v_int32x4 o0 = cv::v_floor(obin);
     rbin = rbin - cv::v_cvt_f32(r0);
     cbin = cbin - cv::v_cvt_f32(c0);
     obin = obin - cv::v_cvt_f32(o0);
@@ -599,10 +599,9 @@ void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, G
       continue;
     }
     float obin = (s->degrees[static_cast<size_t>(t)] - win.ori) * bins_per_degree;
-    // rbin, cbin > -1 and obin > -n: truncation after the shift is floor.
-    const int r0 = static_cast<int>(rbin + 1.f) - 1;
-    const int c0 = static_cast<int>(cbin + 1.f) - 1;
-    int o0 = static_cast<int>(obin + static_cast<float>(n)) - n;
+    const auto r0 = static_cast<int>(std::floor(rbin));
+    const auto c0 = static_cast<int>(std::floor(cbin));
+    auto o0 = static_cast<int>(std::floor(obin));
     rbin -= static_cast<float>(r0);
     cbin -= static_cast<float>(c0);
     obin -= static_cast<float>(o0);
@@ -794,7 +793,8 @@ void FirstImage(const cv::Mat& gray, const ScaleSpace& space, int octave, cv::Ma
 void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, ScaleSpace* space) {
   space->options = o;
   space->ladder = {o.contrast_threshold};
-  while (o.target_min_features > 0 && space->ladder.back() / 3.0 >= o.min_contrast_threshold)
+  while (o.target_min_features > 0 && o.min_contrast_threshold > 0.0 &&
+         space->ladder.back() / 3.0 >= o.min_contrast_threshold)
     space->ladder.push_back(space->ladder.back() / 3.0);
   space->halved_first = o.double_first_octave && o.describe_at_input_resolution;
   const int layers = o.octave_layers;
@@ -878,12 +878,12 @@ void DescribeKept(const ScaleSpace& space, const std::vector<Oriented>& kept, bo
 
 }  // namespace
 
-double DogSiftScaleSpaceMiB(int width, int height, bool double_first_octave) {
-  // The first octave's 5 DoG + 3 Gaussian layers (octave_layers = 3); the later octaves' fit in its DoG images' room
-  // once they are freed (Gaussian layers of all later octaves: a third of one image; one octave's DoG: 5/4).
+double DogSiftScaleSpaceMiB(int width, int height, int octave_layers, bool double_first_octave) {
+  // The first octave's L + 2 DoG and L Gaussian layers; the later octaves' fit in its DoG images' room once they are
+  // freed (the Gaussian layers of all later octaves: L / 3 images; one octave's DoG and layers: (2 L + 2) / 4).
   const double pixels = static_cast<double>(width) * height * (double_first_octave ? 4.0 : 1.0);
-  constexpr double kImages = 8.0;
-  return pixels * sizeof(float) * kImages / (1024.0 * 1024.0);
+  const double images = 2.0 * octave_layers + 2.0;
+  return pixels * sizeof(float) * images / (1024.0 * 1024.0);
 }
 
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::vector<SiftKeypoint>* keypoints,
@@ -919,6 +919,8 @@ void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::ve
   if (level > space.searched) {  // the first octave promised more than the frame gave: detect again, lower
     DogSiftOptions lower = o;
     lower.contrast_threshold = space.ladder[space.searched + 1];
+    space = ScaleSpace{};  // its images go before the next detection makes its own
+    angles = {};
     DetectAndDescribeSift(gray, lower, keypoints, descriptors, contrast_threshold_used);
     return;
   }

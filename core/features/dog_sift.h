@@ -1,15 +1,17 @@
 #pragma once
 // SIFT (Lowe 2004) of our own: a difference-of-Gaussian detector and the 4x4x8 gradient descriptor, with OpenCV 4.6's
-// conventions (3 layers an octave, sigma 1.6, a doubled first octave, the same thresholds, the descriptor quantised to
-// 0..255) so that options and figures carry over. What differs is how it is computed:
-//  - one octave's images at a time, in buffers reused by every octave (8 images of the first octave's size, not the
-//    whole pyramid's 11 per octave), taken from the Mat allocator (the pool);
-//  - separable Gaussians in strips of rows, loops the compiler vectorises across columns (SSE2/AVX2 on x86-64 by
-//    function clones, NEON on aarch64), in one fixed order of float operations: x86-64 and aarch64 give the same bits;
-//  - a cheap first rejection (half the contrast threshold, then the 8 neighbours in the same layer) before the
-//    26-neighbour test, and orientations and descriptors only for keypoints that can still be among the strongest
-//    `max_features` (OpenCV computes orientations for every extremum and drops most afterwards);
-//  - exp, atan2 and sin/cos from core/features/portable_math.h.
+// conventions (3 layers an octave, sigma 1.6, a doubled first octave, its contrast and edge thresholds, the descriptor
+// quantised to 0..255) so that options and figures carry over. What differs is how it is computed:
+//  - one octave's images at a time (2 L + 2 of the first octave's size at the peak, not the whole pyramid's 2 L + 5 per
+//    octave), taken from the Mat allocator (the pool); each octave's Gaussian layers stay for the descriptors;
+//  - separable Gaussians to 3 sigma in blocks of rows with a ring of horizontally blurred rows, written with GCC's
+//    vector extension (an AVX2 clone and SSE2 on x86-64, NEON on aarch64) in one fixed order of float operations:
+//    x86-64 and aarch64 give the same bits;
+//  - Lowe's first rejection at half the contrast threshold (OpenCV floors it to whole grey levels: 0 at the onboard
+//    0.01), then the 8 neighbours in the same layer, vectorised, before the 26-neighbour test; orientations and
+//    descriptors only for keypoints that can be among the strongest `max_features` (OpenCV orients every extremum);
+//  - gradients and descriptor votes with OpenCV's universal intrinsics; exp, atan2 and sin/cos from
+//    core/features/portable_math.h.
 // Keypoints are in the input's pixel-centre coordinates (pixel i's centre is at i).
 #include <opencv2/core.hpp>
 #include <vector>
@@ -19,9 +21,10 @@ namespace uavm {
 struct DogSiftOptions {
   int octave_layers = 3;
   double contrast_threshold = 0.01;  // on |DoG| * octave_layers, intensities in 0..1 (OpenCV's meaning)
-  // With fewer than target_min_features keypoints the threshold is lowered (x 1/3, not below min_contrast_threshold)
-  // as if detection were run again, but on the same scale space: only the extremum search is repeated, on the first
-  // octave, while its count promises too few.
+  // With fewer than target_min_features keypoints the threshold is lowered (x 1/3, not below min_contrast_threshold,
+  // which must then be > 0) as if detection were run again, but on the same scale space: only the extremum search is
+  // repeated, on the first octave, while its count promises too few. Not exactly a second detection: an extremum
+  // whose first sample lies between the two levels' first rejections is kept at the higher level too (rare).
   int target_min_features = 0;
   double min_contrast_threshold = 0.0;
   double edge_threshold = 10.0;
@@ -48,8 +51,10 @@ struct SiftKeypoint {
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& options, std::vector<SiftKeypoint>* keypoints,
                            cv::Mat* descriptors, double* contrast_threshold_used = nullptr);
 
-// Bytes of the scale space DetectAndDescribeSift holds for a width x height image, in MiB: the 8 float images of its
-// first octave (the rows of its Gaussian strips and the keypoints are small beside them).
-[[nodiscard]] double DogSiftScaleSpaceMiB(int width, int height, bool double_first_octave = true);
+// The scale space DetectAndDescribeSift holds for a width x height image, in MiB: the 2 L + 2 float images of its
+// first octave, 8 for the default 3 layers (the rows of its Gaussian strips and the keypoints are small beside them;
+// with describe_at_input_resolution a quarter image more).
+[[nodiscard]] double DogSiftScaleSpaceMiB(int width, int height, int octave_layers = 3,
+                                          bool double_first_octave = true);
 
 }  // namespace uavm

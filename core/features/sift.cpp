@@ -26,7 +26,7 @@ bool FeatureOptions::Check(std::string* why) const {
 }
 
 double SiftScaleSpaceMiB(int width, int height, const FeatureOptions& options) {
-  if (!options.opencv_sift) return DogSiftScaleSpaceMiB(width, height);
+  if (!options.opencv_sift) return DogSiftScaleSpaceMiB(width, height, options.octave_layers);
   // Octave -1 is 2w x 2h; each further octave a quarter of the previous: 4/3 of the first in all.
   constexpr double kImagesPerOctave = 11.0;  // 6 Gaussian + 5 difference-of-Gaussian, float
   const double first = 4.0 * static_cast<double>(width) * static_cast<double>(height) * sizeof(float);
