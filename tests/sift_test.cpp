@@ -10,20 +10,12 @@
 #include <vector>
 
 #include "tests/test_env.h"
+#include "tests/test_frames.h"
 
 namespace uavm {
 namespace {
 
-const std::string kData = UAVM_TEST_DATA;
-
-cv::Mat WorkingGray(int long_side) {
-  cv::Mat img = cv::imread(kData + "/caliterra_small/images/IMG_9360.jpg", cv::IMREAD_GRAYSCALE);
-  EXPECT_FALSE(img.empty());
-  const double s = static_cast<double>(long_side) / std::max(img.cols, img.rows);
-  cv::Mat out;
-  cv::resize(img, out, cv::Size(), s, s, cv::INTER_AREA);
-  return out;
-}
+using test::WorkingGray;
 
 TEST(SiftTest, FindsManyKeypointsOnASoftAerialFrame) {
   const cv::Mat gray = WorkingGray(800);

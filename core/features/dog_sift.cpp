@@ -756,7 +756,6 @@ struct ScaleSpace {
   std::vector<Candidate> candidates;
   std::vector<double> ladder;  // the thresholds a repeated detection would try
   size_t searched = 0;         // the lowest of them searched
-  bool halved_first = false;   // the first octave's layers kept at half size
 
   [[nodiscard]] float ScaleOf(const Candidate& k) const {
     return static_cast<float>(options.sigma *
@@ -765,8 +764,6 @@ struct ScaleSpace {
   [[nodiscard]] const cv::Mat& ImageOf(const Candidate& k) const {
     return gauss[static_cast<size_t>(k.octave)][static_cast<size_t>(k.layer - 1)];
   }
-  // The scale of ImageOf(k) against its octave's pixels.
-  [[nodiscard]] float DescribedAt(const Candidate& k) const { return k.octave == 0 && halved_first ? 0.5f : 1.f; }
 };
 
 // The first Gaussian image of `octave` into first: the doubled (or not) input blurred to sigma for the first octave,
@@ -781,8 +778,6 @@ void FirstImage(const cv::Mat& gray, const ScaleSpace& space, int octave, cv::Ma
     else
       gray.convertTo(scratch, CV_32F);
     Blur(scratch, blur, first);
-  } else if (octave == 1 && space.halved_first) {
-    space.gauss.back().back().copyTo(first);  // already every second pixel
   } else {
     Decimate(space.gauss.back().back(), first);
   }
@@ -796,7 +791,6 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, ScaleSpace* spa
   while (o.target_min_features > 0 && o.min_contrast_threshold > 0.0 &&
          space->ladder.back() / 3.0 >= o.min_contrast_threshold)
     space->ladder.push_back(space->ladder.back() / 3.0);
-  space->halved_first = o.double_first_octave && o.describe_at_input_resolution;
   const int layers = o.octave_layers;
   // Blur from layer i-1 to i: sigma_i^2 - sigma_{i-1}^2, sigma_i = sigma 2^(i / L).
   std::vector<Kernel> kernels(static_cast<size_t>(layers) + 3);
@@ -821,13 +815,6 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, ScaleSpace* spa
            1.5 * static_cast<double>(space->candidates.size()) < o.target_min_features) {
       space->candidates.clear();
       FindExtrema(dog, o, space->ladder[++space->searched], octave, &space->candidates);
-    }
-    if (octave == 0 && space->halved_first) {
-      for (auto& m : layer_images) {
-        cv::Mat half(height / 2, width / 2, CV_32F);
-        Decimate(m, half);
-        m = half;
-      }
     }
     space->gauss.push_back(std::move(layer_images));
     width /= 2;
@@ -870,8 +857,7 @@ void DescribeKept(const ScaleSpace& space, const std::vector<Oriented>& kept, bo
       out.angle = e.angle;
       out.response = k.response;
       out.octave = k.octave;
-      const float s = space.DescribedAt(k);
-      Describe(space.ImageOf(k), k.x * s, k.y * s, e.angle, scale * s, &scratch, descriptors->ptr<float>(i));
+      Describe(space.ImageOf(k), k.x, k.y, e.angle, scale, &scratch, descriptors->ptr<float>(i));
     }
   });
 }
@@ -908,10 +894,7 @@ void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::ve
     GradientScratch scratch;
     for (int i = range.start; i < range.end; ++i) {
       const Candidate& k = candidates[static_cast<size_t>(i)];
-      const float s = space.DescribedAt(k);
-      const int col = s == 1.f ? k.col : static_cast<int>(std::lround(k.x * s));
-      const int row = s == 1.f ? k.row : static_cast<int>(std::lround(k.y * s));
-      Orientations(space.ImageOf(k), col, row, space.ScaleOf(k) * s, &scratch, &angles[static_cast<size_t>(i)]);
+      Orientations(space.ImageOf(k), k.col, k.row, space.ScaleOf(k), &scratch, &angles[static_cast<size_t>(i)]);
     }
   });
   size_t prefix = 0;

@@ -31,10 +31,6 @@ struct DogSiftOptions {
   double sigma = 1.6;
   int max_features = 3000;  // strongest by |DoG| response; 0 = all
   bool double_first_octave = true;
-  // Orientations and descriptors of the doubled octave's keypoints from its Gaussian layers at the input's resolution
-  // (every second pixel): a quarter of those keypoints' work and memory, but 7-8 % fewer correct matches
-  // (bench/sift_peers.cpp) and the accuracy gate's flights 0.87 -> 0.97 of OpenCV's error (geometric mean): off.
-  bool describe_at_input_resolution = false;
 };
 
 struct SiftKeypoint {
@@ -52,8 +48,7 @@ void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& options, s
                            cv::Mat* descriptors, double* contrast_threshold_used = nullptr);
 
 // The scale space DetectAndDescribeSift holds for a width x height image, in MiB: the 2 L + 2 float images of its
-// first octave, 8 for the default 3 layers (the rows of its Gaussian strips and the keypoints are small beside them;
-// with describe_at_input_resolution a quarter image more).
+// first octave, 8 for the default 3 layers (the rows of its Gaussian strips and the keypoints are small beside them).
 [[nodiscard]] double DogSiftScaleSpaceMiB(int width, int height, int octave_layers = 3,
                                           bool double_first_octave = true);
 
