@@ -7,6 +7,7 @@
 #include <cstring>
 #include <numeric>
 #include <opencv2/core/hal/intrin.hpp>
+#include <tuple>
 
 #include "core/features/portable_math.h"
 
@@ -77,6 +78,20 @@ inline Float8 Load8(const float* p) {
 }
 inline void Store8(float* p, Float8 v) {
   std::memcpy(p, &v, sizeof v);
+}
+using Int8 = int __attribute__((vector_size(32)));  // lane masks (-1 true) and bin indices
+// Per lane; with -fno-math-errno GCC emits one vector square root.
+inline Float8 Sqrt8(Float8 v) {
+  for (int k = 0; k < 8; ++k) v[k] = std::sqrt(v[k]);
+  return v;
+}
+inline Float8 Abs8(Float8 v) {
+  return reinterpret_cast<Float8>(reinterpret_cast<Int8>(v) & 0x7fffffff);
+}
+// floor(v) as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
+inline Int8 Floor8(Float8 v) {
+  const Int8 t = __builtin_convertvector(v, Int8);
+  return t + (__builtin_convertvector(t, Float8) > v);
 }
 
 // Both passes accumulate 32 columns over every tap before storing them (4 vector registers); per column the sum runs
@@ -171,12 +186,21 @@ void Blur(const cv::Mat& src, const Kernel& kernel, cv::Mat& dst, cv::Mat* diffe
     auto ring_row = [&](int y) {
       return ring.data() + static_cast<size_t>(((y % ring_rows) + ring_rows) % ring_rows) * static_cast<size_t>(cols);
     };
+    // The row's inside straight from the image; each border (r columns) from a reflected copy of its 3 r neighbours.
     auto horizontal = [&](int y) {
       const float* s = src.ptr<float>(Reflect101(y, rows));
-      for (int i = 0; i < r; ++i) padded[static_cast<size_t>(i)] = s[Reflect101(i - r, cols)];
-      std::copy(s, s + cols, padded.begin() + r);
-      for (int i = 0; i < r; ++i) padded[static_cast<size_t>(cols + r + i)] = s[Reflect101(cols + i, cols)];
-      ConvolveRow(padded.data(), cols, kernel.weights.data(), r, ring_row(y));
+      float* out = ring_row(y);
+      const float* w = kernel.weights.data();
+      if (cols < 4 * r) {
+        for (int i = 0; i < cols + 2 * r; ++i) padded[static_cast<size_t>(i)] = s[Reflect101(i - r, cols)];
+        ConvolveRow(padded.data(), cols, w, r, out);
+        return;
+      }
+      for (int i = 0; i < 3 * r; ++i) padded[static_cast<size_t>(i)] = s[Reflect101(i - r, cols)];
+      ConvolveRow(padded.data(), r, w, r, out);
+      ConvolveRow(s, cols - 2 * r, w, r, out + r);
+      for (int i = 0; i < 3 * r; ++i) padded[static_cast<size_t>(i)] = s[Reflect101(cols - 2 * r + i, cols)];
+      ConvolveRow(padded.data(), r, w, r, out + cols - r);
     };
     for (int y = y0 - r; y < y0 + r; ++y) horizontal(y);
     for (int y = y0; y < y1; ++y) {
@@ -407,31 +431,28 @@ void GaussianWeights(float sigma, int radius, std::vector<float>* w) {
 }
 
 // Per pixel of a row segment: gradient magnitude times `weight[j]` and direction in degrees (portable::Atan2Degrees,
-// four pixels at a time with OpenCV's universal intrinsics: SSE2 or NEON, the same operations in the same order).
-void GradientRow(const float* __restrict above, const float* __restrict row, const float* __restrict below, int n,
-                 const float* __restrict weight, float* __restrict magnitude, float* __restrict degrees) {
+// eight pixels at a time in Float8: the same operations in the same order as the scalar loop).
+UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __restrict row,
+                                  const float* __restrict below, int n, const float* __restrict weight,
+                                  float* __restrict magnitude, float* __restrict degrees) {
   int j = 0;
-#if CV_SIMD128
-  using cv::v_float32x4;
-  const v_float32x4 zero = cv::v_setzero_f32();
-  const v_float32x4 eps = cv::v_setall_f32(portable::kAtanEpsilon);
-  const v_float32x4 p1 = cv::v_setall_f32(portable::kAtanP1), p3 = cv::v_setall_f32(portable::kAtanP3);
-  const v_float32x4 p5 = cv::v_setall_f32(portable::kAtanP5), p7 = cv::v_setall_f32(portable::kAtanP7);
-  const v_float32x4 d90 = cv::v_setall_f32(90.f), d180 = cv::v_setall_f32(180.f), d360 = cv::v_setall_f32(360.f);
-  for (; j + 4 <= n; j += 4) {
-    const v_float32x4 dx = cv::v_load(row + j + 1) - cv::v_load(row + j - 1);
-    const v_float32x4 dy = cv::v_load(above + j) - cv::v_load(below + j);
-    cv::v_store(magnitude + j, cv::v_sqrt(dx * dx + dy * dy) * cv::v_load(weight + j));
-    const v_float32x4 ax = cv::v_abs(dx), ay = cv::v_abs(dy);
-    const v_float32x4 c = cv::v_min(ax, ay) / (cv::v_max(ax, ay) + eps);
-    const v_float32x4 c2 = c * c;
-    v_float32x4 a = (((p7 * c2 + p5) * c2 + p3) * c2 + p1) * c;
-    a = cv::v_select(ax < ay, d90 - a, a);
-    a = cv::v_select(dx < zero, d180 - a, a);
-    a = cv::v_select(dy < zero, d360 - a, a);
-    cv::v_store(degrees + j, cv::v_select(a >= d360, a - d360, a));
+  for (; j + 8 <= n; j += 8) {
+    const Float8 dx = Load8(row + j + 1) - Load8(row + j - 1);
+    const Float8 dy = Load8(above + j) - Load8(below + j);
+    Store8(magnitude + j, Sqrt8(dx * dx + dy * dy) * Load8(weight + j));
+    const Float8 ax = Abs8(dx);
+    const Float8 ay = Abs8(dy);
+    const Int8 steep = ax < ay;
+    const Float8 lo = steep ? ax : ay;
+    const Float8 hi = steep ? ay : ax;
+    const Float8 c = lo / (hi + portable::kAtanEpsilon);
+    const Float8 c2 = c * c;
+    Float8 a = (((portable::kAtanP7 * c2 + portable::kAtanP5) * c2 + portable::kAtanP3) * c2 + portable::kAtanP1) * c;
+    a = steep ? 90.f - a : a;
+    a = dx < 0.f ? 180.f - a : a;
+    a = dy < 0.f ? 360.f - a : a;
+    Store8(degrees + j, a >= 360.f ? a - 360.f : a);
   }
-#endif
   for (; j < n; ++j) {
     const float dx = row[j + 1] - row[j - 1];
     const float dy = above[j] - below[j];
@@ -515,65 +536,49 @@ struct DescriptorWindow {
   std::vector<float> weight;  // e^(-k^2 / (2 (d/2 cells)^2)) for offsets k in [0, radius]
 };
 
-// The vector part of DescriptorVotes: pixels [0, returned count).
-int DescriptorVotes4(const DescriptorWindow& win, float fi, int jb, int count, GradientScratch* s) {
-  int t = 0;
-#if CV_SIMD128
+// The vector part of DescriptorVotes: pixels [0, returned count), eight at a time.
+UAVM_SIMD_CLONES int DescriptorVotes8(const DescriptorWindow& win, float fi, int jb, int count,
+                                      const float* __restrict degrees, const float* __restrict magnitude,
+                                      int* __restrict bins, float* __restrict votes) {
   constexpr int d = kDescriptorWidth;
   constexpr int n = kDescriptorBins;
   const auto stride = static_cast<size_t>(count);
-  float* votes = s->votes.data();
-  using cv::v_float32x4;
-  using cv::v_int32x4;
-  const v_float32x4 cos_t = cv::v_setall_f32(win.cos_t), sin_t = cv::v_setall_f32(win.sin_t);
-  const v_float32x4 vfi_sin = cv::v_setall_f32(fi * win.sin_t), vfi_cos = cv::v_setall_f32(fi * win.cos_t);
-  const v_float32x4 centre = cv::v_setall_f32(static_cast<float>(d / 2)), half = cv::v_setall_f32(0.5f);
-  const v_float32x4 minus_one = cv::v_setall_f32(-1.f), cells = cv::v_setall_f32(static_cast<float>(d));
-  const v_float32x4 one = cv::v_setall_f32(1.f);
-  const v_float32x4 ori = cv::v_setall_f32(win.ori), per_degree = cv::v_setall_f32(n / 360.f);
-  const v_float32x4 zero = cv::v_setzero_f32(), row_bins = cv::v_setall_f32(static_cast<float>(d + 2));
-  const v_float32x4 dir_bins = cv::v_setall_f32(static_cast<float>(n + 2));
-  const v_int32x4 in = cv::v_setall_s32(n), izero = cv::v_setzero_s32();
-  for (; t + 4 <= count; t += 4) {
-    const v_float32x4 fj = cv::v_cvt_f32(cv::v_setall_s32(jb + t) + v_int32x4(0, 1, 2, 3));
-    v_float32x4 rbin = ((fj * sin_t + vfi_cos) + centre) - half;
-    v_float32x4 cbin = ((fj * cos_t - vfi_sin) + centre) - half;
-    const v_float32x4 inside = (rbin > minus_one) & (rbin < cells) & (cbin > minus_one) & (cbin < cells);
-    v_float32x4 obin = (cv::v_load(s->degrees.data() + t) - ori) * per_degree;
-    const v_int32x4 r0 = cv::v_floor(rbin);
-    const v_int32x4 c0 = cv::v_floor(cbin);
-    v_int32x4 o0 = cv::v_floor(obin);
-    rbin = rbin - cv::v_cvt_f32(r0);
-    cbin = cbin - cv::v_cvt_f32(c0);
-    obin = obin - cv::v_cvt_f32(o0);
-    o0 = cv::v_select(o0 < izero, o0 + in, o0);
-    o0 = cv::v_select(o0 >= in, o0 - in, o0);
-    const v_float32x4 first =
-        ((cv::v_cvt_f32(r0) + one) * row_bins + cv::v_cvt_f32(c0) + one) * dir_bins + cv::v_cvt_f32(o0);
-    cv::v_store(s->bins.data() + t,
-                cv::v_select(cv::v_reinterpret_as_s32(inside), cv::v_round(first), cv::v_setall_s32(-1)));
-    const v_float32x4 mag = cv::v_select(inside, cv::v_load(s->magnitude.data() + t), zero);
-    const v_float32x4 v_r1 = mag * rbin, v_r0 = mag - v_r1;
-    const v_float32x4 v_rc11 = v_r1 * cbin, v_rc10 = v_r1 - v_rc11;
-    const v_float32x4 v_rc01 = v_r0 * cbin, v_rc00 = v_r0 - v_rc01;
-    const v_float32x4 v_rco111 = v_rc11 * obin, v_rco101 = v_rc10 * obin;
-    const v_float32x4 v_rco011 = v_rc01 * obin, v_rco001 = v_rc00 * obin;
-    cv::v_store(votes + t, v_rc00 - v_rco001);
-    cv::v_store(votes + stride + t, v_rco001);
-    cv::v_store(votes + 2 * stride + t, v_rc01 - v_rco011);
-    cv::v_store(votes + 3 * stride + t, v_rco011);
-    cv::v_store(votes + 4 * stride + t, v_rc10 - v_rco101);
-    cv::v_store(votes + 5 * stride + t, v_rco101);
-    cv::v_store(votes + 6 * stride + t, v_rc11 - v_rco111);
-    cv::v_store(votes + 7 * stride + t, v_rco111);
+  const float fi_sin = fi * win.sin_t;
+  const float fi_cos = fi * win.cos_t;
+  const Int8 lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  int t = 0;
+  for (; t + 8 <= count; t += 8) {
+    const Float8 fj = __builtin_convertvector(jb + t + lane, Float8);
+    Float8 rbin = ((fj * win.sin_t + fi_cos) + static_cast<float>(d / 2)) - 0.5f;
+    Float8 cbin = ((fj * win.cos_t - fi_sin) + static_cast<float>(d / 2)) - 0.5f;
+    const Int8 inside = (rbin > -1.f) & (rbin < static_cast<float>(d)) & (cbin > -1.f) & (cbin < static_cast<float>(d));
+    Float8 obin = (Load8(degrees + t) - win.ori) * (n / 360.f);
+    const Int8 r0 = Floor8(rbin);
+    const Int8 c0 = Floor8(cbin);
+    Int8 o0 = Floor8(obin);
+    rbin = rbin - __builtin_convertvector(r0, Float8);
+    cbin = cbin - __builtin_convertvector(c0, Float8);
+    obin = obin - __builtin_convertvector(o0, Float8);
+    o0 = o0 < 0 ? o0 + n : o0;
+    o0 = o0 >= n ? o0 - n : o0;
+    const Int8 first = ((r0 + 1) * (d + 2) + c0 + 1) * (n + 2) + o0;
+    const Int8 bin = inside ? first : Int8{} - 1;
+    std::memcpy(bins + t, &bin, sizeof bin);
+    const Float8 mag = inside ? Load8(magnitude + t) : Float8{};
+    const Float8 v_r1 = mag * rbin, v_r0 = mag - v_r1;
+    const Float8 v_rc11 = v_r1 * cbin, v_rc10 = v_r1 - v_rc11;
+    const Float8 v_rc01 = v_r0 * cbin, v_rc00 = v_r0 - v_rc01;
+    const Float8 v_rco111 = v_rc11 * obin, v_rco101 = v_rc10 * obin;
+    const Float8 v_rco011 = v_rc01 * obin, v_rco001 = v_rc00 * obin;
+    Store8(votes + t, v_rc00 - v_rco001);
+    Store8(votes + stride + t, v_rco001);
+    Store8(votes + 2 * stride + t, v_rc01 - v_rco011);
+    Store8(votes + 3 * stride + t, v_rco011);
+    Store8(votes + 4 * stride + t, v_rc10 - v_rco101);
+    Store8(votes + 5 * stride + t, v_rco101);
+    Store8(votes + 6 * stride + t, v_rc11 - v_rco111);
+    Store8(votes + 7 * stride + t, v_rco111);
   }
-#else
-  (void)win;
-  (void)fi;
-  (void)jb;
-  (void)count;
-  (void)s;
-#endif
   return t;
 }
 
@@ -589,7 +594,7 @@ void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, G
   const float fi_cos = fi * win.cos_t;
   const auto stride = static_cast<size_t>(count);
   float* votes = s->votes.data();
-  int t = DescriptorVotes4(win, fi, jb, count, s);
+  int t = DescriptorVotes8(win, fi, jb, count, s->degrees.data(), s->magnitude.data(), s->bins.data(), votes);
   for (; t < count; ++t) {
     const auto fj = static_cast<float>(jb + t);
     float rbin = ((fj * win.sin_t + fi_cos) + static_cast<float>(d / 2)) - 0.5f;
@@ -836,6 +841,20 @@ size_t ChooseLevel(const ScaleSpace& space, const std::vector<std::vector<float>
   return space.searched + 1 < space.ladder.size() ? space.searched + 1 : space.searched;
 }
 
+// Indices 0..n-1 in the order their candidates lie in the images (octave, layer, row, column): neighbouring windows
+// then share cache lines and pages (in strength order each window's rows came from memory). Outputs keep their index.
+template <typename CandidateOf>
+std::vector<size_t> ImageOrder(size_t n, CandidateOf&& candidate_of) {
+  std::vector<size_t> order(n);
+  std::iota(order.begin(), order.end(), size_t{0});
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+    const Candidate& p = candidate_of(a);
+    const Candidate& q = candidate_of(b);
+    return std::tie(p.octave, p.layer, p.row, p.col, a) < std::tie(q.octave, q.layer, q.row, q.col, b);
+  });
+  return order;
+}
+
 // Keypoints and descriptors of the kept (candidate, direction) pairs, in their order.
 void DescribeKept(const ScaleSpace& space, const std::vector<Oriented>& kept, bool doubled,
                   std::vector<SiftKeypoint>* keypoints, cv::Mat* descriptors) {
@@ -844,9 +863,12 @@ void DescribeKept(const ScaleSpace& space, const std::vector<Oriented>& kept, bo
   const float shift = doubled ? -0.25f : 0.f;
   descriptors->create(static_cast<int>(kept.size()), kDescriptorSize, CV_32F);
   keypoints->resize(kept.size());
+  const std::vector<size_t> order =
+      ImageOrder(kept.size(), [&](size_t i) -> const Candidate& { return space.candidates[kept[i].candidate]; });
   cv::parallel_for_(cv::Range(0, static_cast<int>(kept.size())), [&](const cv::Range& range) {
     GradientScratch scratch;
-    for (int i = range.start; i < range.end; ++i) {
+    for (int at = range.start; at < range.end; ++at) {
+      const auto i = static_cast<int>(order[static_cast<size_t>(at)]);
       const Oriented& e = kept[static_cast<size_t>(i)];
       const Candidate& k = space.candidates[e.candidate];
       const float scale = space.ScaleOf(k);
@@ -890,9 +912,12 @@ void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::ve
   if (o.max_features > 0 && candidates.size() > static_cast<size_t>(o.max_features))
     candidates.resize(static_cast<size_t>(o.max_features));
   std::vector<std::vector<float>> angles(candidates.size());
+  const std::vector<size_t> order =
+      ImageOrder(candidates.size(), [&](size_t i) -> const Candidate& { return candidates[i]; });
   cv::parallel_for_(cv::Range(0, static_cast<int>(candidates.size())), [&](const cv::Range& range) {
     GradientScratch scratch;
-    for (int i = range.start; i < range.end; ++i) {
+    for (int at = range.start; at < range.end; ++at) {
+      const auto i = static_cast<int>(order[static_cast<size_t>(at)]);
       const Candidate& k = candidates[static_cast<size_t>(i)];
       Orientations(space.ImageOf(k), k.col, k.row, space.ScaleOf(k), &scratch, &angles[static_cast<size_t>(i)]);
     }
