@@ -1,6 +1,7 @@
 // Google Benchmark micro-benchmarks of the per-frame stages on real frames (two consecutive caliterra_small frames,
 // 1000x750, bundled in tests/data): SIFT whole and banded (the memory plan's bands), descriptor index build, guided
 // and unguided pair matching, RANSAC alone, JPEG decode, PNG tile encode. bench/micro.sh runs it and keeps the table.
+// Image buffers come from the Mat pool, as in the program.
 // UAVM_MICRO_IMAGES overrides the image folder (its first two files, sorted by name, are used).
 #include <benchmark/benchmark.h>
 
@@ -12,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "core/buffers/mat_pool.h"
 #include "core/estimators/affine.h"
 #include "core/estimators/ransac.h"
 #include "core/features/sift.h"
@@ -248,4 +250,13 @@ BENCHMARK(BM_TilePngLibdeflate)->Arg(1)->Arg(3)->Arg(6)->Unit(benchmark::kMillis
 
 }  // namespace
 
-BENCHMARK_MAIN();
+// Large image buffers pooled as in the program (firmware_app/main.cpp): without the pool every SIFT call faults in
+// and zeroes its scale space afresh, on 4 KiB pages, which the flight does not.
+int main(int argc, char** argv) {
+  uavm::InstallMatPool();
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

@@ -461,6 +461,17 @@ UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __
   }
 }
 
+// A window's rows lie 4 bytes x the image's width apart, so the hardware sees no stream: each row's gradients would
+// wait on memory. Asks for row y's columns [x0, x0 + n) ahead of use (nothing outside the image).
+constexpr int kPrefetchRowsAhead = 4;
+inline void PrefetchRow(const cv::Mat& img, int y, int x0, int n) {
+  if (y < 0 || y >= img.rows) return;
+  const float* p = img.ptr<float>(y);
+  const int end = std::min(x0 + n, img.cols);
+  for (int x = std::max(x0, 0); x < end; x += 16) __builtin_prefetch(p + x);
+  if (end > 0) __builtin_prefetch(p + end - 1);
+}
+
 // Scratch rows of one orientation or descriptor computation.
 struct GradientScratch {
   std::vector<float> window, magnitude, degrees;
@@ -492,7 +503,9 @@ void Orientations(const cv::Mat& img, int c, int r, float scale, GradientScratch
   const int n = x_hi - x_lo + 1;
   if (n <= 0) return;
   s->Fit(static_cast<size_t>(n));
+  for (int y = y_lo - 1; y < y_lo - 1 + kPrefetchRowsAhead; ++y) PrefetchRow(img, y, x_lo - 1, n + 2);
   for (int y = y_lo; y <= y_hi; ++y) {
+    PrefetchRow(img, y + kPrefetchRowsAhead, x_lo - 1, n + 2);
     const float wy = w[static_cast<size_t>(std::abs(y - r))];
     for (int j = 0; j < n; ++j) s->window[static_cast<size_t>(j)] = wy * w[static_cast<size_t>(std::abs(x_lo + j - c))];
     GradientRow(img.ptr<float>(y - 1) + x_lo, img.ptr<float>(y) + x_lo, img.ptr<float>(y + 1) + x_lo, n,
@@ -659,6 +672,7 @@ void VoteDescriptorRow(const cv::Mat& img, const DescriptorWindow& win, int i, G
   for (int j = jb; j <= je; ++j)
     s->window[static_cast<size_t>(j - jb)] = wy * win.weight[static_cast<size_t>(std::abs(j))];
   const int x0 = win.px + jb;
+  PrefetchRow(img, yy + kPrefetchRowsAhead, x0 - 1, count + 2);
   GradientRow(img.ptr<float>(yy - 1) + x0, img.ptr<float>(yy) + x0, img.ptr<float>(yy + 1) + x0, count,
               s->window.data(), s->magnitude.data(), s->degrees.data());
   DescriptorVotes(win, fi, jb, count, s);
