@@ -88,6 +88,11 @@ inline Float8 Sqrt8(Float8 v) {
 inline Float8 Abs8(Float8 v) {
   return reinterpret_cast<Float8>(reinterpret_cast<Int8>(v) & 0x7fffffff);
 }
+// a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 16).
+inline void StorePairs8(float* p, Float8 a, Float8 b) {
+  Store8(p, __builtin_shufflevector(a, b, 0, 8, 1, 9, 2, 10, 3, 11));
+  Store8(p + 8, __builtin_shufflevector(a, b, 4, 12, 5, 13, 6, 14, 7, 15));
+}
 // floor(v) as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
 inline Int8 Floor8(Float8 v) {
   const Int8 t = __builtin_convertvector(v, Int8);
@@ -157,74 +162,136 @@ UAVM_SIMD_CLONES void SubtractRow(const float* a, const float* b, int n, float* 
   for (int x = 0; x < n; ++x) out[x] = a[x] - b[x];
 }
 
-// Splits rows [0, rows) into two tasks a thread (each of at least min_rows rows): fn(y0, y1) per task, in parallel.
+// Rows [0, rows) in two tasks a thread (each of at least min_rows rows).
+int RowTasks(int rows, int min_rows) {
+  return std::max(1, std::min(2 * cv::getNumThreads(), rows / std::max(1, min_rows)));
+}
+
+// fn(y0, y1, task) for each of RowTasks(rows, min_rows) tasks, in parallel.
 template <typename Fn>
 void ForRowBlocks(int rows, int min_rows, Fn&& fn) {
-  const int tasks = std::max(1, std::min(2 * cv::getNumThreads(), rows / std::max(1, min_rows)));
+  const int tasks = RowTasks(rows, min_rows);
   cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
     for (int t = range.start; t < range.end; ++t) {
       const int y0 = static_cast<int>(static_cast<int64_t>(rows) * t / tasks);
       const int y1 = static_cast<int>(static_cast<int64_t>(rows) * (t + 1) / tasks);
-      fn(y0, y1);
+      fn(y0, y1, t);
     }
   });
 }
 
-// dst = src blurred by `kernel` (borders reflected as OpenCV's BORDER_REFLECT_101), and with `difference` also
-// *difference = dst - src, row by row while the row is in cache. dst may be empty (only the difference is kept); no
-// output may be src. Each task keeps a ring of 2 radius + 1 horizontally blurred rows.
-void Blur(const cv::Mat& src, const Kernel& kernel, cv::Mat& dst, cv::Mat* difference = nullptr) {
+// What Blur writes besides the blurred image: a difference, and src's own rows replaced once they are used (saving
+// a pass over three images). The replaced rows that a neighbouring task, or the bottom border's reflection, still
+// reads (a task's first r and last r + 1 rows) are held and written after all tasks.
+struct BlurOutputs {
+  cv::Mat* blurred = nullptr;          // or null: not kept
+  cv::Mat* difference = nullptr;       // blurred - src (not src)
+  bool src_to_difference = false;      // src's rows become blurred - src
+  const cv::Mat* src_minus = nullptr;  // src's rows become src - *src_minus
+};
+
+// out[x] for x in [0, cols): row `s` convolved by `kernel`, borders reflected (BORDER_REFLECT_101). The inside straight
+// from the row; each border (r columns) from a reflected copy of its 3 r neighbours in `padded` (cols + 2 r floats).
+void ConvolveRowReflected(const float* s, int cols, const Kernel& kernel, float* padded, float* out) {
+  const int r = kernel.radius;
+  const float* w = kernel.weights.data();
+  if (cols < 4 * r) {
+    for (int i = 0; i < cols + 2 * r; ++i) padded[i] = s[Reflect101(i - r, cols)];
+    ConvolveRow(padded, cols, w, r, out);
+    return;
+  }
+  for (int i = 0; i < 3 * r; ++i) padded[i] = s[Reflect101(i - r, cols)];
+  ConvolveRow(padded, r, w, r, out);
+  ConvolveRow(s, cols - 2 * r, w, r, out + r);
+  for (int i = 0; i < 3 * r; ++i) padded[i] = s[Reflect101(cols - 2 * r + i, cols)];
+  ConvolveRow(padded, r, w, r, out + cols - r);
+}
+
+// The rows of src that Blur replaces but that a neighbouring task, or the bottom border's reflection, still reads: a
+// task's first r and last r + 1 rows (every row of a short task). Their new values wait here until all tasks are done.
+class HeldRows {
+ public:
+  HeldRows(int rows, int cols, int radius, int tasks)
+      : rows_(rows), width_(static_cast<size_t>(cols)), radius_(radius), held_(static_cast<size_t>(tasks)) {}
+  // Where row y (of task `task`, rows [y0, y1)) gets its new values: src_row itself or a held row.
+  float* Target(float* src_row, int y, int y0, int y1, int task) {
+    const int slot = Slot(y, y0, y1);
+    if (slot < 0) return src_row;
+    std::vector<float>& held = held_[static_cast<size_t>(task)];
+    held.resize(static_cast<size_t>(std::min(y1 - y0, 2 * radius_ + 1)) * width_);
+    return held.data() + static_cast<size_t>(slot) * width_;
+  }
+  void WriteBack(cv::Mat& src) const {
+    const int tasks = static_cast<int>(held_.size());
+    for (int t = 0; t < tasks; ++t) {
+      const int y0 = static_cast<int>(static_cast<int64_t>(rows_) * t / tasks);
+      const int y1 = static_cast<int>(static_cast<int64_t>(rows_) * (t + 1) / tasks);
+      for (int y = y0; y < y1; ++y) {
+        const int slot = Slot(y, y0, y1);
+        if (slot >= 0)
+          std::memcpy(src.ptr<float>(y), held_[static_cast<size_t>(t)].data() + static_cast<size_t>(slot) * width_,
+                      width_ * sizeof(float));
+      }
+    }
+  }
+
+ private:
+  [[nodiscard]] int Slot(int y, int y0, int y1) const {
+    if (y1 - y0 <= 2 * radius_ + 1 || y - y0 < radius_) return y - y0;
+    return y1 - 1 - y <= radius_ ? radius_ + (y - (y1 - radius_ - 1)) : -1;
+  }
+
+  int rows_;
+  size_t width_;
+  int radius_;
+  std::vector<std::vector<float>> held_;
+};
+
+// The blur of `src` by `kernel` (borders reflected as OpenCV's BORDER_REFLECT_101) into `out`, row by row while the
+// row is in cache. Each task keeps a ring of 2 radius + 1 horizontally blurred rows.
+void Blur(cv::Mat& src, const Kernel& kernel, const BlurOutputs& out) {
   const int rows = src.rows;
   const int cols = src.cols;
   const int r = kernel.radius;
   const int ring_rows = 2 * r + 1;
-  ForRowBlocks(rows, kRowsPerTask, [&](int y0, int y1) {
+  const bool replace_src = out.src_to_difference || out.src_minus != nullptr;
+  const auto width = static_cast<size_t>(cols);
+  HeldRows held(rows, cols, r, replace_src ? RowTasks(rows, kRowsPerTask) : 0);
+  ForRowBlocks(rows, kRowsPerTask, [&](int y0, int y1, int task) {
     std::vector<float> padded(static_cast<size_t>(cols + 2 * r));
-    std::vector<float> ring(static_cast<size_t>(ring_rows) * static_cast<size_t>(cols));
-    std::vector<float> scratch(dst.empty() ? static_cast<size_t>(cols) : 0);
+    std::vector<float> ring(static_cast<size_t>(ring_rows) * width);
+    std::vector<float> scratch(out.blurred == nullptr ? width : 0);
     std::vector<const float*> window(static_cast<size_t>(ring_rows));
     auto ring_row = [&](int y) {
-      return ring.data() + static_cast<size_t>(((y % ring_rows) + ring_rows) % ring_rows) * static_cast<size_t>(cols);
+      return ring.data() + static_cast<size_t>(((y % ring_rows) + ring_rows) % ring_rows) * width;
     };
-    // The row's inside straight from the image; each border (r columns) from a reflected copy of its 3 r neighbours.
     auto horizontal = [&](int y) {
-      const float* s = src.ptr<float>(Reflect101(y, rows));
-      float* out = ring_row(y);
-      const float* w = kernel.weights.data();
-      if (cols < 4 * r) {
-        for (int i = 0; i < cols + 2 * r; ++i) padded[static_cast<size_t>(i)] = s[Reflect101(i - r, cols)];
-        ConvolveRow(padded.data(), cols, w, r, out);
-        return;
-      }
-      for (int i = 0; i < 3 * r; ++i) padded[static_cast<size_t>(i)] = s[Reflect101(i - r, cols)];
-      ConvolveRow(padded.data(), r, w, r, out);
-      ConvolveRow(s, cols - 2 * r, w, r, out + r);
-      for (int i = 0; i < 3 * r; ++i) padded[static_cast<size_t>(i)] = s[Reflect101(cols - 2 * r + i, cols)];
-      ConvolveRow(padded.data(), r, w, r, out + cols - r);
+      ConvolveRowReflected(src.ptr<float>(Reflect101(y, rows)), cols, kernel, padded.data(), ring_row(y));
     };
     for (int y = y0 - r; y < y0 + r; ++y) horizontal(y);
     for (int y = y0; y < y1; ++y) {
       horizontal(y + r);
       for (int i = 0; i < ring_rows; ++i) window[static_cast<size_t>(i)] = ring_row(y - r + i);
-      float* out = dst.empty() ? scratch.data() : dst.ptr<float>(y);
-      ConvolveColumn(window.data(), cols, kernel.weights.data(), r, out);
-      if (difference != nullptr) SubtractRow(out, src.ptr<float>(y), cols, difference->ptr<float>(y));
+      float* blurred = out.blurred == nullptr ? scratch.data() : out.blurred->ptr<float>(y);
+      ConvolveColumn(window.data(), cols, kernel.weights.data(), r, blurred);
+      float* s = src.ptr<float>(y);
+      if (out.difference != nullptr) SubtractRow(blurred, s, cols, out.difference->ptr<float>(y));
+      if (!replace_src) continue;
+      float* target = held.Target(s, y, y0, y1, task);
+      if (out.src_to_difference)
+        SubtractRow(blurred, s, cols, target);
+      else
+        SubtractRow(s, out.src_minus->ptr<float>(y), cols, target);
     }
   });
-}
-
-// dst = a - b (dst may be a or b).
-void Subtract(const cv::Mat& a, const cv::Mat& b, cv::Mat& dst) {
-  ForRowBlocks(a.rows, kRowsPerTask, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y) SubtractRow(a.ptr<float>(y), b.ptr<float>(y), a.cols, dst.ptr<float>(y));
-  });
+  held.WriteBack(src);
 }
 
 // The input doubled by linear interpolation between pixel centres (output pixel X sits at input X / 2 - 0.25).
 void Upsample2x(const cv::Mat& gray, cv::Mat& dst) {
   const int cols = gray.cols;
   const int rows = gray.rows;
-  ForRowBlocks(rows, kRowsPerTask / 2, [&](int y0, int y1) {
+  ForRowBlocks(rows, kRowsPerTask / 2, [&](int y0, int y1, int /*task*/) {
     std::vector<float> wide(static_cast<size_t>(3 * 2 * cols));
     auto widen = [&](int y, float* out) {
       const uchar* s = gray.ptr<uchar>(std::clamp(y, 0, rows - 1));
@@ -423,23 +490,27 @@ void FindExtrema(const std::vector<cv::Mat>& dog, const DogSiftOptions& o, doubl
 
 // ---- Orientation and descriptor ------------------------------------------------------------------------------------
 
-// Gaussian weights e^(-k^2 / (2 sigma^2)) for k in [0, radius].
+// Gaussian weights e^(-k^2 / (2 sigma^2)) for k in [-radius, radius], at k + radius.
 void GaussianWeights(float sigma, int radius, std::vector<float>* w) {
-  w->resize(static_cast<size_t>(radius) + 1);
-  for (int k = 0; k <= radius; ++k)
-    (*w)[static_cast<size_t>(k)] = static_cast<float>(portable::Exp(-0.5 * k * k / (double{sigma} * sigma)));
+  w->resize(2 * static_cast<size_t>(radius) + 1);
+  for (int k = 0; k <= radius; ++k) {
+    const auto v = static_cast<float>(portable::Exp(-0.5 * k * k / (double{sigma} * sigma)));
+    (*w)[static_cast<size_t>(radius + k)] = v;
+    (*w)[static_cast<size_t>(radius - k)] = v;
+  }
 }
 
-// Per pixel of a row segment: gradient magnitude times `weight[j]` and direction in degrees (portable::Atan2Degrees,
-// eight pixels at a time in Float8: the same operations in the same order as the scalar loop).
+// Per pixel of a row segment: gradient magnitude times weight[j] * row_weight and direction in degrees
+// (portable::Atan2Degrees, eight pixels at a time in Float8: the same operations in the same order as the scalar loop).
 UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __restrict row,
                                   const float* __restrict below, int n, const float* __restrict weight,
-                                  float* __restrict magnitude, float* __restrict degrees) {
-  int j = 0;
-  for (; j + 8 <= n; j += 8) {
+                                  float row_weight, float* __restrict magnitude, float* __restrict degrees) {
+  // With n >= 8 the last block ends at n, overlapping the one before (its lanes give the same values again).
+  for (int j = 0; n >= 8 && j < n; j += 8) {
+    j = std::min(j, n - 8);
     const Float8 dx = Load8(row + j + 1) - Load8(row + j - 1);
     const Float8 dy = Load8(above + j) - Load8(below + j);
-    Store8(magnitude + j, Sqrt8(dx * dx + dy * dy) * Load8(weight + j));
+    Store8(magnitude + j, Sqrt8(dx * dx + dy * dy) * (Load8(weight + j) * row_weight));
     const Float8 ax = Abs8(dx);
     const Float8 ay = Abs8(dy);
     const Int8 steep = ax < ay;
@@ -453,10 +524,10 @@ UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __
     a = dy < 0.f ? 360.f - a : a;
     Store8(degrees + j, a >= 360.f ? a - 360.f : a);
   }
-  for (; j < n; ++j) {
+  for (int j = 0; n < 8 && j < n; ++j) {
     const float dx = row[j + 1] - row[j - 1];
     const float dy = above[j] - below[j];
-    magnitude[j] = std::sqrt(dx * dx + dy * dy) * weight[j];
+    magnitude[j] = std::sqrt(dx * dx + dy * dy) * (weight[j] * row_weight);
     degrees[j] = portable::Atan2Degrees(dy, dx);
   }
 }
@@ -474,12 +545,13 @@ inline void PrefetchRow(const cv::Mat& img, int y, int x0, int n) {
 
 // Scratch rows of one orientation or descriptor computation.
 struct GradientScratch {
-  std::vector<float> window, magnitude, degrees;
-  std::vector<float> votes;  // a descriptor row's 8 trilinear weights per pixel, weight-major
-  std::vector<int> bins;     // and its first histogram bin (-1: outside the cells)
+  std::vector<float> magnitude, degrees;
+  // A descriptor row's 8 trilinear weights per pixel: four arrays of pairs (the two direction bins a cell gets),
+  // pixel t's pair p at [p * 2 n + 2 t].
+  std::vector<float> votes;
+  std::vector<int> bins;  // and its first histogram bin (-1: outside the cells)
   void Fit(size_t n) {
-    if (window.size() < n) {
-      window.resize(n);
+    if (magnitude.size() < n) {
       magnitude.resize(n);
       degrees.resize(n);
       votes.resize(8 * n);
@@ -506,10 +578,9 @@ void Orientations(const cv::Mat& img, int c, int r, float scale, GradientScratch
   for (int y = y_lo - 1; y < y_lo - 1 + kPrefetchRowsAhead; ++y) PrefetchRow(img, y, x_lo - 1, n + 2);
   for (int y = y_lo; y <= y_hi; ++y) {
     PrefetchRow(img, y + kPrefetchRowsAhead, x_lo - 1, n + 2);
-    const float wy = w[static_cast<size_t>(std::abs(y - r))];
-    for (int j = 0; j < n; ++j) s->window[static_cast<size_t>(j)] = wy * w[static_cast<size_t>(std::abs(x_lo + j - c))];
     GradientRow(img.ptr<float>(y - 1) + x_lo, img.ptr<float>(y) + x_lo, img.ptr<float>(y + 1) + x_lo, n,
-                s->window.data(), s->magnitude.data(), s->degrees.data());
+                w.data() + (x_lo - c + radius), w[static_cast<size_t>(y - r + radius)], s->magnitude.data(),
+                s->degrees.data());
     for (int j = 0; j < n; ++j) {
       int bin = static_cast<int>(s->degrees[static_cast<size_t>(j)] * (kOrientationBins / 360.f) + 0.5f);
       if (bin >= kOrientationBins) bin -= kOrientationBins;
@@ -549,18 +620,20 @@ struct DescriptorWindow {
   std::vector<float> weight;  // e^(-k^2 / (2 (d/2 cells)^2)) for offsets k in [0, radius]
 };
 
-// The vector part of DescriptorVotes: pixels [0, returned count), eight at a time.
+// The vector part of DescriptorVotes: pixels [0, returned count), eight at a time (all of them from 8 on).
 UAVM_SIMD_CLONES int DescriptorVotes8(const DescriptorWindow& win, float fi, int jb, int count,
                                       const float* __restrict degrees, const float* __restrict magnitude,
                                       int* __restrict bins, float* __restrict votes) {
   constexpr int d = kDescriptorWidth;
   constexpr int n = kDescriptorBins;
-  const auto stride = static_cast<size_t>(count);
+  const auto pairs = 2 * static_cast<size_t>(count);
   const float fi_sin = fi * win.sin_t;
   const float fi_cos = fi * win.cos_t;
   const Int8 lane = {0, 1, 2, 3, 4, 5, 6, 7};
-  int t = 0;
-  for (; t + 8 <= count; t += 8) {
+  if (count < 8) return 0;
+  // The last block ends at count, overlapping the one before (its lanes give the same values again).
+  for (int t = 0; t < count; t += 8) {
+    t = std::min(t, count - 8);
     const Float8 fj = __builtin_convertvector(jb + t + lane, Float8);
     Float8 rbin = ((fj * win.sin_t + fi_cos) + static_cast<float>(d / 2)) - 0.5f;
     Float8 cbin = ((fj * win.cos_t - fi_sin) + static_cast<float>(d / 2)) - 0.5f;
@@ -583,16 +656,12 @@ UAVM_SIMD_CLONES int DescriptorVotes8(const DescriptorWindow& win, float fi, int
     const Float8 v_rc01 = v_r0 * cbin, v_rc00 = v_r0 - v_rc01;
     const Float8 v_rco111 = v_rc11 * obin, v_rco101 = v_rc10 * obin;
     const Float8 v_rco011 = v_rc01 * obin, v_rco001 = v_rc00 * obin;
-    Store8(votes + t, v_rc00 - v_rco001);
-    Store8(votes + stride + t, v_rco001);
-    Store8(votes + 2 * stride + t, v_rc01 - v_rco011);
-    Store8(votes + 3 * stride + t, v_rco011);
-    Store8(votes + 4 * stride + t, v_rc10 - v_rco101);
-    Store8(votes + 5 * stride + t, v_rco101);
-    Store8(votes + 6 * stride + t, v_rc11 - v_rco111);
-    Store8(votes + 7 * stride + t, v_rco111);
+    StorePairs8(votes + 2 * t, v_rc00 - v_rco001, v_rco001);
+    StorePairs8(votes + pairs + 2 * t, v_rc01 - v_rco011, v_rco011);
+    StorePairs8(votes + 2 * pairs + 2 * t, v_rc10 - v_rco101, v_rco101);
+    StorePairs8(votes + 3 * pairs + 2 * t, v_rc11 - v_rco111, v_rco111);
   }
-  return t;
+  return count;
 }
 
 // For the pixels j = jb .. jb + count - 1 of window row i (gradients in s->magnitude, s->degrees): the first histogram
@@ -605,7 +674,7 @@ void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, G
   const float bins_per_degree = n / 360.f;
   const float fi_sin = fi * win.sin_t;
   const float fi_cos = fi * win.cos_t;
-  const auto stride = static_cast<size_t>(count);
+  const auto pairs = 2 * static_cast<size_t>(count);
   float* votes = s->votes.data();
   int t = DescriptorVotes8(win, fi, jb, count, s->degrees.data(), s->magnitude.data(), s->bins.data(), votes);
   for (; t < count; ++t) {
@@ -632,14 +701,15 @@ void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, G
     const float v_rc01 = v_r0 * cbin, v_rc00 = v_r0 - v_rc01;
     const float v_rco111 = v_rc11 * obin, v_rco101 = v_rc10 * obin;
     const float v_rco011 = v_rc01 * obin, v_rco001 = v_rc00 * obin;
-    votes[t] = v_rc00 - v_rco001;
-    votes[stride + t] = v_rco001;
-    votes[2 * stride + t] = v_rc01 - v_rco011;
-    votes[3 * stride + t] = v_rco011;
-    votes[4 * stride + t] = v_rc10 - v_rco101;
-    votes[5 * stride + t] = v_rco101;
-    votes[6 * stride + t] = v_rc11 - v_rco111;
-    votes[7 * stride + t] = v_rco111;
+    float* pair = votes + 2 * static_cast<size_t>(t);
+    pair[0] = v_rc00 - v_rco001;
+    pair[1] = v_rco001;
+    pair[pairs] = v_rc01 - v_rco011;
+    pair[pairs + 1] = v_rco011;
+    pair[2 * pairs] = v_rc10 - v_rco101;
+    pair[2 * pairs + 1] = v_rco101;
+    pair[3 * pairs] = v_rc11 - v_rco111;
+    pair[3 * pairs + 1] = v_rco111;
   }
 }
 
@@ -668,28 +738,26 @@ void VoteDescriptorRow(const cv::Mat& img, const DescriptorWindow& win, int i, G
   const int je = std::min(static_cast<int>(std::floor(j_hi)), img.cols - 2 - win.px);
   const int count = je - jb + 1;
   if (count <= 0) return;
-  const float wy = win.weight[static_cast<size_t>(std::abs(i))];
-  for (int j = jb; j <= je; ++j)
-    s->window[static_cast<size_t>(j - jb)] = wy * win.weight[static_cast<size_t>(std::abs(j))];
   const int x0 = win.px + jb;
   PrefetchRow(img, yy + kPrefetchRowsAhead, x0 - 1, count + 2);
   GradientRow(img.ptr<float>(yy - 1) + x0, img.ptr<float>(yy) + x0, img.ptr<float>(yy + 1) + x0, count,
-              s->window.data(), s->magnitude.data(), s->degrees.data());
+              win.weight.data() + (jb + win.radius), win.weight[static_cast<size_t>(i + win.radius)],
+              s->magnitude.data(), s->degrees.data());
   DescriptorVotes(win, fi, jb, count, s);
-  for (int t = 0; t < count; ++t) {
+  const auto pairs = 2 * static_cast<size_t>(count);
+  const float* v = s->votes.data();
+  for (int t = 0; t < count; ++t, v += 2) {
     const int bin = s->bins[static_cast<size_t>(t)];
     if (bin < 0) continue;
-    const float* v = s->votes.data() + t;
-    const auto c = static_cast<size_t>(count);
     float* h = hist + bin;
     h[0] += v[0];
-    h[1] += v[c];
-    h[n + 2] += v[2 * c];
-    h[n + 3] += v[3 * c];
-    h[(d + 2) * (n + 2)] += v[4 * c];
-    h[(d + 2) * (n + 2) + 1] += v[5 * c];
-    h[(d + 3) * (n + 2)] += v[6 * c];
-    h[(d + 3) * (n + 2) + 1] += v[7 * c];
+    h[1] += v[1];
+    h[n + 2] += v[pairs];
+    h[n + 3] += v[pairs + 1];
+    h[(d + 2) * (n + 2)] += v[2 * pairs];
+    h[(d + 2) * (n + 2) + 1] += v[2 * pairs + 1];
+    h[(d + 3) * (n + 2)] += v[3 * pairs];
+    h[(d + 3) * (n + 2) + 1] += v[3 * pairs + 1];
   }
 }
 
@@ -750,17 +818,14 @@ void Describe(const cv::Mat& img, float x, float y, float angle, float scale, Gr
 // turned into a difference in place once layer L+2 (never stored) has given its own.
 void BuildOctave(const std::vector<Kernel>& kernels, std::vector<cv::Mat>& dog, std::vector<cv::Mat>& gauss) {
   const int layers = static_cast<int>(gauss.size());
-  Blur(dog[0], kernels[1], gauss[0]);
-  Subtract(gauss[0], dog[0], dog[0]);
+  Blur(dog[0], kernels[1], {.blurred = &gauss[0], .src_to_difference = true});
   for (int i = 2; i <= layers; ++i) {
     const auto at = static_cast<size_t>(i);
-    Blur(gauss[at - 2], kernels[at], gauss[at - 1], &dog[at - 1]);
+    Blur(gauss[at - 2], kernels[at], {.blurred = &gauss[at - 1], .difference = &dog[at - 1]});
   }
   const auto top = static_cast<size_t>(layers);
-  cv::Mat none;
-  Blur(gauss[top - 1], kernels[top + 1], dog[top]);
-  Blur(dog[top], kernels[top + 2], none, &dog[top + 1]);
-  Subtract(dog[top], gauss[top - 1], dog[top]);
+  Blur(gauss[top - 1], kernels[top + 1], {.blurred = &dog[top]});
+  Blur(dog[top], kernels[top + 2], {.difference = &dog[top + 1], .src_minus = &gauss[top - 1]});
 }
 
 struct Oriented {
@@ -796,7 +861,7 @@ void FirstImage(const cv::Mat& gray, const ScaleSpace& space, int octave, cv::Ma
       Upsample2x(gray, scratch);
     else
       gray.convertTo(scratch, CV_32F);
-    Blur(scratch, blur, first);
+    Blur(scratch, blur, {.blurred = &first});
   } else {
     Decimate(space.gauss.back().back(), first);
   }
