@@ -287,20 +287,45 @@ void Blur(cv::Mat& src, const Kernel& kernel, const BlurOutputs& out) {
   held.WriteBack(src);
 }
 
+// out[2 x], out[2 x + 1] = the row at input x - 0.25 and x + 0.25: 0.75 s[x] + 0.25 s[x -+ 1] (edges clamped).
+UAVM_SIMD_CLONES void WidenRow(const uchar* __restrict s, int cols, float* __restrict out) {
+  using Byte8 = uchar __attribute__((vector_size(8)));
+  auto load = [](const uchar* p) {
+    Byte8 b;
+    std::memcpy(&b, p, sizeof b);
+    return __builtin_convertvector(b, Float8);
+  };
+  int x = 0;
+  auto one = [&](int i) {
+    const float v = 0.75f * s[i];
+    out[2 * i] = v + 0.25f * s[std::max(i - 1, 0)];
+    out[2 * i + 1] = v + 0.25f * s[std::min(i + 1, cols - 1)];
+  };
+  if (cols > 0) one(x++);
+  for (; x + 9 <= cols; x += 8) {
+    const Float8 v = 0.75f * load(s + x);
+    StorePairs8(out + 2 * x, v + 0.25f * load(s + x - 1), v + 0.25f * load(s + x + 1));
+  }
+  for (; x < cols; ++x) one(x);
+}
+
+// even[x], odd[x] = the rows at -0.25 and +0.25 of `here`: 0.75 here + 0.25 above (below).
+UAVM_SIMD_CLONES void BlendRows(const float* __restrict above, const float* __restrict here,
+                                const float* __restrict below, int n, float* __restrict even, float* __restrict odd) {
+  for (int x = 0; x < n; ++x) {
+    const float v = 0.75f * here[x];
+    even[x] = v + 0.25f * above[x];
+    odd[x] = v + 0.25f * below[x];
+  }
+}
+
 // The input doubled by linear interpolation between pixel centres (output pixel X sits at input X / 2 - 0.25).
 void Upsample2x(const cv::Mat& gray, cv::Mat& dst) {
   const int cols = gray.cols;
   const int rows = gray.rows;
   ForRowBlocks(rows, kRowsPerTask / 2, [&](int y0, int y1, int /*task*/) {
     std::vector<float> wide(static_cast<size_t>(3 * 2 * cols));
-    auto widen = [&](int y, float* out) {
-      const uchar* s = gray.ptr<uchar>(std::clamp(y, 0, rows - 1));
-      for (int x = 0; x < cols; ++x) {
-        const float v = 0.75f * s[x];
-        out[2 * x] = v + 0.25f * s[std::max(x - 1, 0)];
-        out[2 * x + 1] = v + 0.25f * s[std::min(x + 1, cols - 1)];
-      }
-    };
+    auto widen = [&](int y, float* out) { WidenRow(gray.ptr<uchar>(std::clamp(y, 0, rows - 1)), cols, out); };
     float* above = wide.data();
     float* here = above + 2 * cols;
     float* below = here + 2 * cols;
@@ -308,13 +333,7 @@ void Upsample2x(const cv::Mat& gray, cv::Mat& dst) {
     widen(y0, here);
     for (int y = y0; y < y1; ++y) {
       widen(y + 1, below);
-      float* even = dst.ptr<float>(2 * y);
-      float* odd = dst.ptr<float>(2 * y + 1);
-      for (int x = 0; x < 2 * cols; ++x) {
-        const float v = 0.75f * here[x];
-        even[x] = v + 0.25f * above[x];
-        odd[x] = v + 0.25f * below[x];
-      }
+      BlendRows(above, here, below, 2 * cols, dst.ptr<float>(2 * y), dst.ptr<float>(2 * y + 1));
       std::swap(above, here);
       std::swap(here, below);
     }
