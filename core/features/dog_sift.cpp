@@ -287,24 +287,20 @@ void Blur(cv::Mat& src, const Kernel& kernel, const BlurOutputs& out) {
   held.WriteBack(src);
 }
 
-// out[2 x], out[2 x + 1] = the row at input x - 0.25 and x + 0.25: 0.75 s[x] + 0.25 s[x -+ 1] (edges clamped).
-UAVM_SIMD_CLONES void WidenRow(const uchar* __restrict s, int cols, float* __restrict out) {
-  using Byte8 = uchar __attribute__((vector_size(8)));
-  auto load = [](const uchar* p) {
-    Byte8 b;
-    std::memcpy(&b, p, sizeof b);
-    return __builtin_convertvector(b, Float8);
+// out[2 x], out[2 x + 1] = the row at input x - 0.25 and x + 0.25: 0.75 s[x] + 0.25 s[x -+ 1] (edges clamped);
+// values (cols floats) is scratch for the row as floats.
+UAVM_SIMD_CLONES void WidenRow(const uchar* __restrict s, int cols, float* __restrict values, float* __restrict out) {
+  for (int x = 0; x < cols; ++x) values[x] = s[x];
+  auto one = [&](int i) {
+    const float v = 0.75f * values[i];
+    out[2 * i] = v + 0.25f * values[std::max(i - 1, 0)];
+    out[2 * i + 1] = v + 0.25f * values[std::min(i + 1, cols - 1)];
   };
   int x = 0;
-  auto one = [&](int i) {
-    const float v = 0.75f * s[i];
-    out[2 * i] = v + 0.25f * s[std::max(i - 1, 0)];
-    out[2 * i + 1] = v + 0.25f * s[std::min(i + 1, cols - 1)];
-  };
   if (cols > 0) one(x++);
   for (; x + 9 <= cols; x += 8) {
-    const Float8 v = 0.75f * load(s + x);
-    StorePairs8(out + 2 * x, v + 0.25f * load(s + x - 1), v + 0.25f * load(s + x + 1));
+    const Float8 v = 0.75f * Load8(values + x);
+    StorePairs8(out + 2 * x, v + 0.25f * Load8(values + x - 1), v + 0.25f * Load8(values + x + 1));
   }
   for (; x < cols; ++x) one(x);
 }
@@ -325,7 +321,10 @@ void Upsample2x(const cv::Mat& gray, cv::Mat& dst) {
   const int rows = gray.rows;
   ForRowBlocks(rows, kRowsPerTask / 2, [&](int y0, int y1, int /*task*/) {
     std::vector<float> wide(static_cast<size_t>(3 * 2 * cols));
-    auto widen = [&](int y, float* out) { WidenRow(gray.ptr<uchar>(std::clamp(y, 0, rows - 1)), cols, out); };
+    std::vector<float> values(static_cast<size_t>(cols));
+    auto widen = [&](int y, float* out) {
+      WidenRow(gray.ptr<uchar>(std::clamp(y, 0, rows - 1)), cols, values.data(), out);
+    };
     float* above = wide.data();
     float* here = above + 2 * cols;
     float* below = here + 2 * cols;
