@@ -550,8 +550,8 @@ UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __
   }
 }
 
-// A window's rows lie 4 bytes x the image's width apart, so the hardware sees no stream: each row's gradients would
-// wait on memory. Asks for row y's columns [x0, x0 + n) ahead of use (nothing outside the image).
+// A window's rows lie 4 bytes x the image's width apart, so the hardware sees no stream to prefetch. Asks for row y's
+// columns [x0, x0 + n) a few rows ahead of use (nothing outside the image; measured a few per cent, within noise).
 constexpr int kPrefetchRowsAhead = 4;
 inline void PrefetchRow(const cv::Mat& img, int y, int x0, int n) {
   if (y < 0 || y >= img.rows) return;
@@ -635,7 +635,7 @@ void Orientations(const cv::Mat& img, int c, int r, float scale, GradientScratch
 struct DescriptorWindow {
   int px = 0, py = 0, radius = 0;
   float cos_t = 0.f, sin_t = 0.f, ori = 0.f;
-  std::vector<float> weight;  // e^(-k^2 / (2 (d/2 cells)^2)) for offsets k in [0, radius]
+  std::vector<float> weight;  // e^(-k^2 / (2 (d/2 cells)^2)) for offsets k in [-radius, radius], at k + radius
 };
 
 // The vector part of DescriptorVotes: pixels [0, returned count), eight at a time (all of them from 8 on).
@@ -684,8 +684,8 @@ UAVM_SIMD_CLONES int DescriptorVotes8(const DescriptorWindow& win, float fi, int
 
 // For the pixels j = jb .. jb + count - 1 of window row i (gradients in s->magnitude, s->degrees): the first histogram
 // bin of each pixel's votes (-1 outside the cells) and its 8 trilinear weights (two cells in each direction, two of
-// the 8 direction bins), four pixels at a time with universal intrinsics; the same operations, in the same order, as
-// the scalar loop for the rest.
+// the 8 direction bins), eight pixels at a time (DescriptorVotes8) from 8 pixels on; the same operations, in the same
+// order, in the scalar loop for shorter rows.
 void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, GradientScratch* s) {
   constexpr int d = kDescriptorWidth;
   constexpr int n = kDescriptorBins;

@@ -10,8 +10,8 @@
 //  - Lowe's first rejection at half the contrast threshold (OpenCV floors it to whole grey levels: 0 at the onboard
 //    0.01), then the 8 neighbours in the same layer, vectorised, before the 26-neighbour test; orientations and
 //    descriptors only for keypoints that can be among the strongest `max_features` (OpenCV orients every extremum);
-//  - gradients and descriptor votes with OpenCV's universal intrinsics; exp, atan2 and sin/cos from
-//    core/features/portable_math.h.
+//  - gradients and descriptor votes eight pixels at a time (the same vector extension), the windows visited in the
+//    order they lie in the image, the votes added as pairs; exp, atan2 and sin/cos from core/features/portable_math.h.
 // Keypoints are in the input's pixel-centre coordinates (pixel i's centre is at i).
 #include <opencv2/core.hpp>
 #include <vector>
