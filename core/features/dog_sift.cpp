@@ -6,13 +6,14 @@
 #include <cstdio>
 #include <cstring>
 #include <numeric>
-#include <opencv2/core/hal/intrin.hpp>
 #include <tuple>
+#include <utility>
 
 #include "core/features/portable_math.h"
 
-// The convolution and subtraction loops are compiled twice on x86-64 (AVX2 and the SSE2 baseline, chosen at load
-// time); each lane does the same float operations in the same order as the scalar code, so both give the same bits.
+// The vector loops (convolution, subtraction, doubling, gradients, descriptor votes, extremum mask) are compiled twice
+// on x86-64 (AVX2 and the SSE2 baseline, chosen at load time); each lane does the same float operations in the same
+// order as the scalar code, so both give the same bits.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define UAVM_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
 #else
@@ -69,32 +70,35 @@ int Reflect101(int i, int n) {
 
 // Eight floats as one value (GCC's vector extension): one AVX register in the AVX2 clone, two SSE or NEON registers
 // otherwise. Each lane does exactly the scalar code's operations, so every path gives the same bits.
-#pragma GCC diagnostic ignored "-Wpsabi"  // the helpers are inlined: no AVX value crosses a call
+// The helpers are always inlined: a Float8 passed by value between an AVX2 clone and a default-target function
+// would not agree on how it is passed (hence -Wpsabi off).
+#pragma GCC diagnostic ignored "-Wpsabi"
+#define UAVM_INLINE inline __attribute__((always_inline))
 using Float8 = float __attribute__((vector_size(32)));
-inline Float8 Load8(const float* p) {
+UAVM_INLINE Float8 Load8(const float* p) {
   Float8 v;
   std::memcpy(&v, p, sizeof v);
   return v;
 }
-inline void Store8(float* p, Float8 v) {
+UAVM_INLINE void Store8(float* p, Float8 v) {
   std::memcpy(p, &v, sizeof v);
 }
 using Int8 = int __attribute__((vector_size(32)));  // lane masks (-1 true) and bin indices
 // Per lane; with -fno-math-errno GCC emits one vector square root.
-inline Float8 Sqrt8(Float8 v) {
+UAVM_INLINE Float8 Sqrt8(Float8 v) {
   for (int k = 0; k < 8; ++k) v[k] = std::sqrt(v[k]);
   return v;
 }
-inline Float8 Abs8(Float8 v) {
+UAVM_INLINE Float8 Abs8(Float8 v) {
   return reinterpret_cast<Float8>(reinterpret_cast<Int8>(v) & 0x7fffffff);
 }
-// a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 16).
-inline void StorePairs8(float* p, Float8 a, Float8 b) {
+// a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 16). (__builtin_shufflevector: GCC 12 and clang.)
+UAVM_INLINE void StorePairs8(float* p, Float8 a, Float8 b) {
   Store8(p, __builtin_shufflevector(a, b, 0, 8, 1, 9, 2, 10, 3, 11));
   Store8(p + 8, __builtin_shufflevector(a, b, 4, 12, 5, 13, 6, 14, 7, 15));
 }
 // floor(v) as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
-inline Int8 Floor8(Float8 v) {
+UAVM_INLINE Int8 Floor8(Float8 v) {
   const Int8 t = __builtin_convertvector(v, Int8);
   return t + (__builtin_convertvector(t, Float8) > v);
 }
@@ -167,17 +171,27 @@ int RowTasks(int rows, int min_rows) {
   return std::max(1, std::min(2 * cv::getNumThreads(), rows / std::max(1, min_rows)));
 }
 
-// fn(y0, y1, task) for each of RowTasks(rows, min_rows) tasks, in parallel.
+// Task t's rows [first, second) of `tasks` tasks over [0, rows).
+std::pair<int, int> TaskRows(int rows, int tasks, int t) {
+  return {static_cast<int>(static_cast<int64_t>(rows) * t / tasks),
+          static_cast<int>(static_cast<int64_t>(rows) * (t + 1) / tasks)};
+}
+
+// fn(y0, y1, task) for each of `tasks` tasks over rows [0, rows), in parallel.
 template <typename Fn>
-void ForRowBlocks(int rows, int min_rows, Fn&& fn) {
-  const int tasks = RowTasks(rows, min_rows);
+void ForRowTasks(int rows, int tasks, Fn&& fn) {
   cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
     for (int t = range.start; t < range.end; ++t) {
-      const int y0 = static_cast<int>(static_cast<int64_t>(rows) * t / tasks);
-      const int y1 = static_cast<int>(static_cast<int64_t>(rows) * (t + 1) / tasks);
+      const auto [y0, y1] = TaskRows(rows, tasks, t);
       fn(y0, y1, t);
     }
   });
+}
+
+// The same over RowTasks(rows, min_rows) tasks.
+template <typename Fn>
+void ForRowBlocks(int rows, int min_rows, Fn&& fn) {
+  ForRowTasks(rows, RowTasks(rows, min_rows), std::forward<Fn>(fn));
 }
 
 // What Blur writes besides the blurred image: a difference, and src's own rows replaced once they are used (saving
@@ -185,7 +199,7 @@ void ForRowBlocks(int rows, int min_rows, Fn&& fn) {
 // reads (a task's first r and last r + 1 rows) are held and written after all tasks.
 struct BlurOutputs {
   cv::Mat* blurred = nullptr;          // or null: not kept
-  cv::Mat* difference = nullptr;       // blurred - src (not src)
+  cv::Mat* difference = nullptr;       // blurred - src
   bool src_to_difference = false;      // src's rows become blurred - src
   const cv::Mat* src_minus = nullptr;  // src's rows become src - *src_minus
 };
@@ -211,21 +225,22 @@ void ConvolveRowReflected(const float* s, int cols, const Kernel& kernel, float*
 // task's first r and last r + 1 rows (every row of a short task). Their new values wait here until all tasks are done.
 class HeldRows {
  public:
+  // For the tasks of ForRowTasks(rows, tasks, ...); each task's rows are sized when it starts (Start).
   HeldRows(int rows, int cols, int radius, int tasks)
       : rows_(rows), width_(static_cast<size_t>(cols)), radius_(radius), held_(static_cast<size_t>(tasks)) {}
+  void Start(int y0, int y1, int task) {
+    held_[static_cast<size_t>(task)].resize(static_cast<size_t>(std::min(y1 - y0, 2 * radius_ + 1)) * width_);
+  }
   // Where row y (of task `task`, rows [y0, y1)) gets its new values: src_row itself or a held row.
   float* Target(float* src_row, int y, int y0, int y1, int task) {
     const int slot = Slot(y, y0, y1);
     if (slot < 0) return src_row;
-    std::vector<float>& held = held_[static_cast<size_t>(task)];
-    held.resize(static_cast<size_t>(std::min(y1 - y0, 2 * radius_ + 1)) * width_);
-    return held.data() + static_cast<size_t>(slot) * width_;
+    return held_[static_cast<size_t>(task)].data() + static_cast<size_t>(slot) * width_;
   }
   void WriteBack(cv::Mat& src) const {
     const int tasks = static_cast<int>(held_.size());
     for (int t = 0; t < tasks; ++t) {
-      const int y0 = static_cast<int>(static_cast<int64_t>(rows_) * t / tasks);
-      const int y1 = static_cast<int>(static_cast<int64_t>(rows_) * (t + 1) / tasks);
+      const auto [y0, y1] = TaskRows(rows_, tasks, t);
       for (int y = y0; y < y1; ++y) {
         const int slot = Slot(y, y0, y1);
         if (slot >= 0)
@@ -248,7 +263,7 @@ class HeldRows {
 };
 
 // The blur of `src` by `kernel` (borders reflected as OpenCV's BORDER_REFLECT_101) into `out`, row by row while the
-// row is in cache. Each task keeps a ring of 2 radius + 1 horizontally blurred rows.
+// row is in cache; no output image may be src. Each task keeps a ring of 2 radius + 1 horizontally blurred rows.
 void Blur(cv::Mat& src, const Kernel& kernel, const BlurOutputs& out) {
   const int rows = src.rows;
   const int cols = src.cols;
@@ -256,8 +271,10 @@ void Blur(cv::Mat& src, const Kernel& kernel, const BlurOutputs& out) {
   const int ring_rows = 2 * r + 1;
   const bool replace_src = out.src_to_difference || out.src_minus != nullptr;
   const auto width = static_cast<size_t>(cols);
-  HeldRows held(rows, cols, r, replace_src ? RowTasks(rows, kRowsPerTask) : 0);
-  ForRowBlocks(rows, kRowsPerTask, [&](int y0, int y1, int task) {
+  const int tasks = RowTasks(rows, kRowsPerTask);
+  HeldRows held(rows, cols, r, replace_src ? tasks : 0);
+  ForRowTasks(rows, tasks, [&](int y0, int y1, int task) {
+    if (replace_src) held.Start(y0, y1, task);
     std::vector<float> padded(static_cast<size_t>(cols + 2 * r));
     std::vector<float> ring(static_cast<size_t>(ring_rows) * width);
     std::vector<float> scratch(out.blurred == nullptr ? width : 0);
@@ -523,8 +540,17 @@ void GaussianWeights(float sigma, int radius, std::vector<float>* w) {
 UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __restrict row,
                                   const float* __restrict below, int n, const float* __restrict weight,
                                   float row_weight, float* __restrict magnitude, float* __restrict degrees) {
-  // With n >= 8 the last block ends at n, overlapping the one before (its lanes give the same values again).
-  for (int j = 0; n >= 8 && j < n; j += 8) {
+  if (n < 8) {
+    for (int j = 0; j < n; ++j) {
+      const float dx = row[j + 1] - row[j - 1];
+      const float dy = above[j] - below[j];
+      magnitude[j] = std::sqrt(dx * dx + dy * dy) * (weight[j] * row_weight);
+      degrees[j] = portable::Atan2Degrees(dy, dx);
+    }
+    return;
+  }
+  // The last block ends at n, overlapping the one before (its lanes give the same values again).
+  for (int j = 0; j < n; j += 8) {
     j = std::min(j, n - 8);
     const Float8 dx = Load8(row + j + 1) - Load8(row + j - 1);
     const Float8 dy = Load8(above + j) - Load8(below + j);
@@ -541,12 +567,6 @@ UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __
     a = dx < 0.f ? 180.f - a : a;
     a = dy < 0.f ? 360.f - a : a;
     Store8(degrees + j, a >= 360.f ? a - 360.f : a);
-  }
-  for (int j = 0; n < 8 && j < n; ++j) {
-    const float dx = row[j + 1] - row[j - 1];
-    const float dy = above[j] - below[j];
-    magnitude[j] = std::sqrt(dx * dx + dy * dy) * (weight[j] * row_weight);
-    degrees[j] = portable::Atan2Degrees(dy, dx);
   }
 }
 
@@ -565,7 +585,7 @@ inline void PrefetchRow(const cv::Mat& img, int y, int x0, int n) {
 struct GradientScratch {
   std::vector<float> magnitude, degrees;
   // A descriptor row's 8 trilinear weights per pixel: four arrays of pairs (the two direction bins a cell gets),
-  // pixel t's pair p at [p * 2 n + 2 t].
+  // pixel t's pair p at [p * 2 count + 2 t] (count: the row's pixels).
   std::vector<float> votes;
   std::vector<int> bins;  // and its first histogram bin (-1: outside the cells)
   void Fit(size_t n) {
@@ -593,7 +613,7 @@ void Orientations(const cv::Mat& img, int c, int r, float scale, GradientScratch
   const int n = x_hi - x_lo + 1;
   if (n <= 0) return;
   s->Fit(static_cast<size_t>(n));
-  for (int y = y_lo - 1; y < y_lo - 1 + kPrefetchRowsAhead; ++y) PrefetchRow(img, y, x_lo - 1, n + 2);
+  for (int y = y_lo - 1; y <= y_lo - 1 + kPrefetchRowsAhead; ++y) PrefetchRow(img, y, x_lo - 1, n + 2);
   for (int y = y_lo; y <= y_hi; ++y) {
     PrefetchRow(img, y + kPrefetchRowsAhead, x_lo - 1, n + 2);
     GradientRow(img.ptr<float>(y - 1) + x_lo, img.ptr<float>(y) + x_lo, img.ptr<float>(y + 1) + x_lo, n,
@@ -642,13 +662,13 @@ struct DescriptorWindow {
 UAVM_SIMD_CLONES int DescriptorVotes8(const DescriptorWindow& win, float fi, int jb, int count,
                                       const float* __restrict degrees, const float* __restrict magnitude,
                                       int* __restrict bins, float* __restrict votes) {
+  if (count < 8) return 0;
   constexpr int d = kDescriptorWidth;
   constexpr int n = kDescriptorBins;
   const auto pairs = 2 * static_cast<size_t>(count);
   const float fi_sin = fi * win.sin_t;
   const float fi_cos = fi * win.cos_t;
   const Int8 lane = {0, 1, 2, 3, 4, 5, 6, 7};
-  if (count < 8) return 0;
   // The last block ends at count, overlapping the one before (its lanes give the same values again).
   for (int t = 0; t < count; t += 8) {
     t = std::min(t, count - 8);
