@@ -391,16 +391,22 @@ bool IsExtremum26(const std::vector<cv::Mat>& dog, int layer, int r, int c) {
 }
 
 // mask[c] = 1 where row `cur` beats the contrast pre-threshold and is a maximum (or minimum) of its 8 neighbours in
-// the layer, for c in [first, last). Branch-free, so that it vectorises.
+// the layer and of the same pixel in the layers below and above (`below`, `above`: their row), for c in [first, last).
+// Branch-free, so that it vectorises. The two cross-layer pixels leave a quarter of the candidates for the full
+// 26-neighbour test (140k -> 33k on a 1000x750 frame), whose scalar loads and branches cost more than the two
+// vector compares.
 UAVM_SIMD_CLONES void ExtremumMaskRow(const float* __restrict up, const float* __restrict cur,
-                                      const float* __restrict dn, int first, int last, float threshold,
+                                      const float* __restrict dn, const float* __restrict below,
+                                      const float* __restrict above, int first, int last, float threshold,
                                       uchar* __restrict mask) {
   for (int c = first; c < last; ++c) {
     const float v = cur[c];
-    const float hi = std::max(std::max(std::max(cur[c - 1], cur[c + 1]), std::max(up[c - 1], up[c])),
-                              std::max(std::max(up[c + 1], dn[c - 1]), std::max(dn[c], dn[c + 1])));
-    const float lo = std::min(std::min(std::min(cur[c - 1], cur[c + 1]), std::min(up[c - 1], up[c])),
-                              std::min(std::min(up[c + 1], dn[c - 1]), std::min(dn[c], dn[c + 1])));
+    const float hi = std::max(std::max(std::max(std::max(cur[c - 1], cur[c + 1]), std::max(up[c - 1], up[c])),
+                                       std::max(std::max(up[c + 1], dn[c - 1]), std::max(dn[c], dn[c + 1]))),
+                              std::max(below[c], above[c]));
+    const float lo = std::min(std::min(std::min(std::min(cur[c - 1], cur[c + 1]), std::min(up[c - 1], up[c])),
+                                       std::min(std::min(up[c + 1], dn[c - 1]), std::min(dn[c], dn[c + 1]))),
+                              std::min(below[c], above[c]));
     mask[c] = static_cast<uchar>(((v > threshold) & (v >= hi)) | ((v < -threshold) & (v <= lo)));
   }
 }
@@ -499,7 +505,9 @@ void FindExtrema(const std::vector<cv::Mat>& dog, const DogSiftOptions& o, doubl
         const int y0 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * t / tasks);
         const int y1 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * (t + 1) / tasks);
         for (int r = y0; r < y1; ++r) {
-          ExtremumMaskRow(m.ptr<float>(r - 1), m.ptr<float>(r), m.ptr<float>(r + 1), kImageBorder, cols - kImageBorder,
+          ExtremumMaskRow(m.ptr<float>(r - 1), m.ptr<float>(r), m.ptr<float>(r + 1),
+                          dog[static_cast<size_t>(layer - 1)].ptr<float>(r),
+                          dog[static_cast<size_t>(layer + 1)].ptr<float>(r), kImageBorder, cols - kImageBorder,
                           threshold, mask.data());
           for (int c = kImageBorder; c < cols - kImageBorder; ++c) {
             if (c + 8 <= cols - kImageBorder) {  // most of the mask is zero: skip it eight bytes at a time
