@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 #include <vector>
 
+#include "core/buffers/mat_pool.h"
 #include "tests/test_env.h"
 #include "tests/test_frames.h"
 
@@ -205,11 +206,35 @@ TEST(DogSiftTest, TinyAndFlatImagesGiveNothing) {
   EXPECT_EQ(desc.rows, 0);
 }
 
-// The scale space's figure is what the memory plan reserves: 2 L + 2 float images of the doubled first octave.
+// The scale space's figure is what the memory plan reserves: L + 3 float images of the doubled first octave (its
+// Gaussian layers; the later octaves' fit in the room of the first's three searched ones).
 TEST(DogSiftTest, ScaleSpaceFigure) {
-  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750), 8.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
-  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 3, false), 8.0 * 1000 * 750 * 4 / (1024.0 * 1024.0), 1e-9);
-  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 4), 10.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750), 6.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 3, false), 6.0 * 1000 * 750 * 4 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 4), 7.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
+  // From 9 layers on the later octaves' kept layers outgrow that room: the figure counts them.
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 8), 11.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_GT(DogSiftScaleSpaceMiB(1000, 750, 12), 15.5 * 2000 * 1500 * 4 / (1024.0 * 1024.0));
+}
+
+// The detector's large buffers are its figure and the descriptors, and a second frame takes them all back from the
+// image pool: one block for every octave (images of each octave's own size missed the pool and were faulted in anew).
+TEST(DogSiftTest, ScaleSpaceIsOneBlockThePoolHandsBack) {
+  MatPool* pool = InstallMatPool();
+  const cv::Mat gray = WorkingGray(static_cast<int>(640 * test::EmulationImageScale()));
+  std::vector<SiftKeypoint> kps;
+  cv::Mat desc;
+  DetectAndDescribeSift(gray, DogSiftOptions{}, &kps, &desc);
+  ASSERT_GT(kps.size(), 100u);
+  const MatPoolStats first = pool->Stats();
+  DetectAndDescribeSift(gray, DogSiftOptions{}, &kps, &desc);
+  const MatPoolStats second = pool->Stats();
+  EXPECT_EQ(second.misses, first.misses);
+  EXPECT_GT(second.hits, first.hits);
+  const double figure = DogSiftScaleSpaceMiB(gray.cols, gray.rows) * 1024.0 * 1024.0;
+  EXPECT_GE(static_cast<double>(second.peak_in_use_bytes), figure);
+  EXPECT_LE(static_cast<double>(second.peak_in_use_bytes),
+            figure + 2.0 * static_cast<double>(desc.total() * desc.elemSize()));
 }
 
 }  // namespace

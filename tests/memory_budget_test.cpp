@@ -16,7 +16,7 @@ TEST(MemoryBudgetTest, DefaultBudgetFitsBothPhasesOfA12MpFlight) {
   ASSERT_TRUE(ApplyMemoryBudget(1000, 750, &o, &plan, &why)) << why;
   EXPECT_LE(plan.FlightMiB(), 256.0);
   EXPECT_LE(plan.EndMiB(), 256.0);
-  // Our detector's scale space of a 1000x750 frame (92 MiB) fits whole; OpenCV's (168 MiB) would need bands.
+  // Our detector's scale space of a 1000x750 frame (69 MiB) fits whole; OpenCV's (168 MiB) would need bands.
   EXPECT_EQ(plan.sift_bands, 1);
   EXPECT_EQ(SiftBands(1000, 750, o.features), plan.sift_bands);
   FeatureOptions opencv = o.features;
@@ -102,7 +102,7 @@ TEST(MemoryBudgetTest, NoBudgetChangesNothingAndDescribesTheConfiguration) {
   std::string why;
   ASSERT_TRUE(ApplyMemoryBudget(1000, 750, &o, &plan, &why)) << why;
   EXPECT_EQ(plan.sift_bands, 1);
-  EXPECT_GT(plan.FlightMiB(), 256.0);  // the caches as configured, beside the whole-image detector (92 MiB)
+  EXPECT_GT(plan.FlightMiB(), 256.0);  // the caches as configured, beside the whole-image detector (69 MiB)
   const PipelineOptions defaults;
   EXPECT_EQ(o.feature_cache_mib, defaults.feature_cache_mib);
 }

@@ -194,16 +194,6 @@ void ForRowBlocks(int rows, int min_rows, Fn&& fn) {
   ForRowTasks(rows, RowTasks(rows, min_rows), std::forward<Fn>(fn));
 }
 
-// What Blur writes besides the blurred image: a difference, and src's own rows replaced once they are used (saving
-// a pass over three images). The replaced rows that a neighbouring task, or the bottom border's reflection, still
-// reads (a task's first r and last r + 1 rows) are held and written after all tasks.
-struct BlurOutputs {
-  cv::Mat* blurred = nullptr;          // or null: not kept
-  cv::Mat* difference = nullptr;       // blurred - src
-  bool src_to_difference = false;      // src's rows become blurred - src
-  const cv::Mat* src_minus = nullptr;  // src's rows become src - *src_minus
-};
-
 // out[x] for x in [0, cols): row `s` convolved by `kernel`, borders reflected (BORDER_REFLECT_101). The inside straight
 // from the row; each border (r columns) from a reflected copy of its 3 r neighbours in `padded` (cols + 2 r floats).
 void ConvolveRowReflected(const float* s, int cols, const Kernel& kernel, float* padded, float* out) {
@@ -221,63 +211,17 @@ void ConvolveRowReflected(const float* s, int cols, const Kernel& kernel, float*
   ConvolveRow(padded, r, w, r, out + cols - r);
 }
 
-// The rows of src that Blur replaces but that a neighbouring task, or the bottom border's reflection, still reads: a
-// task's first r and last r + 1 rows (every row of a short task). Their new values wait here until all tasks are done.
-class HeldRows {
- public:
-  // For the tasks of ForRowTasks(rows, tasks, ...); each task's rows are sized when it starts (Start).
-  HeldRows(int rows, int cols, int radius, int tasks)
-      : rows_(rows), width_(static_cast<size_t>(cols)), radius_(radius), held_(static_cast<size_t>(tasks)) {}
-  void Start(int y0, int y1, int task) {
-    held_[static_cast<size_t>(task)].resize(static_cast<size_t>(std::min(y1 - y0, 2 * radius_ + 1)) * width_);
-  }
-  // Where row y (of task `task`, rows [y0, y1)) gets its new values: src_row itself or a held row.
-  float* Target(float* src_row, int y, int y0, int y1, int task) {
-    const int slot = Slot(y, y0, y1);
-    if (slot < 0) return src_row;
-    return held_[static_cast<size_t>(task)].data() + static_cast<size_t>(slot) * width_;
-  }
-  void WriteBack(cv::Mat& src) const {
-    const int tasks = static_cast<int>(held_.size());
-    for (int t = 0; t < tasks; ++t) {
-      const auto [y0, y1] = TaskRows(rows_, tasks, t);
-      for (int y = y0; y < y1; ++y) {
-        const int slot = Slot(y, y0, y1);
-        if (slot >= 0)
-          std::memcpy(src.ptr<float>(y), held_[static_cast<size_t>(t)].data() + static_cast<size_t>(slot) * width_,
-                      width_ * sizeof(float));
-      }
-    }
-  }
-
- private:
-  [[nodiscard]] int Slot(int y, int y0, int y1) const {
-    if (y1 - y0 <= 2 * radius_ + 1 || y - y0 < radius_) return y - y0;
-    return y1 - 1 - y <= radius_ ? radius_ + (y - (y1 - radius_ - 1)) : -1;
-  }
-
-  int rows_;
-  size_t width_;
-  int radius_;
-  std::vector<std::vector<float>> held_;
-};
-
-// The blur of `src` by `kernel` (borders reflected as OpenCV's BORDER_REFLECT_101) into `out`, row by row while the
-// row is in cache; no output image may be src. Each task keeps a ring of 2 radius + 1 horizontally blurred rows.
-void Blur(cv::Mat& src, const Kernel& kernel, const BlurOutputs& out) {
+// The blur of `src` by `kernel` (borders reflected as OpenCV's BORDER_REFLECT_101) into `blurred` (not src), row by
+// row while the row is in cache. Each task keeps a ring of 2 radius + 1 horizontally blurred rows.
+void Blur(const cv::Mat& src, const Kernel& kernel, cv::Mat& blurred) {
   const int rows = src.rows;
   const int cols = src.cols;
   const int r = kernel.radius;
   const int ring_rows = 2 * r + 1;
-  const bool replace_src = out.src_to_difference || out.src_minus != nullptr;
   const auto width = static_cast<size_t>(cols);
-  const int tasks = RowTasks(rows, kRowsPerTask);
-  HeldRows held(rows, cols, r, replace_src ? tasks : 0);
-  ForRowTasks(rows, tasks, [&](int y0, int y1, int task) {
-    if (replace_src) held.Start(y0, y1, task);
+  ForRowBlocks(rows, kRowsPerTask, [&](int y0, int y1, int /*task*/) {
     std::vector<float> padded(static_cast<size_t>(cols + 2 * r));
     std::vector<float> ring(static_cast<size_t>(ring_rows) * width);
-    std::vector<float> scratch(out.blurred == nullptr ? width : 0);
     std::vector<const float*> window(static_cast<size_t>(ring_rows));
     auto ring_row = [&](int y) {
       return ring.data() + static_cast<size_t>(((y % ring_rows) + ring_rows) % ring_rows) * width;
@@ -289,19 +233,9 @@ void Blur(cv::Mat& src, const Kernel& kernel, const BlurOutputs& out) {
     for (int y = y0; y < y1; ++y) {
       horizontal(y + r);
       for (int i = 0; i < ring_rows; ++i) window[static_cast<size_t>(i)] = ring_row(y - r + i);
-      float* blurred = out.blurred == nullptr ? scratch.data() : out.blurred->ptr<float>(y);
-      ConvolveColumn(window.data(), cols, kernel.weights.data(), r, blurred);
-      float* s = src.ptr<float>(y);
-      if (out.difference != nullptr) SubtractRow(blurred, s, cols, out.difference->ptr<float>(y));
-      if (!replace_src) continue;
-      float* target = held.Target(s, y, y0, y1, task);
-      if (out.src_to_difference)
-        SubtractRow(blurred, s, cols, target);
-      else
-        SubtractRow(s, out.src_minus->ptr<float>(y), cols, target);
+      ConvolveColumn(window.data(), cols, kernel.weights.data(), r, blurred.ptr<float>(y));
     }
   });
-  held.WriteBack(src);
 }
 
 // out[2 x], out[2 x + 1] = the row at input x - 0.25 and x + 0.25: 0.75 s[x] + 0.25 s[x -+ 1] (edges clamped);
@@ -376,14 +310,35 @@ struct Candidate {
   double contrast = 0.0;  // |DoG| * octave_layers: what the thresholds compare (exactly)
 };
 
-bool IsExtremum26(const std::vector<cv::Mat>& dog, int layer, int r, int c) {
-  const float v = dog[static_cast<size_t>(layer)].at<float>(r, c);
+// An octave's difference-of-Gaussian images, computed where they are read: DoG l = Gaussian l + 1 - Gaussian l, the
+// same float subtraction the stored images held. Storing them was L + 2 more images of the octave's size to write and
+// read back (and their room in the memory plan); the extremum search reads their rows once, the tests below a few
+// pixels around each candidate.
+class DogLayers {
+ public:
+  explicit DogLayers(const std::vector<cv::Mat>& gauss) : gauss_(gauss) {}
+  [[nodiscard]] int rows() const { return gauss_[0].rows; }
+  [[nodiscard]] int cols() const { return gauss_[0].cols; }
+  [[nodiscard]] float At(int layer, int r, int c) const {
+    return Gauss(layer + 1).at<float>(r, c) - Gauss(layer).at<float>(r, c);
+  }
+  // Row r of DoG layer `layer`, every column, into out.
+  void Row(int layer, int r, float* out) const {
+    SubtractRow(Gauss(layer + 1).ptr<float>(r), Gauss(layer).ptr<float>(r), cols(), out);
+  }
+
+ private:
+  [[nodiscard]] const cv::Mat& Gauss(int layer) const { return gauss_[static_cast<size_t>(layer)]; }
+  const std::vector<cv::Mat>& gauss_;
+};
+
+bool IsExtremum26(const DogLayers& dog, int layer, int r, int c) {
+  const float v = dog.At(layer, r, c);
   for (int l = layer - 1; l <= layer + 1; ++l) {
-    const cv::Mat& m = dog[static_cast<size_t>(l)];
     for (int dy = -1; dy <= 1; ++dy) {
-      const float* p = m.ptr<float>(r + dy) + c;
       for (int dx = -1; dx <= 1; ++dx) {
-        if (v > 0 ? !(v >= p[dx]) : !(v <= p[dx])) return false;
+        const float p = dog.At(l, r + dy, c + dx);
+        if (v > 0 ? !(v >= p) : !(v <= p)) return false;
       }
     }
   }
@@ -413,19 +368,19 @@ UAVM_SIMD_CLONES void ExtremumMaskRow(const float* __restrict up, const float* _
 
 // Lowe's quadratic fit in (x, y, scale), moving to the neighbouring sample while the offset exceeds half a pixel;
 // rejects low contrast and edges (OpenCV's adjustLocalExtrema, in double).
-bool Interpolate(const std::vector<cv::Mat>& dog, const DogSiftOptions& o, double threshold, int layer, int r, int c,
+bool Interpolate(const DogLayers& dog, const DogSiftOptions& o, double threshold, int layer, int r, int c,
                  Candidate* out) {
   const double scale = 1.0 / 255.0;
-  const int rows = dog[0].rows;
-  const int cols = dog[0].cols;
+  const int rows = dog.rows();
+  const int cols = dog.cols();
   double xc = 0, xr = 0, xs = 0;
   double d[3] = {0, 0, 0};
   int step = 0;
   for (; step < kMaxInterpolationSteps; ++step) {
-    const cv::Mat& img = dog[static_cast<size_t>(layer)];
-    const cv::Mat& prev = dog[static_cast<size_t>(layer - 1)];
-    const cv::Mat& next = dog[static_cast<size_t>(layer + 1)];
-    auto at = [](const cv::Mat& m, int y, int x) { return static_cast<double>(m.at<float>(y, x)); };
+    const int img = layer;
+    const int prev = layer - 1;
+    const int next = layer + 1;
+    auto at = [&dog](int l, int y, int x) { return static_cast<double>(dog.At(l, y, x)); };
     d[0] = (at(img, r, c + 1) - at(img, r, c - 1)) * 0.5 * scale;
     d[1] = (at(img, r + 1, c) - at(img, r - 1, c)) * 0.5 * scale;
     d[2] = (at(next, r, c) - at(prev, r, c)) * 0.5 * scale;
@@ -461,16 +416,15 @@ bool Interpolate(const std::vector<cv::Mat>& dog, const DogSiftOptions& o, doubl
       return false;
   }
   if (step >= kMaxInterpolationSteps) return false;
-  const cv::Mat& img = dog[static_cast<size_t>(layer)];
-  const double value = img.at<float>(r, c);
+  auto at = [&dog, layer](int y, int x) { return dog.At(layer, y, x); };
+  const double value = at(r, c);
   const double contrast = value * scale + 0.5 * (d[0] * xc + d[1] * xr + d[2] * xs);
   if (std::abs(contrast) * o.octave_layers < threshold) return false;
   const double v2 = value * 2.0;
-  const double dxx = (img.at<float>(r, c + 1) + static_cast<double>(img.at<float>(r, c - 1)) - v2) * scale;
-  const double dyy = (img.at<float>(r + 1, c) + static_cast<double>(img.at<float>(r - 1, c)) - v2) * scale;
-  const double dxy = (static_cast<double>(img.at<float>(r + 1, c + 1)) - img.at<float>(r + 1, c - 1) -
-                      img.at<float>(r - 1, c + 1) + img.at<float>(r - 1, c - 1)) *
-                     0.25 * scale;
+  const double dxx = (at(r, c + 1) + static_cast<double>(at(r, c - 1)) - v2) * scale;
+  const double dyy = (at(r + 1, c) + static_cast<double>(at(r - 1, c)) - v2) * scale;
+  const double dxy =
+      (static_cast<double>(at(r + 1, c + 1)) - at(r + 1, c - 1) - at(r - 1, c + 1) + at(r - 1, c - 1)) * 0.25 * scale;
   const double trace = dxx + dyy;
   const double det = dxx * dyy - dxy * dxy;
   const double e = o.edge_threshold;
@@ -487,28 +441,36 @@ bool Interpolate(const std::vector<cv::Mat>& dog, const DogSiftOptions& o, doubl
 }
 
 // Candidates of one octave, in row-major order per layer (deterministic for any number of threads).
-void FindExtrema(const std::vector<cv::Mat>& dog, const DogSiftOptions& o, double contrast_threshold, int octave,
+void FindExtrema(const DogLayers& dog, const DogSiftOptions& o, double contrast_threshold, int octave,
                  std::vector<Candidate>* all) {
-  const int rows = dog[0].rows;
-  const int cols = dog[0].cols;
+  const int rows = dog.rows();
+  const int cols = dog.cols();
   // Half the final threshold, in 0..255 DoG units: Lowe's first rejection.
   const auto threshold = static_cast<float>(0.5 * contrast_threshold / o.octave_layers * 255.0);
   const int inner_rows = rows - 2 * kImageBorder;
   if (inner_rows <= 0 || cols <= 2 * kImageBorder) return;
+  const auto width = static_cast<size_t>(cols);
   for (int layer = 1; layer <= o.octave_layers; ++layer) {
-    const cv::Mat& m = dog[static_cast<size_t>(layer)];
     const int tasks = std::max(1, std::min(16, inner_rows / 32));
     std::vector<std::vector<Candidate>> found(static_cast<size_t>(tasks));
     cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
-      std::vector<uchar> mask(static_cast<size_t>(cols));
+      std::vector<uchar> mask(width);
+      // DoG rows: the layer's rows r - 1, r and r + 1 in a ring, the layers below and above at row r.
+      std::vector<float> dog_rows(5 * width);
+      float* below = dog_rows.data() + 3 * width;
+      float* above = below + width;
+      auto ring_row = [&](int y) { return dog_rows.data() + static_cast<size_t>(y % 3) * width; };  // y >= 0
       for (int t = range.start; t < range.end; ++t) {
         const int y0 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * t / tasks);
         const int y1 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * (t + 1) / tasks);
+        dog.Row(layer, y0 - 1, ring_row(y0 - 1));
+        dog.Row(layer, y0, ring_row(y0));
         for (int r = y0; r < y1; ++r) {
-          ExtremumMaskRow(m.ptr<float>(r - 1), m.ptr<float>(r), m.ptr<float>(r + 1),
-                          dog[static_cast<size_t>(layer - 1)].ptr<float>(r),
-                          dog[static_cast<size_t>(layer + 1)].ptr<float>(r), kImageBorder, cols - kImageBorder,
-                          threshold, mask.data());
+          dog.Row(layer, r + 1, ring_row(r + 1));
+          dog.Row(layer - 1, r, below);
+          dog.Row(layer + 1, r, above);
+          ExtremumMaskRow(ring_row(r - 1), ring_row(r), ring_row(r + 1), below, above, kImageBorder,
+                          cols - kImageBorder, threshold, mask.data());
           for (int c = kImageBorder; c < cols - kImageBorder; ++c) {
             if (c + 8 <= cols - kImageBorder) {  // most of the mask is zero: skip it eight bytes at a time
               uint64_t word = 0;
@@ -859,19 +821,9 @@ void Describe(const cv::Mat& img, float x, float y, float angle, float scale, Gr
 
 // ---- Pyramid -------------------------------------------------------------------------------------------------------
 
-// Builds one octave's DoG images (dog[0 .. L+1]) and Gaussian layers 1..L (gauss[0 .. L-1]) from its first Gaussian
-// image, which starts in dog[0] and is overwritten by the first difference. Gaussian layer L+1 is made in dog[L] and
-// turned into a difference in place once layer L+2 (never stored) has given its own.
-void BuildOctave(const std::vector<Kernel>& kernels, std::vector<cv::Mat>& dog, std::vector<cv::Mat>& gauss) {
-  const int layers = static_cast<int>(gauss.size());
-  Blur(dog[0], kernels[1], {.blurred = &gauss[0], .src_to_difference = true});
-  for (int i = 2; i <= layers; ++i) {
-    const auto at = static_cast<size_t>(i);
-    Blur(gauss[at - 2], kernels[at], {.blurred = &gauss[at - 1], .difference = &dog[at - 1]});
-  }
-  const auto top = static_cast<size_t>(layers);
-  Blur(gauss[top - 1], kernels[top + 1], {.blurred = &dog[top]});
-  Blur(dog[top], kernels[top + 2], {.difference = &dog[top + 1], .src_minus = &gauss[top - 1]});
+// Blurs an octave's Gaussian layers 1 .. L + 2 (gauss[1 ..]) from its first, gauss[0], each from the one before.
+void BuildOctave(const std::vector<Kernel>& kernels, std::vector<cv::Mat>& gauss) {
+  for (size_t i = 1; i < gauss.size(); ++i) Blur(gauss[i - 1], kernels[i], gauss[i]);
 }
 
 struct Oriented {
@@ -879,30 +831,47 @@ struct Oriented {
   float angle = 0.f;
 };
 
-// Every image of the scale space in one block the size of the first octave's 2 L + 2 images, so that the image pool
-// hands the same block back frame after frame: with images of each octave's own size, a later octave's (a quarter of
-// the first's) could not take a pooled first-octave block, the pool gave those back to stay within its peak, and the
-// kernel zeroed ~50 MB of fresh pages a 1000x750 frame (6 % of the flight's CPU). Kept images (every octave's
-// Gaussian layers, read by the orientations and descriptors) come from the front; an octave's DoG images from the
-// back, free again when the next octave starts. The later octaves' kept layers (a third of the first's in all) and
-// DoG images (a quarter of the first's at most) fit in the room of the first octave's DoG images. The images are
-// views: the block outlives them.
+// Bytes of one float image, rounded up to a cache line.
+size_t ImageBytes(int rows, int cols) {
+  return (static_cast<size_t>(rows) * static_cast<size_t>(cols) * sizeof(float) + 63) / 64 * 64;
+}
+
+// The block ImageBlock needs for the octaves of a rows x cols first octave with L layers: each octave's L kept
+// Gaussian layers after those of the octaves before it, its 3 searched ones at the end. L + 3 images of the first
+// octave's size for L <= 8 (the later octaves' kept layers take a third of an image per layer, the second octave's
+// searched ones three quarters of one: together within the room of the first octave's three searched ones).
+size_t ScaleSpaceBlockBytes(int rows, int cols, int layers) {
+  size_t kept = 0;
+  size_t block = 0;
+  for (; std::min(rows, cols) >= 2 * kImageBorder + 3; rows /= 2, cols /= 2) {
+    const size_t image = ImageBytes(rows, cols);
+    kept += static_cast<size_t>(layers) * image;
+    block = std::max(block, kept + 3 * image);
+  }
+  return block;
+}
+
+// Every image of the scale space in one block (ScaleSpaceBlockBytes), so that the image pool hands the same block back
+// frame after frame: with images of each octave's own size, a later octave's (a quarter of the first's) could not take
+// a pooled first-octave block, the pool gave those back to stay within its peak, and the kernel zeroed ~50 MB of fresh
+// pages a 1000x750 frame (6 % of the flight's CPU). Kept images (every octave's Gaussian layers 1 .. L, read by the
+// orientations and descriptors) come from the front; the layers an octave's search alone reads from the back, free
+// again when the next octave starts. The images are views: the block outlives them.
 class ImageBlock {
  public:
-  void Reserve(int first_rows, int first_cols, int images) {
-    const size_t image = Aligned(ImageBytes(first_rows, first_cols));
-    block_.create(images, static_cast<int>(image), CV_8U);
+  void Reserve(size_t bytes) {
+    block_.create(static_cast<int>((bytes + 63) / 64), 64, CV_8U);  // rows of a cache line: any size an int counts
     front_ = 0;
-    back_ = end_ = static_cast<size_t>(images) * image;
+    back_ = end_ = bytes;
   }
   cv::Mat Kept(int rows, int cols) {
     cv::Mat image(rows, cols, CV_32F, block_.data + front_);
-    front_ += Aligned(ImageBytes(rows, cols));
+    front_ += ImageBytes(rows, cols);
     CV_Assert(front_ <= back_);
     return image;
   }
   cv::Mat Searched(int rows, int cols) {
-    const size_t bytes = Aligned(ImageBytes(rows, cols));
+    const size_t bytes = ImageBytes(rows, cols);
     CV_Assert(front_ + bytes <= back_);
     back_ -= bytes;
     return {rows, cols, CV_32F, block_.data + back_};
@@ -910,16 +879,13 @@ class ImageBlock {
   void NextOctave() { back_ = end_; }
 
  private:
-  static size_t ImageBytes(int rows, int cols) { return static_cast<size_t>(rows) * cols * sizeof(float); }
-  static size_t Aligned(size_t bytes) { return (bytes + 63) / 64 * 64; }
-
   cv::Mat block_;
   size_t front_ = 0;
   size_t back_ = 0;
   size_t end_ = 0;
 };
 
-// The pyramid's outputs that outlive its DoG images.
+// The pyramid's outputs that outlive its search.
 struct ScaleSpace {
   DogSiftOptions options;
   ImageBlock images;                        // holds every image below: declared before them
@@ -948,14 +914,14 @@ void FirstImage(const cv::Mat& gray, const ScaleSpace& space, int octave, cv::Ma
       Upsample2x(gray, scratch);
     else
       gray.convertTo(scratch, CV_32F);
-    Blur(scratch, blur, {.blurred = &first});
+    Blur(scratch, blur, first);
   } else {
     Decimate(space.gauss.back().back(), first);
   }
 }
 
-// Builds the octaves one at a time and searches each for candidates. Every octave's Gaussian layers stay (for the
-// orientations and descriptors); its DoG images only while it is searched.
+// Builds the octaves one at a time and searches each for candidates. Every octave's Gaussian layers 1 .. L stay (for
+// the orientations and descriptors); its three others only while it is searched.
 void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, ScaleSpace* space) {
   space->options = o;
   space->ladder = {o.contrast_threshold};
@@ -973,15 +939,18 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, ScaleSpace* spa
   const int f = o.double_first_octave ? 2 : 1;
   int width = gray.cols * f;
   int height = gray.rows * f;
-  space->images.Reserve(height, width, 2 * layers + 2);
+  space->images.Reserve(ScaleSpaceBlockBytes(height, width, layers));
   for (int octave = 0; std::min(width, height) >= 2 * kImageBorder + 3; ++octave) {
     space->images.NextOctave();
-    std::vector<cv::Mat> dog;
-    for (int i = 0; i < layers + 2; ++i) dog.push_back(space->images.Searched(height, width));
-    std::vector<cv::Mat> layer_images;
-    for (int i = 0; i < layers; ++i) layer_images.push_back(space->images.Kept(height, width));
-    FirstImage(gray, *space, octave, layer_images[0], dog[0]);
-    BuildOctave(kernels, dog, layer_images);
+    // Gaussian layers 0 .. L + 2: 1 .. L stay (orientations, descriptors, the next octave's first image), the others
+    // only while the octave is searched.
+    std::vector<cv::Mat> gauss(static_cast<size_t>(layers) + 3);
+    for (int i = 0; i < layers + 3; ++i)
+      gauss[static_cast<size_t>(i)] =
+          i >= 1 && i <= layers ? space->images.Kept(height, width) : space->images.Searched(height, width);
+    FirstImage(gray, *space, octave, gauss[1], gauss[0]);
+    BuildOctave(kernels, gauss);
+    const DogLayers dog(gauss);
     FindExtrema(dog, o, space->ladder[space->searched], octave, &space->candidates);
     // The first octave gives about two thirds of the candidates: while it promises too few, search it lower.
     while (octave == 0 && space->searched + 1 < space->ladder.size() &&
@@ -989,7 +958,7 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, ScaleSpace* spa
       space->candidates.clear();
       FindExtrema(dog, o, space->ladder[++space->searched], octave, &space->candidates);
     }
-    space->gauss.push_back(std::move(layer_images));
+    space->gauss.emplace_back(gauss.begin() + 1, gauss.begin() + 1 + layers);
     width /= 2;
     height /= 2;
   }
@@ -1055,11 +1024,8 @@ void DescribeKept(const ScaleSpace& space, const std::vector<Oriented>& kept, bo
 }  // namespace
 
 double DogSiftScaleSpaceMiB(int width, int height, int octave_layers, bool double_first_octave) {
-  // The first octave's L + 2 DoG and L Gaussian layers; the later octaves' fit in its DoG images' room once they are
-  // freed (the Gaussian layers of all later octaves: L / 3 images; one octave's DoG and layers: (2 L + 2) / 4).
-  const double pixels = static_cast<double>(width) * height * (double_first_octave ? 4.0 : 1.0);
-  const double images = 2.0 * octave_layers + 2.0;
-  return pixels * sizeof(float) * images / (1024.0 * 1024.0);
+  const int f = double_first_octave ? 2 : 1;
+  return static_cast<double>(ScaleSpaceBlockBytes(height * f, width * f, octave_layers)) / (1024.0 * 1024.0);
 }
 
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::vector<SiftKeypoint>* keypoints,

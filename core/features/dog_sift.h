@@ -2,13 +2,16 @@
 // SIFT (Lowe 2004) of our own: a difference-of-Gaussian detector and the 4x4x8 gradient descriptor, with OpenCV 4.6's
 // conventions (3 layers an octave, sigma 1.6, a doubled first octave, its contrast and edge thresholds, the descriptor
 // quantised to 0..255) so that options and figures carry over. What differs is how it is computed:
-//  - one octave's images at a time (2 L + 2 of the first octave's size at the peak, not the whole pyramid's 2 L + 5 per
-//    octave), taken from the Mat allocator (the pool); each octave's Gaussian layers stay for the descriptors;
+//  - one octave's images at a time, its L + 3 Gaussian layers only (L + 3 of the first octave's size at the peak, not
+//    the whole pyramid's 2 L + 5 per octave): the differences of Gaussians are computed where they are read, row by row
+//    for the extremum search; all in one block from the Mat allocator (the pool hands it back every frame); each
+//    octave's layers 1 .. L stay for the descriptors;
 //  - separable Gaussians to 3 sigma in blocks of rows with a ring of horizontally blurred rows, written with GCC's
 //    vector extension (an AVX2 clone and SSE2 on x86-64, NEON on aarch64) in one fixed order of float operations:
 //    x86-64 and aarch64 give the same bits;
 //  - Lowe's first rejection at half the contrast threshold (OpenCV floors it to whole grey levels: 0 at the onboard
-//    0.01), then the 8 neighbours in the same layer, vectorised, before the 26-neighbour test; orientations and
+//    0.01), then the 8 neighbours in the same layer and the 2 in the same place above and below, vectorised, before
+//    the 26-neighbour test; orientations and
 //    descriptors only for keypoints that can be among the strongest `max_features` (OpenCV orients every extremum);
 //  - gradients and descriptor votes eight pixels at a time (the same vector extension), the windows visited in the
 //    order they lie in the image, the votes added as pairs; exp, atan2 and sin/cos from core/features/portable_math.h.
@@ -47,8 +50,9 @@ struct SiftKeypoint {
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& options, std::vector<SiftKeypoint>* keypoints,
                            cv::Mat* descriptors, double* contrast_threshold_used = nullptr);
 
-// The scale space DetectAndDescribeSift holds for a width x height image, in MiB: the 2 L + 2 float images of its
-// first octave, 8 for the default 3 layers (the rows of its Gaussian strips and the keypoints are small beside them).
+// The scale space DetectAndDescribeSift holds for a width x height image, in MiB: the L + 3 float images of its first
+// octave (up to 8 layers), 6 for the default 3 (the rows of its Gaussian strips and the keypoints are small beside
+// them).
 [[nodiscard]] double DogSiftScaleSpaceMiB(int width, int height, int octave_layers = 3,
                                           bool double_first_octave = true);
 
