@@ -162,6 +162,52 @@ UAVM_SIMD_CLONES void ConvolveColumn(const float* const* __restrict rows, int n,
   }
 }
 
+// Two output rows of ConvolveColumn at once: out0 from rows[0 .. 2 radius], out1 from rows[1 .. 2 radius + 1]. Each
+// row loaded serves both (tap i of out0 pairs rows radius - i and radius + i, of out1 radius + 1 - i and
+// radius + 1 + i): half the loads of two calls, the same operations in the same order per output.
+constexpr int kPairBlock = 16;
+UAVM_SIMD_CLONES void ConvolveColumnPair(const float* const* __restrict rows, int n, const float* __restrict w,
+                                         int radius, float* __restrict out0, float* __restrict out1) {
+  int x0 = 0;
+  for (; x0 + kPairBlock <= n; x0 += kPairBlock) {
+    const float* c0 = rows[radius] + x0;
+    const float* c1 = rows[radius + 1] + x0;
+    Float8 low0 = Load8(c0), low1 = Load8(c0 + 8);    // row radius + 1 - i at step i
+    Float8 high0 = Load8(c1), high1 = Load8(c1 + 8);  // row radius + i
+    Float8 a0 = w[0] * low0, a1 = w[0] * low1;
+    Float8 b0 = w[0] * high0, b1 = w[0] * high1;
+    for (int i = 1; i <= radius; ++i) {
+      const float wi = w[i];
+      const float* lo = rows[radius - i] + x0;
+      const float* hi = rows[radius + 1 + i] + x0;
+      const Float8 l0 = Load8(lo), l1 = Load8(lo + 8);
+      const Float8 h0 = Load8(hi), h1 = Load8(hi + 8);
+      a0 += wi * (l0 + high0);
+      a1 += wi * (l1 + high1);
+      b0 += wi * (low0 + h0);
+      b1 += wi * (low1 + h1);
+      low0 = l0;
+      low1 = l1;
+      high0 = h0;
+      high1 = h1;
+    }
+    Store8(out0 + x0, a0);
+    Store8(out0 + x0 + 8, a1);
+    Store8(out1 + x0, b0);
+    Store8(out1 + x0 + 8, b1);
+  }
+  for (int x = x0; x < n; ++x) {
+    float acc0 = w[0] * rows[radius][x];
+    float acc1 = w[0] * rows[radius + 1][x];
+    for (int i = 1; i <= radius; ++i) {
+      acc0 += w[i] * (rows[radius - i][x] + rows[radius + i][x]);
+      acc1 += w[i] * (rows[radius + 1 - i][x] + rows[radius + 1 + i][x]);
+    }
+    out0[x] = acc0;
+    out1[x] = acc1;
+  }
+}
+
 UAVM_SIMD_CLONES void SubtractRow(const float* a, const float* b, int n, float* out) {  // out may be a or b
   for (int x = 0; x < n; ++x) out[x] = a[x] - b[x];
 }
@@ -217,7 +263,7 @@ void Blur(const cv::Mat& src, const Kernel& kernel, cv::Mat& blurred) {
   const int rows = src.rows;
   const int cols = src.cols;
   const int r = kernel.radius;
-  const int ring_rows = 2 * r + 1;
+  const int ring_rows = 2 * r + 2;
   const auto width = static_cast<size_t>(cols);
   ForRowBlocks(rows, kRowsPerTask, [&](int y0, int y1, int /*task*/) {
     std::vector<float> padded(static_cast<size_t>(cols + 2 * r));
@@ -230,10 +276,16 @@ void Blur(const cv::Mat& src, const Kernel& kernel, cv::Mat& blurred) {
       ConvolveRowReflected(src.ptr<float>(Reflect101(y, rows)), cols, kernel, padded.data(), ring_row(y));
     };
     for (int y = y0 - r; y < y0 + r; ++y) horizontal(y);
-    for (int y = y0; y < y1; ++y) {
+    for (int y = y0; y < y1; y += 2) {
+      const bool pair = y + 1 < y1;
       horizontal(y + r);
+      if (pair) horizontal(y + r + 1);
       for (int i = 0; i < ring_rows; ++i) window[static_cast<size_t>(i)] = ring_row(y - r + i);
-      ConvolveColumn(window.data(), cols, kernel.weights.data(), r, blurred.ptr<float>(y));
+      if (pair)
+        ConvolveColumnPair(window.data(), cols, kernel.weights.data(), r, blurred.ptr<float>(y),
+                           blurred.ptr<float>(y + 1));
+      else
+        ConvolveColumn(window.data(), cols, kernel.weights.data(), r, blurred.ptr<float>(y));
     }
   });
 }
