@@ -492,7 +492,44 @@ bool Interpolate(const DogLayers& dog, const DogSiftOptions& o, double threshold
   return true;
 }
 
-// Candidates of one octave, in row-major order per layer (deterministic for any number of threads).
+// Candidates of layer `layer` in rows [y0, y1): the extremum mask over the DoG rows of `rows`, then the 26-neighbour
+// test and the fit where it is set.
+struct SearchRows {
+  // DoG row y of layer l (0 .. L + 1) for y in a ring of 3.
+  [[nodiscard]] float* At(int l, int y) {
+    return data.data() + (static_cast<size_t>(l) * 3 + static_cast<size_t>(y % 3)) * width;  // y >= 0
+  }
+  size_t width = 0;
+  std::vector<float> data;
+  std::vector<uchar> mask;
+};
+
+void SearchRow(const DogLayers& dog, const DogSiftOptions& o, double contrast_threshold, float threshold, int octave,
+               int layer, int r, SearchRows* rows, std::vector<Candidate>* found) {
+  const int cols = dog.cols();
+  ExtremumMaskRow(rows->At(layer, r - 1), rows->At(layer, r), rows->At(layer, r + 1), rows->At(layer - 1, r),
+                  rows->At(layer + 1, r), kImageBorder, cols - kImageBorder, threshold, rows->mask.data());
+  const uchar* mask = rows->mask.data();
+  for (int c = kImageBorder; c < cols - kImageBorder; ++c) {
+    if (c + 8 <= cols - kImageBorder) {  // most of the mask is zero: skip it eight bytes at a time
+      uint64_t word = 0;
+      std::memcpy(&word, mask + c, sizeof word);
+      if (word == 0) {
+        c += 7;
+        continue;
+      }
+    }
+    if (mask[c] == 0) continue;
+    if (!IsExtremum26(dog, layer, r, c)) continue;
+    Candidate k;
+    k.octave = octave;
+    if (Interpolate(dog, o, contrast_threshold, layer, r, c, &k)) found->push_back(k);
+  }
+}
+
+// Candidates of one octave, in row-major order per layer (deterministic for any number of threads). Each task sweeps
+// its rows once for every layer, with the DoG rows of all layers in a ring of three: each Gaussian row is read once
+// (searched layer by layer, each was read four or five times).
 void FindExtrema(const DogLayers& dog, const DogSiftOptions& o, double contrast_threshold, int octave,
                  std::vector<Candidate>* all) {
   const int rows = dog.rows();
@@ -501,48 +538,33 @@ void FindExtrema(const DogLayers& dog, const DogSiftOptions& o, double contrast_
   const auto threshold = static_cast<float>(0.5 * contrast_threshold / o.octave_layers * 255.0);
   const int inner_rows = rows - 2 * kImageBorder;
   if (inner_rows <= 0 || cols <= 2 * kImageBorder) return;
-  const auto width = static_cast<size_t>(cols);
-  for (int layer = 1; layer <= o.octave_layers; ++layer) {
-    const int tasks = std::max(1, std::min(16, inner_rows / 32));
-    std::vector<std::vector<Candidate>> found(static_cast<size_t>(tasks));
-    cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
-      std::vector<uchar> mask(width);
-      // DoG rows: the layer's rows r - 1, r and r + 1 in a ring, the layers below and above at row r.
-      std::vector<float> dog_rows(5 * width);
-      float* below = dog_rows.data() + 3 * width;
-      float* above = below + width;
-      auto ring_row = [&](int y) { return dog_rows.data() + static_cast<size_t>(y % 3) * width; };  // y >= 0
-      for (int t = range.start; t < range.end; ++t) {
-        const int y0 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * t / tasks);
-        const int y1 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * (t + 1) / tasks);
-        dog.Row(layer, y0 - 1, ring_row(y0 - 1));
-        dog.Row(layer, y0, ring_row(y0));
-        for (int r = y0; r < y1; ++r) {
-          dog.Row(layer, r + 1, ring_row(r + 1));
-          dog.Row(layer - 1, r, below);
-          dog.Row(layer + 1, r, above);
-          ExtremumMaskRow(ring_row(r - 1), ring_row(r), ring_row(r + 1), below, above, kImageBorder,
-                          cols - kImageBorder, threshold, mask.data());
-          for (int c = kImageBorder; c < cols - kImageBorder; ++c) {
-            if (c + 8 <= cols - kImageBorder) {  // most of the mask is zero: skip it eight bytes at a time
-              uint64_t word = 0;
-              std::memcpy(&word, mask.data() + c, sizeof word);
-              if (word == 0) {
-                c += 7;
-                continue;
-              }
-            }
-            if (mask[static_cast<size_t>(c)] == 0) continue;
-            if (!IsExtremum26(dog, layer, r, c)) continue;
-            Candidate k;
-            k.octave = octave;
-            if (Interpolate(dog, o, contrast_threshold, layer, r, c, &k)) found[static_cast<size_t>(t)].push_back(k);
-          }
-        }
+  const int dog_layers = o.octave_layers + 2;
+  const int tasks = std::max(1, std::min(16, inner_rows / 32));
+  // found[layer - 1][task]
+  std::vector<std::vector<std::vector<Candidate>>> found(
+      static_cast<size_t>(o.octave_layers), std::vector<std::vector<Candidate>>(static_cast<size_t>(tasks)));
+  cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
+    SearchRows ring;
+    ring.width = static_cast<size_t>(cols);
+    ring.data.resize(static_cast<size_t>(dog_layers) * 3 * ring.width);
+    ring.mask.resize(ring.width);
+    for (int t = range.start; t < range.end; ++t) {
+      const int y0 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * t / tasks);
+      const int y1 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * (t + 1) / tasks);
+      for (int l = 0; l < dog_layers; ++l) {
+        dog.Row(l, y0 - 1, ring.At(l, y0 - 1));
+        dog.Row(l, y0, ring.At(l, y0));
       }
-    });
-    for (const auto& f : found) all->insert(all->end(), f.begin(), f.end());
-  }
+      for (int r = y0; r < y1; ++r) {
+        for (int l = 0; l < dog_layers; ++l) dog.Row(l, r + 1, ring.At(l, r + 1));
+        for (int layer = 1; layer <= o.octave_layers; ++layer)
+          SearchRow(dog, o, contrast_threshold, threshold, octave, layer, r, &ring,
+                    &found[static_cast<size_t>(layer - 1)][static_cast<size_t>(t)]);
+      }
+    }
+  });
+  for (const auto& layer : found)
+    for (const auto& f : layer) all->insert(all->end(), f.begin(), f.end());
 }
 
 // ---- Orientation and descriptor ------------------------------------------------------------------------------------
