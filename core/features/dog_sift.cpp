@@ -631,7 +631,8 @@ struct GradientScratch {
   // A descriptor row's 8 trilinear weights per pixel: four arrays of pairs (the two direction bins a cell gets),
   // pixel t's pair p at [p * 2 count + 2 t] (count: the row's pixels).
   std::vector<float> votes;
-  std::vector<int> bins;  // and its first histogram bin (-1: outside the cells)
+  std::vector<int> bins;       // and its first histogram bin (-1: outside the cells)
+  std::vector<float> weights;  // the window's Gaussian (GaussianWeights), kept to save an allocation a keypoint
   void Fit(size_t n) {
     if (magnitude.size() < n) {
       magnitude.resize(n);
@@ -646,7 +647,7 @@ struct GradientScratch {
 // gradient directions weighted by magnitude and a Gaussian of 1.5 scales, within 80 % of the highest.
 void Orientations(const cv::Mat& img, int c, int r, float scale, GradientScratch* s, std::vector<float>* angles) {
   const int radius = static_cast<int>(std::lround(kOrientationRadiusFactor * scale));
-  std::vector<float> w;
+  std::vector<float>& w = s->weights;
   GaussianWeights(kOrientationSigmaFactor * scale, radius, &w);
   std::array<float, kOrientationBins + 4> raw{};
   float* hist = raw.data() + 2;
@@ -699,7 +700,7 @@ void Orientations(const cv::Mat& img, int c, int r, float scale, GradientScratch
 struct DescriptorWindow {
   int px = 0, py = 0, radius = 0;
   float cos_t = 0.f, sin_t = 0.f, ori = 0.f;
-  std::vector<float> weight;  // e^(-k^2 / (2 (d/2 cells)^2)) for offsets k in [-radius, radius], at k + radius
+  const float* weight = nullptr;  // e^(-k^2 / (2 (d/2 cells)^2)) for offsets k in [-radius, radius], at k + radius
 };
 
 // The vector part of DescriptorVotes: pixels [0, returned count), eight at a time (all of them from 8 on).
@@ -823,8 +824,7 @@ void VoteDescriptorRow(const cv::Mat& img, const DescriptorWindow& win, int i, G
   const int x0 = win.px + jb;
   PrefetchRow(img, yy + kPrefetchRowsAhead, x0 - 1, count + 2);
   GradientRow(img.ptr<float>(yy - 1) + x0, img.ptr<float>(yy) + x0, img.ptr<float>(yy + 1) + x0, count,
-              win.weight.data() + (jb + win.radius), win.weight[static_cast<size_t>(i + win.radius)],
-              s->magnitude.data(), s->degrees.data());
+              win.weight + (jb + win.radius), win.weight[i + win.radius], s->magnitude.data(), s->degrees.data());
   DescriptorVotes(win, fi, jb, count, s);
   const auto pairs = 2 * static_cast<size_t>(count);
   const float* v = s->votes.data();
@@ -886,7 +886,8 @@ void Describe(const cv::Mat& img, float x, float y, float angle, float scale, Gr
   win.cos_t = static_cast<float>(cos_d) / hist_width;
   win.sin_t = static_cast<float>(sin_d) / hist_width;
   // The window e^(-(c_rot^2 + r_rot^2) / (2 (d/2)^2)) in cells is separable in the unrotated offsets.
-  GaussianWeights(0.5f * d * hist_width, win.radius, &win.weight);
+  GaussianWeights(0.5f * d * hist_width, win.radius, &s->weights);
+  win.weight = s->weights.data();
   std::array<float, (d + 2) * (d + 2) * (kDescriptorBins + 2)> hist{};
   s->Fit(static_cast<size_t>(2 * win.radius + 1));
   for (int i = -win.radius; i <= win.radius; ++i) VoteDescriptorRow(img, win, i, s, hist.data());
