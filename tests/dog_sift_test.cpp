@@ -212,7 +212,7 @@ TEST(DogSiftTest, ScaleSpaceFigure) {
   EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750), 6.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
   EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 3, false), 6.0 * 1000 * 750 * 4 / (1024.0 * 1024.0), 1e-9);
   EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 4), 7.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
-  // From 9 layers on the later octaves' kept layers outgrow that room: the figure counts them.
+  // From 9 layers on (a tie at 9) the later octaves' kept layers outgrow that room: the figure counts them.
   EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 8), 11.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
   EXPECT_GT(DogSiftScaleSpaceMiB(1000, 750, 12), 15.5 * 2000 * 1500 * 4 / (1024.0 * 1024.0));
 }

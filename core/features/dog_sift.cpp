@@ -208,7 +208,7 @@ UAVM_SIMD_CLONES void ConvolveColumnPair(const float* const* __restrict rows, in
   }
 }
 
-UAVM_SIMD_CLONES void SubtractRow(const float* a, const float* b, int n, float* out) {  // out may be a or b
+UAVM_SIMD_CLONES void SubtractRow(const float* a, const float* b, int n, float* out) {
   for (int x = 0; x < n; ++x) out[x] = a[x] - b[x];
 }
 
@@ -258,7 +258,8 @@ void ConvolveRowReflected(const float* s, int cols, const Kernel& kernel, float*
 }
 
 // The blur of `src` by `kernel` (borders reflected as OpenCV's BORDER_REFLECT_101) into `blurred` (not src), row by
-// row while the row is in cache. Each task keeps a ring of 2 radius + 1 horizontally blurred rows.
+// row while the row is in cache. Each task keeps a ring of 2 radius + 2 horizontally blurred rows (two output rows a
+// step, ConvolveColumnPair; the last one of an odd task alone).
 void Blur(const cv::Mat& src, const Kernel& kernel, cv::Mat& blurred) {
   const int rows = src.rows;
   const int cols = src.cols;
@@ -492,8 +493,7 @@ bool Interpolate(const DogLayers& dog, const DogSiftOptions& o, double threshold
   return true;
 }
 
-// Candidates of layer `layer` in rows [y0, y1): the extremum mask over the DoG rows of `rows`, then the 26-neighbour
-// test and the fit where it is set.
+// A search task's scratch: the DoG rows of every layer at rows r - 1, r and r + 1 (a ring by row) and the mask.
 struct SearchRows {
   // DoG row y of layer l (0 .. L + 1) for y in a ring of 3.
   [[nodiscard]] float* At(int l, int y) {
@@ -504,6 +504,8 @@ struct SearchRows {
   std::vector<uchar> mask;
 };
 
+// Candidates of layer `layer` at row r: the extremum mask over the ring's DoG rows, then the 26-neighbour test and the
+// fit where it is set.
 void SearchRow(const DogLayers& dog, const DogSiftOptions& o, double contrast_threshold, float threshold, int octave,
                int layer, int r, SearchRows* rows, std::vector<Candidate>* found) {
   const int cols = dog.cols();
@@ -913,8 +915,8 @@ size_t ImageBytes(int rows, int cols) {
 
 // The block ImageBlock needs for the octaves of a rows x cols first octave with L layers: each octave's L kept
 // Gaussian layers after those of the octaves before it, its 3 searched ones at the end. L + 3 images of the first
-// octave's size for L <= 8 (the later octaves' kept layers take a third of an image per layer, the second octave's
-// searched ones three quarters of one: together within the room of the first octave's three searched ones).
+// octave's size for L <= 8: at octave k the kept layers take L (1 + 1/4 + ... + 1/4^k) images and the searched ones
+// 3 / 4^k, within L + 3 below 9 layers (a tie at 9, which the 64-byte rounding tips over).
 size_t ScaleSpaceBlockBytes(int rows, int cols, int layers) {
   size_t kept = 0;
   size_t block = 0;

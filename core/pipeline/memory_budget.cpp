@@ -20,9 +20,10 @@ constexpr double kBaselineMiB = 72.0;
 constexpr double kGraphBytesPerFrame = 6.5 * 1024;
 // Relocalisation index per descriptor, as reserved: its 8-bit row (128 B), its frame records (12) and the kd-forest
 // (80: global_index_test) take ~220. The figure stays at the 800 the detector's cap was tuned with (a float copy and
-// cvflann's trees): lowering it would give the detector fewer bands (sim frames 3 -> 2, +26 MiB of scale space) and
-// move keypoints. The ~11 MiB it leaves at 256 MiB are the flight's headroom for transients the plan does not list
-// (the flight's measured peak is ~13 MiB above its plan: bench/memory.sh).
+// cvflann's trees): lowering it would give the detector more room, fewer bands where the budget binds (when it was
+// OpenCV's: sim frames 3 -> 2, +26 MiB of scale space) and move keypoints. The ~11 MiB it leaves at 256 MiB are the
+// flight's headroom for transients the plan does not list (the flight's measured peak is ~13 MiB above its plan:
+// bench/memory.sh).
 constexpr double kBytesPerIndexedDescriptor = 800;
 // What the flight leaves resident beyond the baseline and the graph when it ends (arena pages malloc_trim cannot
 // return, state OpenCV, GDAL and Ceres built on first use): measured 102-112 MiB at the end of the solves on the
