@@ -134,36 +134,9 @@ UAVM_SIMD_CLONES void ConvolveRow(const float* __restrict padded, int n, const f
   }
 }
 
-// out[x] = w0 rows[radius][x] + sum_i w_i (rows[radius - i][x] + rows[radius + i][x]).
-UAVM_SIMD_CLONES void ConvolveColumn(const float* const* __restrict rows, int n, const float* __restrict w, int radius,
-                                     float* __restrict out) {
-  int x0 = 0;
-  for (; x0 + kBlock <= n; x0 += kBlock) {
-    const float* c = rows[radius] + x0;
-    Float8 a0 = w[0] * Load8(c), a1 = w[0] * Load8(c + 8), a2 = w[0] * Load8(c + 16), a3 = w[0] * Load8(c + 24);
-    for (int i = 1; i <= radius; ++i) {
-      const float wi = w[i];
-      const float* a = rows[radius - i] + x0;
-      const float* b = rows[radius + i] + x0;
-      a0 += wi * (Load8(a) + Load8(b));
-      a1 += wi * (Load8(a + 8) + Load8(b + 8));
-      a2 += wi * (Load8(a + 16) + Load8(b + 16));
-      a3 += wi * (Load8(a + 24) + Load8(b + 24));
-    }
-    Store8(out + x0, a0);
-    Store8(out + x0 + 8, a1);
-    Store8(out + x0 + 16, a2);
-    Store8(out + x0 + 24, a3);
-  }
-  for (int x = x0; x < n; ++x) {
-    float acc = w[0] * rows[radius][x];
-    for (int i = 1; i <= radius; ++i) acc += w[i] * (rows[radius - i][x] + rows[radius + i][x]);
-    out[x] = acc;
-  }
-}
-
-// Two output rows of ConvolveColumn at once: out0 from rows[0 .. 2 radius], out1 from rows[1 .. 2 radius + 1]. Each
-// row loaded serves both (tap i of out0 pairs rows radius - i and radius + i, of out1 radius + 1 - i and
+// Two rows of the vertical pass: out_k[x] = w0 rows[radius + k][x] + sum_i w_i (rows[radius + k - i][x] +
+// rows[radius + k + i][x]) for k = 0, 1 (out0 from rows[0 .. 2 radius], out1 from rows[1 .. 2 radius + 1]). Each row
+// loaded serves both (tap i of out0 pairs rows radius - i and radius + i, of out1 radius + 1 - i and
 // radius + 1 + i): half the loads of two calls, the same operations in the same order per output.
 constexpr int kPairBlock = 16;
 UAVM_SIMD_CLONES void ConvolveColumnPair(const float* const* __restrict rows, int n, const float* __restrict w,
@@ -212,32 +185,16 @@ UAVM_SIMD_CLONES void SubtractRow(const float* a, const float* b, int n, float* 
   for (int x = 0; x < n; ++x) out[x] = a[x] - b[x];
 }
 
-// Rows [0, rows) in two tasks a thread (each of at least min_rows rows).
-int RowTasks(int rows, int min_rows) {
-  return std::max(1, std::min(2 * cv::getNumThreads(), rows / std::max(1, min_rows)));
-}
-
-// Task t's rows [first, second) of `tasks` tasks over [0, rows).
-std::pair<int, int> TaskRows(int rows, int tasks, int t) {
-  return {static_cast<int>(static_cast<int64_t>(rows) * t / tasks),
-          static_cast<int>(static_cast<int64_t>(rows) * (t + 1) / tasks)};
-}
-
-// fn(y0, y1, task) for each of `tasks` tasks over rows [0, rows), in parallel.
-template <typename Fn>
-void ForRowTasks(int rows, int tasks, Fn&& fn) {
-  cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
-    for (int t = range.start; t < range.end; ++t) {
-      const auto [y0, y1] = TaskRows(rows, tasks, t);
-      fn(y0, y1, t);
-    }
-  });
-}
-
-// The same over RowTasks(rows, min_rows) tasks.
+// fn(y0, y1) for each task's rows [y0, y1) of [0, rows), in parallel: two tasks a thread, each of at least min_rows
+// rows.
 template <typename Fn>
 void ForRowBlocks(int rows, int min_rows, Fn&& fn) {
-  ForRowTasks(rows, RowTasks(rows, min_rows), std::forward<Fn>(fn));
+  const int tasks = std::max(1, std::min(2 * cv::getNumThreads(), rows / std::max(1, min_rows)));
+  cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
+    for (int t = range.start; t < range.end; ++t)
+      fn(static_cast<int>(static_cast<int64_t>(rows) * t / tasks),
+         static_cast<int>(static_cast<int64_t>(rows) * (t + 1) / tasks));
+  });
 }
 
 // out[x] for x in [0, cols): row `s` convolved by `kernel`, borders reflected (BORDER_REFLECT_101). The inside straight
@@ -258,18 +215,19 @@ void ConvolveRowReflected(const float* s, int cols, const Kernel& kernel, float*
 }
 
 // The blur of `src` by `kernel` (borders reflected as OpenCV's BORDER_REFLECT_101) into `blurred` (not src), row by
-// row while the row is in cache. Each task keeps a ring of 2 radius + 2 horizontally blurred rows (two output rows a
-// step, ConvolveColumnPair; the last one of an odd task alone).
+// row while the row is in cache. Each task keeps a ring of 2 radius + 2 horizontally blurred rows and writes two output
+// rows a step (ConvolveColumnPair); an odd task's last step writes its second row to a spare row.
 void Blur(const cv::Mat& src, const Kernel& kernel, cv::Mat& blurred) {
   const int rows = src.rows;
   const int cols = src.cols;
   const int r = kernel.radius;
   const int ring_rows = 2 * r + 2;
   const auto width = static_cast<size_t>(cols);
-  ForRowBlocks(rows, kRowsPerTask, [&](int y0, int y1, int /*task*/) {
+  ForRowBlocks(rows, kRowsPerTask, [&](int y0, int y1) {
     std::vector<float> padded(static_cast<size_t>(cols + 2 * r));
     std::vector<float> ring(static_cast<size_t>(ring_rows) * width);
     std::vector<const float*> window(static_cast<size_t>(ring_rows));
+    std::vector<float> spare;
     auto ring_row = [&](int y) {
       return ring.data() + static_cast<size_t>(((y % ring_rows) + ring_rows) % ring_rows) * width;
     };
@@ -278,15 +236,12 @@ void Blur(const cv::Mat& src, const Kernel& kernel, cv::Mat& blurred) {
     };
     for (int y = y0 - r; y < y0 + r; ++y) horizontal(y);
     for (int y = y0; y < y1; y += 2) {
-      const bool pair = y + 1 < y1;
       horizontal(y + r);
-      if (pair) horizontal(y + r + 1);
+      horizontal(y + r + 1);
       for (int i = 0; i < ring_rows; ++i) window[static_cast<size_t>(i)] = ring_row(y - r + i);
-      if (pair)
-        ConvolveColumnPair(window.data(), cols, kernel.weights.data(), r, blurred.ptr<float>(y),
-                           blurred.ptr<float>(y + 1));
-      else
-        ConvolveColumn(window.data(), cols, kernel.weights.data(), r, blurred.ptr<float>(y));
+      if (y + 1 == y1) spare.resize(width);
+      ConvolveColumnPair(window.data(), cols, kernel.weights.data(), r, blurred.ptr<float>(y),
+                         y + 1 < y1 ? blurred.ptr<float>(y + 1) : spare.data());
     }
   });
 }
@@ -323,7 +278,7 @@ UAVM_SIMD_CLONES void BlendRows(const float* __restrict above, const float* __re
 void Upsample2x(const cv::Mat& gray, cv::Mat& dst) {
   const int cols = gray.cols;
   const int rows = gray.rows;
-  ForRowBlocks(rows, kRowsPerTask / 2, [&](int y0, int y1, int /*task*/) {
+  ForRowBlocks(rows, kRowsPerTask / 2, [&](int y0, int y1) {
     std::vector<float> wide(static_cast<size_t>(3 * 2 * cols));
     std::vector<float> values(static_cast<size_t>(cols));
     auto widen = [&](int y, float* out) {
