@@ -924,19 +924,31 @@ RefineResult RegistrationEngine::RefineAndChooseModel(const std::vector<const Ed
   RefineOptions affine = options_.refine;
   affine.model = MotionModel::kAffine;
   std::unordered_map<int, Mat3> affine_maps;
-  if (options_.refine.model == MotionModel::kHomography) affine_maps = mosaic_from_work_;
+  const bool homography = options_.refine.model == MotionModel::kHomography;
+  if (homography) affine_maps = mosaic_from_work_;
+  // The affine refinement (the choice's other model, or the fallback) starts from the same maps as the homographies':
+  // with choose_model it runs beside them on the second core when both solves fit the plan's refinement line and the
+  // points are resident (a point source is read one edge at a time).
+  size_t pairs = 0;
+  for (const Edge* e : edges) pairs += e->points.size();
+  const bool side_by_side = homography && options_.refine.choose_model && points == nullptr &&
+                            2 * pairs <= static_cast<size_t>(options_.refine.max_correspondences);
+  auto affine_future = std::async(side_by_side ? std::launch::async : std::launch::deferred, [&] {
+    return RefineGlobal(edges, variable, anchor, half_diag, affine, &affine_maps, nullptr, points);
+  });
   RefineResult rr =
       RefineGlobal(edges, variable, anchor, half_diag, options_.refine, &mosaic_from_work_, nullptr, points);
   s->model = options_.refine.model;
-  if (options_.refine.model != MotionModel::kHomography) return rr;
+  if (!homography) return rr;
   if (!rr.ok) {
     spdlog::warn("homography refinement refused ({}); refining affine maps instead", rr.failure);
+    RefineResult fallback = affine_future.get();
     mosaic_from_work_ = std::move(affine_maps);
     s->model = MotionModel::kAffine;
-    return RefineGlobal(edges, variable, anchor, half_diag, affine, &mosaic_from_work_, nullptr, points);
+    return fallback;
   }
   if (!options_.refine.choose_model) return rr;
-  const RefineResult ra = RefineGlobal(edges, variable, anchor, half_diag, affine, &affine_maps, nullptr, points);
+  const RefineResult ra = affine_future.get();
   if (!ra.ok) return rr;
   const double homography_rms = TransferErrors(edges, mosaic_from_work_, true, 0.0, nullptr, points).rms;
   const double affine_rms = TransferErrors(edges, affine_maps, true, 0.0, nullptr, points).rms;
