@@ -355,26 +355,30 @@ std::vector<RadiometrySample> Thinned(const std::vector<RadiometrySample>& sampl
 // squares; the lowest weighted cost wins. Cheap enough for a few hundred points: the gains' sparse system is not
 // solved again.
 cv::Point2d SearchAntisolar(const std::vector<RadiometrySample>& grey, const std::unordered_map<int, int>& index,
-                            Terms terms, const Fit& gains, cv::Point2d around, double radius, double step) {
+                            const Terms& terms, const Fit& gains, cv::Point2d around, double radius, double step) {
   const int m = terms.Count();
   std::vector<double> rest(grey.size());
   for (size_t k = 0; k < grey.size(); ++k)
     rest[k] = PairDifference(grey[k], 0) - (gains.log_gain[static_cast<size_t>(index.at(grey[k].a))] -
                                             gains.log_gain[static_cast<size_t>(index.at(grey[k].b))]);
-  double best_cost = std::numeric_limits<double>::infinity();
-  cv::Point2d best = around;
   const int steps = static_cast<int>(std::floor(radius / step));
-  Row row{};
+  std::vector<cv::Point2d> grid;  // in scan order: the first of equal costs wins, whatever the threads
   for (int i = -steps; i <= steps; ++i)
-    for (int j = -steps; j <= steps; ++j) {
-      if (i * i + j * j > steps * steps) continue;
-      terms.at.antisolar_u = around.x + j * step;
-      terms.at.antisolar_v = around.y + i * step;
+    for (int j = -steps; j <= steps; ++j)
+      if (i * i + j * j <= steps * steps) grid.emplace_back(around.x + j * step, around.y + i * step);
+  // Each point's least squares alone (~450 on the coarse grid), on OpenCV's threads.
+  std::vector<double> costs(grid.size());
+  cv::parallel_for_(cv::Range(0, static_cast<int>(grid.size())), [&](const cv::Range& range) {
+    Terms trial = terms;
+    Row row{};
+    for (int g = range.start; g < range.end; ++g) {
+      trial.at.antisolar_u = grid[static_cast<size_t>(g)].x;
+      trial.at.antisolar_v = grid[static_cast<size_t>(g)].y;
       Eigen::MatrixXd normal = Eigen::MatrixXd::Identity(m, m) * 1e-6 * static_cast<double>(grey.size());
       Eigen::VectorXd rhs = Eigen::VectorXd::Zero(m);
       double base = 0;
       for (size_t k = 0; k < grey.size(); ++k) {
-        terms.Row(grey[k], row.data());
+        trial.Row(grey[k], row.data());
         const Eigen::Map<const Eigen::VectorXd> r(row.data(), m);
         normal.selfadjointView<Eigen::Lower>().rankUpdate(r, gains.weight[k]);
         rhs += gains.weight[k] * rest[k] * r;
@@ -382,11 +386,15 @@ cv::Point2d SearchAntisolar(const std::vector<RadiometrySample>& grey, const std
       }
       normal.triangularView<Eigen::Upper>() = normal.transpose();
       const Eigen::VectorXd x = normal.ldlt().solve(rhs);
-      const double cost = base - x.dot(rhs);  // the weighted residual at the least-squares solution
-      if (cost < best_cost) {
-        best_cost = cost;
-        best = {terms.at.antisolar_u, terms.at.antisolar_v};
-      }
+      costs[static_cast<size_t>(g)] = base - x.dot(rhs);  // the weighted residual at the least-squares solution
+    }
+  });
+  double best_cost = std::numeric_limits<double>::infinity();
+  cv::Point2d best = around;
+  for (size_t g = 0; g < grid.size(); ++g)
+    if (costs[g] < best_cost) {
+      best_cost = costs[g];
+      best = grid[g];
     }
   return best;
 }
