@@ -21,6 +21,7 @@
 
 #include "core/imageio/png_writer.h"
 #include "core/tiles/web_mercator.h"
+#include "core/util/hilbert.h"
 #include "core/util/parallel.h"
 
 namespace uavm {
@@ -295,16 +296,27 @@ bool LocateTiles(GDALDataset* src, const MercatorBox& box, const TileSet& set, s
   std::vector<double> xs, ys;
   for (int z = set.min_zoom; z <= set.max_zoom; ++z) {
     const TileRange r(box, z);
-    for (int ty = r.y0; ty <= r.y1; ++ty)
-      for (int tx = r.x0; tx <= r.x1; ++tx) {
-        jobs->push_back({z, tx, ty, {}});
-        for (int k = 0; k < 9; ++k) {
-          const Vec2 m =
-              MercatorMetresFromPixel(Vec2(tx * kTile + (k % 3) * kGridStep, ty * kTile + (k / 3) * kGridStep), z);
-          xs.push_back(m.x());
-          ys.push_back(m.y());
-        }
+    // Along a Hilbert curve over the zoom's range: the workers' consecutive tiles read neighbouring windows of the
+    // mosaic, whose blocks GDAL's small cache (shared with the COG copy) then still holds. In rows, each row crossed
+    // the rotated mosaic and the blocks were decompressed again for the next (products 1.8-2.0 -> 1.7-1.8 s on
+    // caliterra, 2.6-3.1 -> 2.3-2.5 s on brighton_beach).
+    const int cols = r.x1 - r.x0 + 1;
+    const int rows = r.y1 - r.y0 + 1;
+    int side = 1;
+    while (side < std::max(cols, rows)) side *= 2;
+    for (long d = 0; d < static_cast<long>(side) * side; ++d) {
+      const auto [cx, cy] = HilbertCell(side, d);
+      if (cx >= cols || cy >= rows) continue;
+      const int tx = r.x0 + cx;
+      const int ty = r.y0 + cy;
+      jobs->push_back({z, tx, ty, {}});
+      for (int k = 0; k < 9; ++k) {
+        const Vec2 m =
+            MercatorMetresFromPixel(Vec2(tx * kTile + (k % 3) * kGridStep, ty * kTile + (k / 3) * kGridStep), z);
+        xs.push_back(m.x());
+        ys.push_back(m.y());
       }
+    }
   }
   if (!to_src->Transform(static_cast<int>(xs.size()), xs.data(), ys.data())) {
     *error = "tiles: PROJ failed on the tile grid";

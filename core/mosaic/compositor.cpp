@@ -23,6 +23,7 @@
 #include "core/mosaic/selection.h"
 #include "core/mosaic/tile_blender.h"
 #include "core/util/clock.h"
+#include "core/util/hilbert.h"
 #include "core/util/memory.h"
 #include "core/util/parallel.h"
 
@@ -368,26 +369,6 @@ std::vector<cv::Rect> OwnedCanvasBoxes(const std::vector<FrameGeometry>& geometr
   return owned;
 }
 
-// (x, y) of cell `d` along a Hilbert curve over a side x side grid (side a power of two).
-cv::Point HilbertCell(int side, long d) {
-  int x = 0, y = 0;
-  for (int s = 1; s < side; s *= 2) {
-    const int rx = static_cast<int>(1 & (d / 2));
-    const int ry = static_cast<int>(1 & (d ^ rx));
-    if (ry == 0) {  // rotate the quadrant so that the sub-curves join end to start
-      if (rx == 1) {
-        x = s - 1 - x;
-        y = s - 1 - y;
-      }
-      std::swap(x, y);
-    }
-    x += s * rx;
-    y += s * ry;
-    d /= 4;
-  }
-  return {x, y};
-}
-
 // Frames' needed parts between tiles, in two tiers of bounded bytes: decoded parts (least recently used first out)
 // and, behind them, the same parts kept as in-memory JPEG (~1/10 of the bytes), so that a part evicted from the first
 // tier comes back from a 3 MP decode of our own copy instead of another 12 MP decode of the stored frame (whose
@@ -620,9 +601,9 @@ std::vector<cv::Rect> TilesAlongHilbertCurve(cv::Size canvas, int tile_size) {
   tiles.reserve(static_cast<size_t>(cols) * static_cast<size_t>(rows));
   const cv::Rect canvas_rect(0, 0, canvas.width, canvas.height);
   for (long d = 0; d < static_cast<long>(side) * side; ++d) {
-    const cv::Point c = HilbertCell(side, d);
-    if (c.x < cols && c.y < rows)
-      tiles.push_back(cv::Rect(c.x * tile_size, c.y * tile_size, tile_size, tile_size) & canvas_rect);
+    const auto [x, y] = HilbertCell(side, d);
+    if (x < cols && y < rows)
+      tiles.push_back(cv::Rect(x * tile_size, y * tile_size, tile_size, tile_size) & canvas_rect);
   }
   return tiles;
 }
