@@ -22,6 +22,13 @@ void JpegEmitMessage(j_common_ptr cinfo, int level) {
   if (err->corrupt++ == 0) (*cinfo->err->format_message)(cinfo, err->message);
 }
 
+jpeg_error_mgr* InstallHandlers(JpegErrors* err) {
+  jpeg_error_mgr* mgr = jpeg_std_error(&err->mgr);
+  err->mgr.error_exit = JpegErrorExit;
+  err->mgr.emit_message = JpegEmitMessage;
+  return mgr;
+}
+
 enum class RegionStatus { kOk, kFailed, kCmyk, kOutside };
 
 // The libjpeg calls that may long-jump, apart, so that no local of the caller lives across setjmp.
@@ -55,9 +62,11 @@ RegionStatus DecodeRegionRows(jpeg_decompress_struct* cinfo, JpegErrors* err, un
 }  // namespace
 
 void InstallJpegErrors(jpeg_decompress_struct* cinfo, JpegErrors* err) {
-  cinfo->err = jpeg_std_error(&err->mgr);
-  err->mgr.error_exit = JpegErrorExit;
-  err->mgr.emit_message = JpegEmitMessage;
+  cinfo->err = InstallHandlers(err);
+}
+
+void InstallJpegErrors(jpeg_compress_struct* cinfo, JpegErrors* err) {
+  cinfo->err = InstallHandlers(err);
 }
 
 bool DecodeJpegRegion(const std::string& path, unsigned denom, const cv::Rect& region, JpegRegion* out,

@@ -21,8 +21,9 @@ struct JpegErrors {
   int corrupt = 0;
   char message[JMSG_LENGTH_MAX] = {};
 };
-// Points cinfo->err at `err` with the handlers above. Call before jpeg_create_decompress.
+// Points cinfo->err at `err` with the handlers above. Call before jpeg_create_decompress (jpeg_create_compress).
 void InstallJpegErrors(jpeg_decompress_struct* cinfo, JpegErrors* err);
+void InstallJpegErrors(jpeg_compress_struct* cinfo, JpegErrors* err);
 
 struct JpegRegion {
   cv::Mat bgr;           // 8-bit BGR, at least the region asked for (columns widened to libjpeg's MCU bounds)

@@ -13,11 +13,11 @@
 #include <list>
 #include <memory>
 #include <mutex>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <unordered_map>
 
 #include "core/buffers/image_buffer.h"
+#include "core/imageio/jpeg_memory.h"
 #include "core/imageio/png_writer.h"
 #include "core/mosaic/gdal_writer.h"
 #include "core/mosaic/selection.h"
@@ -394,8 +394,7 @@ class PartCache {
       }
     }
     bool loaded_meanwhile = false;
-    FramePart part =
-        jpeg.empty() ? Load(id, need, &loaded_meanwhile) : FramePart{cv::imdecode(jpeg, cv::IMREAD_COLOR), origin};
+    FramePart part = jpeg.empty() ? Load(id, need, &loaded_meanwhile) : Decompress(jpeg, origin);
     if (part.image.empty() || loaded_meanwhile) return part;
     if (jpeg.empty()) Compress(id, part);
     std::lock_guard<std::mutex> lock(mutex_);
@@ -501,11 +500,24 @@ class PartCache {
   void Compress(int id, const FramePart& part) {
     if (compressed_.capacity() == 0) return;
     CompressedPart c{{}, part.origin};
-    if (!cv::imencode(".jpg", part.image, c.jpeg, {cv::IMWRITE_JPEG_QUALITY, 95})) return;
+    std::string why;
+    if (!EncodeJpegBgr(part.image, 95, &c.jpeg, &why)) {
+      spdlog::warn("composite: a part of frame {} not kept in memory ({})", id, why);
+      return;
+    }
     const size_t bytes = c.jpeg.size();
     if (bytes >= part.image.total() * part.image.elemSize() || bytes > compressed_.capacity()) return;
     std::lock_guard<std::mutex> lock(mutex_);
     compressed_.Insert(id, std::move(c), bytes);
+  }
+
+  // Our own copy back; an empty part (the frame's area left empty, as for an unreadable frame) if it cannot be read.
+  static FramePart Decompress(const std::vector<uchar>& jpeg, cv::Point2d origin) {
+    FramePart part{cv::Mat(), origin};
+    std::string why;
+    if (!DecodeJpegBgr(jpeg, &part.image, &why))
+      spdlog::warn("composite: a part kept in memory is unreadable ({})", why);
+    return part;
   }
 
   // A whole frame (or more than needed at whole-pixel offsets) is cut to `need` before it is cached; the rest is freed.
