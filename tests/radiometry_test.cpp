@@ -439,6 +439,40 @@ TEST(RadiometryTest, OverlapSamplesAndCorrectionOfRenderedFrames) {
   EXPECT_LE(hi, 153);
 }
 
+// The radial correction of a textured part anywhere in the frame (odd origin and size, full resolution and halved)
+// against the model evaluated pixel by pixel: within the grey level its table over r^2 and the rounding allow.
+TEST(RadiometryTest, RadialCorrectionIsTheModelPixelByPixel) {
+  RadiometryModel m;
+  m.ok = true;
+  m.vignetting = true;
+  m.log_falloff = {std::array<double, 2>{-0.5, 0.1}, std::array<double, 2>{-0.6, 0.12},
+                   std::array<double, 2>{-0.7, 0.15}};
+  m.log_gain[7] = {std::log(0.9), std::log(1.05), std::log(1.2)};
+  ASSERT_FALSE(m.BeyondRadial());
+  cv::RNG rng(7);
+  for (const cv::Size full : {cv::Size(1000, 750), cv::Size(500, 375)}) {
+    const cv::Point2d origin(full.width / 7 + 0.0, full.height / 5 + 0.0);
+    cv::Mat part(full.height / 2 + 3, full.width / 2 + 5, CV_8UC3);
+    rng.fill(part, cv::RNG::UNIFORM, 20, 200);
+    cv::Mat corrected = part.clone();
+    CorrectRadiometry(m, 7, 0.0, full, origin, &corrected);
+    const double hd = 0.5 * std::hypot(full.width, full.height);
+    const cv::Vec3d gain = m.Gain(7);
+    int worst = 0;
+    for (int y = 0; y < part.rows; ++y)
+      for (int x = 0; x < part.cols; ++x) {
+        const double u = (origin.x + x - 0.5 * (full.width - 1)) / hd;
+        const double v = (origin.y + y - 0.5 * (full.height - 1)) / hd;
+        const double r2 = std::min(1.0, u * u + v * v);
+        for (int c = 0; c < 3; ++c) {
+          const double expected = part.at<cv::Vec3b>(y, x)[c] / (gain[c] * m.Falloff(c, r2));
+          worst = std::max(worst, std::abs(corrected.at<cv::Vec3b>(y, x)[c] - cv::saturate_cast<uchar>(expected)));
+        }
+      }
+    EXPECT_LE(worst, 1) << full;
+  }
+}
+
 // During the flight: frames of a textured ground seen through a 0.6-corner lens, each overlapping the previous two;
 // after `solve_every` frames the live model has the lens's falloff (and no gains), from the window only.
 TEST(RadiometryTest, LiveFitFindsTheVignettingFromRecentFrames) {

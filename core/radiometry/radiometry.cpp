@@ -821,15 +821,24 @@ void CorrectRadial(const RadiometryModel& model, int id, cv::Size full_size, cv:
     for (int k = 0; k <= kLutSize; ++k)
       lut[static_cast<size_t>(c)][static_cast<size_t>(k)] =
           static_cast<float>(1.0 / (gain[c] * model.Falloff(c, static_cast<double>(k) / kLutSize)));
+  // R2 = u u + v v in floats as ImagePoint computes it: u u per column once, v v per row.
   const PlaceOf place(full_size);
+  const auto cols = static_cast<size_t>(bgr->cols);
+  std::vector<float> uu(cols);
+  for (size_t col = 0; col < cols; ++col) {
+    const float u = place.At(origin.x + static_cast<double>(col), 0, 0).u;
+    uu[col] = u * u;
+  }
+  std::vector<uint16_t> index(cols);
   for (int r = 0; r < bgr->rows; ++r) {
+    const float v = place.At(0, origin.y + r, 0).v;
+    const float vv = v * v;
+    for (size_t col = 0; col < cols; ++col)
+      index[col] = static_cast<uint16_t>(std::min(1.0, double(uu[col] + vv)) * kLutSize + 0.5);
     auto* p = bgr->ptr<cv::Vec3b>(r);
-    const double y = origin.y + r;
-    for (int col = 0; col < bgr->cols; ++col) {
-      const double r2 = std::min(1.0, double(place.At(origin.x + col, y, 0).R2()));
-      const auto k = static_cast<size_t>(r2 * kLutSize + 0.5);
-      for (int c = 0; c < 3; ++c) p[col][c] = cv::saturate_cast<uchar>(p[col][c] * lut[static_cast<size_t>(c)][k]);
-    }
+    for (size_t col = 0; col < cols; ++col)
+      for (int c = 0; c < 3; ++c)
+        p[col][c] = cv::saturate_cast<uchar>(p[col][c] * lut[static_cast<size_t>(c)][index[col]]);
   }
 }
 
