@@ -8,6 +8,7 @@
 #include <atomic>
 #include <cerrno>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <cstring>
 #include <list>
@@ -381,25 +382,35 @@ class PartCache {
 
   // At least `need` of frame `id`; an empty image when it cannot be read. The part shares the cache's buffer while
   // the caller holds it, so that another worker's eviction cannot free it.
+  // A frame another worker is reading (from its file or from memory) is waited for, not read twice: the workers'
+  // consecutive tiles often start on the same frame (caliterra: 32 loads of 21 frames before, 2 workers).
   [[nodiscard]] FramePart Get(int id, const cv::Rect& need) {
     std::vector<uchar> jpeg;
     cv::Point2d origin;
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      std::unique_lock<std::mutex> lock(mutex_);
+      read_done_.wait(lock, [&] { return std::find(reading_.begin(), reading_.end(), id) == reading_.end(); });
       if (const FramePart* hit = decoded_.Find(id)) return *hit;
       if (const CompressedPart* hit = compressed_.Find(id)) {
         ++compressed_hits_;
         jpeg = hit->jpeg;  // copied: an eviction may drop the entry while it is decoded
         origin = hit->origin;
       }
+      reading_.push_back(id);
     }
     bool loaded_meanwhile = false;
     FramePart part = jpeg.empty() ? Load(id, need, &loaded_meanwhile) : Decompress(jpeg, origin);
-    if (part.image.empty() || loaded_meanwhile) return part;
-    if (jpeg.empty()) Compress(id, part);
-    std::lock_guard<std::mutex> lock(mutex_);
-    const size_t bytes = part.image.total() * part.image.elemSize();
-    return decoded_.Insert(id, std::move(part), bytes);
+    if (!part.image.empty() && !loaded_meanwhile && jpeg.empty()) Compress(id, part);
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!part.image.empty() && !loaded_meanwhile) {
+        const size_t bytes = part.image.total() * part.image.elemSize();
+        part = decoded_.Insert(id, std::move(part), bytes);
+      }
+      reading_.erase(std::find(reading_.begin(), reading_.end(), id));
+    }
+    read_done_.notify_all();
+    return part;
   }
   // Drops frame `id` from both tiers: no tile left needs it. Without this a long flight's cache filled to its cap with
   // parts of tiles long written (the 5000-frame flight's compose peak 1.4x the 200-frame one's).
@@ -534,10 +545,12 @@ class PartCache {
   Lru<FramePart> decoded_;
   Lru<CompressedPart> compressed_;
   bool parallel_loads_;
-  std::mutex mutex_;       // both tiers and the counters
-  std::mutex load_mutex_;  // serial loads
-  size_t loads_ = 0;       // counting reloads after eviction
-  double load_ms_ = 0.0;   // summed over workers
+  std::mutex mutex_;  // both tiers, the frames being read and the counters
+  std::condition_variable read_done_;
+  std::vector<int> reading_;  // frames a worker is reading: one per worker at most
+  std::mutex load_mutex_;     // serial loads
+  size_t loads_ = 0;          // counting reloads after eviction
+  double load_ms_ = 0.0;      // summed over workers
   size_t compressed_hits_ = 0;
   size_t released_ = 0;
 };
