@@ -49,6 +49,23 @@ TEST(JpegMemoryTest, RoundTripMatchesOpenCvsCodec) {
   EXPECT_LT(cv::mean(err.reshape(1))[0], 2.0);
 }
 
+// A part larger than the destination's first guess (noise compresses poorly): the vector grows as libjpeg writes.
+TEST(JpegMemoryTest, TheCopyGrowsAsLibjpegWrites) {
+  cv::Mat noise(601, 803, CV_8UC3);
+  cv::RNG(5).fill(noise, cv::RNG::UNIFORM, 0, 256);
+  std::vector<uchar> jpeg(17, 1);  // whatever it held is replaced
+  std::string why;
+  ASSERT_TRUE(EncodeJpegBgr(noise, 95, &jpeg, &why)) << why;
+  EXPECT_GT(jpeg.size(), 2 * noise.total() / 4);  // at least one growth beyond the first guess (pixels / 4 bytes)
+  EXPECT_EQ(MaxDiff(cv::imdecode(jpeg, cv::IMREAD_COLOR),
+                    [&] {
+                      cv::Mat m;
+                      EXPECT_TRUE(DecodeJpegBgr(jpeg, &m, &why));
+                      return m;
+                    }()),
+            0.0);
+}
+
 TEST(JpegMemoryTest, DamagedOrForeignDataIsRefusedWithAReason) {
   std::vector<uchar> jpeg;
   std::string why;
@@ -58,11 +75,33 @@ TEST(JpegMemoryTest, DamagedOrForeignDataIsRefusedWithAReason) {
   EXPECT_FALSE(DecodeJpegBgr(cut, &out, &why));
   EXPECT_FALSE(why.empty());
   EXPECT_TRUE(out.empty());
+  why.clear();
+  EXPECT_FALSE(DecodeJpegBgr({}, &out, &why));
+  EXPECT_FALSE(why.empty());
   const std::vector<uchar> foreign = {'P', 'N', 'G', 0, 1, 2, 3};
   why.clear();
   EXPECT_FALSE(DecodeJpegBgr(foreign, &out, &why));
   EXPECT_FALSE(why.empty());
-  EXPECT_FALSE(EncodeJpegBgr(cv::Mat(4, 4, CV_8UC1), 95, &jpeg, &why));
+  EXPECT_FALSE(EncodeJpegBgr(cv::Mat(4, 4, CV_16UC3), 95, &jpeg, &why));
+  EXPECT_FALSE(EncodeJpegBgr(cv::Mat(), 95, &jpeg, &why));
+}
+
+// A grey camera's frame: encoded grey, read back as BGR with three equal channels, as OpenCV reads it.
+TEST(JpegMemoryTest, GreyFramesAreEncodedGrey) {
+  cv::Mat grey;
+  cv::cvtColor(FramePart(), grey, cv::COLOR_BGR2GRAY);
+  std::vector<uchar> jpeg;
+  std::string why;
+  ASSERT_TRUE(EncodeJpegBgr(grey, 95, &jpeg, &why)) << why;
+  cv::Mat decoded;
+  ASSERT_TRUE(DecodeJpegBgr(jpeg, &decoded, &why)) << why;
+  EXPECT_EQ(MaxDiff(decoded, cv::imdecode(jpeg, cv::IMREAD_COLOR)), 0.0);
+  std::vector<cv::Mat> channels;
+  cv::split(decoded, channels);
+  EXPECT_EQ(cv::countNonZero(channels[0] != channels[2]), 0);
+  cv::Mat err;
+  cv::absdiff(channels[1], grey, err);
+  EXPECT_LT(cv::mean(err)[0], 2.0);
 }
 
 }  // namespace

@@ -439,8 +439,9 @@ TEST(RadiometryTest, OverlapSamplesAndCorrectionOfRenderedFrames) {
   EXPECT_LE(hi, 153);
 }
 
-// The radial correction of a textured part anywhere in the frame (odd origin and size, full resolution and halved)
-// against the model evaluated pixel by pixel: within the grey level its table over r^2 and the rounding allow.
+// The radial correction of a textured part inside the frame (odd sizes, full resolution and halved) against the model
+// evaluated pixel by pixel: within the grey level its table over r^2 and the rounding allow; and a part corrected at
+// its origin is, bit for bit, the same part of the whole frame corrected.
 TEST(RadiometryTest, RadialCorrectionIsTheModelPixelByPixel) {
   RadiometryModel m;
   m.ok = true;
@@ -470,6 +471,13 @@ TEST(RadiometryTest, RadialCorrectionIsTheModelPixelByPixel) {
         }
       }
     EXPECT_LE(worst, 1) << full;
+    cv::Mat frame(full, CV_8UC3);
+    rng.fill(frame, cv::RNG::UNIFORM, 20, 200);
+    const cv::Rect rect(static_cast<int>(origin.x) + 1, static_cast<int>(origin.y) + 3, part.cols, part.rows);
+    cv::Mat alone = frame(rect).clone();
+    CorrectRadiometry(m, 7, 0.0, full, cv::Point2d(rect.tl()), &alone);
+    CorrectRadiometry(m, 7, 0.0, full, cv::Point2d(), &frame);
+    EXPECT_EQ(cv::norm(alone, frame(rect), cv::NORM_INF), 0.0) << full;
   }
 }
 

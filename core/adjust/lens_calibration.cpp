@@ -5,6 +5,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <future>
 #include <tuple>
 
@@ -207,7 +208,7 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   // plan (refine.max_correspondences): each is one-threaded and the end of the flight has both cores to itself (the
   // phase ~1.2 -> ~0.6 s on caliterra; ~7 MiB more while it runs, at 200 frames as at 5000, the window bounding it).
   std::unordered_map<int, Mat3> without = start;
-  const bool side_by_side = 2 * subset.max_correspondences <= refine.max_correspondences;
+  const bool side_by_side = 2 * int64_t{subset.max_correspondences} <= refine.max_correspondences;
   auto r0_future = std::async(side_by_side ? std::launch::async : std::launch::deferred,
                               [&] { return RefineGlobal(edges, variable, anchor, half_diagonal, subset, &without); });
   // With: the same solve, the undistortion free.

@@ -8,8 +8,8 @@
 
 namespace uavm {
 
-// `bgr` (8-bit, 3 channels) as a baseline JPEG of `quality` (1..100) with 4:2:0 chroma, as cv::imencode writes it.
-// False with a reason when libjpeg fails.
+// `bgr` (8-bit, 3 channels; or 1, grey) as a baseline JPEG of `quality` (1..100) with 4:2:0 chroma, as cv::imencode
+// writes it. False with a reason when libjpeg fails.
 [[nodiscard]] bool EncodeJpegBgr(const cv::Mat& bgr, int quality, std::vector<uchar>* jpeg, std::string* why);
 
 // The JPEG in `jpeg` as 8-bit BGR; false with a reason for data libjpeg cannot read (or damaged data it warned about).

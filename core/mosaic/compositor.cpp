@@ -383,7 +383,8 @@ class PartCache {
   // At least `need` of frame `id`; an empty image when it cannot be read. The part shares the cache's buffer while
   // the caller holds it, so that another worker's eviction cannot free it.
   // A frame another worker is reading (from its file or from memory) is waited for, not read twice: the workers'
-  // consecutive tiles often start on the same frame (caliterra: 32 loads of 21 frames before, 2 workers).
+  // consecutive tiles often start on the same frame (caliterra: 32 loads of its 19 composited frames before, 2
+  // workers).
   [[nodiscard]] FramePart Get(int id, const cv::Rect& need) {
     std::vector<uchar> jpeg;
     cv::Point2d origin;
@@ -398,12 +399,19 @@ class PartCache {
       }
       reading_.push_back(id);
     }
-    bool loaded_meanwhile = false;
-    FramePart part = jpeg.empty() ? Load(id, need, &loaded_meanwhile) : Decompress(jpeg, origin);
-    if (!part.image.empty() && !loaded_meanwhile && jpeg.empty()) Compress(id, part);
+    FramePart part = jpeg.empty() ? FramePart{} : Decompress(jpeg, origin);
+    if (!jpeg.empty() && part.image.empty()) {  // our own copy unreadable: dropped, the frame read again
+      std::lock_guard<std::mutex> lock(mutex_);
+      compressed_.Erase(id);
+    }
+    if (part.image.empty()) {
+      part = Load(id, need);
+      // Kept in memory before the frame leaves `reading_`: once out, the other worker may release it (its last tile).
+      if (!part.image.empty()) Compress(id, part);
+    }
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      if (!part.image.empty() && !loaded_meanwhile) {
+      if (!part.image.empty()) {
         const size_t bytes = part.image.total() * part.image.elemSize();
         part = decoded_.Insert(id, std::move(part), bytes);
       }
@@ -445,7 +453,7 @@ class PartCache {
     }
     Value Insert(int id, Value value, size_t bytes) {
       auto it = entries_.find(id);
-      if (it != entries_.end()) return it->second.value;  // another worker loaded it meanwhile
+      if (it != entries_.end()) return it->second.value;
       auto victim = order_.end();
       while (used_ + bytes > capacity_ && victim != order_.begin()) {
         --victim;
@@ -486,17 +494,9 @@ class PartCache {
     std::unordered_map<int, Entry> entries_;
   };
 
-  // `*loaded_meanwhile`: another worker loaded the frame while this one waited for the serial load; its part, shared.
-  FramePart Load(int id, const cv::Rect& need, bool* loaded_meanwhile) {
+  FramePart Load(int id, const cv::Rect& need) {
     std::unique_lock<std::mutex> serial(load_mutex_, std::defer_lock);
-    if (!parallel_loads_) {
-      serial.lock();
-      std::lock_guard<std::mutex> lock(mutex_);
-      if (const FramePart* hit = decoded_.Find(id)) {
-        *loaded_meanwhile = true;
-        return *hit;
-      }
-    }
+    if (!parallel_loads_) serial.lock();
     const StageTimer timer;
     FramePart part = Trim(load_(id, need), need);
     const double ms = timer.ElapsedMs();
@@ -620,16 +620,11 @@ bool RenderRoi(const std::vector<CompositeInput>& frames, const std::vector<cv::
 std::vector<cv::Rect> TilesAlongHilbertCurve(cv::Size canvas, int tile_size) {
   const int cols = (canvas.width + tile_size - 1) / tile_size;
   const int rows = (canvas.height + tile_size - 1) / tile_size;
-  int side = 1;
-  while (side < std::max(cols, rows)) side *= 2;
   std::vector<cv::Rect> tiles;
   tiles.reserve(static_cast<size_t>(cols) * static_cast<size_t>(rows));
   const cv::Rect canvas_rect(0, 0, canvas.width, canvas.height);
-  for (long d = 0; d < static_cast<long>(side) * side; ++d) {
-    const auto [x, y] = HilbertCell(side, d);
-    if (x < cols && y < rows)
-      tiles.push_back(cv::Rect(x * tile_size, y * tile_size, tile_size, tile_size) & canvas_rect);
-  }
+  for (const auto& [x, y] : CellsAlongHilbertCurve(cols, rows))
+    tiles.push_back(cv::Rect(x * tile_size, y * tile_size, tile_size, tile_size) & canvas_rect);
   return tiles;
 }
 

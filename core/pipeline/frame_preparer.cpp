@@ -4,6 +4,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "core/imageio/jpeg_memory.h"
 #include "core/util/clock.h"
 
 namespace uavm {
@@ -61,12 +62,10 @@ PreparedFrame FramePreparer::PrepareImages(Frame frame, std::optional<Flatness> 
     if (lens.active()) p.work_bgr = lens.UndistortImage(p.work_bgr);
   }
   if (frame.source_path.empty()) {
-    // No file to copy into the session (camera, video, simulation): encode here, on the capture thread.
-    try {
-      cv::imencode(".jpg", frame.image, p.encoded, {cv::IMWRITE_JPEG_QUALITY, 95});
-    } catch (const cv::Exception&) {
-      p.encoded.clear();
-    }
+    // No file to copy into the session (camera, video, simulation): encode here, on the capture thread (libjpeg in
+    // BGR directly: cv::imencode swapped red and blue in a scalar loop over the 12 MP first).
+    std::string why;
+    if (!EncodeJpegBgr(frame.image, 95, &p.encoded, &why)) p.encoded.clear();
   }
   frame.image.release();  // the decoded original is not needed any more: keep queued frames small
   p.prepare_ms = t.ElapsedMs();
