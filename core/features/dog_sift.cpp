@@ -537,11 +537,21 @@ void GaussianWeights(float sigma, int radius, std::vector<float>* w) {
 }
 
 // Per pixel of a row segment: gradient magnitude times weight[j] * row_weight and direction in degrees
-// (portable::Atan2Degrees, eight pixels at a time in Float8: the same operations in the same order as the scalar loop).
-UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __restrict row,
-                                  const float* __restrict below, int n, const float* __restrict weight,
-                                  float row_weight, float* __restrict magnitude, float* __restrict degrees) {
-  if (n < 8) {
+// (portable::Atan2Degrees, a vector V of lanes at a time: the same operations in the same order as the scalar loop).
+// V is Float8 (one AVX register) on x86-64 and a vector of 4 floats (one NEON register) on aarch64, where GCC compares
+// and selects 8-float vectors lane by lane in scalar code (97 compares and selects in this function).
+template <typename V>
+UAVM_INLINE void GradientLanes(const float* __restrict above, const float* __restrict row,
+                               const float* __restrict below, int n, const float* __restrict weight, float row_weight,
+                               float* __restrict magnitude, float* __restrict degrees) {
+  constexpr int kLanes = static_cast<int>(sizeof(V) / sizeof(float));
+  const auto load = [](const float* p) {
+    V v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  };
+  const auto store = [](float* p, V v) { std::memcpy(p, &v, sizeof v); };
+  if (n < kLanes) {
     for (int j = 0; j < n; ++j) {
       const float dx = row[j + 1] - row[j - 1];
       const float dy = above[j] - below[j];
@@ -551,24 +561,42 @@ UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __
     return;
   }
   // The last block ends at n, overlapping the one before (its lanes give the same values again).
-  for (int j = 0; j < n; j += 8) {
-    j = std::min(j, n - 8);
-    const Float8 dx = Load8(row + j + 1) - Load8(row + j - 1);
-    const Float8 dy = Load8(above + j) - Load8(below + j);
-    Store8(magnitude + j, Sqrt8(dx * dx + dy * dy) * (Load8(weight + j) * row_weight));
-    const Float8 ax = Abs8(dx);
-    const Float8 ay = Abs8(dy);
-    const Int8 steep = ax < ay;
-    const Float8 lo = steep ? ax : ay;
-    const Float8 hi = steep ? ay : ax;
-    const Float8 c = lo / (hi + portable::kAtanEpsilon);
-    const Float8 c2 = c * c;
-    Float8 a = (((portable::kAtanP7 * c2 + portable::kAtanP5) * c2 + portable::kAtanP3) * c2 + portable::kAtanP1) * c;
+  for (int j = 0; j < n; j += kLanes) {
+    j = std::min(j, n - kLanes);
+    const V dx = load(row + j + 1) - load(row + j - 1);
+    const V dy = load(above + j) - load(below + j);
+    V norm = dx * dx + dy * dy;
+    for (int k = 0; k < kLanes; ++k) norm[k] = std::sqrt(norm[k]);  // one vector square root (-fno-math-errno)
+    store(magnitude + j, norm * (load(weight + j) * row_weight));
+    V ax = dx;
+    V ay = dy;
+    for (int k = 0; k < kLanes; ++k) {
+      ax[k] = std::fabs(ax[k]);
+      ay[k] = std::fabs(ay[k]);
+    }
+    const auto steep = ax < ay;
+    const V lo = steep ? ax : ay;
+    const V hi = steep ? ay : ax;
+    const V c = lo / (hi + portable::kAtanEpsilon);
+    const V c2 = c * c;
+    V a = (((portable::kAtanP7 * c2 + portable::kAtanP5) * c2 + portable::kAtanP3) * c2 + portable::kAtanP1) * c;
     a = steep ? 90.f - a : a;
     a = dx < 0.f ? 180.f - a : a;
     a = dy < 0.f ? 360.f - a : a;
-    Store8(degrees + j, a >= 360.f ? a - 360.f : a);
+    store(degrees + j, a >= 360.f ? a - 360.f : a);
   }
+}
+
+#if defined(__aarch64__)
+using GradientVector = float __attribute__((vector_size(16)));
+#else
+using GradientVector = Float8;
+#endif
+
+UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __restrict row,
+                                  const float* __restrict below, int n, const float* __restrict weight,
+                                  float row_weight, float* __restrict magnitude, float* __restrict degrees) {
+  GradientLanes<GradientVector>(above, row, below, n, weight, row_weight, magnitude, degrees);
 }
 
 // A window's rows lie 4 bytes x the image's width apart, so the hardware sees no stream to prefetch. Asks for row y's
