@@ -97,12 +97,6 @@ UAVM_INLINE void StorePairs8(float* p, Float8 a, Float8 b) {
   Store8(p, __builtin_shufflevector(a, b, 0, 8, 1, 9, 2, 10, 3, 11));
   Store8(p + 8, __builtin_shufflevector(a, b, 4, 12, 5, 13, 6, 14, 7, 15));
 }
-// floor(v) as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
-UAVM_INLINE Int8 Floor8(Float8 v) {
-  const Int8 t = __builtin_convertvector(v, Int8);
-  return t + (__builtin_convertvector(t, Float8) > v);
-}
-
 // Both passes accumulate 32 columns over every tap before storing them (4 vector registers); per column the sum runs
 // over the taps in the same order in the vector and the scalar code.
 constexpr int kBlock = 32;
@@ -587,16 +581,19 @@ UAVM_INLINE void GradientLanes(const float* __restrict above, const float* __res
   }
 }
 
+// The orientation and descriptor windows' vectors: one AVX register on x86-64, one NEON register on aarch64.
 #if defined(__aarch64__)
-using GradientVector = float __attribute__((vector_size(16)));
+using WindowVector = float __attribute__((vector_size(16)));
+using WindowMask = int __attribute__((vector_size(16)));
 #else
-using GradientVector = Float8;
+using WindowVector = Float8;
+using WindowMask = Int8;
 #endif
 
 UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __restrict row,
                                   const float* __restrict below, int n, const float* __restrict weight,
                                   float row_weight, float* __restrict magnitude, float* __restrict degrees) {
-  GradientLanes<GradientVector>(above, row, below, n, weight, row_weight, magnitude, degrees);
+  GradientLanes<WindowVector>(above, row, below, n, weight, row_weight, magnitude, degrees);
 }
 
 // A window's rows lie 4 bytes x the image's width apart, so the hardware sees no stream to prefetch. Asks for row y's
@@ -688,54 +685,86 @@ struct DescriptorWindow {
   const float* weight = nullptr;  // e^(-k^2 / (2 (d/2 cells)^2)) for offsets k in [-radius, radius], at k + radius
 };
 
-// The vector part of DescriptorVotes: pixels [0, returned count), eight at a time (all of them from 8 on).
-UAVM_SIMD_CLONES int DescriptorVotes8(const DescriptorWindow& win, float fi, int jb, int count,
-                                      const float* __restrict degrees, const float* __restrict magnitude,
-                                      int* __restrict bins, float* __restrict votes) {
-  if (count < 8) return 0;
+// The vector part of DescriptorVotes: pixels [0, returned count), a vector V of lanes at a time (all of them from one
+// vector's width on); I is V's lane-mask and index type. Float8 / Int8 on x86-64, 4 lanes on aarch64 (see
+// GradientLanes).
+template <typename V, typename I>
+UAVM_INLINE int DescriptorVoteLanes(const DescriptorWindow& win, float fi, int jb, int count,
+                                    const float* __restrict degrees, const float* __restrict magnitude,
+                                    int* __restrict bins, float* __restrict votes) {
+  constexpr int kLanes = static_cast<int>(sizeof(V) / sizeof(float));
+  if (count < kLanes) return 0;
   constexpr int d = kDescriptorWidth;
   constexpr int n = kDescriptorBins;
+  const auto load = [](const float* p) {
+    V v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  };
+  // floor as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
+  const auto floor = [](V v) {
+    const I t = __builtin_convertvector(v, I);
+    return t + (__builtin_convertvector(t, V) > v);
+  };
+  // a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 2 kLanes).
+  const auto store_pairs = [](float* p, V a, V b) {
+    if constexpr (kLanes == 8) {
+      StorePairs8(p, a, b);
+    } else {
+      const V low = __builtin_shufflevector(a, b, 0, 4, 1, 5);
+      const V high = __builtin_shufflevector(a, b, 2, 6, 3, 7);
+      std::memcpy(p, &low, sizeof low);
+      std::memcpy(p + kLanes, &high, sizeof high);
+    }
+  };
   const auto pairs = 2 * static_cast<size_t>(count);
   const float fi_sin = fi * win.sin_t;
   const float fi_cos = fi * win.cos_t;
-  const Int8 lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  I lane{};
+  for (int k = 0; k < kLanes; ++k) lane[k] = k;
   // The last block ends at count, overlapping the one before (its lanes give the same values again).
-  for (int t = 0; t < count; t += 8) {
-    t = std::min(t, count - 8);
-    const Float8 fj = __builtin_convertvector(jb + t + lane, Float8);
-    Float8 rbin = ((fj * win.sin_t + fi_cos) + static_cast<float>(d / 2)) - 0.5f;
-    Float8 cbin = ((fj * win.cos_t - fi_sin) + static_cast<float>(d / 2)) - 0.5f;
-    const Int8 inside = (rbin > -1.f) & (rbin < static_cast<float>(d)) & (cbin > -1.f) & (cbin < static_cast<float>(d));
-    Float8 obin = (Load8(degrees + t) - win.ori) * (n / 360.f);
-    const Int8 r0 = Floor8(rbin);
-    const Int8 c0 = Floor8(cbin);
-    Int8 o0 = Floor8(obin);
-    rbin = rbin - __builtin_convertvector(r0, Float8);
-    cbin = cbin - __builtin_convertvector(c0, Float8);
-    obin = obin - __builtin_convertvector(o0, Float8);
+  for (int t = 0; t < count; t += kLanes) {
+    t = std::min(t, count - kLanes);
+    const V fj = __builtin_convertvector(jb + t + lane, V);
+    V rbin = ((fj * win.sin_t + fi_cos) + static_cast<float>(d / 2)) - 0.5f;
+    V cbin = ((fj * win.cos_t - fi_sin) + static_cast<float>(d / 2)) - 0.5f;
+    const I inside = (rbin > -1.f) & (rbin < static_cast<float>(d)) & (cbin > -1.f) & (cbin < static_cast<float>(d));
+    V obin = (load(degrees + t) - win.ori) * (n / 360.f);
+    const I r0 = floor(rbin);
+    const I c0 = floor(cbin);
+    I o0 = floor(obin);
+    rbin = rbin - __builtin_convertvector(r0, V);
+    cbin = cbin - __builtin_convertvector(c0, V);
+    obin = obin - __builtin_convertvector(o0, V);
     o0 = o0 < 0 ? o0 + n : o0;
     o0 = o0 >= n ? o0 - n : o0;
-    const Int8 first = ((r0 + 1) * (d + 2) + c0 + 1) * (n + 2) + o0;
-    const Int8 bin = inside ? first : Int8{} - 1;
+    const I first = ((r0 + 1) * (d + 2) + c0 + 1) * (n + 2) + o0;
+    const I bin = inside ? first : I{} - 1;
     std::memcpy(bins + t, &bin, sizeof bin);
-    const Float8 mag = inside ? Load8(magnitude + t) : Float8{};
-    const Float8 v_r1 = mag * rbin, v_r0 = mag - v_r1;
-    const Float8 v_rc11 = v_r1 * cbin, v_rc10 = v_r1 - v_rc11;
-    const Float8 v_rc01 = v_r0 * cbin, v_rc00 = v_r0 - v_rc01;
-    const Float8 v_rco111 = v_rc11 * obin, v_rco101 = v_rc10 * obin;
-    const Float8 v_rco011 = v_rc01 * obin, v_rco001 = v_rc00 * obin;
-    StorePairs8(votes + 2 * t, v_rc00 - v_rco001, v_rco001);
-    StorePairs8(votes + pairs + 2 * t, v_rc01 - v_rco011, v_rco011);
-    StorePairs8(votes + 2 * pairs + 2 * t, v_rc10 - v_rco101, v_rco101);
-    StorePairs8(votes + 3 * pairs + 2 * t, v_rc11 - v_rco111, v_rco111);
+    const V mag = inside ? load(magnitude + t) : V{};
+    const V v_r1 = mag * rbin, v_r0 = mag - v_r1;
+    const V v_rc11 = v_r1 * cbin, v_rc10 = v_r1 - v_rc11;
+    const V v_rc01 = v_r0 * cbin, v_rc00 = v_r0 - v_rc01;
+    const V v_rco111 = v_rc11 * obin, v_rco101 = v_rc10 * obin;
+    const V v_rco011 = v_rc01 * obin, v_rco001 = v_rc00 * obin;
+    store_pairs(votes + 2 * t, v_rc00 - v_rco001, v_rco001);
+    store_pairs(votes + pairs + 2 * t, v_rc01 - v_rco011, v_rco011);
+    store_pairs(votes + 2 * pairs + 2 * t, v_rc10 - v_rco101, v_rco101);
+    store_pairs(votes + 3 * pairs + 2 * t, v_rc11 - v_rco111, v_rco111);
   }
   return count;
 }
 
+UAVM_SIMD_CLONES int DescriptorVotesVector(const DescriptorWindow& win, float fi, int jb, int count,
+                                           const float* __restrict degrees, const float* __restrict magnitude,
+                                           int* __restrict bins, float* __restrict votes) {
+  return DescriptorVoteLanes<WindowVector, WindowMask>(win, fi, jb, count, degrees, magnitude, bins, votes);
+}
+
 // For the pixels j = jb .. jb + count - 1 of window row i (gradients in s->magnitude, s->degrees): the first histogram
 // bin of each pixel's votes (-1 outside the cells) and its 8 trilinear weights (two cells in each direction, two of
-// the 8 direction bins), eight pixels at a time (DescriptorVotes8) from 8 pixels on; the same operations, in the same
-// order, in the scalar loop for shorter rows.
+// the 8 direction bins), a vector's width of pixels at a time (DescriptorVotesVector) from that width on; the same
+// operations, in the same order, in the scalar loop for shorter rows.
 void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, GradientScratch* s) {
   constexpr int d = kDescriptorWidth;
   constexpr int n = kDescriptorBins;
@@ -744,7 +773,7 @@ void DescriptorVotes(const DescriptorWindow& win, float fi, int jb, int count, G
   const float fi_cos = fi * win.cos_t;
   const auto pairs = 2 * static_cast<size_t>(count);
   float* votes = s->votes.data();
-  int t = DescriptorVotes8(win, fi, jb, count, s->degrees.data(), s->magnitude.data(), s->bins.data(), votes);
+  int t = DescriptorVotesVector(win, fi, jb, count, s->degrees.data(), s->magnitude.data(), s->bins.data(), votes);
   for (; t < count; ++t) {
     const auto fj = static_cast<float>(jb + t);
     float rbin = ((fj * win.sin_t + fi_cos) + static_cast<float>(d / 2)) - 0.5f;
