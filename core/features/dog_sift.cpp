@@ -84,14 +84,6 @@ UAVM_INLINE void Store8(float* p, Float8 v) {
   std::memcpy(p, &v, sizeof v);
 }
 using Int8 = int __attribute__((vector_size(32)));  // lane masks (-1 true) and bin indices
-// Per lane; with -fno-math-errno GCC emits one vector square root.
-UAVM_INLINE Float8 Sqrt8(Float8 v) {
-  for (int k = 0; k < 8; ++k) v[k] = std::sqrt(v[k]);
-  return v;
-}
-UAVM_INLINE Float8 Abs8(Float8 v) {
-  return reinterpret_cast<Float8>(reinterpret_cast<Int8>(v) & 0x7fffffff);
-}
 // a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 16). (__builtin_shufflevector: GCC 12 and clang.)
 UAVM_INLINE void StorePairs8(float* p, Float8 a, Float8 b) {
   Store8(p, __builtin_shufflevector(a, b, 0, 8, 1, 9, 2, 10, 3, 11));
@@ -530,6 +522,36 @@ void GaussianWeights(float sigma, int radius, std::vector<float>* w) {
   }
 }
 
+// Lane helpers of the window code below, for V = Float8 or a 4-float vector. Functions, not lambdas, so that they
+// are always inlined: a vector passed by value between an AVX2 clone and a default-target function would not agree
+// on how it is passed (unoptimised builds call lambdas).
+template <typename V>
+UAVM_INLINE V LoadLanes(const float* p) {
+  V v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+template <typename V>
+UAVM_INLINE void StoreLanes(float* p, V v) {
+  std::memcpy(p, &v, sizeof v);
+}
+// floor as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
+template <typename V, typename I>
+UAVM_INLINE I FloorLanes(V v) {
+  const I t = __builtin_convertvector(v, I);
+  return t + (__builtin_convertvector(t, V) > v);
+}
+// a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 2 lanes).
+template <typename V>
+UAVM_INLINE void StorePairLanes(float* p, V a, V b) {
+  if constexpr (sizeof(V) == sizeof(Float8)) {
+    StorePairs8(p, a, b);
+  } else {
+    StoreLanes(p, V{__builtin_shufflevector(a, b, 0, 4, 1, 5)});
+    StoreLanes(p + 4, V{__builtin_shufflevector(a, b, 2, 6, 3, 7)});
+  }
+}
+
 // Per pixel of a row segment: gradient magnitude times weight[j] * row_weight and direction in degrees
 // (portable::Atan2Degrees, a vector V of lanes at a time: the same operations in the same order as the scalar loop).
 // V is Float8 (one AVX register) on x86-64 and a vector of 4 floats (one NEON register) on aarch64, where GCC compares
@@ -539,12 +561,6 @@ UAVM_INLINE void GradientLanes(const float* __restrict above, const float* __res
                                const float* __restrict below, int n, const float* __restrict weight, float row_weight,
                                float* __restrict magnitude, float* __restrict degrees) {
   constexpr int kLanes = static_cast<int>(sizeof(V) / sizeof(float));
-  const auto load = [](const float* p) {
-    V v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-  };
-  const auto store = [](float* p, V v) { std::memcpy(p, &v, sizeof v); };
   if (n < kLanes) {
     for (int j = 0; j < n; ++j) {
       const float dx = row[j + 1] - row[j - 1];
@@ -557,11 +573,11 @@ UAVM_INLINE void GradientLanes(const float* __restrict above, const float* __res
   // The last block ends at n, overlapping the one before (its lanes give the same values again).
   for (int j = 0; j < n; j += kLanes) {
     j = std::min(j, n - kLanes);
-    const V dx = load(row + j + 1) - load(row + j - 1);
-    const V dy = load(above + j) - load(below + j);
+    const V dx = LoadLanes<V>(row + j + 1) - LoadLanes<V>(row + j - 1);
+    const V dy = LoadLanes<V>(above + j) - LoadLanes<V>(below + j);
     V norm = dx * dx + dy * dy;
     for (int k = 0; k < kLanes; ++k) norm[k] = std::sqrt(norm[k]);  // one vector square root (-fno-math-errno)
-    store(magnitude + j, norm * (load(weight + j) * row_weight));
+    StoreLanes(magnitude + j, norm * (LoadLanes<V>(weight + j) * row_weight));
     V ax = dx;
     V ay = dy;
     for (int k = 0; k < kLanes; ++k) {
@@ -577,7 +593,7 @@ UAVM_INLINE void GradientLanes(const float* __restrict above, const float* __res
     a = steep ? 90.f - a : a;
     a = dx < 0.f ? 180.f - a : a;
     a = dy < 0.f ? 360.f - a : a;
-    store(degrees + j, a >= 360.f ? a - 360.f : a);
+    StoreLanes(degrees + j, a >= 360.f ? a - 360.f : a);
   }
 }
 
@@ -696,27 +712,6 @@ UAVM_INLINE int DescriptorVoteLanes(const DescriptorWindow& win, float fi, int j
   if (count < kLanes) return 0;
   constexpr int d = kDescriptorWidth;
   constexpr int n = kDescriptorBins;
-  const auto load = [](const float* p) {
-    V v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-  };
-  // floor as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
-  const auto floor = [](V v) {
-    const I t = __builtin_convertvector(v, I);
-    return t + (__builtin_convertvector(t, V) > v);
-  };
-  // a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 2 kLanes).
-  const auto store_pairs = [](float* p, V a, V b) {
-    if constexpr (kLanes == 8) {
-      StorePairs8(p, a, b);
-    } else {
-      const V low = __builtin_shufflevector(a, b, 0, 4, 1, 5);
-      const V high = __builtin_shufflevector(a, b, 2, 6, 3, 7);
-      std::memcpy(p, &low, sizeof low);
-      std::memcpy(p + kLanes, &high, sizeof high);
-    }
-  };
   const auto pairs = 2 * static_cast<size_t>(count);
   const float fi_sin = fi * win.sin_t;
   const float fi_cos = fi * win.cos_t;
@@ -729,10 +724,10 @@ UAVM_INLINE int DescriptorVoteLanes(const DescriptorWindow& win, float fi, int j
     V rbin = ((fj * win.sin_t + fi_cos) + static_cast<float>(d / 2)) - 0.5f;
     V cbin = ((fj * win.cos_t - fi_sin) + static_cast<float>(d / 2)) - 0.5f;
     const I inside = (rbin > -1.f) & (rbin < static_cast<float>(d)) & (cbin > -1.f) & (cbin < static_cast<float>(d));
-    V obin = (load(degrees + t) - win.ori) * (n / 360.f);
-    const I r0 = floor(rbin);
-    const I c0 = floor(cbin);
-    I o0 = floor(obin);
+    V obin = (LoadLanes<V>(degrees + t) - win.ori) * (n / 360.f);
+    const I r0 = FloorLanes<V, I>(rbin);
+    const I c0 = FloorLanes<V, I>(cbin);
+    I o0 = FloorLanes<V, I>(obin);
     rbin = rbin - __builtin_convertvector(r0, V);
     cbin = cbin - __builtin_convertvector(c0, V);
     obin = obin - __builtin_convertvector(o0, V);
@@ -741,16 +736,16 @@ UAVM_INLINE int DescriptorVoteLanes(const DescriptorWindow& win, float fi, int j
     const I first = ((r0 + 1) * (d + 2) + c0 + 1) * (n + 2) + o0;
     const I bin = inside ? first : I{} - 1;
     std::memcpy(bins + t, &bin, sizeof bin);
-    const V mag = inside ? load(magnitude + t) : V{};
+    const V mag = inside ? LoadLanes<V>(magnitude + t) : V{};
     const V v_r1 = mag * rbin, v_r0 = mag - v_r1;
     const V v_rc11 = v_r1 * cbin, v_rc10 = v_r1 - v_rc11;
     const V v_rc01 = v_r0 * cbin, v_rc00 = v_r0 - v_rc01;
     const V v_rco111 = v_rc11 * obin, v_rco101 = v_rc10 * obin;
     const V v_rco011 = v_rc01 * obin, v_rco001 = v_rc00 * obin;
-    store_pairs(votes + 2 * t, v_rc00 - v_rco001, v_rco001);
-    store_pairs(votes + pairs + 2 * t, v_rc01 - v_rco011, v_rco011);
-    store_pairs(votes + 2 * pairs + 2 * t, v_rc10 - v_rco101, v_rco101);
-    store_pairs(votes + 3 * pairs + 2 * t, v_rc11 - v_rco111, v_rco111);
+    StorePairLanes(votes + 2 * t, v_rc00 - v_rco001, v_rco001);
+    StorePairLanes(votes + pairs + 2 * t, v_rc01 - v_rco011, v_rco011);
+    StorePairLanes(votes + 2 * pairs + 2 * t, v_rc10 - v_rco101, v_rco101);
+    StorePairLanes(votes + 3 * pairs + 2 * t, v_rc11 - v_rco111, v_rco111);
   }
   return count;
 }

@@ -32,9 +32,12 @@ jpeg_error_mgr* InstallHandlers(JpegErrors* err) {
 enum class RegionStatus { kOk, kFailed, kCmyk, kOutside };
 
 // The libjpeg calls that may long-jump, apart, so that no local of the caller lives across setjmp.
-RegionStatus DecodeRegionRows(jpeg_decompress_struct* cinfo, JpegErrors* err, unsigned denom, cv::Rect region,
-                              JpegRegion* out) {
+// (jpeg_create_decompress too: it fails only when out of memory, by the same long jump.)
+RegionStatus DecodeRegionRows(jpeg_decompress_struct* cinfo, JpegErrors* err, FILE* file, unsigned denom,
+                              cv::Rect region, JpegRegion* out) {
   if (setjmp(err->jump) != 0) return RegionStatus::kFailed;
+  jpeg_create_decompress(cinfo);
+  jpeg_stdio_src(cinfo, file);
   jpeg_read_header(cinfo, TRUE);
   if (cinfo->jpeg_color_space == JCS_CMYK || cinfo->jpeg_color_space == JCS_YCCK) return RegionStatus::kCmyk;
   cinfo->scale_num = 1;
@@ -79,11 +82,9 @@ bool DecodeJpegRegion(const std::string& path, unsigned denom, const cv::Rect& r
   jpeg_decompress_struct cinfo{};
   JpegErrors err{};
   InstallJpegErrors(&cinfo, &err);
-  jpeg_create_decompress(&cinfo);
-  jpeg_stdio_src(&cinfo, file.get());
   *out = JpegRegion{};
-  const RegionStatus status = DecodeRegionRows(&cinfo, &err, denom, region, out);
-  jpeg_destroy_decompress(&cinfo);
+  const RegionStatus status = DecodeRegionRows(&cinfo, &err, file.get(), denom, region, out);
+  jpeg_destroy_decompress(&cinfo);  // also after a failed create: libjpeg frees only what it allocated
   out->corrupt = err.corrupt > 0;
   switch (status) {
     case RegionStatus::kOk:

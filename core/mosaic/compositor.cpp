@@ -399,15 +399,16 @@ class PartCache {
       }
       reading_.push_back(id);
     }
-    FramePart part = jpeg.empty() ? FramePart{} : Decompress(jpeg, origin);
-    if (!jpeg.empty() && part.image.empty()) {  // our own copy unreadable: dropped, the frame read again
-      std::lock_guard<std::mutex> lock(mutex_);
-      compressed_.Erase(id);
-    }
-    if (part.image.empty()) {
-      part = Load(id, need);
-      // Kept in memory before the frame leaves `reading_`: once out, the other worker may release it (its last tile).
-      if (!part.image.empty()) Compress(id, part);
+    FramePart part;
+    try {
+      part = ReadPart(id, need, jpeg, origin);
+    } catch (...) {  // out of memory, say: the frame must not stay marked as being read, or its waiters would hang
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        reading_.erase(std::find(reading_.begin(), reading_.end(), id));
+      }
+      read_done_.notify_all();
+      throw;
     }
     {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -418,6 +419,21 @@ class PartCache {
       reading_.erase(std::find(reading_.begin(), reading_.end(), id));
     }
     read_done_.notify_all();
+    return part;
+  }
+  // Frame `id`'s part from our compressed copy (when `jpeg` holds one), else from its file.
+  FramePart ReadPart(int id, const cv::Rect& need, const std::vector<uchar>& jpeg, const cv::Point2d& origin) {
+    FramePart part = jpeg.empty() ? FramePart{} : Decompress(jpeg, origin);
+    if (!jpeg.empty() && part.image.empty()) {  // our own copy unreadable: dropped, the frame read again
+      std::lock_guard<std::mutex> lock(mutex_);
+      compressed_.Erase(id);
+    }
+    if (part.image.empty()) {
+      part = Load(id, need);
+      // The compressed copy is kept now, while this worker holds the pixels: were the decoded part evicted before a
+      // copy was kept, the next tile would read the file again.
+      if (!part.image.empty()) Compress(id, part);
+    }
     return part;
   }
   // Drops frame `id` from both tiers: no tile left needs it. Without this a long flight's cache filled to its cap with

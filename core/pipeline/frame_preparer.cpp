@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <spdlog/spdlog.h>
 
 #include "core/imageio/jpeg_memory.h"
 #include "core/util/clock.h"
@@ -65,7 +66,10 @@ PreparedFrame FramePreparer::PrepareImages(Frame frame, std::optional<Flatness> 
     // No file to copy into the session (camera, video, simulation): encode here, on the capture thread (libjpeg in
     // BGR directly: cv::imencode swapped red and blue in a scalar loop over the 12 MP first).
     std::string why;
-    if (!EncodeJpegBgr(frame.image, 95, &p.encoded, &why)) p.encoded.clear();
+    if (!EncodeJpegBgr(frame.image, 95, &p.encoded, &why)) {
+      spdlog::warn("frame {}: not encoded for the session ({})", frame.index, why);
+      p.encoded.clear();
+    }
   }
   frame.image.release();  // the decoded original is not needed any more: keep queued frames small
   p.prepare_ms = t.ElapsedMs();
