@@ -1,9 +1,10 @@
 #include "core/pipeline/frame_preparer.h"
 
+#include <spdlog/spdlog.h>
+
 #include <algorithm>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <spdlog/spdlog.h>
 
 #include "core/imageio/jpeg_memory.h"
 #include "core/util/clock.h"
