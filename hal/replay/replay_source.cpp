@@ -251,7 +251,15 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
     *error = "cannot read file";
     return Status::kSkipped;
   }
-  std::vector<uchar> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  // One read of the whole file (a byte-by-byte stream iterator took ~3 ms of the capture thread per 4 MB photo).
+  in.seekg(0, std::ios::end);
+  const std::streamoff size = in.tellg();
+  in.seekg(0, std::ios::beg);
+  std::vector<uchar> bytes(size > 0 ? static_cast<size_t>(size) : 0);
+  if (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), size)) {
+    *error = "cannot read file";
+    return Status::kSkipped;
+  }
   if (bytes.empty()) {
     *error = "empty file (0 bytes)";
     return Status::kSkipped;
