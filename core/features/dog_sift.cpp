@@ -9,6 +9,10 @@
 #include <tuple>
 #include <utility>
 
+#if defined(__aarch64__)
+#include <arm_neon.h>
+#endif
+
 #include "core/features/portable_math.h"
 
 // The vector loops (convolution, subtraction, doubling, gradients, descriptor votes, extremum mask) are compiled twice
@@ -68,50 +72,93 @@ int Reflect101(int i, int n) {
   return i;
 }
 
-// Eight floats as one value (GCC's vector extension): one AVX register in the AVX2 clone, two SSE or NEON registers
-// otherwise. Each lane does exactly the scalar code's operations, so every path gives the same bits.
-// The helpers are always inlined: a Float8 passed by value between an AVX2 clone and a default-target function
-// would not agree on how it is passed (hence -Wpsabi off).
-#pragma GCC diagnostic ignored "-Wpsabi"
+// Eight floats as one value (GCC's vector extension): one AVX register in the AVX2 clone, two SSE registers in the
+// baseline one. Each lane does exactly the scalar code's operations, so every path gives the same bits.
+#pragma GCC diagnostic ignored "-Wpsabi"  // vectors by value: only between always-inlined helpers (below)
 #define UAVM_INLINE inline __attribute__((always_inline))
 using Float8 = float __attribute__((vector_size(32)));
-UAVM_INLINE Float8 Load8(const float* p) {
-  Float8 v;
+using Int8 = int __attribute__((vector_size(32)));  // lane masks (-1 true) and bin indices
+// Lane helpers of the code written for either vector, V = Float8 or a 4-float vector. Functions, not lambdas, so
+// that they are always inlined: a vector passed by value between an AVX2 clone and a default-target function would
+// not agree on how it is passed (unoptimised builds call lambdas).
+// (On aarch64 NEON's own unaligned load and store: GCC copied a 4-float vector's memcpy through two general
+// registers and the stack.)
+template <typename V>
+UAVM_INLINE V LoadLanes(const float* p) {
+#if defined(__aarch64__)
+  if constexpr (sizeof(V) == 16) return reinterpret_cast<V>(vld1q_f32(p));
+#endif
+  V v;
   std::memcpy(&v, p, sizeof v);
   return v;
 }
-UAVM_INLINE void Store8(float* p, Float8 v) {
+template <typename V>
+UAVM_INLINE void StoreLanes(float* p, V v) {
+#if defined(__aarch64__)
+  if constexpr (sizeof(V) == 16) {
+    vst1q_f32(p, reinterpret_cast<float32x4_t>(v));
+    return;
+  }
+#endif
   std::memcpy(p, &v, sizeof v);
 }
-using Int8 = int __attribute__((vector_size(32)));  // lane masks (-1 true) and bin indices
-// a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 16). (__builtin_shufflevector: GCC 12 and clang.)
-UAVM_INLINE void StorePairs8(float* p, Float8 a, Float8 b) {
-  Store8(p, __builtin_shufflevector(a, b, 0, 8, 1, 9, 2, 10, 3, 11));
-  Store8(p + 8, __builtin_shufflevector(a, b, 4, 12, 5, 13, 6, 14, 7, 15));
+// floor as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
+template <typename V, typename I>
+UAVM_INLINE I FloorLanes(V v) {
+  const I t = __builtin_convertvector(v, I);
+  return t + (__builtin_convertvector(t, V) > v);
 }
-// Both passes accumulate 32 columns over every tap before storing them (4 vector registers); per column the sum runs
-// over the taps in the same order in the vector and the scalar code.
+// a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 2 lanes).
+template <typename V>
+UAVM_INLINE void StorePairLanes(float* p, V a, V b) {
+  if constexpr (sizeof(V) == sizeof(Float8)) {  // (__builtin_shufflevector: GCC 12 and clang)
+    StoreLanes(p, V{__builtin_shufflevector(a, b, 0, 8, 1, 9, 2, 10, 3, 11)});
+    StoreLanes(p + 8, V{__builtin_shufflevector(a, b, 4, 12, 5, 13, 6, 14, 7, 15)});
+  } else {
+    StoreLanes(p, V{__builtin_shufflevector(a, b, 0, 4, 1, 5)});
+    StoreLanes(p + 4, V{__builtin_shufflevector(a, b, 2, 6, 3, 7)});
+  }
+}
+
+// One register's floats and ints: an AVX register on x86-64, a NEON register on aarch64. GCC keeps 8-float vectors
+// in memory on aarch64 (no 256-bit registers): it stored and reloaded the blur's accumulators at every tap, splatted a
+// weight by eight scalar stores, and compared and selected lane by lane in scalar code. The filters below are written
+// once for either width (templates over V), with the same operations per lane in the same order, so the same bits.
+#if defined(__aarch64__)
+using RegisterFloats = float __attribute__((vector_size(16)));
+using RegisterInts = int __attribute__((vector_size(16)));
+#else
+using RegisterFloats = Float8;
+using RegisterInts = Int8;
+#endif
+
+// Both passes accumulate 32 columns over every tap before storing them (4 AVX or 8 NEON registers); per column the sum
+// runs over the taps in the same order in the vector and the scalar code.
 constexpr int kBlock = 32;
 
 // out[x] = w0 c[x] + sum_i w_i (c[x-i] + c[x+i]) for x in [0, n), c = padded + radius.
-UAVM_SIMD_CLONES void ConvolveRow(const float* __restrict padded, int n, const float* __restrict w, int radius,
+template <typename V>
+UAVM_INLINE void ConvolveRowLanes(const float* __restrict padded, int n, const float* __restrict w, int radius,
                                   float* __restrict out) {
+  constexpr int kLanes = static_cast<int>(sizeof(V) / sizeof(float));
+  constexpr int kVectors = kBlock / kLanes;
   const float* c = padded + radius;
   int x0 = 0;
   for (; x0 + kBlock <= n; x0 += kBlock) {
     const float* p = c + x0;
-    Float8 a0 = w[0] * Load8(p), a1 = w[0] * Load8(p + 8), a2 = w[0] * Load8(p + 16), a3 = w[0] * Load8(p + 24);
+    V a[kVectors];
+#pragma GCC unroll 8
+    for (int k = 0; k < kVectors; ++k) a[k] = w[0] * LoadLanes<V>(p + k * kLanes);
     for (int i = 1; i <= radius; ++i) {
       const float wi = w[i];
-      a0 += wi * (Load8(p - i) + Load8(p + i));
-      a1 += wi * (Load8(p + 8 - i) + Load8(p + 8 + i));
-      a2 += wi * (Load8(p + 16 - i) + Load8(p + 16 + i));
-      a3 += wi * (Load8(p + 24 - i) + Load8(p + 24 + i));
+      const float* left = p - i;
+      const float* right = p + i;
+#pragma GCC unroll 8
+      for (int k = 0; k < kVectors; ++k)
+        a[k] += wi * (LoadLanes<V>(left + k * kLanes) + LoadLanes<V>(right + k * kLanes));
     }
-    Store8(out + x0, a0);
-    Store8(out + x0 + 8, a1);
-    Store8(out + x0 + 16, a2);
-    Store8(out + x0 + 24, a3);
+#pragma GCC unroll 8
+    for (int k = 0; k < kVectors; ++k) StoreLanes(out + x0 + k * kLanes, a[k]);
   }
   for (int x = x0; x < n; ++x) {
     float acc = w[0] * c[x];
@@ -120,40 +167,52 @@ UAVM_SIMD_CLONES void ConvolveRow(const float* __restrict padded, int n, const f
   }
 }
 
+UAVM_SIMD_CLONES void ConvolveRow(const float* __restrict padded, int n, const float* __restrict w, int radius,
+                                  float* __restrict out) {
+  ConvolveRowLanes<RegisterFloats>(padded, n, w, radius, out);
+}
+
 // Two rows of the vertical pass: out_k[x] = w0 rows[radius + k][x] + sum_i w_i (rows[radius + k - i][x] +
 // rows[radius + k + i][x]) for k = 0, 1 (out0 from rows[0 .. 2 radius], out1 from rows[1 .. 2 radius + 1]). Each row
 // loaded serves both (tap i of out0 pairs rows radius - i and radius + i, of out1 radius + 1 - i and
 // radius + 1 + i): half the loads of two calls, the same operations in the same order per output.
 constexpr int kPairBlock = 16;
-UAVM_SIMD_CLONES void ConvolveColumnPair(const float* const* __restrict rows, int n, const float* __restrict w,
+template <typename V>
+UAVM_INLINE void ConvolveColumnPairLanes(const float* const* __restrict rows, int n, const float* __restrict w,
                                          int radius, float* __restrict out0, float* __restrict out1) {
+  constexpr int kLanes = static_cast<int>(sizeof(V) / sizeof(float));
+  constexpr int kVectors = kPairBlock / kLanes;
   int x0 = 0;
   for (; x0 + kPairBlock <= n; x0 += kPairBlock) {
     const float* c0 = rows[radius] + x0;
     const float* c1 = rows[radius + 1] + x0;
-    Float8 low0 = Load8(c0), low1 = Load8(c0 + 8);    // row radius + 1 - i at step i
-    Float8 high0 = Load8(c1), high1 = Load8(c1 + 8);  // row radius + i
-    Float8 a0 = w[0] * low0, a1 = w[0] * low1;
-    Float8 b0 = w[0] * high0, b1 = w[0] * high1;
+    V low[kVectors], high[kVectors], a[kVectors], b[kVectors];
+#pragma GCC unroll 8
+    for (int k = 0; k < kVectors; ++k) {
+      low[k] = LoadLanes<V>(c0 + k * kLanes);   // row radius + 1 - i at step i
+      high[k] = LoadLanes<V>(c1 + k * kLanes);  // row radius + i
+      a[k] = w[0] * low[k];
+      b[k] = w[0] * high[k];
+    }
     for (int i = 1; i <= radius; ++i) {
       const float wi = w[i];
       const float* lo = rows[radius - i] + x0;
       const float* hi = rows[radius + 1 + i] + x0;
-      const Float8 l0 = Load8(lo), l1 = Load8(lo + 8);
-      const Float8 h0 = Load8(hi), h1 = Load8(hi + 8);
-      a0 += wi * (l0 + high0);
-      a1 += wi * (l1 + high1);
-      b0 += wi * (low0 + h0);
-      b1 += wi * (low1 + h1);
-      low0 = l0;
-      low1 = l1;
-      high0 = h0;
-      high1 = h1;
+#pragma GCC unroll 8
+      for (int k = 0; k < kVectors; ++k) {
+        const V l = LoadLanes<V>(lo + k * kLanes);
+        const V h = LoadLanes<V>(hi + k * kLanes);
+        a[k] += wi * (l + high[k]);
+        b[k] += wi * (low[k] + h);
+        low[k] = l;
+        high[k] = h;
+      }
     }
-    Store8(out0 + x0, a0);
-    Store8(out0 + x0 + 8, a1);
-    Store8(out1 + x0, b0);
-    Store8(out1 + x0 + 8, b1);
+#pragma GCC unroll 8
+    for (int k = 0; k < kVectors; ++k) {
+      StoreLanes(out0 + x0 + k * kLanes, a[k]);
+      StoreLanes(out1 + x0 + k * kLanes, b[k]);
+    }
   }
   for (int x = x0; x < n; ++x) {
     float acc0 = w[0] * rows[radius][x];
@@ -165,6 +224,11 @@ UAVM_SIMD_CLONES void ConvolveColumnPair(const float* const* __restrict rows, in
     out0[x] = acc0;
     out1[x] = acc1;
   }
+}
+
+UAVM_SIMD_CLONES void ConvolveColumnPair(const float* const* __restrict rows, int n, const float* __restrict w,
+                                         int radius, float* __restrict out0, float* __restrict out1) {
+  ConvolveColumnPairLanes<RegisterFloats>(rows, n, w, radius, out0, out1);
 }
 
 UAVM_SIMD_CLONES void SubtractRow(const float* a, const float* b, int n, float* out) {
@@ -243,9 +307,11 @@ UAVM_SIMD_CLONES void WidenRow(const uchar* __restrict s, int cols, float* __res
   };
   int x = 0;
   if (cols > 0) one(x++);
-  for (; x + 9 <= cols; x += 8) {
-    const Float8 v = 0.75f * Load8(values + x);
-    StorePairs8(out + 2 * x, v + 0.25f * Load8(values + x - 1), v + 0.25f * Load8(values + x + 1));
+  using V = RegisterFloats;
+  constexpr int kLanes = static_cast<int>(sizeof(V) / sizeof(float));
+  for (; x + kLanes + 1 <= cols; x += kLanes) {
+    const V v = 0.75f * LoadLanes<V>(values + x);
+    StorePairLanes(out + 2 * x, v + 0.25f * LoadLanes<V>(values + x - 1), v + 0.25f * LoadLanes<V>(values + x + 1));
   }
   for (; x < cols; ++x) one(x);
 }
@@ -339,6 +405,24 @@ bool IsExtremum26(const DogLayers& dog, int layer, int r, int c) {
   return true;
 }
 
+// The larger (smaller) of two finite floats, for comparisons only. On aarch64 NEON's fmaxnm (fminnm), one instruction:
+// GCC compiled std::max's compare-and-select to a compare, a bit select and register moves there (x86-64's maxps is
+// std::max exactly). The two differ only for NaN and in the sign of equal zeros, which no comparison sees.
+UAVM_INLINE float MaxFinite(float a, float b) {
+#if defined(__aarch64__)
+  return __builtin_fmaxf(a, b);
+#else
+  return std::max(a, b);
+#endif
+}
+UAVM_INLINE float MinFinite(float a, float b) {
+#if defined(__aarch64__)
+  return __builtin_fminf(a, b);
+#else
+  return std::min(a, b);
+#endif
+}
+
 // mask[c] = 1 where row `cur` beats the contrast pre-threshold and is a maximum (or minimum) of its 8 neighbours in
 // the layer and of the same pixel in the layers below and above (`below`, `above`: their row), for c in [first, last).
 // Branch-free, so that it vectorises. The two cross-layer pixels leave a quarter of the candidates for the full
@@ -350,12 +434,12 @@ UAVM_SIMD_CLONES void ExtremumMaskRow(const float* __restrict up, const float* _
                                       uchar* __restrict mask) {
   for (int c = first; c < last; ++c) {
     const float v = cur[c];
-    const float hi = std::max(std::max(std::max(std::max(cur[c - 1], cur[c + 1]), std::max(up[c - 1], up[c])),
-                                       std::max(std::max(up[c + 1], dn[c - 1]), std::max(dn[c], dn[c + 1]))),
-                              std::max(below[c], above[c]));
-    const float lo = std::min(std::min(std::min(std::min(cur[c - 1], cur[c + 1]), std::min(up[c - 1], up[c])),
-                                       std::min(std::min(up[c + 1], dn[c - 1]), std::min(dn[c], dn[c + 1]))),
-                              std::min(below[c], above[c]));
+    const float hi = MaxFinite(MaxFinite(MaxFinite(MaxFinite(cur[c - 1], cur[c + 1]), MaxFinite(up[c - 1], up[c])),
+                                         MaxFinite(MaxFinite(up[c + 1], dn[c - 1]), MaxFinite(dn[c], dn[c + 1]))),
+                               MaxFinite(below[c], above[c]));
+    const float lo = MinFinite(MinFinite(MinFinite(MinFinite(cur[c - 1], cur[c + 1]), MinFinite(up[c - 1], up[c])),
+                                         MinFinite(MinFinite(up[c + 1], dn[c - 1]), MinFinite(dn[c], dn[c + 1]))),
+                               MinFinite(below[c], above[c]));
     mask[c] = static_cast<uchar>(((v > threshold) & (v >= hi)) | ((v < -threshold) & (v <= lo)));
   }
 }
@@ -522,36 +606,6 @@ void GaussianWeights(float sigma, int radius, std::vector<float>* w) {
   }
 }
 
-// Lane helpers of the window code below, for V = Float8 or a 4-float vector. Functions, not lambdas, so that they
-// are always inlined: a vector passed by value between an AVX2 clone and a default-target function would not agree
-// on how it is passed (unoptimised builds call lambdas).
-template <typename V>
-UAVM_INLINE V LoadLanes(const float* p) {
-  V v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-template <typename V>
-UAVM_INLINE void StoreLanes(float* p, V v) {
-  std::memcpy(p, &v, sizeof v);
-}
-// floor as integers for |v| < 2^31: truncation, minus one where it rounded up (negative non-integers).
-template <typename V, typename I>
-UAVM_INLINE I FloorLanes(V v) {
-  const I t = __builtin_convertvector(v, I);
-  return t + (__builtin_convertvector(t, V) > v);
-}
-// a and b interleaved (a0 b0 a1 b1 ...) at p[0 .. 2 lanes).
-template <typename V>
-UAVM_INLINE void StorePairLanes(float* p, V a, V b) {
-  if constexpr (sizeof(V) == sizeof(Float8)) {
-    StorePairs8(p, a, b);
-  } else {
-    StoreLanes(p, V{__builtin_shufflevector(a, b, 0, 4, 1, 5)});
-    StoreLanes(p + 4, V{__builtin_shufflevector(a, b, 2, 6, 3, 7)});
-  }
-}
-
 // Per pixel of a row segment: gradient magnitude times weight[j] * row_weight and direction in degrees
 // (portable::Atan2Degrees, a vector V of lanes at a time: the same operations in the same order as the scalar loop).
 // V is Float8 (one AVX register) on x86-64 and a vector of 4 floats (one NEON register) on aarch64, where GCC compares
@@ -597,19 +651,10 @@ UAVM_INLINE void GradientLanes(const float* __restrict above, const float* __res
   }
 }
 
-// The orientation and descriptor windows' vectors: one AVX register on x86-64, one NEON register on aarch64.
-#if defined(__aarch64__)
-using WindowVector = float __attribute__((vector_size(16)));
-using WindowMask = int __attribute__((vector_size(16)));
-#else
-using WindowVector = Float8;
-using WindowMask = Int8;
-#endif
-
 UAVM_SIMD_CLONES void GradientRow(const float* __restrict above, const float* __restrict row,
                                   const float* __restrict below, int n, const float* __restrict weight,
                                   float row_weight, float* __restrict magnitude, float* __restrict degrees) {
-  GradientLanes<WindowVector>(above, row, below, n, weight, row_weight, magnitude, degrees);
+  GradientLanes<RegisterFloats>(above, row, below, n, weight, row_weight, magnitude, degrees);
 }
 
 // A window's rows lie 4 bytes x the image's width apart, so the hardware sees no stream to prefetch. Asks for row y's
@@ -753,7 +798,7 @@ UAVM_INLINE int DescriptorVoteLanes(const DescriptorWindow& win, float fi, int j
 UAVM_SIMD_CLONES int DescriptorVotesVector(const DescriptorWindow& win, float fi, int jb, int count,
                                            const float* __restrict degrees, const float* __restrict magnitude,
                                            int* __restrict bins, float* __restrict votes) {
-  return DescriptorVoteLanes<WindowVector, WindowMask>(win, fi, jb, count, degrees, magnitude, bins, votes);
+  return DescriptorVoteLanes<RegisterFloats, RegisterInts>(win, fi, jb, count, degrees, magnitude, bins, votes);
 }
 
 // For the pixels j = jb .. jb + count - 1 of window row i (gradients in s->magnitude, s->degrees): the first histogram
