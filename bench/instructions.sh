@@ -31,6 +31,9 @@
 #                           and glibc pick their code paths from it; qemu's own default "max" gave SIFT/3 2 % more)
 #   A72_GHZ / A76_GHZ       clocks (default 1.5 / 2.4)
 #   REUSE                   1 = keep the counts already in OUT_DIR (*.loops, *.json) and only redo the tables
+#   PROFILE                 1 = also where ours' SIFT spends its aarch64 instructions: one BM_SiftExtract/1/0 process
+#                           under the plugin's per-block counts, summed per function of the micro-bench (set-up and
+#                           iterations included: read the shares), to OUT_DIR/a64_profile.md
 set -euo pipefail
 export LC_ALL=C
 
@@ -124,6 +127,7 @@ cat >"$OUT_DIR/insncount.c" <<'EOF'
 #include <stdint.h>
 #include <stddef.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 typedef uint64_t qemu_plugin_id_t;
 struct qemu_plugin_tb;
@@ -145,6 +149,14 @@ void qemu_plugin_register_vcpu_syscall_cb(qemu_plugin_id_t, syscall_cb);
 __attribute__((visibility("default"))) int qemu_plugin_version = 1;
 static uint64_t insns;
 static int mt, marks;
+/* "profile=FILE": executions of every translation block, written at exit as "VADDR INSNS EXECUTIONS" lines (guest
+   addresses; a symbol table turns them into instructions per function). One busy thread: inline adds. */
+uint64_t qemu_plugin_tb_vaddr(const struct qemu_plugin_tb *);
+struct block { uint64_t vaddr, insns, executions; };
+enum { kMaxBlocks = 1 << 20 };
+static struct block *blocks;
+static uint64_t n_blocks;
+static char profile[4096];
 /* "marks=on": prints "mark CLOCK N" at every clock_gettime of a CPU-time clock (CLOCK_PROCESS_CPUTIME_ID = 2,
    CLOCK_THREAD_CPUTIME_ID = 3), N = instructions so far. Google Benchmark reads one at the start and at the end of
    each timed loop (its timer), so consecutive pairs bracket the loops. qemu-user 7.2 has no vDSO: these are real
@@ -166,16 +178,29 @@ static void on_exec(unsigned int vcpu, void *n) {
 static void on_trans(qemu_plugin_id_t id, struct qemu_plugin_tb *tb) {
   (void)id;
   const size_t n = qemu_plugin_tb_n_insns(tb);
+  if (blocks && n_blocks < kMaxBlocks) {
+    struct block *b = &blocks[n_blocks++];
+    b->vaddr = qemu_plugin_tb_vaddr(tb);
+    b->insns = n;
+    qemu_plugin_register_vcpu_tb_exec_inline(tb, QEMU_PLUGIN_INLINE_ADD_U64, &b->executions, 1);
+  }
   if (mt)
     qemu_plugin_register_vcpu_tb_exec_cb(tb, on_exec, QEMU_PLUGIN_CB_NO_REGS, (void *)(uintptr_t)n);
   else
     qemu_plugin_register_vcpu_tb_exec_inline(tb, QEMU_PLUGIN_INLINE_ADD_U64, &insns, n);
 }
-static void on_exit(qemu_plugin_id_t id, void *p) {
+static void at_exit(qemu_plugin_id_t id, void *p) {
   (void)id; (void)p;
   char buf[64];
   snprintf(buf, sizeof buf, "insns %llu\n", (unsigned long long)__atomic_load_n(&insns, __ATOMIC_RELAXED));
   qemu_plugin_outs(buf);
+  FILE *f = blocks ? fopen(profile, "w") : NULL;
+  if (!f) return;
+  for (uint64_t i = 0; i < n_blocks; ++i)
+    if (blocks[i].executions)
+      fprintf(f, "%llx %llu %llu\n", (unsigned long long)blocks[i].vaddr, (unsigned long long)blocks[i].insns,
+              (unsigned long long)blocks[i].executions);
+  fclose(f);
 }
 __attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t id, const qemu_info_t *info,
                                                                 int argc, char **argv) {
@@ -183,10 +208,14 @@ __attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t 
   for (int i = 0; i < argc; ++i) {
     mt |= strcmp(argv[i], "mt=on") == 0;
     marks |= strcmp(argv[i], "marks=on") == 0;
+    if (strncmp(argv[i], "profile=", 8) == 0) {
+      snprintf(profile, sizeof profile, "%s", argv[i] + 8);
+      blocks = calloc(kMaxBlocks, sizeof *blocks);
+    }
   }
   qemu_plugin_register_vcpu_tb_trans_cb(id, on_trans);
   if (marks) qemu_plugin_register_vcpu_syscall_cb(id, on_syscall);
-  qemu_plugin_register_atexit_cb(id, on_exit, NULL);
+  qemu_plugin_register_atexit_cb(id, at_exit, NULL);
   return 0;
 }
 EOF
@@ -309,6 +338,43 @@ OTHER_SHARE=${OTHER_SHARE:-0.064}
       }'
   done
 } >>"$OUT_DIR/table.md"
+
+# --- aarch64 profile per function (optional) ---------------------------------------------------------------------
+# qemu-user maps a position-independent aarch64 program at 0x5500000000 (ELF_ET_DYN_BASE of qemu 7.2's 64-bit
+# guests); blocks elsewhere are the shared libraries and the loader, summed as one row.
+if [[ ${PROFILE:-0} == 1 && $HAVE_A64 == 1 ]]; then
+  echo "aarch64 qemu: SIFT profile per function ..." >&2
+  qemu_count "$OUT_DIR/a64_profile.log" ",profile=$OUT_DIR/a64_profile.blocks" "$A64_BIN" \
+    --benchmark_filter='BM_SiftExtract/1/0/' --benchmark_min_time=0.000001 >/dev/null
+  aarch64-linux-gnu-nm -C --defined-only -n "$A64_BIN" | awk '$2 ~ /^[tTwW]$/' >"$OUT_DIR/a64_profile.symbols"
+  python3 - "$OUT_DIR/a64_profile.symbols" "$OUT_DIR/a64_profile.blocks" >"$OUT_DIR/a64_profile.md" <<'PY'
+import bisect, collections, sys
+base = 0x5500000000
+symbols = []
+for line in open(sys.argv[1]):
+    parts = line.rstrip("\n").split(" ", 2)
+    if len(parts) == 3:
+        symbols.append((int(parts[0], 16), parts[2]))
+symbols.sort()
+starts = [a for a, _ in symbols]
+per_function = collections.Counter()
+total = 0
+for line in open(sys.argv[2]):
+    vaddr, insns, executions = line.split()
+    count = int(insns) * int(executions)
+    total += count
+    offset = int(vaddr, 16) - base
+    i = bisect.bisect_right(starts, offset) - 1
+    inside = 0 <= offset < starts[-1] + 4096 and i >= 0
+    per_function[symbols[i][1][:120] if inside else "(shared libraries, loader)"] += count
+print("| function | aarch64 instructions | share |")
+print("|---|---:|---:|")
+for name, count in per_function.most_common(15):
+    print(f"| {name.replace('|', '/')} | {count / 1e6:.1f} M | {100 * count / total:.1f} % |")
+print(f"| all | {total / 1e6:.1f} M | 100 % |")
+PY
+  cat "$OUT_DIR/a64_profile.md" >&2
+fi
 
 # --- whole onboard run (optional) ---------------------------------------------------------------------------------
 if [[ $WHOLE == 1 || $WHOLE == x86 ]]; then
