@@ -196,6 +196,7 @@ static void at_exit(qemu_plugin_id_t id, void *p) {
   qemu_plugin_outs(buf);
   FILE *f = blocks ? fopen(profile, "w") : NULL;
   if (!f) return;
+  if (n_blocks == kMaxBlocks) qemu_plugin_outs("profile: block table full, later blocks not counted\n");
   for (uint64_t i = 0; i < n_blocks; ++i)
     if (blocks[i].executions)
       fprintf(f, "%llx %llu %llu\n", (unsigned long long)blocks[i].vaddr, (unsigned long long)blocks[i].insns,
@@ -341,7 +342,8 @@ OTHER_SHARE=${OTHER_SHARE:-0.064}
 
 # --- aarch64 profile per function (optional) ---------------------------------------------------------------------
 # qemu-user maps a position-independent aarch64 program at 0x5500000000 (ELF_ET_DYN_BASE of qemu 7.2's 64-bit
-# guests); blocks elsewhere are the shared libraries and the loader, summed as one row.
+# guests); blocks elsewhere are the shared libraries and the loader, summed as one row (all of them there: the
+# program was mapped elsewhere). Names cut at 120 characters may merge template instances.
 if [[ ${PROFILE:-0} == 1 && $HAVE_A64 == 1 ]]; then
   echo "aarch64 qemu: SIFT profile per function ..." >&2
   qemu_count "$OUT_DIR/a64_profile.log" ",profile=$OUT_DIR/a64_profile.blocks" "$A64_BIN" \
@@ -356,6 +358,8 @@ for line in open(sys.argv[1]):
     if len(parts) == 3:
         symbols.append((int(parts[0], 16), parts[2]))
 symbols.sort()
+if not symbols:
+    sys.exit("no symbols in the micro-bench (stripped?): no profile per function")
 starts = [a for a, _ in symbols]
 per_function = collections.Counter()
 total = 0

@@ -19,13 +19,14 @@ mapfile -t FILES < <(git ls-files '*.cpp' '*.h' | grep -E '^(core|hal|firmware_a
 # clang-tidy refuses to read: without `pch` its -include goes, and each source parses only the headers it includes
 # (as in a UAVM_PCH=OFF tree, and twice as fast); with `pch` the header is included as text (-Xclang skips the
 # driver's .gch lookup), for a source that only compiles with the PCH's headers.
+# g++'s own optimisation flags, which clang refuses (core/features/CMakeLists.txt), go too.
 tidy_db() {
   mkdir -p "$1"
   if [ "${2:-}" = pch ]; then
     sed -E 's#-include ([^ "]*cmake_pch\.hxx)#-Xclang -include -Xclang \1#g' "$BUILD_DIR/compile_commands.json"
   else
     sed -E 's#-include [^ "]*cmake_pch\.hxx##g' "$BUILD_DIR/compile_commands.json"
-  fi >"$1/compile_commands.json"
+  fi | sed -E 's# -fno-predictive-commoning##g' >"$1/compile_commands.json"
 }
 
 function_size() {

@@ -399,26 +399,26 @@ class PartCache {
       }
       reading_.push_back(id);
     }
-    FramePart part;
-    try {
-      part = ReadPart(id, need, jpeg, origin);
-    } catch (...) {  // out of memory, say: the frame must not stay marked as being read, or its waiters would hang
-      {
-        std::lock_guard<std::mutex> lock(mutex_);
-        reading_.erase(std::find(reading_.begin(), reading_.end(), id));
+    // Whatever way this leaves (an exception from the read or the insertion too), the frame stops being read and its
+    // waiters wake. (An exception still ends the program: ParallelForOnWorkers does not carry one across threads.)
+    struct DoneReading {
+      PartCache* cache;
+      int id;
+      ~DoneReading() {
+        {
+          std::lock_guard<std::mutex> lock(cache->mutex_);
+          auto& reading = cache->reading_;
+          reading.erase(std::find(reading.begin(), reading.end(), id));
+        }
+        cache->read_done_.notify_all();
       }
-      read_done_.notify_all();
-      throw;
-    }
-    {
+    } done_reading{this, id};
+    FramePart part = ReadPart(id, need, jpeg, origin);
+    if (!part.image.empty()) {
       std::lock_guard<std::mutex> lock(mutex_);
-      if (!part.image.empty()) {
-        const size_t bytes = part.image.total() * part.image.elemSize();
-        part = decoded_.Insert(id, std::move(part), bytes);
-      }
-      reading_.erase(std::find(reading_.begin(), reading_.end(), id));
+      const size_t bytes = part.image.total() * part.image.elemSize();
+      part = decoded_.Insert(id, std::move(part), bytes);
     }
-    read_done_.notify_all();
     return part;
   }
   // Frame `id`'s part from our compressed copy (when `jpeg` holds one), else from its file.
@@ -479,8 +479,15 @@ class PartCache {
         entries_.erase(e);
         victim = order_.erase(victim);
       }
-      order_.push_front(id);
-      entries_[id] = Entry{value, bytes, order_.begin()};
+      // The entry first, then its place in the order (undone if that throws): never an id in order_ without an entry.
+      auto& entry = entries_[id];
+      try {
+        order_.push_front(id);
+      } catch (...) {
+        entries_.erase(id);
+        throw;
+      }
+      entry = Entry{value, bytes, order_.begin()};
       used_ += bytes;
       peak_ = std::max(peak_, used_);
       return value;

@@ -42,7 +42,8 @@ unsigned ReducedDenominator(const cv::Size& full, int min_long_side) {
 
 // What a frame may be, checked on its header before any pixel is decoded. A header beyond the pixel limit is a
 // decompression bomb (a few bytes declaring gigapixels); a side below the minimum cannot be registered.
-constexpr int64_t kMaxImagePixels = 120'000'000;  // above any drone camera (100 Mpx)
+constexpr int64_t kMaxImagePixels = 120'000'000;         // above any drone camera (100 Mpx)
+constexpr uintmax_t kMaxFileBytes = uintmax_t{1} << 30;  // read whole into memory: a 100 Mpx 16-bit TIFF is ~600 MiB
 constexpr int kMinImageSide = 32;
 
 enum class Format { kUnknown, kJpeg, kPng, kTiff };
@@ -181,6 +182,44 @@ bool DecodeJpeg(const std::vector<uchar>& bytes, unsigned denom, cv::Mat* bgr, s
   return true;
 }
 
+// The whole of the file at `path` into `bytes` (kOk), or why not: kSkipped for this file, kError when its folder
+// vanished mid-run (a source error, not a single unreadable file).
+Status ReadWholeFile(const std::string& path, std::vector<uchar>* bytes, std::string* error) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    std::error_code ec;
+    if (!fs::exists(fs::path(path).parent_path(), ec)) {
+      *error = "replay folder disappeared: " + fs::path(path).parent_path().string();
+      return Status::kError;
+    }
+    *error = "cannot read file";
+    return Status::kSkipped;
+  }
+  // One read of the whole file (a byte-by-byte stream iterator took ~3 ms of the capture thread per 4 MB photo), of a
+  // regular file only: a directory or a pipe has no size to read (a directory's end lies far beyond any buffer).
+  std::error_code size_ec;
+  if (!fs::is_regular_file(path, size_ec)) {
+    *error = "not a regular file";
+    return Status::kSkipped;
+  }
+  const auto size = fs::file_size(path, size_ec);
+  if (size_ec) {
+    *error = "cannot read file";
+    return Status::kSkipped;
+  }
+  if (size > kMaxFileBytes) {
+    *error = "file of " + std::to_string(size >> 20) + " MiB: more than any photo (" +
+             std::to_string(kMaxFileBytes >> 20) + " MiB)";
+    return Status::kSkipped;
+  }
+  bytes->resize(static_cast<size_t>(size));
+  if (size > 0 && !in.read(reinterpret_cast<char*>(bytes->data()), static_cast<std::streamsize>(size))) {
+    *error = "cannot read file";
+    return Status::kSkipped;
+  }
+  return Status::kOk;
+}
+
 }  // namespace
 
 ReplaySource::ReplaySource(ReplayOptions options) : options_(std::move(options)) {}
@@ -240,26 +279,8 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
   frame->index = next_index_++;
   frame->source_path = path;
   frame->source_name = fs::path(path).filename().string();
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    // A folder that vanished mid-run is a source error, a single unreadable file is not.
-    std::error_code ec;
-    if (!fs::exists(fs::path(path).parent_path(), ec)) {
-      *error = "replay folder disappeared: " + fs::path(path).parent_path().string();
-      return Status::kError;
-    }
-    *error = "cannot read file";
-    return Status::kSkipped;
-  }
-  // One read of the whole file (a byte-by-byte stream iterator took ~3 ms of the capture thread per 4 MB photo).
-  in.seekg(0, std::ios::end);
-  const std::streamoff size = in.tellg();
-  in.seekg(0, std::ios::beg);
-  std::vector<uchar> bytes(size > 0 ? static_cast<size_t>(size) : 0);
-  if (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), size)) {
-    *error = "cannot read file";
-    return Status::kSkipped;
-  }
+  std::vector<uchar> bytes;
+  if (const Status read = ReadWholeFile(path, &bytes, error); read != Status::kOk) return read;
   if (bytes.empty()) {
     *error = "empty file (0 bytes)";
     return Status::kSkipped;
