@@ -12,16 +12,18 @@
 #
 # Environment: HARD_SEEDS (default "11 .. 20", lens-free on lens_jitter_hard.yaml), EASY_SEEDS (default "21 .. 30",
 # lens-free on lens_jitter.yaml), LENS_SEEDS (default "31 .. 40", barrels cycling -5/-10/-15 % on lens_jitter.yaml),
-# UAVM_BUILD_DIR (default <repo>/build).
+# UAVM_BUILD_DIR (default <repo>/build), OURS_ARGS (extra uavmosaic-onboard options) and RUN_TAG (suffix of each run's
+# files: two settings compared on the same simulated flights, generated once in OUT_DIR).
 set -euo pipefail
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
-[[ $# -ge 1 ]] || { sed -n '2,14p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2; exit 2; }
+[[ $# -ge 1 ]] || { sed -n '2,16p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2; exit 2; }
 DATA_DIR=$(cd "$1" && pwd)
 OUT=${2:-$(mktemp -d "${TMPDIR:-/tmp}/uavm_accuracy.XXXXXX")}
 mkdir -p "$OUT"
 B=${UAVM_BUILD_DIR:-$REPO/build}
 CANVAS=$DATA_DIR/caliterra/images/IMG_9360.jpg
+read -r -a OURS_EXTRA <<<"${OURS_ARGS:-}"
 # The lens for a share of the half-diagonal (the sim's focal is the frame width, 640, so the half-diagonal is at
 # r = 0.625): k1 alone for -5 and -10 %. A k1-only -15 % (k1 = -0.384) folds before the recorded corners (r(1 + k1 r^2)
 # peaks at 0.621 < 0.625: those pixels have no ideal point, no camera records them), so -15 % is k1 = -0.46 with
@@ -35,12 +37,14 @@ lens_for() {
 fp=0 n0=0 tp=0 n1=0
 ROWS=()
 one() {  # NAME PLAN SEED K1 [K2] -> prints a line; sets ACCEPTED and RMS
-  local n=$OUT/$1 ev=()
-  { cat "$2"; echo "seed: $3"; echo "k1: $4"; echo "k2: ${5:-0}"; } >"$n.yaml"
-  [[ -f $n/gt.csv ]] || "$B/tools/uavmosaic-sim" --plan "$n.yaml" --canvas "$CANVAS" --out "$n" >"$n.sim.log" 2>&1
-  "$B/firmware_app/uavmosaic-onboard" --source "replay:$n/images" --out "$n.out" --no-tiff >"$n.log" 2>&1
+  local flight=$OUT/$1 n=$OUT/$1${RUN_TAG:-} ev=()
+  { cat "$2"; echo "seed: $3"; echo "k1: $4"; echo "k2: ${5:-0}"; } >"$flight.yaml"
+  [[ -f $flight/gt.csv ]] ||
+    "$B/tools/uavmosaic-sim" --plan "$flight.yaml" --canvas "$CANVAS" --out "$flight" >"$flight.sim.log" 2>&1
+  "$B/firmware_app/uavmosaic-onboard" --source "replay:$flight/images" --out "$n.out" --no-tiff "${OURS_EXTRA[@]}" \
+    >"$n.log" 2>&1
   [[ -f $n.out/camera.yaml ]] && ev=(--session-camera "$n.out/camera.yaml")
-  "$B/tools/uavmosaic-eval" --session "$n.out" --gt "$n/gt.csv" --json "$n.eval.json" "${ev[@]}" --no-photometric \
+  "$B/tools/uavmosaic-eval" --session "$n.out" --gt "$flight/gt.csv" --json "$n.eval.json" "${ev[@]}" --no-photometric \
     >"$n.eval.log" 2>&1
   RMS=$(jq -r '.rms_px' "$n.eval.json")
   ACCEPTED=0

@@ -6,6 +6,7 @@
 #include <opencv2/core/persistence.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <random>
 
 #include "tests/test_image.h"
 
@@ -107,7 +108,8 @@ TEST(PairMatcherTest, RecoversKnownAffineOnAerialFrame) {
   const PairResult c = MatchPair(index, tgt, src, capped, &guide);
   ASSERT_TRUE(c.ok) << c.failure;
   EXPECT_LE(c.num_matches, capped.max_guided_queries);
-  EXPECT_EQ(c.src_points.size(), u.src_points.size());
+  // A full edge: a cell mean over (nearly) every cell of the overlap either way.
+  EXPECT_NEAR(static_cast<double>(c.src_points.size()), static_cast<double>(u.src_points.size()), 3.0);
   for (const Vec2& corner : ImageCorners(img.cols, img.rows))
     EXPECT_LT((Apply(c.tgt_from_src, corner) - Apply(truth, corner)).norm(), 1.0);
 }
@@ -129,6 +131,53 @@ TEST(PairMatcherTest, GridSubsampleSpreadsPoints) {
     EXPECT_EQ(tgt[i], src[i] + Vec2(1, 1));
   }
   EXPECT_GT(far, 30);  // the sparse part is represented, not drowned by the crowd
+}
+
+// Cell means referred to an affine approximation of a tilted view: each comes within a small fraction of the
+// keypoints' noise of the true map at the cell's centroid (the noise averaged, the map's curvature across a cell
+// negligible), where one inlier per cell carries the full noise; a lone point comes out unchanged.
+TEST(PairMatcherTest, CellMeansAverageTheNoiseAndFollowTheTrueMap) {
+  Mat3 truth;
+  truth << 0.95, -0.2, 40.0, 0.18, 1.01, -25.0, 1.5e-4, -1.0e-4, 1.0;
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> coord(0, 640);
+  std::normal_distribution<double> noise(0, 0.5);
+  std::vector<Vec2> src;
+  std::vector<Vec2> tgt;
+  for (int i = 0; i < 1280; ++i) {
+    src.emplace_back(coord(rng), coord(rng) * 0.75);
+    tgt.push_back(Apply(truth, src.back()) + Vec2(noise(rng), noise(rng)));
+  }
+  Mat3 affine;  // what RANSAC's affine would be: the truth's tangent map at the frame's centre
+  const Vec2 c(320, 240);
+  const double eps = 1e-3;
+  const Vec2 dx = (Apply(truth, c + Vec2(eps, 0)) - Apply(truth, c - Vec2(eps, 0))) / (2 * eps);
+  const Vec2 dy = (Apply(truth, c + Vec2(0, eps)) - Apply(truth, c - Vec2(0, eps))) / (2 * eps);
+  const Vec2 t = Apply(truth, c) - dx * c.x() - dy * c.y();
+  affine << dx.x(), dy.x(), t.x(), dx.y(), dy.y(), t.y(), 0, 0, 1;
+  std::vector<Vec2> cell_src;
+  std::vector<Vec2> cell_tgt;
+  CellMeanCorrespondences(src, tgt, affine, 8, &cell_src, &cell_tgt);
+  ASSERT_EQ(cell_src.size(), 64u);
+  ASSERT_EQ(cell_tgt.size(), 64u);
+  double sq = 0.0;
+  for (size_t i = 0; i < cell_src.size(); ++i) sq += (cell_tgt[i] - Apply(truth, cell_src[i])).squaredNorm();
+  const double rms = std::sqrt(sq / 64.0);
+  EXPECT_LT(rms, 0.2) << "one inlier per cell: ~0.71 px";
+  // Grid subsampling keeps single noisy inliers: about the noise's RMS (0.5 px per axis).
+  std::vector<Vec2> gs = src;
+  std::vector<Vec2> gt = tgt;
+  GridSubsample(&gs, &gt, 8, 64);
+  sq = 0.0;
+  for (size_t i = 0; i < gs.size(); ++i) sq += (gt[i] - Apply(truth, gs[i])).squaredNorm();
+  EXPECT_GT(std::sqrt(sq / static_cast<double>(gs.size())), 2 * rms);
+  // A lone point is its own mean.
+  cell_src.clear();
+  cell_tgt.clear();
+  CellMeanCorrespondences({src[0]}, {tgt[0]}, affine, 8, &cell_src, &cell_tgt);
+  ASSERT_EQ(cell_src.size(), 1u);
+  EXPECT_LT((cell_src[0] - src[0]).norm(), 1e-12);
+  EXPECT_LT((cell_tgt[0] - tgt[0]).norm(), 1e-9);
 }
 
 }  // namespace

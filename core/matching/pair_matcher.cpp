@@ -6,6 +6,7 @@
 #include <unordered_map>
 
 #include "core/estimators/affine.h"
+#include "core/estimators/homography.h"
 
 namespace uavm {
 
@@ -105,14 +106,10 @@ std::vector<cv::DMatch> DescriptorIndex::Match(const cv::Mat& query_descriptors)
   return out;
 }
 
-std::vector<size_t> GridSubsampleIndices(const std::vector<Vec2>& src, int grid, int max_points) {
-  const size_t n = src.size();
-  std::vector<size_t> keep;
-  if (n <= static_cast<size_t>(std::max(0, max_points))) {
-    for (size_t i = 0; i < n; ++i) keep.push_back(i);
-    return keep;
-  }
-  if (max_points <= 0) return keep;
+namespace {
+
+// The points of each cell of a grid x grid division of their bounding box, row by row (ascending indices in a cell).
+std::vector<std::vector<size_t>> GridCells(const std::vector<Vec2>& src, int grid) {
   Vec2 lo = src[0];
   Vec2 hi = lo;
   for (const auto& p : src) {
@@ -121,12 +118,26 @@ std::vector<size_t> GridSubsampleIndices(const std::vector<Vec2>& src, int grid,
   }
   const Vec2 extent = (hi - lo).cwiseMax(Vec2(1e-6, 1e-6));
   std::vector<std::vector<size_t>> cells(static_cast<size_t>(grid * grid));
-  for (size_t i = 0; i < n; ++i) {
+  for (size_t i = 0; i < src.size(); ++i) {
     const Vec2 r = (src[i] - lo).cwiseQuotient(extent);
     const int cx = std::min(grid - 1, static_cast<int>(r.x() * grid));
     const int cy = std::min(grid - 1, static_cast<int>(r.y() * grid));
     cells[static_cast<size_t>(cy * grid + cx)].push_back(i);
   }
+  return cells;
+}
+
+}  // namespace
+
+std::vector<size_t> GridSubsampleIndices(const std::vector<Vec2>& src, int grid, int max_points) {
+  const size_t n = src.size();
+  std::vector<size_t> keep;
+  if (n <= static_cast<size_t>(std::max(0, max_points))) {
+    for (size_t i = 0; i < n; ++i) keep.push_back(i);
+    return keep;
+  }
+  if (max_points <= 0) return keep;
+  const std::vector<std::vector<size_t>> cells = GridCells(src, grid);
   // Round-robin over cells: every occupied cell is represented before any cell gets a second point.
   keep.reserve(static_cast<size_t>(max_points));
   for (size_t round = 0; keep.size() < static_cast<size_t>(max_points); ++round) {
@@ -144,6 +155,24 @@ std::vector<size_t> GridSubsampleIndices(const std::vector<Vec2>& src, int grid,
   std::sort(keep.begin(), keep.end());
   keep.erase(std::unique(keep.begin(), keep.end()), keep.end());
   return keep;
+}
+
+void CellMeanCorrespondences(const std::vector<Vec2>& src, const std::vector<Vec2>& tgt, const Mat3& tgt_from_src,
+                             int grid, std::vector<Vec2>* cell_src, std::vector<Vec2>* cell_tgt) {
+  if (src.empty() || grid < 1) return;
+  for (const std::vector<size_t>& cell : GridCells(src, grid)) {
+    if (cell.empty()) continue;
+    Vec2 centroid = Vec2::Zero();
+    Vec2 residual = Vec2::Zero();
+    for (size_t i : cell) {
+      centroid += src[i];
+      residual += tgt[i] - Apply(tgt_from_src, src[i]);
+    }
+    const double n = static_cast<double>(cell.size());
+    centroid /= n;
+    cell_src->push_back(centroid);
+    cell_tgt->push_back(Apply(tgt_from_src, centroid) + residual / n);
+  }
 }
 
 void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int max_points) {
@@ -166,6 +195,63 @@ bool PlausibleRelative(const Mat3& tgt_from_src, const MatchOptions& options) {
   return lin.det > 0 && lin.scale <= options.max_scale_change && lin.scale >= 1.0 / options.max_scale_change &&
          lin.anisotropy <= options.max_anisotropy;
 }
+
+namespace {
+
+// The inliers of an edge split into the adjustment's sample (one per cell, round-robin, spread over the frame) and a
+// disjoint, equally spread sample held out to check the maps: indices of each, ascending.
+void SplitInliers(const std::vector<Vec2>& in_src, const MatchOptions& options, std::vector<size_t>* kept,
+                  std::vector<size_t>* held) {
+  *kept = GridSubsampleIndices(in_src, options.correspondence_grid, options.max_edge_correspondences);
+  std::vector<char> is_kept(in_src.size(), 0);
+  for (size_t i : *kept) is_kept[i] = 1;
+  std::vector<size_t> rest;
+  std::vector<Vec2> rest_src;
+  for (size_t i = 0; i < in_src.size(); ++i)
+    if (is_kept[i] == 0) {
+      rest.push_back(i);
+      rest_src.push_back(in_src[i]);
+    }
+  for (size_t k : GridSubsampleIndices(rest_src, options.correspondence_grid, options.holdout_correspondences))
+    held->push_back(rest[k]);
+}
+
+// The adjustment's points: the kept sample of SplitInliers as it is, or (average_cells) every inlier not held out
+// as its cell's mean (CellMeanCorrespondences), referred to the homography of those inliers (the RANSAC affine where
+// they fix none). The held-out sample is the same either way.
+void KeepCorrespondences(const std::vector<Vec2>& in_src, const std::vector<Vec2>& in_tgt, const Mat3& affine,
+                         const MatchOptions& options, PairResult* result) {
+  std::vector<size_t> kept;
+  std::vector<size_t> held;
+  SplitInliers(in_src, options, &kept, &held);
+  for (size_t i : held) {
+    result->holdout_src_points.push_back(in_src[i]);
+    result->holdout_tgt_points.push_back(in_tgt[i]);
+  }
+  if (!options.average_cells) {
+    for (size_t i : kept) {
+      result->src_points.push_back(in_src[i]);
+      result->tgt_points.push_back(in_tgt[i]);
+    }
+    return;
+  }
+  std::vector<char> is_held(in_src.size(), 0);
+  for (size_t i : held) is_held[i] = 1;
+  std::vector<Vec2> src;
+  std::vector<Vec2> tgt;
+  for (size_t i = 0; i < in_src.size(); ++i)
+    if (is_held[i] == 0) {
+      src.push_back(in_src[i]);
+      tgt.push_back(in_tgt[i]);
+    }
+  Mat3 reference = affine;
+  if (Mat3 h; HomographyEstimator::Fit(src, tgt, &h)) reference = h;
+  int grid = options.correspondence_grid;  // at most max_edge_correspondences cells
+  while (grid > 1 && grid * grid > options.max_edge_correspondences) --grid;
+  CellMeanCorrespondences(src, tgt, reference, grid, &result->src_points, &result->tgt_points);
+}
+
+}  // namespace
 
 PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, const Features& src,
                      const MatchOptions& options, const MatchGuide* guide) {
@@ -236,26 +322,7 @@ PairResult MatchPair(const DescriptorIndex& tgt_index, const Features& tgt, cons
     in_src.push_back(xs[i]);
     in_tgt.push_back(ys[i]);
   }
-  // The adjustment's points, spread over the frame; a disjoint, equally spread sample is held out to check it.
-  const std::vector<size_t> keep =
-      GridSubsampleIndices(in_src, options.correspondence_grid, options.max_edge_correspondences);
-  std::vector<char> kept(in_src.size(), 0);
-  for (size_t i : keep) {
-    kept[i] = 1;
-    result.src_points.push_back(in_src[i]);
-    result.tgt_points.push_back(in_tgt[i]);
-  }
-  std::vector<Vec2> rest_src;
-  std::vector<Vec2> rest_tgt;
-  for (size_t i = 0; i < in_src.size(); ++i)
-    if (kept[i] == 0) {
-      rest_src.push_back(in_src[i]);
-      rest_tgt.push_back(in_tgt[i]);
-    }
-  for (size_t i : GridSubsampleIndices(rest_src, options.correspondence_grid, options.holdout_correspondences)) {
-    result.holdout_src_points.push_back(rest_src[i]);
-    result.holdout_tgt_points.push_back(rest_tgt[i]);
-  }
+  KeepCorrespondences(in_src, in_tgt, report.model, options, &result);
   result.tgt_from_src = report.model;
   result.ok = true;
   return result;

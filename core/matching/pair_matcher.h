@@ -28,9 +28,12 @@ struct MatchOptions {
   // Reject relative affines no drone flight produces (scale jump, strong shear, mirror).
   double max_scale_change = 2.0;
   double max_anisotropy = 0.25;
-  // Inlier correspondences kept per edge for the adjustment, spread over a grid of the source frame.
+  // Correspondences kept per edge for the adjustment, spread over a grid of the source frame.
   int max_edge_correspondences = 64;
   int correspondence_grid = 8;
+  // true: each kept correspondence is a grid cell's mean (CellMeanCorrespondences): every inlier counts, each cell of
+  // the overlap weighs the same. false: one inlier per cell, the first in keypoint order (then round-robin).
+  bool average_cells = true;
   // Further inliers, disjoint from those, kept aside per edge: the report's held-out residual (a check of the final
   // maps on points the adjustment never saw).
   int holdout_correspondences = 16;
@@ -70,7 +73,7 @@ struct PairResult {
   int num_matches = 0;
   int num_inliers = 0;
   Mat3 tgt_from_src = Mat3::Identity();
-  std::vector<Vec2> src_points;  // grid-subsampled inliers
+  std::vector<Vec2> src_points;  // one per grid cell: an inlier or the cell's mean (average_cells)
   std::vector<Vec2> tgt_points;
   std::vector<Vec2> holdout_src_points;  // further inliers, not in src_points (see holdout_correspondences)
   std::vector<Vec2> holdout_tgt_points;
@@ -98,6 +101,12 @@ struct MatchGuide {
 void GridSubsample(std::vector<Vec2>* src, std::vector<Vec2>* tgt, int grid, int max_points);
 // The indices GridSubsample keeps, ascending.
 [[nodiscard]] std::vector<size_t> GridSubsampleIndices(const std::vector<Vec2>& src, int grid, int max_points);
+// One correspondence per occupied cell of a grid x grid division of src's bounding box, appended: the cell's centroid
+// and its image under tgt_from_src plus the cell's mean residual tgt - tgt_from_src(src). Where tgt_from_src follows
+// the true map to first order across a cell, the mean residual speaks for the centroid, and the keypoints' noise is
+// averaged over the cell's points (a single point comes out as it went in).
+void CellMeanCorrespondences(const std::vector<Vec2>& src, const std::vector<Vec2>& tgt, const Mat3& tgt_from_src,
+                             int grid, std::vector<Vec2>* cell_src, std::vector<Vec2>* cell_tgt);
 
 // Descriptor storage helpers: RootSIFT values lie in [0,1]; 8-bit storage quarters memory at no matching cost.
 [[nodiscard]] cv::Mat QuantizeDescriptors(const cv::Mat& float_descriptors);

@@ -134,6 +134,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"matching", "max_anisotropy", &o.matching.max_anisotropy},
       {"matching", "max_edge_correspondences", &o.matching.max_edge_correspondences},
       {"matching", "correspondence_grid", &o.matching.correspondence_grid},
+      {"matching", "average_cells", &o.matching.average_cells},
       {"matching", "holdout_correspondences", &o.matching.holdout_correspondences},
       {"matching", "max_guided_queries", &o.matching.max_guided_queries},
       {"matching", "ransac_max_error_px", &o.matching.ransac.max_error},
