@@ -27,6 +27,9 @@ bool MatchOptions::Check(std::string* why) const {
   if (!(max_scale_change > 1.0)) return fail("matching.max_scale_change must be > 1");
   if (!(max_anisotropy > 0.0)) return fail("matching.max_anisotropy must be > 0");
   if (max_edge_correspondences < 3) return fail("matching.max_edge_correspondences must be >= 3");
+  // Cell means: a grid of floor(sqrt(max_edge_correspondences)) cells a side at most, and one cell is no geometry.
+  if (average_cells && max_edge_correspondences < 4)
+    return fail("matching.max_edge_correspondences must be >= 4 with matching.average_cells");
   if (correspondence_grid < 1) return fail("matching.correspondence_grid must be >= 1");
   if (holdout_correspondences < 0) return fail("matching.holdout_correspondences must be >= 0");
   if (max_guided_queries != 0 && max_guided_queries < min_inliers)
