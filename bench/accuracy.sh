@@ -7,13 +7,13 @@
 # and blur (bench/plans/lens_jitter.yaml; lens_jitter_hard.yaml has stronger jitter and tilts): flights without a
 # lens (any lens accepted is a false positive) and flights with a barrel lens of -5, -10 and -15 % at the half-diagonal
 # (accepted, and a true RMS of at most 0.3 px with the session's lens, is a true positive). Each flight through
-# uavmosaic-onboard with the defaults and scored by uavmosaic-eval against the truth. One line per flight, then one
-# table and the rates.
+# uavmosaic-onboard with the defaults (and OURS_ARGS) and scored by uavmosaic-eval against the truth. One line per
+# flight, then one table and the rates.
 #
 # Environment: HARD_SEEDS (default "11 .. 20", lens-free on lens_jitter_hard.yaml), EASY_SEEDS (default "21 .. 30",
 # lens-free on lens_jitter.yaml), LENS_SEEDS (default "31 .. 40", barrels cycling -5/-10/-15 % on lens_jitter.yaml),
 # UAVM_BUILD_DIR (default <repo>/build), OURS_ARGS (extra uavmosaic-onboard options) and RUN_TAG (suffix of each run's
-# files: two settings compared on the same simulated flights, generated once in OUT_DIR).
+# files: two settings compared on the same simulated flights, generated once in OUT_DIR; run them one after the other).
 set -euo pipefail
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")

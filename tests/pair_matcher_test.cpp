@@ -88,6 +88,29 @@ TEST(PairMatcherTest, RecoversKnownAffineOnAerialFrame) {
   ASSERT_TRUE(r.ok) << r.failure;
   EXPECT_GT(r.num_inliers, 200);
   EXPECT_LE(r.src_points.size(), static_cast<size_t>(mo.max_edge_correspondences));
+  EXPECT_GE(r.src_points.size(), 48u);  // cell means over (nearly) the whole 8 x 8 grid
+  EXPECT_EQ(r.holdout_src_points.size(), static_cast<size_t>(mo.holdout_correspondences));
+  // Every kept correspondence sits on the truth (the cells' means: well under a pixel), every held-out one within
+  // RANSAC's threshold.
+  ASSERT_EQ(r.src_points.size(), r.tgt_points.size());
+  for (size_t i = 0; i < r.src_points.size(); ++i)
+    EXPECT_LT((Apply(truth, r.src_points[i]) - r.tgt_points[i]).norm(), 0.5) << i;
+  for (size_t i = 0; i < r.holdout_src_points.size(); ++i)
+    EXPECT_LT((Apply(truth, r.holdout_src_points[i]) - r.holdout_tgt_points[i]).norm(), mo.ransac.max_error) << i;
+  // One inlier per cell: the same held-out sample, max_edge_correspondences inliers kept.
+  MatchOptions picks = mo;
+  picks.average_cells = false;
+  const PairResult p = MatchPair(index, tgt, src, picks);
+  ASSERT_TRUE(p.ok);
+  EXPECT_EQ(p.src_points.size(), static_cast<size_t>(mo.max_edge_correspondences));
+  EXPECT_EQ(p.holdout_src_points, r.holdout_src_points);
+  // A cap below the grid's 64 cells shrinks the grid: 10 allow 3 x 3 cells.
+  MatchOptions ten = mo;
+  ten.max_edge_correspondences = 10;
+  const PairResult t = MatchPair(index, tgt, src, ten);
+  ASSERT_TRUE(t.ok);
+  EXPECT_LE(t.src_points.size(), 9u);
+  EXPECT_GE(t.src_points.size(), 8u);
   for (const Vec2& c : ImageCorners(img.cols, img.rows))
     EXPECT_LT((Apply(r.tgt_from_src, c) - Apply(truth, c)).norm(), 1.0);
   // Guided by the truth, the same pair still verifies, from fewer queries.
@@ -109,6 +132,7 @@ TEST(PairMatcherTest, RecoversKnownAffineOnAerialFrame) {
   ASSERT_TRUE(c.ok) << c.failure;
   EXPECT_LE(c.num_matches, capped.max_guided_queries);
   // A full edge: a cell mean over (nearly) every cell of the overlap either way.
+  EXPECT_GE(c.src_points.size(), 48u);
   EXPECT_NEAR(static_cast<double>(c.src_points.size()), static_cast<double>(u.src_points.size()), 3.0);
   for (const Vec2& corner : ImageCorners(img.cols, img.rows))
     EXPECT_LT((Apply(c.tgt_from_src, corner) - Apply(truth, corner)).norm(), 1.0);
@@ -178,6 +202,33 @@ TEST(PairMatcherTest, CellMeansAverageTheNoiseAndFollowTheTrueMap) {
   ASSERT_EQ(cell_src.size(), 1u);
   EXPECT_LT((cell_src[0] - src[0]).norm(), 1e-12);
   EXPECT_LT((cell_tgt[0] - tgt[0]).norm(), 1e-9);
+}
+
+// Inliers along a narrow band: their cell means still sit on the truth (the reference exact, the noise 0.2 px).
+TEST(PairMatcherTest, CellMeansOfABandSitOnTheTruth) {
+  Mat3 truth;
+  truth << 0.98, -0.1, 35.0, 0.1, 0.98, -12.0, 0, 0, 1;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> along(0, 600);
+  std::uniform_real_distribution<double> across(200, 203);
+  std::normal_distribution<double> noise(0, 0.2);
+  std::vector<Vec2> src;
+  std::vector<Vec2> tgt;
+  for (int i = 0; i < 40; ++i) {
+    src.emplace_back(along(rng), across(rng));
+    tgt.push_back(Apply(truth, src.back()) + Vec2(noise(rng), noise(rng)));
+  }
+  MatchOptions mo;
+  std::vector<Vec2> cell_src;
+  std::vector<Vec2> cell_tgt;
+  CellMeanCorrespondences(src, tgt, truth, mo.correspondence_grid, &cell_src, &cell_tgt);
+  ASSERT_GE(cell_src.size(), 1u);
+  for (size_t i = 0; i < cell_src.size(); ++i) EXPECT_LT((Apply(truth, cell_src[i]) - cell_tgt[i]).norm(), 1.0);
+  // Mismatched inputs give nothing rather than reading past the end.
+  cell_src.clear();
+  cell_tgt.clear();
+  CellMeanCorrespondences(src, {tgt[0]}, truth, 8, &cell_src, &cell_tgt);
+  EXPECT_TRUE(cell_src.empty());
 }
 
 }  // namespace

@@ -69,6 +69,11 @@ RegistrationEngine::RegistrationEngine(const RegistrationOptions& options, Featu
   std::string why;
   if (!options_.Check(&why)) throw std::invalid_argument("registration options: " + why);
   if (features_ == nullptr) throw std::invalid_argument("registration engine: no feature provider");
+  if (options_.subpixel.enabled && options_.matching.average_cells) {
+    // The sub-pixel refinement tracks each kept source point: keypoints, not the cells' centroids.
+    options_.matching.average_cells = false;
+    spdlog::info("matching: one inlier per cell (subpixel.enabled tracks keypoints, not cell means)");
+  }
 }
 
 int RegistrationEngine::AddFrame(cv::Size work_size) {
