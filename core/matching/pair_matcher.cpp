@@ -246,7 +246,7 @@ bool UsableReference(const Mat3& h, const std::vector<Vec2>& src, const std::vec
 
 // The adjustment's points: the kept sample of SplitInliers as it is, or (average_cells) every inlier not held out
 // as its cell's mean (CellMeanCorrespondences), referred to the homography of those inliers (the RANSAC affine where
-// they fix none). The held-out sample is the same either way.
+// they fix none, or none that UsableReference accepts). The held-out sample is the same either way.
 void KeepCorrespondences(const std::vector<Vec2>& in_src, const std::vector<Vec2>& in_tgt, const Mat3& affine,
                          const MatchOptions& options, PairResult* result) {
   std::vector<size_t> kept;
@@ -256,13 +256,13 @@ void KeepCorrespondences(const std::vector<Vec2>& in_src, const std::vector<Vec2
     result->holdout_src_points.push_back(in_src[i]);
     result->holdout_tgt_points.push_back(in_tgt[i]);
   }
-  if (!options.average_cells) {
+  const auto keep_inliers = [&] {
     for (size_t i : kept) {
       result->src_points.push_back(in_src[i]);
       result->tgt_points.push_back(in_tgt[i]);
     }
-    return;
-  }
+  };
+  if (!options.average_cells) return keep_inliers();
   std::vector<char> is_held(in_src.size(), 0);
   for (size_t i : held) is_held[i] = 1;
   std::vector<Vec2> src;
@@ -280,13 +280,7 @@ void KeepCorrespondences(const std::vector<Vec2>& in_src, const std::vector<Vec2
   std::vector<Vec2> cell_tgt;
   CellMeanCorrespondences(src, tgt, reference, grid, &cell_src, &cell_tgt);
   // Inliers along a band fill few cells: then the inliers themselves, as many as the old sample had.
-  if (cell_src.size() < std::min<size_t>(kept.size(), kMinCellMeans)) {
-    for (size_t i : kept) {
-      result->src_points.push_back(in_src[i]);
-      result->tgt_points.push_back(in_tgt[i]);
-    }
-    return;
-  }
+  if (cell_src.size() < std::min<size_t>(kept.size(), kMinCellMeans)) return keep_inliers();
   result->src_points = std::move(cell_src);
   result->tgt_points = std::move(cell_tgt);
 }
