@@ -282,7 +282,8 @@ TEST(OnboardE2ETest, CaliterraSmallRegistersEveryFrame) {
 // lensfun's entry for caliterra's camera (Canon SX260 HS) was calibrated on raw files; the flight's JPEGs are already
 // corrected in the camera. With detection on a half-size copy, the end of the flight cannot solve with that lens and
 // its self-calibration (an implausible perspective): the unverified database lens must then be dropped, not kept (it
-// left 10.4 px held-out on the full-resolution flight). Whatever the solve does, the map must stay sub-pixel-sane.
+// left 10.4 px held-out on the full-resolution flight), and the lens calibrated again from the recorded pixels.
+// Whatever the solve does, the map must stay sub-pixel-sane.
 TEST(OnboardE2ETest, AnUnverifiedDatabaseLensDoesNotSpoilTheMap) {
   if (test::Emulated()) GTEST_SKIP() << "the arm64 build has no lensfun database";
   const fs::path out = TempDir("lens_dropped");
@@ -305,12 +306,21 @@ TEST(OnboardE2ETest, AnUnverifiedDatabaseLensDoesNotSpoilTheMap) {
   // The lens the session records is the one the maps were solved with.
   std::string yaml, err;
   ASSERT_TRUE(ReadTextFile((out / "camera.yaml").string(), &yaml, &err)) << err;
-  if (cal["prepared_lens_dropped"].get<bool>()) {
+  const bool dropped = cal["prepared_lens_dropped"].get<bool>();
+  if (dropped && !cal["accepted"].get<bool>()) {
     EXPECT_EQ(lens["final"]["k1"].get<double>(), 0.0);
     EXPECT_NE(yaml.find("k1: 0\n"), std::string::npos) << yaml;
     EXPECT_NE(yaml.find("source: none (the database lens was dropped)"), std::string::npos) << yaml;
   } else {
+    // Calibrated from the database lens or, once it was dropped, from the recorded pixels: a lens the JPEGs' in-camera
+    // correction left, a few per cent at most.
     EXPECT_TRUE(cal["accepted"].get<bool>()) << cal.dump();
+    EXPECT_LT(std::abs(cal["distortion_at_half_diagonal"].get<double>()), 0.05) << cal.dump();
+    EXPECT_EQ(lens["final"]["k1"].get<double>(), cal["k1"].get<double>());
+    EXPECT_NE(
+        yaml.find(dropped ? "source: self-calibrated (the database lens was dropped)" : "source: self-calibrated"),
+        std::string::npos)
+        << yaml;
   }
   fs::remove_all(out);
   fs::remove_all(config);

@@ -31,8 +31,10 @@ PinholeCamera FinalCamera(const WorkLens& lens, const LensCalibration& calibrati
 std::string CameraYaml(const WorkLens& lens, const LensCalibration& calibration) {
   if (!lens.chosen()) return {};
   const PinholeCamera c = FinalCamera(lens, calibration);
-  const std::string source = calibration.accepted  ? "self-calibrated"
-                             : calibration.dropped ? "none (the " + lens.choice().source + " lens was dropped)"
+  const std::string dropped = "the " + lens.choice().source + " lens was dropped";
+  const std::string source = calibration.accepted  ? (calibration.dropped ? "self-calibrated (" + dropped + ")"
+                                                                          : std::string("self-calibrated"))
+                             : calibration.dropped ? "none (" + dropped + ")"
                                                    : lens.choice().source;
   char buf[1024];
   std::snprintf(buf, sizeof(buf),

@@ -763,7 +763,7 @@ double HoldoutOfRefinement(const std::vector<const Edge*>& fit, const std::vecto
 void RegistrationEngine::CorrectLensAfterRematch(const std::vector<const Edge*>& edges,
                                                  const std::unordered_set<int>& variable, int anchor,
                                                  const std::unordered_map<int, double>& half_diag,
-                                                 LensCalibration* lens) {
+                                                 const PinholeCamera& resident, LensCalibration* lens) {
   const LensDistortion first = lens->distortion;
   std::vector<Edge> own(edges.size());
   for (size_t i = 0; i < own.size(); ++i) own[i] = *edges[i];
@@ -775,26 +775,26 @@ void RegistrationEngine::CorrectLensAfterRematch(const std::vector<const Edge*>&
   // carries only what the first missed, which it represents well even where it could not represent a strong lens
   // whole (a -15 % barrel: 0.6 px at the corners).
   for (size_t i = 0; i < edges.size(); ++i)
-    if (at_first_lens[i] == 0) ReprojectEdgePoints(*camera_, first, const_cast<Edge*>(edges[i]));
-  PinholeCamera at_first = *camera_;
+    if (at_first_lens[i] == 0) ReprojectEdgePoints(resident, first, const_cast<Edge*>(edges[i]));
+  PinholeCamera at_first = resident;
   at_first.distortion = LensDistortion{};
   LensCalibrationOptions options = options_.lens_calibration;
   options.max_halves_disagreement = 0;  // the lens is established; only the correction's held-out gain is asked
   const LensCalibration residual = CalibrateLens(edges, variable, anchor, half_diag, options_.refine, at_first, options,
                                                  mosaic_from_work_, "lens correction after the rematch");
   at_first.distortion = first;
-  for (const Edge* e : edges) ReprojectEdgePoints(at_first, camera_->distortion, const_cast<Edge*>(e));
+  for (const Edge* e : edges) ReprojectEdgePoints(at_first, resident.distortion, const_cast<Edge*>(e));
   // Kept when it lowers the held-out RMS (the first lens already passed the decision).
   const bool kept = residual.tried && !residual.solve_failed && residual.holdout_with_px < residual.holdout_without_px;
   if (kept) {
-    lens->distortion = ComposeRadial(first, residual.distortion, 1.05 * camera_->HalfDiagonalRadius());
-    PinholeCamera composed = *camera_;
+    lens->distortion = ComposeRadial(first, residual.distortion, 1.05 * resident.HalfDiagonalRadius());
+    PinholeCamera composed = resident;
     composed.distortion = lens->distortion;
     lens->distortion_at_half_diagonal = composed.RadialDistortionAtHalfDiagonal();
     lens->residual_holdout_without_px = residual.holdout_without_px;
     lens->residual_holdout_with_px = residual.holdout_with_px;
   }
-  KeepBetterPoints(edges, &own, variable, anchor, half_diag, lens);
+  KeepBetterPoints(edges, &own, variable, anchor, half_diag, resident, lens);
   spdlog::info(
       "lens: {} of {} pairs matched again under it; correction {} (held-out RMS {:.3f} -> {:.3f} px): {:+.4f} -> "
       "{:+.4f} at the half-diagonal; the final solve takes the {} points (held-out RMS {:.3f} px with the flight's, "
@@ -815,7 +815,8 @@ void RegistrationEngine::CorrectLensAfterRematch(const std::vector<const Edge*>&
 // same points.
 void RegistrationEngine::KeepBetterPoints(const std::vector<const Edge*>& edges, std::vector<Edge>* own,
                                           const std::unordered_set<int>& variable, int anchor,
-                                          const std::unordered_map<int, double>& half_diag, LensCalibration* lens) {
+                                          const std::unordered_map<int, double>& half_diag,
+                                          const PinholeCamera& resident, LensCalibration* lens) {
   std::vector<const Edge*> flight;
   for (const Edge& e : *own) flight.push_back(&e);
   RefineOptions subset = options_.refine;
@@ -823,10 +824,10 @@ void RegistrationEngine::KeepBetterPoints(const std::vector<const Edge*>& edges,
   const bool refined = refiner_ != nullptr && options_.subpixel.enabled;
   if (!refined) {
     auto with_flight = std::async(std::launch::async, [&] {
-      return HoldoutOfRefinement(flight, *own, *camera_, lens->distortion, variable, anchor, half_diag, subset,
+      return HoldoutOfRefinement(flight, *own, resident, lens->distortion, variable, anchor, half_diag, subset,
                                  mosaic_from_work_);
     });
-    lens->holdout_rematched_points_px = HoldoutOfRefinement(edges, *own, *camera_, lens->distortion, variable, anchor,
+    lens->holdout_rematched_points_px = HoldoutOfRefinement(edges, *own, resident, lens->distortion, variable, anchor,
                                                             half_diag, subset, mosaic_from_work_);
     lens->holdout_flight_points_px = with_flight.get();
   }
@@ -844,12 +845,6 @@ void RegistrationEngine::KeepBetterPoints(const std::vector<const Edge*>& edges,
 }
 
 namespace {
-
-struct LensWindow {
-  std::vector<const Edge*> edges;
-  std::unordered_set<int> variable;
-  int anchor = -1;
-};
 
 // The lens is one for the whole flight: a long flight calibrates it on `window` consecutive frames in its middle (its
 // first the anchor) with the edges between them, so the solves' memory has a fixed bound; a shorter one on all of it.
@@ -893,24 +888,60 @@ bool RegistrationEngine::CalibrateLensAndResolve(const std::vector<const Edge*>&
   s->lens = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, *camera_,
                           options_.lens_calibration, mosaic_from_work_);
   s->lens.frames = w.variable.size() + 1;
-  if (s->lens.accepted && options_.lens_calibration.rematch)
-    CorrectLensAfterRematch(w.edges, w.variable, w.anchor, half_diag, &s->lens);
+  if (s->lens.accepted) return ResolveAtAcceptedLens(edges, points, w, *camera_, variable, half_diag, linear, s);
   const bool has_radial = camera_->distortion.k1 != 0.0 || camera_->distortion.k2 != 0.0;
-  if (!s->lens.accepted && s->lens.solve_failed && !camera_verified_ && has_radial) {
-    // A database entry can be wrong for these frames (one calibrated on raw files, JPEGs the camera already corrected):
-    // when nothing confirms it, the recorded pixels are the safer model.
-    s->lens.dropped = true;
-    s->lens.distortion = LensDistortion{};
-    s->lens.distortion_at_half_diagonal = 0.0;
-    s->lens.why += "; the unverified prepared lens is dropped";
-    spdlog::warn("lens: {}", s->lens.why);
+  if (!s->lens.solve_failed || camera_verified_ || !has_radial) return true;
+  // A database entry can be wrong for these frames (one calibrated on raw files, JPEGs the camera already corrected):
+  // when nothing confirms it, the recorded pixels are the safer model. Its solves started in a basin the wrong lens
+  // made, so the lens is calibrated once more from the recorded pixels, with maps solved linearly on them.
+  const std::string refused = s->lens.why;
+  spdlog::warn("lens: {}; the unverified prepared lens is dropped", refused);
+  if (!ResolveAtLens(edges, points, *camera_, LensDistortion{}, variable, half_diag, linear, s)) return false;
+  PinholeCamera recorded = *camera_;
+  recorded.distortion = LensDistortion{};
+  LensCalibration again = CalibrateLens(w.edges, w.variable, w.anchor, half_diag, options_.refine, recorded,
+                                        options_.lens_calibration, mosaic_from_work_, "lens from the recorded pixels");
+  again.frames = s->lens.frames;
+  again.dropped = true;
+  again.why = "the unverified prepared lens is dropped (" + refused + ")" +
+              (again.accepted ? "" : "; from the recorded pixels: " + again.why);
+  if (!again.accepted) {
+    again.distortion = LensDistortion{};
+    again.distortion_at_half_diagonal = 0.0;
   }
-  if (!s->lens.accepted && !s->lens.dropped) return true;
-  // The engine owns the edges (the const view is the solve's): their points move to the calibrated ideal pixels, the
-  // resident ones now, the others as they are read (AsSolved).
+  s->lens = std::move(again);
+  if (!s->lens.accepted) return true;
+  return ResolveAtAcceptedLens(edges, points, w, recorded, variable, half_diag, linear, s);
+}
+
+bool RegistrationEngine::ResolveAtAcceptedLens(const std::vector<const Edge*>& edges, EdgePointSource* points,
+                                               const LensWindow& w, const PinholeCamera& resident,
+                                               const std::unordered_set<int>& variable,
+                                               const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
+                                               Solution* s) {
+  // The rematch's guides and its solves start from maps solved at the lens's ideal pixels: the prepared lens's maps
+  // are far from them when the lens differs much (caliterra, -0.7 % against a -16 % database lens: the solves on the
+  // flight's points did not converge from those).
+  if (!ResolveAtLens(edges, points, resident, s->lens.distortion, variable, half_diag, linear, s)) return false;
+  if (!options_.lens_calibration.rematch) return true;
+  PinholeCamera at_lens = resident;
+  at_lens.distortion = s->lens.distortion;
+  CorrectLensAfterRematch(w.edges, w.variable, w.anchor, half_diag, at_lens, &s->lens);
+  const LensDistortion& corrected = s->lens.distortion;
+  if (corrected.k1 == at_lens.distortion.k1 && corrected.k2 == at_lens.distortion.k2) return true;
+  return ResolveAtLens(edges, points, at_lens, corrected, variable, half_diag, linear, s);
+}
+
+bool RegistrationEngine::ResolveAtLens(const std::vector<const Edge*>& edges, EdgePointSource* points,
+                                       const PinholeCamera& resident, const LensDistortion& lens,
+                                       const std::unordered_set<int>& variable,
+                                       const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
+                                       Solution* s) {
+  // The engine owns the edges (the const view is the solve's): their points move to the lens's ideal pixels, the
+  // resident ones now, the others as they are read (AsSolved, from the stored points at the prepared lens's).
   for (const Edge* e : edges)
-    if (e->points_resident) ReprojectEdgePoints(*camera_, s->lens.distortion, const_cast<Edge*>(e));
-  solved_lens_ = s->lens.distortion;
+    if (e->points_resident) ReprojectEdgePoints(resident, lens, const_cast<Edge*>(e));
+  solved_lens_ = lens;
   *linear = AdjustAffine(edges, variable, half_diag, options_.adjust, &mosaic_from_work_, points);
   if (!linear->ok) {
     s->ok = false;

@@ -130,6 +130,13 @@ struct Solution {
   LensCalibration lens;
 };
 
+// The frames the end of the flight calibrates the lens on (the anchor and the variable ones) and the edges among them.
+struct LensWindow {
+  std::vector<const Edge*> edges;
+  std::unordered_set<int> variable;
+  int anchor = -1;
+};
+
 // Where telemetry says a new frame is: its centre in the mosaic coordinates of the component holding frame `anchor`
 // (e.g. its GPS position through the live georeference). When the recent frames fail (a gap, a turn), the frames
 // around that point are tried before the relocalisation index.
@@ -277,13 +284,29 @@ class RegistrationEngine {
   [[nodiscard]] size_t RematchUnderLens(const std::vector<const Edge*>& edges, const LensDistortion& lens,
                                         std::vector<char>* at_lens);
   // After an accepted lens: its pairs matched again under it, then a correction of it estimated on their points at
-  // its ideal pixels, composed with it when the held-out points agree better.
+  // its ideal pixels, composed with it when the held-out points agree better. `resident`: the camera at whose ideal
+  // pixels the edges' resident points are (the prepared one, or no lens once the prepared lens was dropped).
   void CorrectLensAfterRematch(const std::vector<const Edge*>& edges, const std::unordered_set<int>& variable,
-                               int anchor, const std::unordered_map<int, double>& half_diag, LensCalibration* lens);
+                               int anchor, const std::unordered_map<int, double>& half_diag,
+                               const PinholeCamera& resident, LensCalibration* lens);
   // After the correction: the edges keep the rematched points or get the flight's (`own`) back.
   void KeepBetterPoints(const std::vector<const Edge*>& edges, std::vector<Edge>* own,
                         const std::unordered_set<int>& variable, int anchor,
-                        const std::unordered_map<int, double>& half_diag, LensCalibration* lens);
+                        const std::unordered_map<int, double>& half_diag, const PinholeCamera& resident,
+                        LensCalibration* lens);
+  // After an accepted lens: the edges' points moved to its ideal pixels and solved linearly, then (with
+  // lens_calibration.rematch) its window's pairs matched again and the lens corrected, and solved again when it was.
+  [[nodiscard]] bool ResolveAtAcceptedLens(const std::vector<const Edge*>& edges, EdgePointSource* points,
+                                           const LensWindow& w, const PinholeCamera& resident,
+                                           const std::unordered_set<int>& variable,
+                                           const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
+                                           Solution* s);
+  // The edges' points moved from `resident`'s ideal pixels to `lens`'s (the resident ones now, the others as they are
+  // read), and the linear solve run again on them. False when it fails.
+  [[nodiscard]] bool ResolveAtLens(const std::vector<const Edge*>& edges, EdgePointSource* points,
+                                   const PinholeCamera& resident, const LensDistortion& lens,
+                                   const std::unordered_set<int>& variable,
+                                   const std::unordered_map<int, double>& half_diag, AdjustResult* linear, Solution* s);
 
   RegistrationOptions options_;
   std::optional<PinholeCamera> camera_;  // SetCamera()
