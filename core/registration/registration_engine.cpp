@@ -831,9 +831,11 @@ void RegistrationEngine::KeepBetterPoints(const std::vector<const Edge*>& edges,
                                                             half_diag, subset, mosaic_from_work_);
     lens->holdout_flight_points_px = with_flight.get();
   }
+  // A solve that failed on the flight's points judges nothing: the points the flight verified stay.
   lens->rematched_points_kept =
-      !refined && lens->holdout_rematched_points_px <=
-                      (1.0 + options_.lens_calibration.rematch_holdout_tolerance) * lens->holdout_flight_points_px;
+      !refined && std::isfinite(lens->holdout_flight_points_px) &&
+      lens->holdout_rematched_points_px <=
+          (1.0 + options_.lens_calibration.rematch_holdout_tolerance) * lens->holdout_flight_points_px;
   for (size_t i = 0; i < edges.size(); ++i) {
     auto* edge = const_cast<Edge*>(edges[i]);
     if (!lens->rematched_points_kept) {
@@ -919,17 +921,11 @@ bool RegistrationEngine::ResolveAtAcceptedLens(const std::vector<const Edge*>& e
                                                const std::unordered_set<int>& variable,
                                                const std::unordered_map<int, double>& half_diag, AdjustResult* linear,
                                                Solution* s) {
-  // The rematch's guides and its solves start from maps solved at the lens's ideal pixels: the prepared lens's maps
-  // are far from them when the lens differs much (caliterra, -0.7 % against a -16 % database lens: the solves on the
-  // flight's points did not converge from those).
-  if (!ResolveAtLens(edges, points, resident, s->lens.distortion, variable, half_diag, linear, s)) return false;
-  if (!options_.lens_calibration.rematch) return true;
-  PinholeCamera at_lens = resident;
-  at_lens.distortion = s->lens.distortion;
-  CorrectLensAfterRematch(w.edges, w.variable, w.anchor, half_diag, at_lens, &s->lens);
-  const LensDistortion& corrected = s->lens.distortion;
-  if (corrected.k1 == at_lens.distortion.k1 && corrected.k2 == at_lens.distortion.k2) return true;
-  return ResolveAtLens(edges, points, at_lens, corrected, variable, half_diag, linear, s);
+  // The rematch leaves the window's points at `resident`'s ideal pixels (the rematched ones too, when kept); they and
+  // the others move to the lens's (corrected when the correction was kept) and are solved again.
+  if (options_.lens_calibration.rematch)
+    CorrectLensAfterRematch(w.edges, w.variable, w.anchor, half_diag, resident, &s->lens);
+  return ResolveAtLens(edges, points, resident, s->lens.distortion, variable, half_diag, linear, s);
 }
 
 bool RegistrationEngine::ResolveAtLens(const std::vector<const Edge*>& edges, EdgePointSource* points,

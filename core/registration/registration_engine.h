@@ -294,8 +294,8 @@ class RegistrationEngine {
                         const std::unordered_set<int>& variable, int anchor,
                         const std::unordered_map<int, double>& half_diag, const PinholeCamera& resident,
                         LensCalibration* lens);
-  // After an accepted lens: the edges' points moved to its ideal pixels and solved linearly, then (with
-  // lens_calibration.rematch) its window's pairs matched again and the lens corrected, and solved again when it was.
+  // After an accepted lens: (with lens_calibration.rematch) its window's pairs matched again and the lens corrected,
+  // then the edges' points moved to its ideal pixels and solved linearly.
   [[nodiscard]] bool ResolveAtAcceptedLens(const std::vector<const Edge*>& edges, EdgePointSource* points,
                                            const LensWindow& w, const PinholeCamera& resident,
                                            const std::unordered_set<int>& variable,
