@@ -195,6 +195,33 @@ TEST(LensCalibrationTest, APreparedLensIsRefinedFromItsStart) {
   EXPECT_NEAR(cal.distortion_at_half_diagonal, -0.1, 0.01);
 }
 
+TEST(LensCalibrationTest, AFarWrongPreparedLensGivesWayToTheFlightsLens) {
+  // caliterra's case: a database lens calibrated on raw files (-16 % there, -12 % here) on JPEGs the camera already
+  // corrected (-1 % left). Its solve either finds the flight's lens or fails and says so (the engine then drops the
+  // lens, RegistrationEngine::CalibrateLensAndResolve); it never accepts a lens far from the flight's.
+  const PinholeCamera truth = BarrelLens(-0.01);
+  Flight f = MakeFlight(truth, 0.3, 5);
+  const PinholeCamera prepared = BarrelLens(-0.12);
+  for (auto& e : f.edges)
+    for (Vec2f& p : e.points.all()) p = prepared.UndistortPixel(p.cast<double>()).cast<float>();
+  Solved s = SolveLinear(f);
+  const LensCalibration from_wrong = Calibrate(s, prepared);
+  std::printf("from the wrong lens: %s (%s)\n", from_wrong.accepted ? "accepted" : "refused", from_wrong.why.c_str());
+  if (from_wrong.accepted)
+    EXPECT_NEAR(from_wrong.distortion_at_half_diagonal, -0.01, 0.005);
+  else
+    EXPECT_TRUE(from_wrong.solve_failed) << from_wrong.why;
+  // Dropped: the points back at their recorded pixels, maps solved linearly on them, the lens calibrated from none.
+  for (auto& e : f.edges) ReprojectEdgePoints(prepared, LensDistortion{}, &e);
+  s = SolveLinear(f);
+  const LensCalibration cal = Calibrate(s, Ideal());
+  std::printf("from the recorded pixels: found %.4f at the half-diagonal; held-out %.3f -> %.3f px\n",
+              cal.distortion_at_half_diagonal, cal.holdout_without_px, cal.holdout_with_px);
+  ASSERT_TRUE(cal.accepted) << cal.why;
+  EXPECT_NEAR(cal.distortion_at_half_diagonal, -0.01, 0.003);
+  EXPECT_LT(cal.holdout_with_px, 0.75);  // the noise floor: 0.3 px on each coordinate of both points is 0.6 px
+}
+
 TEST(LensCalibrationTest, TooFewFramesAreNotTried) {
   Flight f = MakeFlight(Ideal(), 0.3, 4);
   Solved s = SolveLinear(f);
