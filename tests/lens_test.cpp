@@ -138,9 +138,20 @@ TEST(LensTest, TheDatabaseKnowsCaliterrasCamera) {
   md.make = "Canon";
   md.model = "Canon PowerShot SX260 HS";
   md.focal_length_mm = 4.5;
-  const CameraChoice c = ChooseCamera(CameraOptions{}, md, cv::Size(4000, 3000));
-  ASSERT_EQ(c.source, "database") << c.detail;
-  EXPECT_EQ(c.focal_from, "exif_crop_factor");
+  // Its only lens in lensfun was calibrated on raw files (CHDK's DNG): the choice keeps the crop factor's focal and
+  // leaves the processed frames' pixels as recorded.
+  const CameraChoice chosen = ChooseCamera(CameraOptions{}, md, cv::Size(4000, 3000));
+  EXPECT_EQ(chosen.source, "none") << chosen.detail;
+  EXPECT_NE(chosen.detail.find("calibrated on raw files"), std::string::npos) << chosen.detail;
+  EXPECT_EQ(chosen.focal_from, "exif_crop_factor");
+  EXPECT_TRUE(chosen.camera.distortion.IsZero());
+  // The entry itself, converted to Brown's model for that camera.
+  CameraChoice c = chosen;
+  LensDatabaseEntry entry;
+  std::string why;
+  ASSERT_TRUE(LookUpLensDistortion(md.make, md.model, 4.5, c.camera, &entry, &why)) << why;
+  EXPECT_TRUE(entry.raw_files) << entry.lens;
+  c.camera.distortion = entry.distortion;
   const double a = 0.06245, b = -0.20795, cc = 0.06699;
   const auto ptlens = [&](double r) { return r * (a * r * r * r + b * r * r + cc * r + 1 - a - b - cc); };
   // Each model's ideal radius for the same recorded radius: the two ideal images may differ by a scale (the maps

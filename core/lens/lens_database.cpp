@@ -1,6 +1,7 @@
 #include "core/lens/lens_database.h"
 
 #include <Eigen/Dense>
+#include <cctype>
 #include <cmath>
 #include <memory>
 #include <mutex>
@@ -74,6 +75,22 @@ bool SampleModifier(const lfLens* lens, double crop, double focal_mm, const Pinh
   return true;
 }
 
+// lensfun marks a calibration made on raw files in the lens's name ("..., with CHDK's DNG"; "RAW" elsewhere).
+bool NamesRawFiles(const std::string& lens) {
+  std::string upper = lens;
+  for (char& ch : upper) ch = static_cast<char>(std::toupper(static_cast<unsigned char>(ch)));
+  const auto word = [&](const std::string& w) {
+    for (size_t at = upper.find(w); at != std::string::npos; at = upper.find(w, at + 1)) {
+      const bool starts = at == 0 || std::isalpha(static_cast<unsigned char>(upper[at - 1])) == 0;
+      const size_t end = at + w.size();
+      const bool ends = end == upper.size() || std::isalpha(static_cast<unsigned char>(upper[end])) == 0;
+      if (starts && ends) return true;
+    }
+    return false;
+  };
+  return word("DNG") || word("RAW");
+}
+
 }  // namespace
 
 bool LensDatabaseAvailable() {
@@ -103,6 +120,7 @@ bool LookUpLensDistortion(const std::string& make, const std::string& model, dou
   entry->camera = std::string(cam->Maker != nullptr ? lf_mlstr_get(cam->Maker) : "") + " " +
                   (cam->Model != nullptr ? lf_mlstr_get(cam->Model) : "");
   entry->lens = lens->Model != nullptr ? lf_mlstr_get(lens->Model) : "";
+  entry->raw_files = NamesRawFiles(entry->lens);
   entry->crop_factor = cam->CropFactor;
   entry->distortion = FitRadialSamples(samples, camera.focal_px, &entry->centre_scale);
   return true;

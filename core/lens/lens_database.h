@@ -15,6 +15,9 @@ struct LensDatabaseEntry {
   double crop_factor = 0.0;
   LensDistortion distortion;  // Brown (k1, k2) in the normalised coordinates of the camera it was looked up for
   double centre_scale = 1.0;  // the database's ideal image against ours, at the centre (taken out of the fit)
+  // The database calibrated the lens on raw files (lensfun names such entries, e.g. "with CHDK's DNG"): it describes
+  // the sensor's data, not a camera's processed frames, which its own processing may already have corrected.
+  bool raw_files = false;
 };
 
 [[nodiscard]] bool LensDatabaseAvailable();
