@@ -17,13 +17,16 @@ set for every session: a match is trimmed only when it is beyond the threshold i
 and the share beyond it.
 """
 import argparse
-import csv
 import json
 import math
+import os
 import sqlite3
 import sys
 
 import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scripts"))
+from compare_sessions import read as read_maps  # noqa: E402  (the sessions' transforms.csv, one reader)
 
 PAIR_ID_BASE = 2147483647  # COLMAP: pair_id = image_id1 * 2147483647 + image_id2, image_id1 < image_id2
 
@@ -61,13 +64,8 @@ def read_yaml_numbers(path, keys):
 def read_session(session):
     cam = read_yaml_numbers(f"{session}/camera.yaml", {"width", "height", "focal_px", "cx", "cy", "k1", "k2", "p1", "p2"})
     work = read_yaml_numbers(f"{session}/config.yaml", {"work_long_side"}).get("work_long_side", 1000.0)
-    maps = {}
-    with open(f"{session}/transforms.csv", newline="") as f:
-        for row in csv.DictReader(f):
-            if row["registered"] != "1":
-                continue
-            a = [float(row[k]) for k in ("a00", "a01", "a02", "a10", "a11", "a12", "h20", "h21")]
-            maps[row["filename"]] = np.array([[a[0], a[1], a[2]], [a[3], a[4], a[5]], [a[6], a[7], 1.0]])
+    _, rows = read_maps(session)  # a00 a01 a02 a10 a11 a12 h20 h21 of each registered frame
+    maps = {name: np.array([a[0:3], a[3:6], [a[6], a[7], 1.0]]) for name, a in rows.items()}
     scale = work / max(cam["width"], cam["height"])
     return cam, maps, scale
 

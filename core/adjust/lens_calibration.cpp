@@ -223,8 +223,8 @@ LensCalibration CalibrateLens(const std::vector<const Edge*>& edges, const std::
   // (beside the first solve, on the second core, when both fit the refinement's line of the plan: each is one-threaded
   // and the end of the flight has both cores; ~7 MiB more, the window bounding it) and the maps the prepared lens
   // converged to. From the linear maps a lens far from the prepared one and the perspectives can wander together
-  // (caliterra with our SIFT: no convergence in 50 iterations, a folded perspective), from the first solve's maps a
-  // solve that did not converge can lead astray (caliterra with OpenCV's SIFT); the one fitting its points better wins.
+  // (caliterra under its raw-file database lens: no convergence in 50 iterations, a folded perspective); the linear
+  // start stays because it is the one every other flight was measured with. The one fitting its points better wins.
   std::unordered_map<int, Mat3> without = start;
   const bool side_by_side = 2 * int64_t{subset.max_correspondences} <= refine.max_correspondences;
   const double max_radius = 1.05 * prepared.HalfDiagonalRadius();

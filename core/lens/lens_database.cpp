@@ -1,10 +1,10 @@
 #include "core/lens/lens_database.h"
 
 #include <Eigen/Dense>
-#include <cctype>
 #include <cmath>
 #include <memory>
 #include <mutex>
+#include <regex>
 
 #ifdef UAVM_WITH_LENSFUN
 #include <lensfun/lensfun.h>
@@ -77,18 +77,8 @@ bool SampleModifier(const lfLens* lens, double crop, double focal_mm, const Pinh
 
 // lensfun marks a calibration made on raw files in the lens's name ("..., with CHDK's DNG"; "RAW" elsewhere).
 bool NamesRawFiles(const std::string& lens) {
-  std::string upper = lens;
-  for (char& ch : upper) ch = static_cast<char>(std::toupper(static_cast<unsigned char>(ch)));
-  const auto word = [&](const std::string& w) {
-    for (size_t at = upper.find(w); at != std::string::npos; at = upper.find(w, at + 1)) {
-      const bool starts = at == 0 || std::isalpha(static_cast<unsigned char>(upper[at - 1])) == 0;
-      const size_t end = at + w.size();
-      const bool ends = end == upper.size() || std::isalpha(static_cast<unsigned char>(upper[end])) == 0;
-      if (starts && ends) return true;
-    }
-    return false;
-  };
-  return word("DNG") || word("RAW");
+  static const std::regex kRawWord(R"(\b(dng|raw)\b)", std::regex::icase);
+  return std::regex_search(lens, kRawWord);
 }
 
 }  // namespace

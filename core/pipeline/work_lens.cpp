@@ -31,11 +31,8 @@ PinholeCamera FinalCamera(const WorkLens& lens, const LensCalibration& calibrati
 std::string CameraYaml(const WorkLens& lens, const LensCalibration& calibration) {
   if (!lens.chosen()) return {};
   const PinholeCamera c = FinalCamera(lens, calibration);
-  const std::string dropped = "the " + lens.choice().source + " lens was dropped";
-  const std::string source = calibration.accepted  ? (calibration.dropped ? "self-calibrated (" + dropped + ")"
-                                                                          : std::string("self-calibrated"))
-                             : calibration.dropped ? "none (" + dropped + ")"
-                                                   : lens.choice().source;
+  std::string source = calibration.accepted ? "self-calibrated" : calibration.dropped ? "none" : lens.choice().source;
+  if (calibration.dropped) source += " (the " + lens.choice().source + " lens was dropped)";
   char buf[1024];
   std::snprintf(buf, sizeof(buf),
                 "# The lens the session's frames were undistorted with: transforms.csv maps *undistorted* pixels,\n"
