@@ -105,6 +105,43 @@ TEST(SiftTest, HalfSizePositionsAgreeWithFullResolution) {
   EXPECT_LT(std::abs(dy[dy.size() / 2]), 0.15f);
 }
 
+// features.double_first_octave: false starts the scale space at the input's size. Its figure (and so the memory plan
+// and the bands under a cap) is a quarter of the doubled one's; it still finds plenty, most of them where the doubled
+// scale space has one too (the doubled octave adds the finer ones; bench/results/sift-first-octave-*.md
+// measures what they buy).
+TEST(SiftTest, AnUndoubledFirstOctaveCostsAQuarterAndFindsTheCoarserKeypoints) {
+  const cv::Mat gray = WorkingGray(static_cast<int>(1000 * test::EmulationImageScale()));
+  FeatureOptions doubled;
+  FeatureOptions input;
+  input.double_first_octave = false;
+  EXPECT_NEAR(SiftScaleSpaceMiB(gray.cols, gray.rows, input), SiftScaleSpaceMiB(gray.cols, gray.rows, doubled) / 4,
+              1e-6);
+  const int cap = static_cast<int>(std::ceil(SiftScaleSpaceMiB(gray.cols, gray.rows, input)));
+  doubled.max_scale_space_mib = cap;
+  input.max_scale_space_mib = cap;
+  EXPECT_EQ(SiftBands(gray.cols, gray.rows, input), 1);
+  EXPECT_GE(SiftBands(gray.cols, gray.rows, doubled), 2);
+  doubled.max_scale_space_mib = 0;
+  input.max_scale_space_mib = 0;
+  doubled.max_features = 1 << 20;  // every keypoint, not only the strongest (mostly fine ones)
+
+  const Features a = SiftExtractor(doubled).Extract(gray);
+  const Features b = SiftExtractor(input).Extract(gray);
+  ASSERT_GE(b.size(), static_cast<size_t>(1000 * test::EmulationImageScale()));
+  int shared = 0;
+  for (const auto& p : b.points) {
+    for (const auto& q : a.points) {
+      if (std::abs(p.x - q.x) <= 0.25f && std::abs(p.y - q.y) <= 0.25f) {
+        ++shared;
+        break;
+      }
+    }
+  }
+  std::cerr << "undoubled: " << b.size() << " keypoints (doubled " << a.size() << "), " << shared
+            << " within 0.25 px of a doubled one\n";
+  EXPECT_GT(shared, static_cast<int>(0.7 * static_cast<double>(b.size())));  // 81 % measured
+}
+
 TEST(SiftTest, OptionsAreChecked) {
   FeatureOptions o;
   std::string why;

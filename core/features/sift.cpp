@@ -26,7 +26,8 @@ bool FeatureOptions::Check(std::string* why) const {
 }
 
 double SiftScaleSpaceMiB(int width, int height, const FeatureOptions& options) {
-  if (!options.opencv_sift) return DogSiftScaleSpaceMiB(width, height, options.octave_layers);
+  if (!options.opencv_sift)
+    return DogSiftScaleSpaceMiB(width, height, options.octave_layers, options.double_first_octave);
   // Octave -1 is 2w x 2h; each further octave a quarter of the previous: 4/3 of the first in all.
   constexpr double kImagesPerOctave = 11.0;  // 6 Gaussian + 5 difference-of-Gaussian, float
   const double first = 4.0 * static_cast<double>(width) * static_cast<double>(height) * sizeof(float);
@@ -68,6 +69,7 @@ void DetectOnce(const cv::Mat& gray, const FeatureOptions& options, int max_feat
   o.octave_layers = options.octave_layers;
   o.contrast_threshold = threshold;
   o.max_features = max_features;
+  o.double_first_octave = options.double_first_octave;
   if (ladder) {
     o.target_min_features = options.target_min_features;
     o.min_contrast_threshold = options.min_contrast_threshold;

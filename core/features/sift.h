@@ -28,6 +28,10 @@ struct FeatureOptions {
   // space from the working resolution up, at ~1/4 of the time and memory; positions are mapped back to the working
   // copy (measured in bench/results/speed-profile-*.md).
   bool half_size = false;
+  // Ours only: the first octave at twice the input's size (Lowe's and OpenCV's default) or at the input's own. The
+  // doubled octave holds 4 of the scale space's 5.3 input-sized images of work; what it buys is measured in
+  // bench/results/sift-first-octave-*.md.
+  bool double_first_octave = true;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };

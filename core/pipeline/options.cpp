@@ -122,6 +122,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"features", "octave_layers", &o.features.octave_layers},
       {"features", "root_sift", &o.features.root_sift},
       {"features", "half_size", &o.features.half_size},
+      {"features", "double_first_octave", &o.features.double_first_octave},
       {"features", "opencv_sift", &o.features.opencv_sift},
       {"features", "max_scale_space_mib", &o.features.max_scale_space_mib},
       {"features", "band_margin", &o.features.band_margin},
