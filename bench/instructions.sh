@@ -31,6 +31,9 @@
 #                           and glibc pick their code paths from it; qemu's own default "max" gave SIFT/3 2 % more)
 #   A72_GHZ / A76_GHZ       clocks (default 1.5 / 2.4)
 #   REUSE                   1 = keep the counts already in OUT_DIR (*.loops, *.json) and only redo the tables
+#   STAGES                  micro-bench filter of the stages counted (default: every stage of the table; e.g.
+#                           'BM_SiftExtract/1/0/' for ours' SIFT alone: the other rows are then empty)
+#   DECODE_12MP             0 = skip the 12 MP decode counts (default 1)
 #   PROFILE                 1 = also where ours' SIFT spends its aarch64 instructions: one BM_SiftExtract/1/0 process
 #                           under the plugin's per-block counts, summed per function of the micro-bench (set-up and
 #                           iterations included: read the shares), to OUT_DIR/a64_profile.md
@@ -40,7 +43,7 @@ export LC_ALL=C
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 REPO=$(dirname "$SCRIPT_DIR")
 if [[ $# -gt 1 || ${1:-} == -h || ${1:-} == --help ]]; then
-  sed -n '2,33p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '2,36p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 OUT_DIR=${1:-/tmp/uavm-instructions-$(date +%Y%m%d-%H%M%S)}
@@ -109,10 +112,15 @@ callgrind_loops() {
 }
 
 echo "x86-64 callgrind: micro-bench stages (1000x750 frames) ..." >&2
-STAGES='BM_(SiftExtract|IndexBuild|IndexQuery|MatchPair/[01]|RansacAffine|JpegDecode|TilePngEncode/1)/'
+STAGES=${STAGES:-'BM_(SiftExtract|IndexBuild|IndexQuery|MatchPair/[01]|RansacAffine|JpegDecode|TilePngEncode/1)/'}
+DECODE_12MP=${DECODE_12MP:-1}
 callgrind_loops x86 "$STAGES"
-echo "x86-64 callgrind: 12 MP JPEG decode ..." >&2
-callgrind_loops x86_12mp 'BM_JpegDecode/[14]/' UAVM_MICRO_IMAGES="$DATA/caliterra/images"
+if [[ $DECODE_12MP == 1 ]]; then
+  echo "x86-64 callgrind: 12 MP JPEG decode ..." >&2
+  callgrind_loops x86_12mp 'BM_JpegDecode/[14]/' UAVM_MICRO_IMAGES="$DATA/caliterra/images"
+else
+  : >"$OUT_DIR/x86_12mp.tsv"
+fi
 
 # x86 VALUE_OF BENCH_PREFIX [FILE]: instructions per iteration of the first benchmark whose name starts so.
 x86() { awk -F'\t' -v p="$1" 'index($1, p) == 1 { print $2; exit }' "$OUT_DIR/${2:-x86}.tsv"; }
@@ -250,8 +258,12 @@ if [[ -x $A64_BIN ]] && command -v qemu-aarch64 >/dev/null; then
   HAVE_A64=1
   echo "aarch64 qemu: micro-bench stages (1000x750 frames) ..." >&2
   qemu_loops a64 "$STAGES"
-  echo "aarch64 qemu: 12 MP JPEG decode ..." >&2
-  qemu_loops a64_12mp 'BM_JpegDecode/[14]/' UAVM_MICRO_IMAGES="$DATA/caliterra/images"
+  if [[ $DECODE_12MP == 1 ]]; then
+    echo "aarch64 qemu: 12 MP JPEG decode ..." >&2
+    qemu_loops a64_12mp 'BM_JpegDecode/[14]/' UAVM_MICRO_IMAGES="$DATA/caliterra/images"
+  else
+    : >"$OUT_DIR/a64_12mp.tsv"
+  fi
 else
   echo "no aarch64 micro-bench at $A64_BIN (or no qemu-aarch64): aarch64 column estimated as 1.0 x x86-64" >&2
 fi
