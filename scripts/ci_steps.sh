@@ -76,7 +76,8 @@ ci_tier() {
   step "native build" bash "$ROOT/scripts/build.sh"
   step "format" bash "$ROOT/scripts/lint.sh" --check
   step "layers" bash "$ROOT/scripts/lint.sh" --layers
-  step "function size" bash "$ROOT/scripts/lint.sh" --function-size
+  # What changed since the last full check (scripts/function_size_checked_at); the full tier checks every source.
+  step "function size" bash "$ROOT/scripts/lint.sh" --function-size ${UAVM_FUNCTION_SIZE_ALL:+--all}
   step "native suite" native_suite
   step "accuracy gate" bash "$ROOT/scripts/accuracy_gate.sh"
   step "fuzzing" bash "$ROOT/scripts/fuzz.sh" --runs 20000 --quick-build

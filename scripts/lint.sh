@@ -2,10 +2,14 @@
 # Formats (clang-format -i) and lints (clang-tidy, on the compile database of build/ or $UAVM_BUILD_DIR) the
 # project's own sources.
 # `scripts/lint.sh --check` only reports formatting differences (exit 1 when any).
-# `scripts/lint.sh --function-size` only runs clang-tidy's readability-function-size (thresholds in .clang-tidy) over
-# core/, hal/, firmware_app/, ground_app/ and tools/, two files at a time: exit 1 when a function exceeds them and is
-# not in scripts/function_size_exceptions.txt, or when an exception there no longer exceeds them (so the list only
-# shrinks).
+# `scripts/lint.sh --function-size [--all] [--mark]` only runs clang-tidy's readability-function-size (thresholds in
+# .clang-tidy) over core/, hal/, firmware_app/, ground_app/ and tools/, two files at a time: exit 1 when a function
+# exceeds them and is not in scripts/function_size_exceptions.txt, or when an exception there no longer exceeds them
+# (so the list only shrinks). Without --all only what changed since the commit in scripts/function_size_checked_at
+# (a full check passed there): the sources changed since, and those including a changed header; every source when
+# that commit is not in the history (a shallow clone), or the thresholds, the exceptions or this script changed.
+# Parsing is the step's cost (~4-8 min for every source on 2 cores); the full tier checks every source. --mark (with
+# --all) writes HEAD into scripts/function_size_checked_at when the full check passes on a clean tree: commit it.
 # `scripts/lint.sh --layers` only checks every #include and CMake dependency between folders against
 # scripts/layers.txt (exit 1 on one the table does not allow, or on a folder it does not list).
 set -euo pipefail
@@ -29,7 +33,61 @@ tidy_db() {
   fi | sed -E 's# -fno-predictive-commoning##g' >"$1/compile_commands.json"
 }
 
+# changed_sources SOURCE...: of the given sources, those changed since the commit in scripts/function_size_checked_at
+# and those including (directly or through other headers) a header changed since; "all" when every source must be
+# checked (no such commit in the history, or what decides the check changed).
+changed_sources() {
+  local base
+  base=$(sed -E 's/#.*//' "$ROOT/scripts/function_size_checked_at" 2>/dev/null | tr -d '[:space:]')
+  if [[ -z $base ]] || ! git cat-file -e "$base^{commit}" 2>/dev/null || ! git merge-base --is-ancestor "$base" HEAD; then
+    echo all
+    return
+  fi
+  local changed
+  changed=$({ git diff --name-only "$base" --; git ls-files --others --exclude-standard; } | sort -u)
+  if grep -qxE '\.clang-tidy|scripts/function_size_exceptions\.txt|scripts/lint\.sh' <<<"$changed"; then
+    echo all
+    return
+  fi
+  local -A reached=()
+  local h f headers
+  headers=$(grep -E '^(core|hal|firmware_app|ground_app|tools)/.*\.h$' <<<"$changed" || true)
+  # Headers including a changed header, until no new one appears.
+  while [[ -n $headers ]]; do
+    local next=""
+    for h in $headers; do
+      [[ -n ${reached[$h]+x} ]] && continue
+      reached[$h]=1
+      next+=$(git grep -l -F "#include \"$h\"" -- '*.h' || true)$'\n'
+    done
+    headers=$(grep -v '^$' <<<"$next" | sort -u || true)
+  done
+  for f in "$@"; do
+    if grep -qxF "$f" <<<"$changed"; then
+      echo "$f"
+      continue
+    fi
+    for h in "${!reached[@]}"; do
+      if grep -qF "#include \"$h\"" "$ROOT/$f"; then
+        echo "$f"
+        break
+      fi
+    done
+  done
+}
+
 function_size() {
+  local scope=changed mark=0 arg
+  for arg in "$@"; do
+    case $arg in
+      --all) scope=all ;;
+      --mark) mark=1 ;;
+      *)
+        echo "lint: --function-size takes --all and --mark, not $arg" >&2
+        return 2
+        ;;
+    esac
+  done
   local t0 tmp exceptions="$ROOT/scripts/function_size_exceptions.txt"
   t0=$(date +%s)
   if [ ! -f "$BUILD_DIR/compile_commands.json" ]; then
@@ -44,6 +102,25 @@ function_size() {
   # them, each function reported once.
   mapfile -t SRCS < <(git ls-files '*.cpp' | grep -E '^(core|hal|firmware_app|ground_app|tools)/' |
     while read -r f; do grep -qF "\"file\": \"$ROOT/$f\"" "$tmp/compile_commands.json" && echo "$f"; done)
+  local all_sources=${#SRCS[@]} checked_files
+  if [[ $scope == changed ]]; then
+    mapfile -t CHANGED < <(changed_sources "${SRCS[@]}")
+    if [[ ${CHANGED[0]:-} == all ]]; then
+      scope=all
+    else
+      SRCS=("${CHANGED[@]}")
+    fi
+  fi
+  # The files whose exceptions this run can judge: the sources it parses and the headers changed since the marker.
+  checked_files=$(printf '%s\n' "${SRCS[@]}")
+  if [[ $scope == changed ]]; then
+    checked_files+=$'\n'$(git diff --name-only "$(sed -E 's/#.*//' "$ROOT/scripts/function_size_checked_at" |
+      tr -d '[:space:]')" -- '*.h')
+  fi
+  if [[ ${#SRCS[@]} -eq 0 ]]; then
+    echo "lint: function size: no source changed since the last full check ($all_sources sources)"
+    return 0
+  fi
   tidy_db "$tmp/pch" pch
   export LINT_TMP="$tmp" LINT_ROOT="$ROOT"
   # A source that does not parse without the PCH (a missing #include) is tried again with it, and named.
@@ -86,8 +163,13 @@ function_size() {
   local over stale
   over=$(cut -f1 "$tmp/flagged" | sort -u | comm -23 - "$tmp/allowed")
   stale=$(cut -f1 "$tmp/flagged" | sort -u | comm -13 - "$tmp/allowed")
-  echo "lint: function size: ${#SRCS[@]} sources, $(wc -l <"$tmp/flagged") function(s) over the thresholds," \
-    "$(wc -l <"$tmp/allowed") exception(s), $(($(date +%s) - t0)) s"
+  if [[ $scope == changed ]]; then  # an exception in a file this run did not parse cannot be judged
+    stale=$(while read -r k; do
+      [[ -n $k ]] && grep -qxF "${k%%:*}" <<<"$checked_files" && echo "$k"
+    done <<<"$stale" || true)
+  fi
+  echo "lint: function size: ${#SRCS[@]} of $all_sources sources ($scope), $(wc -l <"$tmp/flagged") function(s)" \
+    "over the thresholds, $(wc -l <"$tmp/allowed") exception(s), $(($(date +%s) - t0)) s"
   local status=0
   if [ -n "$over" ]; then
     echo "lint: functions over the size thresholds (.clang-tidy): split them, or list them with a reason in" \
@@ -100,6 +182,18 @@ function_size() {
     echo "lint: exceptions no longer over the thresholds: remove them from scripts/function_size_exceptions.txt" >&2
     sed 's/^/  /' <<<"$stale" >&2
     status=1
+  fi
+  if [[ $mark == 1 && $status == 0 ]]; then
+    if [[ $scope != all ]]; then
+      echo "lint: --mark needs --all" >&2
+      return 2
+    fi
+    if [[ -n $(git status --porcelain -- core hal firmware_app ground_app tools .clang-tidy scripts) ]]; then
+      echo "lint: not marked: the tree has uncommitted changes (the mark names a commit)" >&2
+      return 1
+    fi
+    sed -i -E "s/^[0-9a-f]{40}\$/$(git rev-parse HEAD)/" "$ROOT/scripts/function_size_checked_at"
+    echo "lint: function size: every source checked at $(git rev-parse --short HEAD) (commit scripts/function_size_checked_at)"
   fi
   return "$status"
 }
@@ -159,7 +253,8 @@ case "${1:-}" in
     exit $?
     ;;
   --function-size)
-    function_size
+    shift
+    function_size "$@"
     exit $?
     ;;
 esac

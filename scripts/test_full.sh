@@ -7,5 +7,6 @@
 # Same step table and time guard as the CI tier (scripts/ci_times.sh).
 set -euo pipefail
 source "$(dirname "$0")/ci_steps.sh"
+export UAVM_FUNCTION_SIZE_ALL=1  # the function-size lint over every source, not only what changed
 ci_tier
 full_extras
