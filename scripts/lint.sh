@@ -33,24 +33,27 @@ tidy_db() {
   fi | sed -E 's# -fno-predictive-commoning##g' >"$1/compile_commands.json"
 }
 
-# changed_sources SOURCE...: of the given sources, those changed since the commit in scripts/function_size_checked_at
-# and those including (directly or through other headers) a header changed since; "all" when every source must be
-# checked (no such commit in the history, or what decides the check changed).
-changed_sources() {
+# The commit of the last full pass (scripts/function_size_checked_at), when it is in this clone's history.
+marked_commit() {
   local base
   base=$(sed -E 's/#.*//' "$ROOT/scripts/function_size_checked_at" 2>/dev/null | tr -d '[:space:]')
-  if [[ -z $base ]] || ! git cat-file -e "$base^{commit}" 2>/dev/null || ! git merge-base --is-ancestor "$base" HEAD; then
-    echo all
-    return
-  fi
-  local changed
+  [[ -n $base ]] && git cat-file -e "$base^{commit}" 2>/dev/null && git merge-base --is-ancestor "$base" HEAD &&
+    echo "$base"
+}
+
+# changed_sources BASE SOURCE...: the files a check since BASE must parse and judge: each changed header and every
+# header including one (directly or through others), then "--", then the given sources changed since BASE or
+# including one of those headers; "all" when what decides the check changed.
+changed_sources() {
+  local base=$1 changed
+  shift
   changed=$({ git diff --name-only "$base" --; git ls-files --others --exclude-standard; } | sort -u)
   if grep -qxE '\.clang-tidy|scripts/function_size_exceptions\.txt|scripts/lint\.sh' <<<"$changed"; then
     echo all
     return
   fi
   local -A reached=()
-  local h f headers
+  local h headers
   headers=$(grep -E '^(core|hal|firmware_app|ground_app|tools)/.*\.h$' <<<"$changed" || true)
   # Headers including a changed header, until no new one appears.
   while [[ -n $headers ]]; do
@@ -62,18 +65,13 @@ changed_sources() {
     done
     headers=$(grep -v '^$' <<<"$next" | sort -u || true)
   done
-  for f in "$@"; do
-    if grep -qxF "$f" <<<"$changed"; then
-      echo "$f"
-      continue
-    fi
-    for h in "${!reached[@]}"; do
-      if grep -qF "#include \"$h\"" "$ROOT/$f"; then
-        echo "$f"
-        break
-      fi
-    done
-  done
+  printf '%s\n' "${!reached[@]}" --
+  # One search for every reached header's #include (the sources that include none are the most).
+  local including=""
+  if ((${#reached[@]})); then
+    including=$(printf '#include "%s"\n' "${!reached[@]}" | git grep -l -F -f - -- "$@" || true)
+  fi
+  printf '%s\n' "$@" | grep -xF -f <(printf '%s\n' "$changed" "$including" | grep -v '^$') || true
 }
 
 function_size() {
@@ -88,6 +86,10 @@ function_size() {
         ;;
     esac
   done
+  if [[ $mark == 1 && $scope != all ]]; then
+    echo "lint: --mark needs --all" >&2
+    return 2
+  fi
   local t0 tmp exceptions="$ROOT/scripts/function_size_exceptions.txt"
   t0=$(date +%s)
   if [ ! -f "$BUILD_DIR/compile_commands.json" ]; then
@@ -102,20 +104,21 @@ function_size() {
   # them, each function reported once.
   mapfile -t SRCS < <(git ls-files '*.cpp' | grep -E '^(core|hal|firmware_app|ground_app|tools)/' |
     while read -r f; do grep -qF "\"file\": \"$ROOT/$f\"" "$tmp/compile_commands.json" && echo "$f"; done)
-  local all_sources=${#SRCS[@]} checked_files
-  if [[ $scope == changed ]]; then
-    mapfile -t CHANGED < <(changed_sources "${SRCS[@]}")
-    if [[ ${CHANGED[0]:-} == all ]]; then
-      scope=all
-    else
-      SRCS=("${CHANGED[@]}")
-    fi
+  local all_sources=${#SRCS[@]} base checked_files
+  # The files whose exceptions this run can judge: the sources it parses and, in a changed run, the headers reached.
+  if [[ $scope == changed ]] && base=$(marked_commit); then
+    mapfile -t CHANGED < <(changed_sources "$base" "${SRCS[@]}")
+  else
+    CHANGED=(all)
   fi
-  # The files whose exceptions this run can judge: the sources it parses and the headers changed since the marker.
-  checked_files=$(printf '%s\n' "${SRCS[@]}")
-  if [[ $scope == changed ]]; then
-    checked_files+=$'\n'$(git diff --name-only "$(sed -E 's/#.*//' "$ROOT/scripts/function_size_checked_at" |
-      tr -d '[:space:]')" -- '*.h')
+  if [[ ${CHANGED[0]:-} == all ]]; then
+    scope=all
+    checked_files=$(printf '%s\n' "${SRCS[@]}")
+  else
+    local i
+    for i in "${!CHANGED[@]}"; do [[ ${CHANGED[$i]} == -- ]] && break; done
+    checked_files=$(printf '%s\n' "${CHANGED[@]}" | grep -vx -- '--')
+    SRCS=("${CHANGED[@]:i+1}")
   fi
   if [[ ${#SRCS[@]} -eq 0 ]]; then
     echo "lint: function size: no source changed since the last full check ($all_sources sources)"
@@ -184,10 +187,6 @@ function_size() {
     status=1
   fi
   if [[ $mark == 1 && $status == 0 ]]; then
-    if [[ $scope != all ]]; then
-      echo "lint: --mark needs --all" >&2
-      return 2
-    fi
     if [[ -n $(git status --porcelain -- core hal firmware_app ground_app tools .clang-tidy scripts) ]]; then
       echo "lint: not marked: the tree has uncommitted changes (the mark names a commit)" >&2
       return 1
