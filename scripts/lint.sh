@@ -117,7 +117,7 @@ function_size() {
   else
     local i
     for i in "${!CHANGED[@]}"; do [[ ${CHANGED[$i]} == -- ]] && break; done
-    checked_files=$(printf '%s\n' "${CHANGED[@]}" | grep -vx -- '--')
+    checked_files=$(printf '%s\n' "${CHANGED[@]}" | grep -vx -- '--' || true)
     SRCS=("${CHANGED[@]:i+1}")
   fi
   if [[ ${#SRCS[@]} -eq 0 ]]; then
