@@ -124,9 +124,13 @@ bool GdalTiffWriter::Open(const std::string& path, cv::Size canvas, int block_si
   opts = CSLSetNameValue(opts, "TILED", "YES");
   opts = CSLSetNameValue(opts, "BLOCKXSIZE", block.c_str());
   opts = CSLSetNameValue(opts, "BLOCKYSIZE", block.c_str());
-  opts = CSLSetNameValue(opts, "COMPRESS", "DEFLATE");
-  opts = CSLSetNameValue(opts, "ZLEVEL", "1");  // fast: the onboard CPU has better things to do
+  // The file is an intermediate (its readers: the COG copy and the web tiles, both through GDAL): ZSTD at level 1
+  // compresses brighton_beach's mosaic in ~1/3 of the CPU of DEFLATE at level 1 for 9 % more bytes and decodes faster
+  // (products 1.94 -> 1.67 s); blocks the compositor never wrote stay absent (SPARSE_OK), read back as transparent.
+  opts = CSLSetNameValue(opts, "COMPRESS", "ZSTD");
+  opts = CSLSetNameValue(opts, "ZSTD_LEVEL", "1");
   opts = CSLSetNameValue(opts, "PREDICTOR", "2");
+  opts = CSLSetNameValue(opts, "SPARSE_OK", "TRUE");
   opts = CSLSetNameValue(opts, "BIGTIFF", "IF_SAFER");
   opts = CSLSetNameValue(opts, "PHOTOMETRIC", "RGB");
   opts = CSLSetNameValue(opts, "ALPHA", "YES");
