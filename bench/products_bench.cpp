@@ -89,8 +89,7 @@ int main(int argc, char** argv) {
     tiles_ms.push_back(tiles_end - (together ? t0 : t1));
     both_ms.push_back(std::max(t1, tiles_end) - t0);
     std::printf("run %d: COG %.0f ms, tiles %.0f ms (z%d-%d, %d written, %d empty), all %.0f ms\n", r + 1,
-                cog_ms.back(), tiles_ms.back(), set.min_zoom, set.max_zoom, set.tiles, set.tiles_empty,
-                both_ms.back());
+                cog_ms.back(), tiles_ms.back(), set.min_zoom, set.max_zoom, set.tiles, set.tiles_empty, both_ms.back());
   }
   std::printf("median: COG %.0f ms, tiles %.0f ms, all %.0f ms (%s)\n", Median(cog_ms), Median(tiles_ms),
               Median(both_ms), together ? "together" : "one after the other");

@@ -441,8 +441,8 @@ TEST(GdalTiffWriterTest, ReleasesEachBlockOnceWrittenWhole) {
   // Every block compressed once: the file is no larger than GDAL's own block-by-block copy of it.
   const std::string copy_path = (dir / "copy.tif").string();
   char** opts = nullptr;
-  for (const char* kv : {"TILED=YES", "BLOCKXSIZE=256", "BLOCKYSIZE=256", "COMPRESS=ZSTD", "ZSTD_LEVEL=1", "PREDICTOR=2",
-                         "PHOTOMETRIC=RGB", "ALPHA=YES", "SPARSE_OK=TRUE", "COPY_SRC_OVERVIEWS=YES"})
+  for (const char* kv : {"TILED=YES", "BLOCKXSIZE=256", "BLOCKYSIZE=256", "COMPRESS=ZSTD", "ZSTD_LEVEL=1",
+                         "PREDICTOR=2", "PHOTOMETRIC=RGB", "ALPHA=YES", "SPARSE_OK=TRUE", "COPY_SRC_OVERVIEWS=YES"})
     opts = CSLAddString(opts, kv);
   GDALDataset* copy = GetGDALDriverManager()->GetDriverByName("GTiff")->CreateCopy(copy_path.c_str(), ds, FALSE, opts,
                                                                                    nullptr, nullptr);

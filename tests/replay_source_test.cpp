@@ -96,6 +96,35 @@ TEST(ReplaySourceTest, VideoWithStride) {
   fs::remove(video);
 }
 
+// The video module is found where UAVM_VIDEO_READER says, and a missing one is a clear error, not a crash; the
+// program itself never maps videoio (hal/replay/video_reader.h).
+TEST(ReplaySourceTest, VideoModuleMissingIsASourceErrorNamingIt) {
+  const fs::path video = fs::temp_directory_path() / ("uavm_replay_module_" + std::to_string(::getpid()) + ".avi");
+  {
+    cv::VideoWriter writer(video.string(), cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 10.0, cv::Size(320, 240));
+    ASSERT_TRUE(writer.isOpened());
+    for (int i = 0; i < 2; ++i) writer.write(cv::Mat(240, 320, CV_8UC3, cv::Scalar::all(40 * i)));
+  }
+  ASSERT_EQ(::setenv("UAVM_VIDEO_READER", "/nonexistent/libuavm_video_reader.so", 1), 0);
+  std::string error;
+  {
+    ReplaySource src({video.string(), 1, true});
+    EXPECT_EQ(src.Open(&error), Status::kError);
+  }
+  ::unsetenv("UAVM_VIDEO_READER");
+  EXPECT_NE(error.find("libuavm_video_reader.so"), std::string::npos) << error;
+  EXPECT_NE(error.find("/nonexistent/"), std::string::npos) << error;
+  // Found again without the variable (the build tree's module), and it reads the frames.
+  ReplaySource src({video.string(), 1, true});
+  ASSERT_EQ(src.Open(&error), Status::kOk) << error;
+  Frame frame;
+  int frames = 0;
+  while (src.Next(&frame, &error) == Status::kOk) ++frames;
+  EXPECT_EQ(frames, 2);
+  src.Close();
+  fs::remove(video);
+}
+
 TEST(ReplaySourceTest, MissingFolderIsASourceError) {
   ReplaySource src({"/nonexistent/uavm/flight", 1, true});
   std::string err;

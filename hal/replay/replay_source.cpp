@@ -9,7 +9,6 @@
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <opencv2/videoio/registry.hpp>
 #include <string_view>
 
 #include "core/imageio/jpeg_region.h"
@@ -254,15 +253,8 @@ Status ReplaySource::Open(std::string* error) {
     return Status::kOk;
   }
   if (fs::is_regular_file(root, ec) && LooksLikeVideo(root)) {
-    // FFmpeg reads every container a drone writes; asking for it alone keeps OpenCV from probing its other back-ends
-    // (GStreamer, camera plugins) on a file that does not open — slow, and their plugins never free what they take.
-    const int api = cv::videoio_registry::hasBackend(cv::CAP_FFMPEG) ? cv::CAP_FFMPEG : cv::CAP_ANY;
-    video_ = std::make_unique<cv::VideoCapture>(options_.path, api);
-    if (!video_->isOpened()) {
-      *error = "cannot open video " + options_.path;
-      return Status::kError;
-    }
-    return Status::kOk;
+    video_ = OpenVideo(options_.path, error);
+    return video_ ? Status::kOk : Status::kError;
   }
   *error = "replay source not found (need an image folder or a video file): " + options_.path;
   return Status::kError;
@@ -355,13 +347,13 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
 
 Status ReplaySource::NextVideo(Frame* frame, std::string* error) {
   cv::Mat image;
-  if (!video_->read(image) || image.empty()) return Status::kEndOfStream;
+  if (!video_->Read(&image)) return Status::kEndOfStream;
   *frame = Frame{};
   frame->index = next_index_++;
   frame->source_name = "video:" + std::to_string(video_frame_++);
   frame->timestamp_ns = MonotonicNs();
   // Skip to the next frame to deliver now, so that the frame numbers in the names are the video's own.
-  for (int skip = 0; skip < options_.stride - 1 && video_->grab(); ++skip) ++video_frame_;
+  for (int skip = 0; skip < options_.stride - 1 && video_->Grab(); ++skip) ++video_frame_;
   if (image.channels() == 1) cv::cvtColor(image, image, cv::COLOR_GRAY2BGR);
   frame->original_size = image.size();
   frame->image = std::move(image);
@@ -370,7 +362,6 @@ Status ReplaySource::NextVideo(Frame* frame, std::string* error) {
 }
 
 void ReplaySource::Close() {
-  if (video_) video_->release();
   video_.reset();
 }
 

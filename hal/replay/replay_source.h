@@ -1,11 +1,11 @@
 #pragma once
 #include <memory>
-#include <opencv2/videoio.hpp>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
 #include "hal/common/frame_source.h"
+#include "hal/replay/video_reader.h"
 
 namespace uavm::hal {
 
@@ -34,7 +34,7 @@ class ReplaySource final : public FrameSource {
   ReplayOptions options_;
   std::vector<std::string> files_;
   size_t next_file_ = 0;
-  std::unique_ptr<cv::VideoCapture> video_;
+  std::unique_ptr<VideoReader> video_;
   uint64_t next_index_ = 0;
   uint64_t video_frame_ = 0;
   struct Seen {

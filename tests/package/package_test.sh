@@ -29,7 +29,8 @@ touch "$ROOT/var/lib/dpkg/status"
 dpkg --root="$ROOT" --force-script-chrootless --force-depends --force-architecture --log=/dev/null -i "$DEB" \
   >"$WORK/dpkg.log" 2>&1 || { cat "$WORK/dpkg.log" >&2; fail "dpkg -i"; }
 dpkg --root="$ROOT" -s uavmosaic | grep -q '^Status: install ok installed' || fail "not installed"
-for f in usr/bin/uavmosaic-onboard usr/bin/uavmosaic-sim usr/bin/uavmosaic-eval etc/uavmosaic/onboard.yaml \
+for f in usr/bin/uavmosaic-onboard usr/bin/uavmosaic-sim usr/bin/uavmosaic-eval usr/lib/uavmosaic/libuavm_video_reader.so \
+  etc/uavmosaic/onboard.yaml \
   etc/default/uavmosaic-onboard lib/systemd/system/uavmosaic-onboard.service usr/share/doc/uavmosaic/README.md; do
   [[ -s $ROOT/$f ]] || fail "missing /$f"
   dpkg --root="$ROOT" -L uavmosaic | grep -qx "/$f" || fail "/$f not listed by dpkg -L"
@@ -71,6 +72,13 @@ budget=$(sed -n 's/^memory_budget_mib: //p' "$WORK/config.txt")
 max=$(sed -n 's/^MemoryMax=\([0-9]*\)M$/\1/p' "$UNIT")
 [[ -n $budget && -n $max ]] && ((max > budget)) || fail "MemoryMax ($max) must exceed the budget ($budget)"
 echo "config: budget $budget MiB, unit MemoryMax ${max} MiB"
+
+# -- the installed program finds its video module (lib/uavmosaic beside bin/, not the build tree) -------------------------
+# A file FFmpeg cannot read gets past the module: "cannot open video", not "video replay needs ...".
+printf 'not a video' >"$WORK/broken.avi"
+UAVM_VIDEO_READER= "${RUN[@]}" --source "replay:$WORK/broken.avi" --out "$WORK/video" >"$WORK/video.txt" 2>&1 || true
+grep -qF "(read through $ROOT/usr/lib/uavmosaic/libuavm_video_reader.so)" "$WORK/video.txt" || { cat "$WORK/video.txt" >&2; fail "the installed video module is not found"; }
+echo "video module: found under usr/lib/uavmosaic"
 
 # -- dependencies: every library the binaries link is in a package the .deb names ---------------------------------------
 if [[ $ARCH == "$(dpkg --print-architecture)" && ${#EMULATOR[@]} -eq 0 ]]; then
