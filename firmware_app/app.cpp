@@ -12,6 +12,7 @@
 #include "core/pipeline/finish_flight.h"
 #include "core/pipeline/flight_session.h"
 #include "core/pipeline/live_view.h"
+#include "core/pipeline/work_lens.h"
 #include "core/session/session_dir.h"
 #include "core/util/bounded_queue.h"
 #include "core/util/clock.h"
@@ -199,6 +200,7 @@ void InstallStopHandlers() {
 }
 
 int Run(const RunConfig& config) {
+  const std::jthread lens_database = PreloadLensDatabase(config.pipeline.camera);
   std::unique_ptr<hal::FrameSource> source;
   std::unique_ptr<hal::TelemetrySource> telemetry;
   SessionPaths paths;

@@ -6,6 +6,8 @@
 
 #include <cstdio>
 
+#include "core/lens/lens_database.h"
+
 namespace uavm {
 
 const Undistorter& WorkLens::For(const Frame& frame, cv::Size work_size) const {
@@ -20,6 +22,11 @@ const Undistorter& WorkLens::For(const Frame& frame, cv::Size work_size) const {
   });
   static const Undistorter kNone;
   return frame.original_size == original_size_ ? work_ : kNone;
+}
+
+std::jthread PreloadLensDatabase(const CameraOptions& options) {
+  if (!options.database || options.Configured()) return {};
+  return std::jthread([] { (void)LensDatabaseAvailable(); });
 }
 
 PinholeCamera FinalCamera(const WorkLens& lens, const LensCalibration& calibration) {
