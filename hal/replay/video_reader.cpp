@@ -1,7 +1,6 @@
 #include "hal/replay/video_reader.h"
 
 #include <dlfcn.h>
-#include <unistd.h>
 
 #include <cstdlib>
 #include <filesystem>
@@ -37,7 +36,7 @@ std::vector<std::string> ModuleCandidates() {
   return paths;
 }
 
-// The module's entry point from the first candidate that loads; nullptr (and `why`) when none does. A module loaded
+// The module's entry point from the first candidate that loads; none (and `why`) when none does. A module loaded
 // once is reused (and never closed: the readers' code and vtables live in it); the candidates are read again on
 // every call, so that UAVM_VIDEO_READER always decides.
 Module LoadModule(std::string* why) {
