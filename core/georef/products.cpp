@@ -343,15 +343,15 @@ int PickLevel(GDALRasterBand* band, double scale) {
 
 // Reads `win` of `level` as BGRA (bands 3, 2, 1, 4) into `out` (of the window's size: no resampling).
 bool ReadLevel(GDALDataset* ds, int level, const cv::Rect& win, cv::Mat* out) {
-  int bands[4] = {3, 2, 1, 4};
-  GDALDataset* from = ds;
-  if (level >= 0) {
-    GDALRasterBand* ov = ds->GetRasterBand(1)->GetOverview(level);
-    from = ov != nullptr ? ov->GetDataset() : nullptr;
+  const int bands[4] = {3, 2, 1, 4};
+  for (int c = 0; c < 4; ++c) {
+    GDALRasterBand* b = ds->GetRasterBand(bands[c]);
+    if (b != nullptr && level >= 0) b = b->GetOverview(level);
+    if (b == nullptr || b->RasterIO(GF_Read, win.x, win.y, win.width, win.height, out->data + c, out->cols, out->rows,
+                                    GDT_Byte, 4, static_cast<GSpacing>(out->step[0]), nullptr) != CE_None)
+      return false;
   }
-  if (from == nullptr || from->GetRasterCount() < 4) return false;
-  return from->RasterIO(GF_Read, win.x, win.y, win.width, win.height, out->data, out->cols, out->rows, GDT_Byte, 4,
-                        bands, 4, static_cast<GSpacing>(out->step[0]), 1, nullptr) == CE_None;
+  return true;
 }
 
 // Colours weighted by alpha around the interpolation (and divided again after), so that the transparent pixels next to

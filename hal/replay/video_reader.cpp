@@ -25,8 +25,8 @@ constexpr const char* kModuleName = "libuavm_video_reader.so";
 
 // Where the module may be, in the order tried.
 std::vector<std::string> ModuleCandidates() {
-  std::vector<std::string> paths;
   if (const char* env = std::getenv("UAVM_VIDEO_READER"); env != nullptr && *env != '\0') return {env};
+  std::vector<std::string> paths;
   std::error_code ec;
   const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
   if (!ec) paths.push_back((exe.parent_path().parent_path() / "lib" / "uavmosaic" / kModuleName).string());
