@@ -13,7 +13,6 @@ set -euo pipefail
 export LC_ALL=C
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD="${UAVM_BUILD_DIR:-$ROOT/build}"
-CANVAS="$ROOT/tests/data/caliterra_small/images/IMG_9360.jpg"
 BASE=""
 KINDS="easy jitter_tilt barrel_jitter"
 SEEDS="$(seq -s ' ' 1 16)"
@@ -52,8 +51,8 @@ for kind in $KINDS; do
   for seed in $SEEDS; do
     dir="$OUT/$kind-$seed"
     mkdir -p "$dir"
-    { echo "seed: $seed"; echo "${PLAN[$kind]}"; echo "$COMMON"; } | awk -F': ' '!seen[$1]++' >"$dir/plan.yaml"
-    "$BUILD/tools/uavmosaic-sim" --plan "$dir/plan.yaml" --canvas "$CANVAS" --out "$dir/flight" >"$dir/sim.log" 2>&1
+    flight_plan "$kind" "$seed" >"$dir/plan.yaml"
+    "$BUILD/tools/uavmosaic-sim" --plan "$dir/plan.yaml" --canvas "$FLIGHT_CANVAS" --out "$dir/flight" >"$dir/sim.log" 2>&1
     new=$(rms "$BUILD/firmware_app/uavmosaic-onboard" "$dir" new)
     base=-
     [[ -z $BASE ]] || base=$(rms "$BASE" "$dir" base)

@@ -14,7 +14,6 @@ export LC_ALL=C
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD="${UAVM_BUILD_DIR:-$ROOT/build}"
 RECORDS="$ROOT/scripts/accuracy/records.tsv"
-CANVAS="$ROOT/tests/data/caliterra_small/images/IMG_9360.jpg"
 RECORD=0
 [[ ${1:-} == --record ]] && RECORD=1
 WORK="${UAVM_ACCURACY_DIR:-$(mktemp -d "${TMPDIR:-/tmp}/uavm-accuracy.XXXXXX")}"
@@ -32,10 +31,9 @@ for name in "${FLIGHTS[@]}"; do
   dir="$WORK/$name"
   rm -rf "$dir"
   mkdir -p "$dir"
-  # The flight's own keys first: a common key it sets itself is dropped.
-  { echo "${PLAN[$name]}"; echo "$COMMON"; } | awk -F': ' '!seen[$1]++' >"$dir/plan.yaml"
+  flight_plan "$name" >"$dir/plan.yaml"
   rms="failed"
-  if "$BUILD/tools/uavmosaic-sim" --plan "$dir/plan.yaml" --canvas "$CANVAS" --out "$dir/flight" >"$dir/sim.log" 2>&1 &&
+  if "$BUILD/tools/uavmosaic-sim" --plan "$dir/plan.yaml" --canvas "$FLIGHT_CANVAS" --out "$dir/flight" >"$dir/sim.log" 2>&1 &&
     "$BUILD/firmware_app/uavmosaic-onboard" --source "replay:$dir/flight/images" --out "$dir/session" --no-products \
       --log-level warn "${EXTRA[@]}" >"$dir/onboard.log" 2>&1 &&
     "$BUILD/tools/uavmosaic-eval" --session "$dir/session" --gt "$dir/flight/gt.csv" --no-photometric \

@@ -35,3 +35,15 @@ gps: 1
 water_from: 0.45
 water_to: 0.6"
 
+# The photograph the flights are simulated over (bundled with the project).
+FLIGHT_CANVAS="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)/tests/data/caliterra_small/images/IMG_9360.jpg"
+
+# flight_plan NAME [SEED]: flight NAME's plan for uavmosaic-sim, its seed replaced by SEED when given (a key set
+# earlier wins over the same key later).
+flight_plan() {
+  {
+    if [[ -n ${2:-} ]]; then echo "seed: $2"; fi
+    echo "${PLAN[$1]}"
+    echo "$COMMON"
+  } | awk -F': ' '!seen[$1]++'
+}
