@@ -4,6 +4,7 @@
 set -euo pipefail
 PACKAGES=(
   build-essential cmake ninja-build pkg-config
+  lld  # the linker (cmake/UavmLinker.cmake): ~6x faster than GNU ld on the tree's ~110 programs
   libopencv-dev libeigen3-dev libgdal-dev libdeflate-dev zlib1g-dev gdal-bin libexiv2-dev
   libcli11-dev libspdlog-dev libyaml-cpp-dev nlohmann-json3-dev
   libceres-dev libsystemd-dev systemd file
