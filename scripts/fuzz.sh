@@ -6,7 +6,7 @@
 #   scripts/fuzz.sh --seconds 120        # each target for 120 s (the full tier, scripts/test_full.sh)
 #   scripts/fuzz.sh --runs 1000000       # the long run (bench/fuzz.sh)
 #   scripts/fuzz.sh --runs 1000000 --minimize   # ... then merge what it found into fuzz/corpus/ (minimised)
-#   scripts/fuzz.sh --target fuzz_config # one target
+#   scripts/fuzz.sh --target fuzz_config # one target (repeat --target for several)
 #   scripts/fuzz.sh --quick-build        # -O0 in build-fuzz-O0/: builds 2.5x faster, runs ~2x slower (the CI tier's
 #                                        # 20000 executions cost less than the -O1 build would)
 #
@@ -20,7 +20,7 @@ SECONDS_EACH=0  # > 0: a time budget per target instead of a number of execution
 BUILD_DIR=""
 OPT=1
 MINIMIZE=0
-ONLY=""
+ONLY=()
 JOBS="${UAVM_JOBS:-2}"
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -29,7 +29,7 @@ while [ $# -gt 0 ]; do
     --build-dir) BUILD_DIR="$2"; shift 2 ;;
     --minimize) MINIMIZE=1; shift ;;
     --quick-build) OPT=0; shift ;;
-    --target) ONLY="$2"; shift 2 ;;
+    --target) ONLY+=("$2"); shift 2 ;;
     -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
     *) echo "fuzz.sh: unknown argument $1" >&2; exit 2 ;;
   esac
@@ -39,7 +39,7 @@ if [ -z "$BUILD_DIR" ]; then
   [ "$OPT" = 0 ] && BUILD_DIR="$ROOT/build-fuzz-O0"
 fi
 TARGETS=(fuzz_config fuzz_metadata fuzz_transforms_csv fuzz_features_bin fuzz_edges_bin fuzz_journal)
-if [ -n "$ONLY" ]; then TARGETS=("$ONLY"); fi
+if [ ${#ONLY[@]} -gt 0 ]; then TARGETS=("${ONLY[@]}"); fi
 
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ not found (apt-get install clang)" >&2; exit 2; }
 if [ ! -f "$BUILD_DIR/CMakeCache.txt" ]; then
