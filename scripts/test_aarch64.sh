@@ -13,7 +13,8 @@
 #                18/18 frames, 0.0000 px on 2026-11-22). Needs the native build (scripts/build.sh);
 #   suite [SEL]  CTest under emulation, with the reductions of tests/test_env.h. SEL: `ci` (the unit tests and the
 #                end-to-end tests labelled e2e-aarch64-ci: what CI runs), `rest` (the other end-to-end tests and the
-#                unit tests over rendered scenes, label unit-scene: the full tier adds them), `all` (default).
+#                unit tests over rendered scenes and of the ground tool, labels unit-scene and unit-ground: the full
+#                tier adds them), `all` (default).
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 NATIVE="${UAVM_BUILD_DIR:-$ROOT/build}"
@@ -81,7 +82,7 @@ stage_suite() {
   local selection="${1:-all}" labels t0 status=0
   case "$selection" in
     ci) labels='^(unit|e2e-aarch64-ci)$' ;;
-    rest) labels='^(e2e|unit-scene)$' ;;
+    rest) labels='^(e2e|unit-scene|unit-ground)$' ;;
     all) labels='.' ;;
     *) echo "test_aarch64.sh: suite ci|rest|all, not '$selection'" >&2; exit 2 ;;
   esac
