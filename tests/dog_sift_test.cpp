@@ -46,7 +46,9 @@ TEST(DogSiftTest, FindsABlobAtItsSubPixelCentre) {
 }
 
 // The same keypoints as OpenCV 4.6's SIFT with the same settings: nearly all at the same place (OpenCV's positions
-// moved to pixel centres by -0.25 px), of the same size, and no offset between the two.
+// moved to pixel centres by -0.25 px), of the same size within 2 % (our fixed-point scale space, 1/256 grey, moves the
+// scale fit of weak keypoints by 1-2 %: 89 % within 1 %, 93 % within 2 %; float images gave 95 % and 97 %), and no
+// offset between the two.
 TEST(DogSiftTest, KeypointsAgreeWithOpenCvSift) {
   const cv::Mat gray = WorkingGray(static_cast<int>(800 * test::EmulationImageScale()));
   DogSiftOptions o;
@@ -67,7 +69,7 @@ TEST(DogSiftTest, KeypointsAgreeWithOpenCvSift) {
     for (const auto& t : theirs) {
       const cv::Point2f d = k.point - (t.pt - cv::Point2f(0.25f, 0.25f));
       if (std::abs(d.x) > 0.05f || std::abs(d.y) > 0.05f) continue;
-      if (std::abs(k.size / t.size - 1.f) > 0.01f) continue;
+      if (std::abs(k.size / t.size - 1.f) > 0.02f) continue;
       ++same;
       sum_dx += d.x;
       sum_dy += d.y;
@@ -206,15 +208,16 @@ TEST(DogSiftTest, TinyAndFlatImagesGiveNothing) {
   EXPECT_EQ(desc.rows, 0);
 }
 
-// The scale space's figure is what the memory plan reserves: L + 3 float images of the doubled first octave (its
+// The scale space's figure is what the memory plan reserves: L + 3 int16 images of the doubled first octave (its
 // Gaussian layers; the later octaves' fit in the room of the first's three searched ones).
 TEST(DogSiftTest, ScaleSpaceFigure) {
-  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750), 6.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
-  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 3, false), 6.0 * 1000 * 750 * 4 / (1024.0 * 1024.0), 1e-9);
-  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 4), 7.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750), 6.0 * 2000 * 1500 * 2 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 3, false), 6.0 * 1000 * 750 * 2 / (1024.0 * 1024.0),
+              1e-3);  // images rounded to cache lines
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 4), 7.0 * 2000 * 1500 * 2 / (1024.0 * 1024.0), 1e-9);
   // From 9 layers on (a tie at 9) the later octaves' kept layers outgrow that room: the figure counts them.
-  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 8), 11.0 * 2000 * 1500 * 4 / (1024.0 * 1024.0), 1e-9);
-  EXPECT_GT(DogSiftScaleSpaceMiB(1000, 750, 12), 15.5 * 2000 * 1500 * 4 / (1024.0 * 1024.0));
+  EXPECT_NEAR(DogSiftScaleSpaceMiB(1000, 750, 8), 11.0 * 2000 * 1500 * 2 / (1024.0 * 1024.0), 1e-9);
+  EXPECT_GT(DogSiftScaleSpaceMiB(1000, 750, 12), 15.5 * 2000 * 1500 * 2 / (1024.0 * 1024.0));
 }
 
 // The detector's large buffers are its figure and the descriptors, and a second frame takes them all back from the

@@ -6,9 +6,11 @@
 //    the whole pyramid's 2 L + 5 per octave): the differences of Gaussians are computed where they are read, row by row
 //    for the extremum search; all in one block from the Mat allocator (the pool hands it back every frame); each
 //    octave's layers 1 .. L stay for the descriptors;
-//  - separable Gaussians to 3 sigma in blocks of rows with a ring of horizontally blurred rows, written with GCC's
-//    vector extension (an AVX2 clone and SSE2 on x86-64, NEON on aarch64) in one fixed order of float operations:
-//    x86-64 and aarch64 give the same bits;
+//  - a scale space in fixed point: int16 images of grey levels x 256 (half the bytes of floats), separable Gaussians
+//    to 3 sigma with Q15 weights summed exactly and rounded once a pass (core/features/q15_blur.h: AVX2 and NEON,
+//    twice the lanes of floats), in blocks of rows with a ring of horizontally blurred rows: integers, so x86-64 and
+//    aarch64 give the same scale space; the extremum search in int16 lanes too, a sample beating the neighbours
+//    before it and matching those after it (integers tie);
 //  - Lowe's first rejection at half the contrast threshold (OpenCV floors it to whole grey levels: 0 at the onboard
 //    0.01), then the 8 neighbours in the same layer and the 2 in the same place above and below, vectorised, before
 //    the 26-neighbour test; orientations and
@@ -50,7 +52,7 @@ struct SiftKeypoint {
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& options, std::vector<SiftKeypoint>* keypoints,
                            cv::Mat* descriptors, double* contrast_threshold_used = nullptr);
 
-// The scale space DetectAndDescribeSift holds for a width x height image, in MiB: the L + 3 float images of its first
+// The scale space DetectAndDescribeSift holds for a width x height image, in MiB: the L + 3 int16 images of its first
 // octave (up to 8 layers), 6 for the default 3 (the rows of its Gaussian strips and the keypoints are small beside
 // them).
 [[nodiscard]] double DogSiftScaleSpaceMiB(int width, int height, int octave_layers = 3,

@@ -18,10 +18,10 @@ struct FeatureOptions {
   bool root_sift = true;
   // OpenCV 4.6's SIFT instead of ours (core/features/dog_sift.h), for comparison: the same conventions, ~3x the time.
   bool opencv_sift = false;
-  // Memory cap on the scale space (ours keeps 6 float images of the doubled first octave: 96 bytes per working pixel,
-  // 69 MiB for 1000x750; OpenCV's 11 per octave of the whole pyramid, 235 bytes, 168 MiB). Above it the frame is
-  // processed in horizontal bands with an overlap (band_margin px) that covers the detection and descriptor support of
-  // all but the coarsest octaves; 0 = no cap. Set from the memory budget.
+  // Memory cap on the scale space (ours keeps 6 int16 images of the doubled first octave: 48 bytes per working pixel,
+  // 34 MiB for 1000x750; OpenCV's 11 float images per octave of the whole pyramid, 235 bytes, 168 MiB). Above it the
+  // frame is processed in horizontal bands with an overlap (band_margin px) that covers the detection and descriptor
+  // support of all but the coarsest octaves; 0 = no cap. Set from the memory budget.
   int max_scale_space_mib = 0;
   int band_margin = 48;
   // Detect and describe on a half-size copy (area-averaged): SIFT doubles its input first, so this is SIFT's scale
