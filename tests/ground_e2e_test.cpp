@@ -38,13 +38,6 @@ std::string GroundEmulationArgs() {
   return test::Emulated() ? " --max-dense-pairs 10 --dense-scale 0.5 --feature-scale 0.5 --max-features 4000" : "";
 }
 
-// The control-point runs test the GCP solve and its checks, not the reconstruction's density: they detect on half the
-// working size, as under emulation (27 -> 13 s a run natively, 2026-12-04). Not the mixed-size run: its lens and
-// focal length need every feature (fx 626 against 583.5 at half size).
-std::string SecondaryRunArgs() {
-  return test::Emulated() ? GroundEmulationArgs() : " --feature-scale 0.5 --max-features 4000";
-}
-
 std::string ReadText(const fs::path& path) {
   std::stringstream ss;
   ss << std::ifstream(path).rdbuf();
@@ -136,7 +129,7 @@ void CheckGcpRun(const fs::path& tmp, const fs::path& session, const fs::path& f
   const fs::path gcp = tmp / "gcp_list.txt", out = tmp / "ground_gcp";
   ASSERT_EQ(WritePseudoGcps(first_out, gcp), "");
   ASSERT_EQ(RunCommand(std::string(UAVM_GROUND_BIN) + " " + session.string() + " --out " + out.string() +
-                       " --no-dense --gcp " + gcp.string() + " --checkpoints p4,p5" + SecondaryRunArgs() + " 2>" +
+                       " --no-dense --gcp " + gcp.string() + " --checkpoints p4,p5" + GroundEmulationArgs() + " 2>" +
                        (tmp / "stderr_gcp.txt").string()),
             0);
   std::ifstream js_in(out / "summary.json");
@@ -172,7 +165,7 @@ void CheckGcpRun(const fs::path& tmp, const fs::path& session, const fs::path& f
   const fs::path flat_out = tmp / "ground_gcp_no_heights";
   ASSERT_EQ(RunCommand(std::string(UAVM_GROUND_BIN) + " " + session.string() + " --out " + flat_out.string() +
                        " --no-dense --gcp " + (tmp / "gcp_no_heights.txt").string() + " --checkpoints p4,p5" +
-                       SecondaryRunArgs() + " 2>" + (tmp / "stderr_gcp_flat.txt").string()),
+                       GroundEmulationArgs() + " 2>" + (tmp / "stderr_gcp_flat.txt").string()),
             0);
   std::ifstream flat_in(flat_out / "summary.json");
   const auto flat_js = nlohmann::json::parse(flat_in);
