@@ -7,6 +7,7 @@
 #   scripts/fuzz.sh --runs 1000000       # the long run (bench/fuzz.sh)
 #   scripts/fuzz.sh --runs 1000000 --minimize   # ... then merge what it found into fuzz/corpus/ (minimised)
 #   scripts/fuzz.sh --target fuzz_config # one target (repeat --target for several)
+#   scripts/fuzz.sh --skip fuzz_config   # every target but that one (the CI tier)
 #   scripts/fuzz.sh --quick-build        # -O0 in build-fuzz-O0/: builds 2.5x faster, runs ~2x slower (the CI tier's
 #                                        # 20000 executions cost less than the -O1 build would)
 #
@@ -21,6 +22,7 @@ BUILD_DIR=""
 OPT=1
 MINIMIZE=0
 ONLY=()
+SKIP=()
 JOBS="${UAVM_JOBS:-2}"
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -30,7 +32,8 @@ while [ $# -gt 0 ]; do
     --minimize) MINIMIZE=1; shift ;;
     --quick-build) OPT=0; shift ;;
     --target) ONLY+=("$2"); shift 2 ;;
-    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    --skip) SKIP+=("$2"); shift 2 ;;
+    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
     *) echo "fuzz.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -40,6 +43,10 @@ if [ -z "$BUILD_DIR" ]; then
 fi
 TARGETS=(fuzz_config fuzz_metadata fuzz_transforms_csv fuzz_features_bin fuzz_edges_bin fuzz_journal)
 if [ ${#ONLY[@]} -gt 0 ]; then TARGETS=("${ONLY[@]}"); fi
+for skip in "${SKIP[@]}"; do
+  for i in "${!TARGETS[@]}"; do [ "${TARGETS[$i]}" = "$skip" ] && unset "TARGETS[$i]"; done
+done
+TARGETS=("${TARGETS[@]}")
 
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ not found (apt-get install clang)" >&2; exit 2; }
 if [ ! -f "$BUILD_DIR/CMakeCache.txt" ]; then
