@@ -134,15 +134,16 @@ OutputAdditions ReportInputs(const RunConfig& config, hal::FrameSource* source, 
   if (telemetry) {
     telemetry->Stop();
     const hal::TelemetryReport tr = telemetry->Report();
+    // Counted at capture: frames the processing queue dropped afterwards are among them, not in frames.csv.
     spdlog::log(tr.frames_without > 0 ? spdlog::level::warn : spdlog::level::info,
                 "telemetry: {} of {} frames placed ({} without: stale, lost, no fix or not covered; report.json "
-                "\"telemetry\" counts each)",
-                tr.frames_placed, tr.frames_asked, tr.frames_without);
+                "\"telemetry\" counts each; {} of these frames dropped afterwards by the processing queue)",
+                tr.frames_placed, tr.frames_asked, tr.frames_without, queue.dropped());
     additions.report_sections["telemetry"] = TelemetryJson(tr);
   }
   // Frames lost to a slow consumer: in this queue, and in a camera source's own capture queue.
   const hal::CaptureCounters counters = source->Counters();
-  session->RecordDropped(queue.dropped() + counters.dropped);
+  session->RecordDroppedInPipeline(queue.dropped());
   session->RecordCapture(counters);
   if (g_stop_signal != 0)
     spdlog::warn("signal {} received: capture stopped; registering and compositing the {} frames received",
