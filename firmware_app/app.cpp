@@ -85,8 +85,9 @@ int StartSession(const RunConfig& config, FlightSession* session) {
 
 // The flight loop: each captured frame registered (or its skip recorded) in order. Returns false when the session
 // could not store frames any more (capture is then stopped).
-bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, FlightSession* session,
-                    ServiceNotifier* notifier, FlightStatus* status, hal::TelemetrySource* telemetry) {
+bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, const hal::FrameSource& source,
+                    FlightSession* session, ServiceNotifier* notifier, FlightStatus* status,
+                    hal::TelemetrySource* telemetry) {
   int registered_live = 0;  // joined the first frame's part of the map during the flight (the status line)
   int64_t last_gcs_status_ns = 0;
   while (auto item = queue->Pop()) {
@@ -110,8 +111,8 @@ bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, FlightSe
       return false;
     }
     notifier->Progress(static_cast<int>(session->frames_in()), registered_live, CurrentRssMiB(), PeakRssMiB());
-    status->FrameDone(registered_live, queue->dropped());
-    // Test hook (--process-delay-ms): a slow consumer, so that a live camera's drop-oldest queue is exercised.
+    status->FrameDone(registered_live, source.Counters().dropped);
+    // Test hook (--process-delay-ms): a slow consumer, so that a live camera's own drop-oldest queue is exercised.
     if (config.process_delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(config.process_delay_ms));
     status->LogEvery10Frames(registered_live);
     // The operator's ground station shows the mapper's state (a STATUSTEXT every 5 s over the telemetry link).
@@ -126,31 +127,29 @@ bool RegisterFrames(const RunConfig& config, BoundedQueue<Item>* queue, FlightSe
 
 // What the flight's inputs say of themselves: the telemetry's report and the drop and capture counters.
 OutputAdditions ReportInputs(const RunConfig& config, hal::FrameSource* source, hal::TelemetrySource* telemetry,
-                             const BoundedQueue<Item>& queue, const CaptureOutcome& capture, FlightSession* session,
-                             FlightStatus* status) {
+                             const CaptureOutcome& capture, FlightSession* session, FlightStatus* status) {
   source->Close();
   OutputAdditions additions;
   additions.config_yaml = hal::ToYaml(config.telemetry_timing);
   if (telemetry) {
     telemetry->Stop();
     const hal::TelemetryReport tr = telemetry->Report();
-    // Counted at capture: frames the processing queue dropped afterwards are among them, not in frames.csv.
     spdlog::log(tr.frames_without > 0 ? spdlog::level::warn : spdlog::level::info,
                 "telemetry: {} of {} frames placed ({} without: stale, lost, no fix or not covered; report.json "
-                "\"telemetry\" counts each; {} of these frames dropped afterwards by the processing queue)",
-                tr.frames_placed, tr.frames_asked, tr.frames_without, queue.dropped());
+                "\"telemetry\" counts each)",
+                tr.frames_placed, tr.frames_asked, tr.frames_without);
     additions.report_sections["telemetry"] = TelemetryJson(tr);
   }
-  // Frames lost to a slow consumer: in this queue, and in a camera source's own capture queue.
+  // Frames lost to a slow consumer: in a camera source's own capture queue (the program's queues wait).
   const hal::CaptureCounters counters = source->Counters();
-  session->RecordDroppedInPipeline(queue.dropped());
+  session->RecordDropped(counters.dropped);
   session->RecordCapture(counters);
   if (g_stop_signal != 0)
     spdlog::warn("signal {} received: capture stopped; registering and compositing the {} frames received",
                  static_cast<int>(g_stop_signal), session->frames_in());
   if (capture.source_failed)
     spdlog::error("source stopped: {} (finishing with what was received)", capture.source_error);
-  status->status().dropped = static_cast<int>(queue.dropped() + counters.dropped);
+  status->status().dropped = static_cast<int>(counters.dropped);
   return additions;
 }
 
@@ -221,22 +220,23 @@ int Run(const RunConfig& config) {
   if (const int rc = StartSession(config, session.get()); rc != kExitOk) return rc;
   ServiceNotifier notifier;
   notifier.Ready(fmt::format("capturing from {} into {}", source->Describe(), config.out_dir));
-  BoundedQueue<Item> queue(
-      static_cast<size_t>(session->options().queue_capacity),
-      source->IsReplay() ? BoundedQueue<Item>::Policy::kBlock : BoundedQueue<Item>::Policy::kDropOldest);
+  // Detected frames waiting for registration. It waits rather than drops, for a camera too: a camera's frames are
+  // dropped in its own capture queue (V4L2, libcamera: the oldest, counted), before any decode, telemetry lookup or
+  // SIFT is spent on them. Dropping here threw that work away (11 of 38 detected frames in a slow stretch of the camera
+  // VM test) and took the CPU from the registration that was behind.
+  BoundedQueue<Item> queue(static_cast<size_t>(session->options().queue_capacity), BoundedQueue<Item>::Policy::kBlock);
   // One frame between loading and detection: the decode of the next frame overlaps this one's SIFT. The loader waits
-  // for detection (a camera's own queue drops its oldest frames meanwhile, as before: no CPU is spent on frames that
-  // would be dropped here).
+  // for detection likewise.
   BoundedQueue<Item> loaded(1, BoundedQueue<Item>::Policy::kBlock);
   CaptureOutcome capture;
   std::thread load(LoadFrames, std::cref(config), source.get(), telemetry.get(), &session->preparer(),
                    std::cref(session->seen()), static_cast<int>(session->frames_in()), &loaded, &capture);
   std::thread detect(DetectFrames, &session->preparer(), &loaded, &queue);
-  const bool storage_stopped = !RegisterFrames(config, &queue, session.get(), &notifier, &status, telemetry.get());
+  const bool storage_stopped =
+      !RegisterFrames(config, &queue, *source, session.get(), &notifier, &status, telemetry.get());
   detect.join();
   load.join();
-  OutputAdditions additions =
-      ReportInputs(config, source.get(), telemetry.get(), queue, capture, session.get(), &status);
+  OutputAdditions additions = ReportInputs(config, source.get(), telemetry.get(), capture, session.get(), &status);
   const int rc = EndFlight(std::move(additions), capture, storage_stopped, session.get(), &view, &notifier, &status);
   status.Linger(config.http_linger_s);
   return rc;

@@ -344,9 +344,8 @@ nlohmann::json FlightSession::Report(const Solution& solution, const CompositeRe
   nlohmann::json report;
   report["frames_in"] = record_.size() + record_.skipped().size();
   report["frames_decoded"] = record_.size();
+  report["dropped_by_queue"] = counters_.dropped_frames;
   const CaptureCounters& capture = counters_.capture;
-  report["dropped_by_queue"] = counters_.dropped_in_pipeline + capture.dropped;
-  report["dropped_in_pipeline"] = counters_.dropped_in_pipeline;
   report["camera"] = {{"captured", capture.captured},
                       {"dropped_in_source", capture.dropped},
                       {"driver_gaps", capture.driver_gaps},
@@ -437,7 +436,7 @@ nlohmann::json FlightSession::ReportMemory(const Solution& solution, const Compo
       {"edges_bin_mib", static_cast<double>(stores_.edges().bytes_written()) / kMiB},
       {"frame_redecodes", std::max(0, composite.image_loads - composite.frames_used)},
       {"refine_correspondences_skipped", refine.num_residuals - std::min(refine.num_residuals, refine.num_used)},
-      {"frames_dropped_by_queue", counters_.dropped_in_pipeline + counters_.capture.dropped}};
+      {"frames_dropped_by_queue", counters_.dropped_frames}};
   return memory;
 }
 

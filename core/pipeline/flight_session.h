@@ -83,9 +83,7 @@ class FlightSession final : public SessionEnd {
   [[nodiscard]] FrameOutcome AddFrame(Frame frame) { return AddFrame(preparer_.Prepare(std::move(frame))); }
   // An input the source could not turn into a frame (corrupt, empty, not an image).
   void RecordSkipped(const std::string& file, const std::string& reason, bool journal = true);
-  // Frames the onboard program's own queue dropped (a slow consumer) after capture had asked the telemetry for their
-  // positions: report.json "dropped_in_pipeline"; with the camera's own drops, "dropped_by_queue".
-  void RecordDroppedInPipeline(size_t count) { counters_.dropped_in_pipeline = count; }
+  void RecordDropped(size_t count) { counters_.dropped_frames = count; }
   // A live camera's counters (captured, dropped in its own queue, driver gaps, reconnects): report.json "camera".
   void RecordCapture(const CaptureCounters& counters) { counters_.capture = counters; }
 
@@ -133,7 +131,7 @@ class FlightSession final : public SessionEnd {
  private:
   struct Counters {
     size_t resumed_frames = 0;  // frames taken from the journal of an interrupted run
-    size_t dropped_in_pipeline = 0;
+    size_t dropped_frames = 0;
     CaptureCounters capture;
     int64_t start_ns = 0;
   };

@@ -36,9 +36,9 @@ struct TelemetryOptions {
 
 // What telemetry did for the flight: report.json "telemetry".
 struct TelemetryReport {
-  std::string kind;             // mavlink-udp, mavlink-serial, gpsd, tlog, geo
-  std::string match;            // how frames found their pose: time, sequence, name
-  uint64_t frames_asked = 0;    // at capture: includes frames a live run's processing queue drops afterwards
+  std::string kind;   // mavlink-udp, mavlink-serial, gpsd, tlog, geo
+  std::string match;  // how frames found their pose: time, sequence, name
+  uint64_t frames_asked = 0;
   uint64_t frames_placed = 0;   // got a position
   uint64_t frames_without = 0;  // telemetry could not say (stale, lost, no fix, not in the file): image-only
   TrackCounters track;
