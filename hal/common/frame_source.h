@@ -35,8 +35,6 @@ class FrameSource {
   [[nodiscard]] virtual Status Next(Frame* frame, std::string* error) = 0;
   virtual void Close() = 0;
   [[nodiscard]] virtual std::string Describe() const = 0;
-  // True when frames come from storage: the consumer may apply back-pressure instead of dropping.
-  [[nodiscard]] virtual bool IsReplay() const = 0;
   void SetDecodeHint(const DecodeHint& hint) { hint_ = hint; }
   // Thread-safe: may be read while another thread is in Next().
   [[nodiscard]] virtual CaptureCounters Counters() const { return {}; }

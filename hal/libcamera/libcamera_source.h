@@ -42,7 +42,6 @@ class LibcameraSource final : public FrameSource, private BufferPool {
   [[nodiscard]] Status Next(Frame* frame, std::string* error) override;
   void Close() override;
   [[nodiscard]] std::string Describe() const override;
-  [[nodiscard]] bool IsReplay() const override { return false; }
   [[nodiscard]] CaptureCounters Counters() const override;
 
   [[nodiscard]] const std::string& camera_id() const { return camera_id_; }

@@ -24,7 +24,6 @@ class ReplaySource final : public FrameSource {
   [[nodiscard]] Status Next(Frame* frame, std::string* error) override;
   void Close() override;
   [[nodiscard]] std::string Describe() const override;
-  [[nodiscard]] bool IsReplay() const override { return true; }
   [[nodiscard]] size_t NumFiles() const { return files_.size(); }
 
  private:

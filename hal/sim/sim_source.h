@@ -62,7 +62,6 @@ class SimSource final : public FrameSource {
   [[nodiscard]] Status Next(Frame* frame, std::string* error) override;
   void Close() override;
   [[nodiscard]] std::string Describe() const override;
-  [[nodiscard]] bool IsReplay() const override { return true; }  // synthetic: the consumer may back-pressure
 
   [[nodiscard]] const SimTruth& last_truth() const { return truth_; }
   // The JPEG bytes of the last frame when jpeg_quality > 0 (the frame is exactly their decoding), else empty.

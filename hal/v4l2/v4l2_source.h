@@ -29,7 +29,6 @@ class V4l2Source final : public FrameSource {
   [[nodiscard]] Status Next(Frame* frame, std::string* error) override;
   void Close() override;
   [[nodiscard]] std::string Describe() const override;
-  [[nodiscard]] bool IsReplay() const override { return false; }
   [[nodiscard]] CaptureCounters Counters() const override;
 
   [[nodiscard]] const CaptureOptions& options() const { return options_; }
