@@ -361,6 +361,18 @@ UAVM_INLINE RegisterShorts MaxShorts(RegisterShorts a, RegisterShorts b) {
 UAVM_INLINE RegisterShorts MinShorts(RegisterShorts a, RegisterShorts b) {
   return a < b ? a : b;
 }
+// Whether any lane of a compare's result (0 or -1 lanes) is set.
+UAVM_INLINE bool AnyLane(RegisterShorts m) {
+#if defined(__aarch64__)
+  return vmaxvq_u16(vreinterpretq_u16_s16(reinterpret_cast<int16x8_t>(m))) != 0;
+#else
+  uint64_t words[sizeof m / sizeof(uint64_t)];
+  std::memcpy(words, &m, sizeof m);
+  uint64_t any = 0;
+  for (const uint64_t w : words) any |= w;
+  return any != 0;
+#endif
+}
 
 UAVM_SIMD_CLONES void ExtremumMaskRow(const int16_t* __restrict up, const int16_t* __restrict cur,
                                       const int16_t* __restrict dn, const int16_t* __restrict below,
@@ -373,6 +385,11 @@ UAVM_SIMD_CLONES void ExtremumMaskRow(const int16_t* __restrict up, const int16_
   int c = first;
   for (; c + kLanes <= last; c += kLanes) {
     const V v = LoadShorts(cur + c);
+    // Most of a smooth octave is below the pre-threshold: no lane can be set, and the neighbours need not be read.
+    if (!AnyLane((v > t) | (v < minus_t))) {
+      std::memset(mask + c, 0, kLanes);
+      continue;
+    }
     const V u0 = LoadShorts(up + c - 1), u1 = LoadShorts(up + c), u2 = LoadShorts(up + c + 1);
     const V d0 = LoadShorts(dn + c - 1), d1 = LoadShorts(dn + c), d2 = LoadShorts(dn + c + 1);
     const V left = LoadShorts(cur + c - 1), right = LoadShorts(cur + c + 1);

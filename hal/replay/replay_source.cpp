@@ -271,7 +271,7 @@ Status ReplaySource::NextFile(Frame* frame, std::string* error) {
   frame->index = next_index_++;
   frame->source_path = path;
   frame->source_name = fs::path(path).filename().string();
-  std::vector<uchar> bytes;
+  std::vector<uchar>& bytes = file_bytes_;
   if (const Status read = ReadWholeFile(path, &bytes, error); read != Status::kOk) return read;
   if (bytes.empty()) {
     *error = "empty file (0 bytes)";
@@ -363,6 +363,7 @@ Status ReplaySource::NextVideo(Frame* frame, std::string* error) {
 
 void ReplaySource::Close() {
   video_.reset();
+  file_bytes_ = {};
 }
 
 }  // namespace uavm::hal
