@@ -13,7 +13,8 @@
 #   FLIGHTS_REAL   default "brighton_beach caliterra" ("" = none)
 #   SIM_DIR        default /tmp/uavm-sim (kept between runs: generating a flight takes a while)
 #   RUNS           runs per flight (default 1)
-#   OURS_ARGS      extra uavmosaic-onboard options
+#   OURS_ARGS      extra uavmosaic-onboard options; "--replay-interval-ms N" replays at a camera's cadence (one photo
+#                  every N ms, as in flight: stage medians without the backlog of an as-fast-as-possible replay)
 #   UAVM_BUILD_DIR build tree (default <repo>/build); UAVM_RESULTS_DIR (default bench/results)
 set -euo pipefail
 export LC_ALL=C

@@ -20,6 +20,7 @@ struct RunConfig {
   std::string out_dir;
   int max_frames = 0;  // 0 = all
   int stride = 1;
+  int replay_interval_ms = 0;  // replay or sim in real time: one input per interval, as a camera (0 = at once)
   // Continue the session in out_dir from its journal: the frames it accepted are registered again from the session
   // (no detection, same result), then the source goes on after them, skipping inputs the journal already has.
   bool resume = false;

@@ -1,6 +1,7 @@
 #include "firmware_app/capture.h"
 
 #include "core/util/clock.h"
+#include "core/util/trigger_schedule.h"
 #include "hal/telemetry/telemetry_watch.h"
 
 namespace uavm::app {
@@ -19,12 +20,14 @@ void LoadFrames(const RunConfig& config, hal::FrameSource* source, hal::Telemetr
                 const FramePreparer* preparer, const std::unordered_set<std::string>& seen, int delivered,
                 BoundedQueue<Item>* loaded, CaptureOutcome* outcome) {
   hal::TelemetryWatch telemetry_watch;
+  TriggerSchedule camera(std::chrono::milliseconds(config.replay_interval_ms));
   for (;;) {
     if (config.max_frames > 0 && delivered >= config.max_frames) break;
     if (StopSignal() != 0) break;
     Item item;
     std::string err;
     hal::Frame frame;
+    camera.Wait();  // a real-time replay's next trigger (not part of the decode)
     StageTimer decode_timer;
     item.status = source->Next(&frame, &err);
     const double decode_ms = decode_timer.ElapsedMs();

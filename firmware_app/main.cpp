@@ -109,6 +109,10 @@ int main(int argc, char** argv) {
   cli.add_option("--max-frames", config.max_frames, "Stop after N frames (0 = all)")->check(CLI::NonNegativeNumber);
   cli.add_option("--stride", config.stride, "Take every N-th input of the replay (video frames or files)")
       ->check(CLI::PositiveNumber);
+  cli.add_option("--replay-interval-ms", config.replay_interval_ms,
+                 "A replay or simulation in real time: one input every N ms, as a camera triggering at that "
+                 "interval (0 = as fast as the program takes them)")
+      ->check(CLI::NonNegativeNumber);
   AddPipelineOptions(&cli, &p);
   cli.add_option("--telemetry", config.telemetry,
                  "Where the vehicle was for each frame, instead of EXIF GPS: mavlink-udp:HOST:PORT (listen, e.g. "

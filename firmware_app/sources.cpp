@@ -44,6 +44,10 @@ std::unique_ptr<hal::FrameSource> MakeSource(const RunConfig& config, std::strin
     return std::make_unique<hal::SimSource>(hal::SimOptions{arg, "", "", 0});
   }
   if (scheme == "v4l2" || scheme == "libcamera") {
+    if (config.replay_interval_ms > 0) {
+      *error = "--replay-interval-ms paces a replay or a simulation; a camera keeps its own cadence";
+      return nullptr;
+    }
     // A live camera: v4l2:/dev/videoN?width=..&height=..&format=..&fps=.. (hal/common/camera_options.h).
     hal::CaptureOptions o;
     if (!hal::ParseCaptureOptions(arg, &o, error)) return nullptr;
