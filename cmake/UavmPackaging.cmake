@@ -1,6 +1,11 @@
-# Install layout and the .deb (CPack): binaries, /etc/uavmosaic/onboard.yaml, /etc/default/uavmosaic-onboard and the
-# systemd unit. `cmake --build B --target package` (or `cpack` in B) writes uavmosaic_<version>_<arch>.deb for the
-# architecture being built: amd64 natively, arm64 with toolchains/aarch64-linux-gnu.cmake.
+# Install layout and the .debs (CPack), one per install component, for the architecture being built (amd64 natively,
+# arm64 with toolchains/aarch64-linux-gnu.cmake); `cmake --build B --target package` (or `cpack` in B) writes both:
+#   onboard -> uavmosaic_<version>_<arch>.deb: what the drone's computer runs: uavmosaic-onboard, its video module,
+#              /etc/uavmosaic/onboard.yaml, /etc/default/uavmosaic-onboard, the systemd unit, and the simulator and
+#              evaluator a field check uses (uavmosaic-sim, uavmosaic-eval);
+#   ground  -> uavmosaic-ground_<version>_<arch>.deb: the ground tool (offline 3-D), for the ground station.
+# `cpack -D CPACK_COMPONENTS_ALL=onboard` writes the drone's package alone, from a tree that did not build the ground
+# tool (the CI tier's aarch64 build: scripts/test_aarch64.sh).
 include(GNUInstallDirs)
 
 set(UAVM_MEMORY_BUDGET_MIB 256 CACHE STRING "Memory budget in the packaged config, MiB")
@@ -37,7 +42,13 @@ else()
 endif()
 
 set(CPACK_GENERATOR DEB)
+set(CPACK_DEB_COMPONENT_INSTALL ON)
+set(CPACK_COMPONENTS_ALL onboard ground)
 set(CPACK_PACKAGE_NAME uavmosaic)
+set(CPACK_DEBIAN_ONBOARD_PACKAGE_NAME uavmosaic)
+set(CPACK_DEBIAN_GROUND_PACKAGE_NAME uavmosaic-ground)
+set(CPACK_DEBIAN_GROUND_DESCRIPTION
+    "Ground tool of uavmosaic: camera model, triangulation, bundle adjustment, dense matching and DSM from a flight")
 set(CPACK_PACKAGE_VENDOR uavmosaic)
 set(CPACK_PACKAGE_CONTACT "uavmosaic maintainers <maintainers@uavmosaic.invalid>")
 set(CPACK_PACKAGE_DESCRIPTION_SUMMARY "Onboard drone mapping: registers camera frames into a mosaic during the flight")
@@ -66,8 +77,10 @@ endif()
 string(APPEND CPACK_DEBIAN_PACKAGE_DEPENDS ", libcpp-httplib0.11, libssl3, libjs-leaflet")
 # The conffiles dpkg keeps when the operator edited them.
 file(WRITE ${PROJECT_BINARY_DIR}/packaging/conffiles "/etc/uavmosaic/onboard.yaml\n/etc/default/uavmosaic-onboard\n")
-set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA ${PROJECT_BINARY_DIR}/packaging/conffiles ${PROJECT_SOURCE_DIR}/packaging/postinst
-    ${PROJECT_SOURCE_DIR}/packaging/prerm)
+set(CPACK_DEBIAN_ONBOARD_PACKAGE_CONTROL_EXTRA ${PROJECT_BINARY_DIR}/packaging/conffiles
+    ${PROJECT_SOURCE_DIR}/packaging/postinst ${PROJECT_SOURCE_DIR}/packaging/prerm)
 set(CPACK_DEBIAN_PACKAGE_CONTROL_STRICT_PERMISSION ON)
+# Both packages take CPACK_DEBIAN_PACKAGE_DEPENDS (CPack's default for a component): a superset for either binary;
+# the package test checks every binary of both against it.
 set(CPACK_STRIP_FILES ON)  # the package carries stripped binaries; the build tree keeps the symbols
 include(CPack)

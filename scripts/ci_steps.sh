@@ -86,7 +86,7 @@ ci_tier() {
   step "accuracy gate" bash "$ROOT/scripts/accuracy_gate.sh"
   step "fuzzing" ci_fuzzing
   step "aarch64 build" bash "$ROOT/scripts/test_aarch64.sh" build ci
-  step "aarch64 package" bash "$ROOT/scripts/test_aarch64.sh" package
+  step "aarch64 package" bash "$ROOT/scripts/test_aarch64.sh" package ci
   step "aarch64 parity" bash "$ROOT/scripts/test_aarch64.sh" parity
   step "aarch64 suite" bash "$ROOT/scripts/test_aarch64.sh" suite ci
 }
@@ -104,7 +104,7 @@ long_flight_memory() {
 
 full_extras() {
   step "long flight memory" long_flight_memory
-  step "aarch64 suite, e2e" bash "$ROOT/scripts/test_aarch64.sh" build suite rest
+  step "aarch64 suite, e2e" bash "$ROOT/scripts/test_aarch64.sh" build package suite rest
   step "asan build" bash "$ROOT/scripts/test_asan.sh" build
   step "asan suite" bash "$ROOT/scripts/test_asan.sh" suite
   step "long fuzzing" bash "$ROOT/scripts/fuzz.sh" --seconds "${UAVM_LONG_FUZZ_SECONDS:-120}"

@@ -3,9 +3,10 @@
 # (all of them when none is named; scripts/test.sh runs them one by one as timed steps):
 #   build [ci]   the arm64 sysroot (scripts/make_sysroot.sh: made once, then reused from the cache) and the
 #                aarch64-release preset built in build-aarch64/ (UAVM_AARCH64_BUILD_DIR); `build ci` builds only
-#                what the CI tier runs (the target ci_tier_tests: the programs and the tests of `suite ci`, not the
-#                end-to-end tests only `suite rest` runs, which the full tier builds);
-#   package      the arm64 .deb installed into a scratch root, its unit verified, its program run (tests/package/);
+#                what the CI tier runs (the target ci_tier_tests: the drone package's programs and the tests of
+#                `suite ci`; not the ground tool or the tests only `suite rest` runs, which the full tier builds);
+#   package [ci] the arm64 .debs installed into a scratch root, the unit verified, the programs run (tests/package/);
+#                `package ci` the drone's package alone (uavmosaic: a CI-tier tree has no ground tool);
 #   parity       the aarch64 uavmosaic-onboard on the bundled brighton_beach_small flight must register every frame,
 #                with transforms within 0.5 px of the native build's (scripts/compare_sessions.py). Both runs use the
 #                emulated suite's settings (320 px working copy, one SIFT pass: 2 min under qemu);
@@ -38,6 +39,7 @@ stage_build() {
   echo "aarch64: build $(($(date +%s) - t0)) s"
   stripped=$(mktemp)
   for b in firmware_app/uavmosaic-onboard ground_app/uavmosaic-ground tools/uavmosaic-sim tools/uavmosaic-eval; do
+    [ "$selection" = ci ] && [ "$b" = ground_app/uavmosaic-ground ] && continue  # not built in the CI tier
     aarch64-linux-gnu-strip -o "$stripped" "$BUILD/$b"
     printf 'aarch64: %-28s %6d KiB (stripped %d KiB)\n' "$(basename "$b")" "$(($(stat -c %s "$BUILD/$b") / 1024))" \
       "$(($(stat -c %s "$stripped") / 1024))"
@@ -46,9 +48,11 @@ stage_build() {
 }
 
 stage_package() {
-  local sysroot_dir
+  local selection="$1" sysroot_dir components="onboard;ground"
+  [ "$selection" = ci ] && components=onboard
   sysroot_dir=$(sysroot)
-  bash "$ROOT/tests/package/package_test.sh" "$BUILD" qemu-aarch64 -L "$sysroot_dir"
+  UAVM_PACKAGE_COMPONENTS="$components" bash "$ROOT/tests/package/package_test.sh" "$BUILD" qemu-aarch64 \
+    -L "$sysroot_dir"
 }
 
 # End to end, native vs aarch64, on the same real flight.
@@ -108,7 +112,14 @@ while [ $i -lt ${#stages[@]} ]; do
         stage_build all
       fi
       ;;
-    package) stage_package ;;
+    package)
+      if [ "${stages[$((i + 1))]:-}" = ci ]; then
+        i=$((i + 1))
+        stage_package ci
+      else
+        stage_package all
+      fi
+      ;;
     parity) stage_parity ;;
     suite)
       if [[ ${stages[$((i + 1))]:-} =~ ^(ci|rest|all)$ ]]; then
@@ -118,7 +129,7 @@ while [ $i -lt ${#stages[@]} ]; do
         stage_suite all
       fi
       ;;
-    *) echo "test_aarch64.sh: unknown stage '${stages[$i]}' (build, package, parity, suite [ci|rest|all])" >&2; exit 2 ;;
+    *) echo "test_aarch64.sh: unknown stage '${stages[$i]}' (build [ci], package [ci], parity, suite [ci|rest|all])" >&2; exit 2 ;;
   esac
   i=$((i + 1))
 done

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # package_test.sh BUILD_DIR [EMULATOR...]
 #
-# Builds the .deb of BUILD_DIR with CPack, installs it into a scratch root with `dpkg --root` (maintainer scripts
+# Builds the .debs of BUILD_DIR with CPack (uavmosaic, the drone's, and uavmosaic-ground; the drone's alone when
+# UAVM_PACKAGE_COMPONENTS=onboard: a tree that did not build the ground tool), installs them into a scratch root with `dpkg --root` (maintainer scripts
 # outside the chroot, DPKG_ROOT set), and checks: dpkg lists the package as installed with its files; the unit passes
 # `systemd-analyze verify`; the installed program reads the installed config (through EMULATOR for a cross build);
 # and, for a native package, every shared library the binaries load comes from a package the .deb depends on.
@@ -14,11 +15,20 @@ trap 'rm -rf "$WORK"' EXIT
 fail() { echo "FAIL: $*" >&2; exit 1; }
 
 # -- the package ---------------------------------------------------------------------------------------------------
-(cd "$BUILD" && cpack -G DEB -B "$WORK/deb" >"$WORK/cpack.log" 2>&1) || { cat "$WORK/cpack.log" >&2; fail "cpack"; }
+COMPONENTS=${UAVM_PACKAGE_COMPONENTS:-onboard;ground}
+(cd "$BUILD" && cpack -G DEB -B "$WORK/deb" -D "CPACK_COMPONENTS_ALL=$COMPONENTS" >"$WORK/cpack.log" 2>&1) ||
+  { cat "$WORK/cpack.log" >&2; fail "cpack"; }
 DEB=$(ls "$WORK"/deb/uavmosaic_*.deb 2>/dev/null | head -n 1)
 [[ -n $DEB ]] || fail "no .deb written"
 ARCH=$(dpkg-deb -f "$DEB" Architecture)
 echo "package: $(basename "$DEB") ($(du -k "$DEB" | cut -f1) KiB)"
+GROUND_DEB=
+if [[ ";$COMPONENTS;" == *";ground;"* ]]; then
+  GROUND_DEB=$(ls "$WORK"/deb/uavmosaic-ground_*.deb 2>/dev/null | head -n 1)
+  [[ -n $GROUND_DEB ]] || fail "no uavmosaic-ground .deb written"
+  [[ $(dpkg-deb -f "$GROUND_DEB" Architecture) == "$ARCH" ]] || fail "the ground package's architecture differs"
+  echo "package: $(basename "$GROUND_DEB") ($(du -k "$GROUND_DEB" | cut -f1) KiB)"
+fi
 
 # -- installed into a scratch root ------------------------------------------------------------------------------------
 ROOT=$WORK/root
@@ -27,8 +37,14 @@ touch "$ROOT/var/lib/dpkg/status"
 # --force-depends: the scratch root has no packages (the dependencies are checked below against the host instead);
 # --force-architecture: an arm64 package on an amd64 dpkg.
 dpkg --root="$ROOT" --force-script-chrootless --force-depends --force-architecture --log=/dev/null -i "$DEB" \
-  >"$WORK/dpkg.log" 2>&1 || { cat "$WORK/dpkg.log" >&2; fail "dpkg -i"; }
+  $GROUND_DEB >"$WORK/dpkg.log" 2>&1 || { cat "$WORK/dpkg.log" >&2; fail "dpkg -i"; }
 dpkg --root="$ROOT" -s uavmosaic | grep -q '^Status: install ok installed' || fail "not installed"
+if [[ -n $GROUND_DEB ]]; then
+  dpkg --root="$ROOT" -s uavmosaic-ground | grep -q '^Status: install ok installed' || fail "ground tool not installed"
+  dpkg --root="$ROOT" -L uavmosaic-ground | grep -qx /usr/bin/uavmosaic-ground || fail "uavmosaic-ground not listed"
+  dpkg --root="$ROOT" -L uavmosaic | grep -q uavmosaic-ground && fail "the drone's package carries the ground tool"
+  [[ -s $ROOT/usr/bin/uavmosaic-ground ]] || fail "missing /usr/bin/uavmosaic-ground"
+fi
 for f in usr/bin/uavmosaic-onboard usr/bin/uavmosaic-sim usr/bin/uavmosaic-eval usr/lib/uavmosaic/libuavm_video_reader.so \
   etc/uavmosaic/onboard.yaml \
   etc/default/uavmosaic-onboard lib/systemd/system/uavmosaic-onboard.service usr/share/doc/uavmosaic/README.md; do
@@ -79,6 +95,14 @@ printf 'not a video' >"$WORK/broken.avi"
 UAVM_VIDEO_READER= "${RUN[@]}" --source "replay:$WORK/broken.avi" --out "$WORK/video" >"$WORK/video.txt" 2>&1 || true
 grep -qF "(read through $ROOT/usr/lib/uavmosaic/libuavm_video_reader.so)" "$WORK/video.txt" || { cat "$WORK/video.txt" >&2; fail "the installed video module is not found"; }
 echo "video module: found under usr/lib/uavmosaic"
+
+# -- the installed ground tool starts -----------------------------------------------------------------------------------
+if [[ -n $GROUND_DEB ]]; then
+  "${EMULATOR[@]}" "$ROOT/usr/bin/uavmosaic-ground" --help >"$WORK/ground.txt" 2>&1 ||
+    { cat "$WORK/ground.txt" >&2; fail "the installed ground tool does not start"; }
+  grep -q reconstruct "$WORK/ground.txt" || { cat "$WORK/ground.txt" >&2; fail "the ground tool's help lacks reconstruct"; }
+  echo "ground tool: starts from its package"
+fi
 
 # -- dependencies: every library the binaries link is in a package the .deb names ---------------------------------------
 if [[ $ARCH == "$(dpkg --print-architecture)" && ${#EMULATOR[@]} -eq 0 ]]; then
