@@ -103,33 +103,24 @@ stages=("$@")
 [ ${#stages[@]} -eq 0 ] && stages=(build package parity suite)
 i=0
 while [ $i -lt ${#stages[@]} ]; do
-  case "${stages[$i]}" in
-    build)
-      if [ "${stages[$((i + 1))]:-}" = ci ]; then
-        i=$((i + 1))
-        stage_build ci
-      else
-        stage_build all
-      fi
-      ;;
-    package)
-      if [ "${stages[$((i + 1))]:-}" = ci ]; then
-        i=$((i + 1))
-        stage_package ci
-      else
-        stage_package all
-      fi
-      ;;
+  stage="${stages[$i]}"
+  # A stage's selection, when the next word is one it takes (build and package: ci; suite: ci, rest, all).
+  selection=all
+  case "$stage" in
+    build | package) choices='^ci$' ;;
+    suite) choices='^(ci|rest|all)$' ;;
+    *) choices='^$' ;;
+  esac
+  if [[ ${stages[$((i + 1))]:-} =~ $choices && -n ${stages[$((i + 1))]:-} ]]; then
+    i=$((i + 1))
+    selection="${stages[$i]}"
+  fi
+  case "$stage" in
+    build) stage_build "$selection" ;;
+    package) stage_package "$selection" ;;
     parity) stage_parity ;;
-    suite)
-      if [[ ${stages[$((i + 1))]:-} =~ ^(ci|rest|all)$ ]]; then
-        i=$((i + 1))
-        stage_suite "${stages[$i]}"
-      else
-        stage_suite all
-      fi
-      ;;
-    *) echo "test_aarch64.sh: unknown stage '${stages[$i]}' (build [ci], package [ci], parity, suite [ci|rest|all])" >&2; exit 2 ;;
+    suite) stage_suite "$selection" ;;
+    *) echo "test_aarch64.sh: unknown stage '$stage' (build [ci], package [ci], parity, suite [ci|rest|all])" >&2; exit 2 ;;
   esac
   i=$((i + 1))
 done
