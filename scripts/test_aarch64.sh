@@ -38,8 +38,9 @@ stage_build() {
     { tail -40 "$BUILD/aarch64-build.log"; exit 1; }
   echo "aarch64: build $(($(date +%s) - t0)) s"
   stripped=$(mktemp)
-  for b in firmware_app/uavmosaic-onboard ground_app/uavmosaic-ground tools/uavmosaic-sim tools/uavmosaic-eval; do
-    [ "$selection" = ci ] && [ "$b" = ground_app/uavmosaic-ground ] && continue  # not built in the CI tier
+  local built=(firmware_app/uavmosaic-onboard tools/uavmosaic-sim tools/uavmosaic-eval)
+  [ "$selection" = ci ] || built+=(ground_app/uavmosaic-ground)  # the CI tier does not build the ground tool
+  for b in "${built[@]}"; do
     aarch64-linux-gnu-strip -o "$stripped" "$BUILD/$b"
     printf 'aarch64: %-28s %6d KiB (stripped %d KiB)\n' "$(basename "$b")" "$(($(stat -c %s "$BUILD/$b") / 1024))" \
       "$(($(stat -c %s "$stripped") / 1024))"
@@ -48,7 +49,7 @@ stage_build() {
 }
 
 stage_package() {
-  local selection="$1" sysroot_dir components="onboard;ground"
+  local selection="$1" sysroot_dir components=  # empty: both packages
   [ "$selection" = ci ] && components=onboard
   sysroot_dir=$(sysroot)
   UAVM_PACKAGE_COMPONENTS="$components" bash "$ROOT/tests/package/package_test.sh" "$BUILD" qemu-aarch64 \
@@ -109,9 +110,9 @@ while [ $i -lt ${#stages[@]} ]; do
   case "$stage" in
     build | package) choices='^ci$' ;;
     suite) choices='^(ci|rest|all)$' ;;
-    *) choices='^$' ;;
+    *) choices= ;;
   esac
-  if [[ ${stages[$((i + 1))]:-} =~ $choices && -n ${stages[$((i + 1))]:-} ]]; then
+  if [[ -n $choices && ${stages[$((i + 1))]:-} =~ $choices ]]; then
     i=$((i + 1))
     selection="${stages[$i]}"
   fi

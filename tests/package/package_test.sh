@@ -2,8 +2,8 @@
 # package_test.sh BUILD_DIR [EMULATOR...]
 #
 # Builds the .debs of BUILD_DIR with CPack (uavmosaic, the drone's, and uavmosaic-ground; the drone's alone when
-# UAVM_PACKAGE_COMPONENTS=onboard: a tree that did not build the ground tool), installs them into a scratch root with `dpkg --root` (maintainer scripts
-# outside the chroot, DPKG_ROOT set), and checks: dpkg lists the package as installed with its files; the unit passes
+# UAVM_PACKAGE_COMPONENTS=onboard: a tree that did not build the ground tool), installs them into a scratch root with
+# `dpkg --root` (maintainer scripts outside the chroot, DPKG_ROOT set), and checks: dpkg lists the package as installed with its files; the unit passes
 # `systemd-analyze verify`; the installed program reads the installed config (through EMULATOR for a cross build);
 # and, for a native package, every shared library the binaries load comes from a package the .deb depends on.
 set -euo pipefail
@@ -15,15 +15,16 @@ trap 'rm -rf "$WORK"' EXIT
 fail() { echo "FAIL: $*" >&2; exit 1; }
 
 # -- the package ---------------------------------------------------------------------------------------------------
-COMPONENTS=${UAVM_PACKAGE_COMPONENTS:-onboard;ground}
-(cd "$BUILD" && cpack -G DEB -B "$WORK/deb" -D "CPACK_COMPONENTS_ALL=$COMPONENTS" >"$WORK/cpack.log" 2>&1) ||
+# Unset: the build's components (cmake/UavmPackaging.cmake), both packages.
+COMPONENTS=${UAVM_PACKAGE_COMPONENTS:-}
+(cd "$BUILD" && cpack -G DEB -B "$WORK/deb" ${COMPONENTS:+-D "CPACK_COMPONENTS_ALL=$COMPONENTS"} >"$WORK/cpack.log" 2>&1) ||
   { cat "$WORK/cpack.log" >&2; fail "cpack"; }
 DEB=$(ls "$WORK"/deb/uavmosaic_*.deb 2>/dev/null | head -n 1)
 [[ -n $DEB ]] || fail "no .deb written"
 ARCH=$(dpkg-deb -f "$DEB" Architecture)
 echo "package: $(basename "$DEB") ($(du -k "$DEB" | cut -f1) KiB)"
 GROUND_DEB=
-if [[ ";$COMPONENTS;" == *";ground;"* ]]; then
+if [[ -z $COMPONENTS || ";$COMPONENTS;" == *";ground;"* ]]; then
   GROUND_DEB=$(ls "$WORK"/deb/uavmosaic-ground_*.deb 2>/dev/null | head -n 1)
   [[ -n $GROUND_DEB ]] || fail "no uavmosaic-ground .deb written"
   [[ $(dpkg-deb -f "$GROUND_DEB" Architecture) == "$ARCH" ]] || fail "the ground package's architecture differs"
@@ -37,7 +38,7 @@ touch "$ROOT/var/lib/dpkg/status"
 # --force-depends: the scratch root has no packages (the dependencies are checked below against the host instead);
 # --force-architecture: an arm64 package on an amd64 dpkg.
 dpkg --root="$ROOT" --force-script-chrootless --force-depends --force-architecture --log=/dev/null -i "$DEB" \
-  $GROUND_DEB >"$WORK/dpkg.log" 2>&1 || { cat "$WORK/dpkg.log" >&2; fail "dpkg -i"; }
+  ${GROUND_DEB:+"$GROUND_DEB"} >"$WORK/dpkg.log" 2>&1 || { cat "$WORK/dpkg.log" >&2; fail "dpkg -i"; }
 dpkg --root="$ROOT" -s uavmosaic | grep -q '^Status: install ok installed' || fail "not installed"
 if [[ -n $GROUND_DEB ]]; then
   dpkg --root="$ROOT" -s uavmosaic-ground | grep -q '^Status: install ok installed' || fail "ground tool not installed"
