@@ -149,6 +149,41 @@ TEST(DogSiftTest, MatchesTheGrafPairAsWellAsOpenCvSift) {
             0.97 * static_cast<double>(s_theirs.correct) / s_theirs.matches);
 }
 
+// The descriptor from 4 x 4 bilinear samples a cell on its rotated grid (the default) against OpenCV's way, every
+// pixel of its window, on a frame and its copy turned by 30 degrees and shrunk to 0.7 (the exact homography): as many
+// correct matches (within 3 %), as large a share of them correct.
+TEST(DogSiftTest, SampledDescriptorMatchesAsWellAsEveryPixel) {
+  const cv::Mat a = WorkingGray(static_cast<int>(640 * test::EmulationImageScale()));
+  const cv::Mat affine = cv::getRotationMatrix2D(
+      cv::Point2f(0.5f * static_cast<float>(a.cols), 0.5f * static_cast<float>(a.rows)), 30.0, 0.7);
+  cv::Mat b;
+  cv::warpAffine(a, b, affine, a.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT101);
+  cv::Mat h = cv::Mat::eye(3, 3, CV_64F);
+  affine.copyTo(h.rowRange(0, 2));
+  auto score = [&](int samples_per_cell) {
+    DogSiftOptions o;
+    o.descriptor_samples_per_cell = samples_per_cell;
+    auto detect = [&](const cv::Mat& img, std::vector<cv::Point2f>* pts, cv::Mat* desc) {
+      std::vector<SiftKeypoint> kps;
+      DetectAndDescribeSift(img, o, &kps, desc);
+      for (const auto& k : kps) pts->push_back(k.point);
+    };
+    std::vector<cv::Point2f> pa, pb;
+    cv::Mat da, db;
+    detect(a, &pa, &da);
+    detect(b, &pb, &db);
+    return ScorePair(pa, da, pb, db, h);
+  };
+  const PairScore sampled = score(4);
+  const PairScore every_pixel = score(0);
+  std::cerr << "turned 30 degrees, 0.7: sampled " << sampled.correct << " / " << sampled.matches << ", every pixel "
+            << every_pixel.correct << " / " << every_pixel.matches << "\n";
+  ASSERT_GT(every_pixel.correct, 100);
+  EXPECT_GE(sampled.correct, static_cast<int>(0.97 * every_pixel.correct));
+  EXPECT_GE(static_cast<double>(sampled.correct) / sampled.matches,
+            0.97 * static_cast<double>(every_pixel.correct) / every_pixel.matches);
+}
+
 // The result does not depend on the number of threads (each task computes whole rows or whole keypoints).
 TEST(DogSiftTest, SameBitsWithOneThreadOrMany) {
   const cv::Mat gray = WorkingGray(static_cast<int>(500 * test::EmulationImageScale()));

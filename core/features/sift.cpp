@@ -22,6 +22,8 @@ bool FeatureOptions::Check(std::string* why) const {
   if (octave_layers < 1 || octave_layers > 8) return fail("features.octave_layers must be in [1,8]");
   if (max_scale_space_mib < 0) return fail("features.max_scale_space_mib must be >= 0");
   if (band_margin < 16) return fail("features.band_margin must be >= 16");
+  if (descriptor_samples_per_cell != 0 && (descriptor_samples_per_cell < 2 || descriptor_samples_per_cell > 8))
+    return fail("features.descriptor_samples_per_cell must be 0 (every pixel) or in [2,8]");
   return true;
 }
 
@@ -70,6 +72,7 @@ void DetectOnce(const cv::Mat& gray, const FeatureOptions& options, int max_feat
   o.contrast_threshold = threshold;
   o.max_features = max_features;
   o.double_first_octave = options.double_first_octave;
+  o.descriptor_samples_per_cell = options.descriptor_samples_per_cell;
   if (ladder) {
     o.target_min_features = options.target_min_features;
     o.min_contrast_threshold = options.min_contrast_threshold;

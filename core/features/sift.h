@@ -32,6 +32,10 @@ struct FeatureOptions {
   // doubled octave holds 4 of the scale space's 5.3 input-sized images of work; what it buys is measured in
   // bench/results/sift-first-octave-*.md.
   bool double_first_octave = true;
+  // Ours only: the descriptor from this many bilinear samples a cell and side on its rotated grid (a fixed cost per
+  // keypoint whatever its scale), or from every pixel of its window as OpenCV's (0). What it changes is measured in
+  // bench/results/sift-sampled-descriptor-*.md.
+  int descriptor_samples_per_cell = 4;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };
