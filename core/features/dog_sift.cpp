@@ -981,9 +981,11 @@ void Describe(const cv::Mat& img, float x, float y, float angle, float scale, Gr
 // The descriptor's window sampled on its own rotated grid instead of at every pixel: S x S samples a cell (bilinear
 // in the Gaussian image), gradients as differences of the neighbouring samples along the grid's axes (directions come
 // out relative to the keypoint's), each sample's votes into the 2 x 2 cells around it at weights fixed by its place in
-// the grid. A cell is 3 sigma wide, so the work is (4 S + 2)^2 samples whatever the scale (OpenCV's way reads
-// ~(15 sigma)^2 pixels: 900 at sigma 2, 2300 at 3.2), and the image, blurred by sigma, holds no detail finer than the
-// samples' 0.75 sigma (at S = 4).
+// the grid. The grid covers the 4 x 4 cells and the half-cell margin OpenCV's window reads (its samples vote partly
+// into the edge cells). A cell is 3 sigma wide, so the work is (5 S + 2)^2 samples whatever the scale (OpenCV's way
+// reads ~(15 sigma)^2 pixels: 900 at sigma 2, 2300 at 3.2), and the image, blurred by sigma, holds no detail finer
+// than the samples' 0.75 sigma (at S = 4).
+
 // Bilinear samples of an int16 image (rows x cols, step int16s a row) at (bx + c cos, by - c sin) for the n offsets c
 // (clamped into the image), a vector of lanes at a time: positions and weights in lanes, the four pixels gathered.
 // n >= the vector's lanes.
