@@ -950,6 +950,14 @@ void FinishDescriptor(float* hist, float* out) {
   for (int k = 0; k < kDescriptorSize; ++k) out[k] = static_cast<float>(cv::saturate_cast<uchar>(out[k] * norm));
 }
 
+// The direction a descriptor's window turns by (OpenCV's 360 - angle, 360 itself as 0) and its sine and cosine.
+float DescriptorDirection(float angle, double* sin_d, double* cos_d) {
+  float ori = 360.f - angle;
+  if (std::abs(ori - 360.f) < 1.1920929e-07f) ori = 0.f;
+  portable::SinCosDegrees(ori, sin_d, cos_d);
+  return ori;
+}
+
 // The 4x4x8 descriptor at sub-pixel (x, y) of a Gaussian image, direction `angle` (OpenCV's convention), as OpenCV's
 // calcSIFTDescriptor: trilinear votes of rotated gradients, Gaussian window of half the descriptor's width.
 void Describe(const cv::Mat& img, float x, float y, float angle, float scale, GradientScratch* s, float* out) {
@@ -957,10 +965,8 @@ void Describe(const cv::Mat& img, float x, float y, float angle, float scale, Gr
   DescriptorWindow win;
   win.px = static_cast<int>(std::lround(x));
   win.py = static_cast<int>(std::lround(y));
-  win.ori = 360.f - angle;
-  if (std::abs(win.ori - 360.f) < 1.1920929e-07f) win.ori = 0.f;
   double sin_d = 0, cos_d = 0;
-  portable::SinCosDegrees(win.ori, &sin_d, &cos_d);
+  win.ori = DescriptorDirection(angle, &sin_d, &cos_d);
   const float hist_width = kDescriptorCellFactor * scale;
   win.radius = static_cast<int>(std::lround(hist_width * 1.4142135623730951f * (d + 1) * 0.5f));
   win.radius = std::min(win.radius, static_cast<int>(std::sqrt(static_cast<double>(img.cols) * img.cols +
@@ -1123,10 +1129,8 @@ class SampledDescriber {
   void Describe(const cv::Mat& img, float x, float y, float angle, float scale, float* out) {
     constexpr int d = kDescriptorWidth;
     constexpr int n = kDescriptorBins;
-    float ori = 360.f - angle;
-    if (std::abs(ori - 360.f) < 1.1920929e-07f) ori = 0.f;
     double sin_d = 0, cos_d = 0;
-    portable::SinCosDegrees(ori, &sin_d, &cos_d);
+    DescriptorDirection(angle, &sin_d, &cos_d);
     const float cell = kDescriptorCellFactor * scale;
     Sample(img, x, y, static_cast<float>(cos_d) * cell, static_cast<float>(sin_d) * cell);
     Differences();
