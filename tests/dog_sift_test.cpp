@@ -275,5 +275,35 @@ TEST(DogSiftTest, ScaleSpaceIsOneBlockThePoolHandsBack) {
             figure + 2.0 * static_cast<double>(desc.total() * desc.elemSize()));
 }
 
+// A caller that detects frame after frame keeps the scale space's block (DogSiftBuffers): when the image pool has given
+// its free blocks back between two frames (as it did to make room for the matching's buffers), the second frame maps
+// nothing new, and it finds exactly what a call with a block of its own finds.
+TEST(DogSiftTest, HeldBuffersKeepTheScaleSpaceBetweenFrames) {
+  MatPool* pool = InstallMatPool();
+  const cv::Mat gray = WorkingGray(static_cast<int>(640 * test::EmulationImageScale()));
+  DogSiftBuffers held;
+  std::vector<SiftKeypoint> kps;
+  cv::Mat desc;
+  DetectAndDescribeSift(gray, DogSiftOptions{}, &kps, &desc, nullptr, &held);
+  ASSERT_GT(kps.size(), 100u);
+  EXPECT_NEAR(static_cast<double>(held.bytes()), DogSiftScaleSpaceMiB(gray.cols, gray.rows) * 1024.0 * 1024.0, 64.0);
+  pool->Flush();
+  const MatPoolStats before = pool->Stats();
+  DetectAndDescribeSift(gray, DogSiftOptions{}, &kps, &desc, nullptr, &held);
+  EXPECT_EQ(pool->Stats().misses, before.misses);
+  std::vector<SiftKeypoint> own;
+  cv::Mat own_desc;
+  DetectAndDescribeSift(gray, DogSiftOptions{}, &own, &own_desc);
+  EXPECT_GT(pool->Stats().misses, before.misses);  // its own block: flushed away, mapped again
+  ASSERT_EQ(own.size(), kps.size());
+  for (size_t i = 0; i < kps.size(); ++i) {
+    EXPECT_EQ(own[i].point, kps[i].point);
+    EXPECT_EQ(own[i].angle, kps[i].angle);
+  }
+  EXPECT_EQ(cv::norm(own_desc, desc, cv::NORM_INF), 0.0);
+  held.Release();
+  EXPECT_EQ(held.bytes(), 0u);
+}
+
 }  // namespace
 }  // namespace uavm

@@ -144,6 +144,30 @@ TEST(SiftTest, AnUndoubledFirstOctaveCostsAQuarterAndFindsTheCoarserKeypoints) {
   EXPECT_GT(shared, static_cast<int>(0.6 * static_cast<double>(b.size())));
 }
 
+// The extractor keeps the scale space's block from one frame to the next (the memory plan's detector figure, one band
+// of it under a cap) and gives it back on request (the end of the flight): the same features as a fresh extractor.
+TEST(SiftTest, TheExtractorHoldsItsScaleSpaceUntilReleased) {
+  const cv::Mat gray = WorkingGray(static_cast<int>(640 * test::EmulationImageScale()));
+  FeatureOptions o;
+  const SiftExtractor sift(o);
+  EXPECT_EQ(sift.HeldBytes(), 0u);
+  const Features first = sift.Extract(gray);
+  const double figure = SiftScaleSpaceMiB(gray.cols, gray.rows, o) * 1024.0 * 1024.0;
+  EXPECT_NEAR(static_cast<double>(sift.HeldBytes()), figure, 64.0);
+  const Features second = sift.Extract(gray);
+  EXPECT_EQ(second.points, first.points);
+  EXPECT_EQ(cv::norm(second.descriptors, SiftExtractor(o).Extract(gray).descriptors, cv::NORM_INF), 0.0);
+  sift.ReleaseBuffers();
+  EXPECT_EQ(sift.HeldBytes(), 0u);
+  // Under a cap, bands of the frame: the block is one band's, within the cap.
+  o.max_scale_space_mib = static_cast<int>(std::ceil(figure / (1024.0 * 1024.0) / 2));
+  ASSERT_GE(SiftBands(gray.cols, gray.rows, o), 2);
+  const SiftExtractor banded(o);
+  EXPECT_GT(banded.Extract(gray).size(), 100u);
+  EXPECT_GT(banded.HeldBytes(), 0u);
+  EXPECT_LE(static_cast<double>(banded.HeldBytes()), o.max_scale_space_mib * 1024.0 * 1024.0);
+}
+
 TEST(SiftTest, OptionsAreChecked) {
   FeatureOptions o;
   std::string why;

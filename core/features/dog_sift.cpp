@@ -1207,20 +1207,22 @@ size_t ScaleSpaceBlockBytes(int rows, int cols, int layers) {
 }
 
 // Every image of the scale space in one block (ScaleSpaceBlockBytes), so that the image pool hands the same block back
-// frame after frame: with images of each octave's own size, a later octave's (a quarter of the first's) could not take
-// a pooled first-octave block, the pool gave those back to stay within its peak, and the kernel zeroed ~50 MB of fresh
-// pages a 1000x750 frame (6 % of the flight's CPU). Kept images (every octave's Gaussian layers 1 .. L, read by the
-// orientations and descriptors) come from the front; the layers an octave's search alone reads from the back, free
-// again when the next octave starts. The images are views: the block outlives them.
+// frame after frame (or the caller keeps it: DogSiftBuffers): with images of each octave's own size, a later octave's
+// (a quarter of the first's) could not take a pooled first-octave block, the pool gave those back to stay within its
+// peak, and the kernel zeroed ~50 MB of fresh pages a 1000x750 frame (6 % of the flight's CPU). Kept images (every
+// octave's Gaussian layers 1 .. L, read by the orientations and descriptors) come from the front; the layers an
+// octave's search alone reads from the back, free again when the next octave starts. The images are views: the block
+// outlives them.
 class ImageBlock {
  public:
-  void Reserve(size_t bytes) {
-    block_.create(static_cast<int>((bytes + 63) / 64), 64, CV_8U);  // rows of a cache line: any size an int counts
+  // The block from `held` (the caller's, kept between frames) or one of its own.
+  void Reserve(size_t bytes, DogSiftBuffers* held) {
+    data_ = (held != nullptr ? held : &own_)->Take(bytes);
     front_ = 0;
     back_ = end_ = bytes;
   }
   cv::Mat Kept(int rows, int cols) {
-    cv::Mat image(rows, cols, CV_16S, block_.data + front_);
+    cv::Mat image(rows, cols, CV_16S, data_ + front_);
     front_ += ImageBytes(rows, cols);
     CV_Assert(front_ <= back_);
     return image;
@@ -1229,12 +1231,13 @@ class ImageBlock {
     const size_t bytes = ImageBytes(rows, cols);
     CV_Assert(front_ + bytes <= back_);
     back_ -= bytes;
-    return {rows, cols, CV_16S, block_.data + back_};
+    return {rows, cols, CV_16S, data_ + back_};
   }
   void NextOctave() { back_ = end_; }
 
  private:
-  cv::Mat block_;
+  DogSiftBuffers own_;
+  uchar* data_ = nullptr;
   size_t front_ = 0;
   size_t back_ = 0;
   size_t end_ = 0;
@@ -1277,7 +1280,7 @@ void FirstImage(const cv::Mat& gray, const ScaleSpace& space, int octave, cv::Ma
 
 // Builds the octaves one at a time and searches each for candidates. Every octave's Gaussian layers 1 .. L stay (for
 // the orientations and descriptors); its three others only while it is searched.
-void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, ScaleSpace* space) {
+void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, DogSiftBuffers* buffers, ScaleSpace* space) {
   space->options = o;
   space->ladder = {o.contrast_threshold};
   while (o.target_min_features > 0 && o.min_contrast_threshold > 0.0 &&
@@ -1294,7 +1297,7 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, ScaleSpace* spa
   const int f = o.double_first_octave ? 2 : 1;
   int width = gray.cols * f;
   int height = gray.rows * f;
-  space->images.Reserve(ScaleSpaceBlockBytes(height, width, layers));
+  space->images.Reserve(ScaleSpaceBlockBytes(height, width, layers), buffers);
   for (int octave = 0; std::min(width, height) >= 2 * kImageBorder + 3; ++octave) {
     space->images.NextOctave();
     // Gaussian layers 0 .. L + 2: 1 .. L stay (orientations, descriptors, the next octave's first image), the others
@@ -1386,13 +1389,21 @@ void DescribeKept(const ScaleSpace& space, const std::vector<Oriented>& kept, st
 
 }  // namespace
 
+uchar* DogSiftBuffers::Take(size_t needed) {
+  if (bytes() < needed) {
+    block_.release();                                                // before the new one: never both
+    block_.create(static_cast<int>((needed + 63) / 64), 64, CV_8U);  // rows of a cache line: any size an int counts
+  }
+  return block_.data;
+}
+
 double DogSiftScaleSpaceMiB(int width, int height, int octave_layers, bool double_first_octave) {
   const int f = double_first_octave ? 2 : 1;
   return static_cast<double>(ScaleSpaceBlockBytes(height * f, width * f, octave_layers)) / (1024.0 * 1024.0);
 }
 
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::vector<SiftKeypoint>* keypoints,
-                           cv::Mat* descriptors, double* contrast_threshold_used) {
+                           cv::Mat* descriptors, double* contrast_threshold_used, DogSiftBuffers* buffers) {
   keypoints->clear();
   *descriptors = cv::Mat();
   if (contrast_threshold_used != nullptr) *contrast_threshold_used = o.contrast_threshold;
@@ -1400,7 +1411,7 @@ void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::ve
   const int f = o.double_first_octave ? 2 : 1;
   if (std::min(gray.cols, gray.rows) * f < 2 * kImageBorder + 3) return;
   ScaleSpace space;
-  SearchOctaves(gray, o, &space);
+  SearchOctaves(gray, o, buffers, &space);
   std::vector<Candidate>& candidates = space.candidates;
   // Each candidate gives one keypoint or more (one per dominant direction), all with its response: the strongest
   // max_features keypoints come from the strongest max_features candidates.
@@ -1426,7 +1437,7 @@ void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::ve
     lower.contrast_threshold = space.ladder[space.searched + 1];
     space = ScaleSpace{};  // its images go before the next detection makes its own
     angles = {};
-    DetectAndDescribeSift(gray, lower, keypoints, descriptors, contrast_threshold_used);
+    DetectAndDescribeSift(gray, lower, keypoints, descriptors, contrast_threshold_used, buffers);
     return;
   }
   if (contrast_threshold_used != nullptr) *contrast_threshold_used = space.ladder[level];

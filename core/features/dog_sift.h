@@ -54,11 +54,29 @@ struct SiftKeypoint {
   int octave = 0;        // 0 = the first (doubled) octave
 };
 
+// The scale space's memory (one block, DogSiftScaleSpaceMiB), kept from one call to the next by a caller that
+// detects frame after frame. Without it each call takes its block from the allocator: between two frames of a flight
+// the image pool gave it back to make room for the matching's buffers, and the kernel zeroed every page of the new
+// one (9 % of a simulated flight's CPU, ~15 ms a frame). The block grows to the largest image seen and is kept until
+// Release(); one call at a time uses it.
+class DogSiftBuffers {
+ public:
+  void Release() { block_.release(); }
+  [[nodiscard]] size_t bytes() const { return block_.total() * block_.elemSize(); }
+  // A block of at least `needed` bytes: the one held when it is large enough, else a new one that replaces it.
+  [[nodiscard]] uchar* Take(size_t needed);
+
+ private:
+  cv::Mat block_;
+};
+
 // Detects and describes `gray` (CV_8UC1). Descriptors: CV_32F, one row of 128 per keypoint, values 0..255 as
 // OpenCV's. Keypoints come strongest first; with max_features > 0 at most that many (OpenCV keeps ties at the cut;
-// this does not). Thread-safe; uses cv::parallel_for_.
+// this does not). Thread-safe (for calls with different `buffers`, or none); uses cv::parallel_for_. With `buffers`
+// the scale space lives in their block instead of one of its own.
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& options, std::vector<SiftKeypoint>* keypoints,
-                           cv::Mat* descriptors, double* contrast_threshold_used = nullptr);
+                           cv::Mat* descriptors, double* contrast_threshold_used = nullptr,
+                           DogSiftBuffers* buffers = nullptr);
 
 // The scale space DetectAndDescribeSift holds for a width x height image, in MiB: the L + 3 int16 images of its first
 // octave (up to 8 layers), 6 for the default 3 (the rows of its Gaussian strips and the keypoints are small beside

@@ -1,6 +1,7 @@
 #include "core/features/sift.h"
 
 #include <algorithm>
+#include <mutex>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -46,7 +47,24 @@ int SiftBands(int width, int height, const FeatureOptions& options) {
   return kMaxBands;
 }
 
-SiftExtractor::SiftExtractor(const FeatureOptions& options) : options_(options) {}
+struct SiftExtractor::Held {
+  std::mutex mutex;
+  DogSiftBuffers buffers;
+};
+
+SiftExtractor::SiftExtractor(const FeatureOptions& options) : options_(options), held_(std::make_unique<Held>()) {}
+
+SiftExtractor::~SiftExtractor() = default;
+
+void SiftExtractor::ReleaseBuffers() const {
+  const std::lock_guard<std::mutex> lock(held_->mutex);
+  held_->buffers.Release();
+}
+
+size_t SiftExtractor::HeldBytes() const {
+  const std::lock_guard<std::mutex> lock(held_->mutex);
+  return held_->buffers.bytes();
+}
 
 namespace {
 
@@ -54,8 +72,8 @@ namespace {
 // more), positions in pixel-centre coordinates. With `ladder` (ours only), the threshold is lowered within the pass
 // as Extract's loop would (DogSiftOptions::target_min_features); *threshold_used says where it stopped.
 void DetectOnce(const cv::Mat& gray, const FeatureOptions& options, int max_features, double threshold,
-                std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors, bool ladder = false,
-                double* threshold_used = nullptr) {
+                DogSiftBuffers* buffers, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors,
+                bool ladder = false, double* threshold_used = nullptr) {
   keypoints->clear();
   if (threshold_used != nullptr) *threshold_used = threshold;
   if (options.opencv_sift) {
@@ -78,18 +96,18 @@ void DetectOnce(const cv::Mat& gray, const FeatureOptions& options, int max_feat
     o.min_contrast_threshold = options.min_contrast_threshold;
   }
   std::vector<SiftKeypoint> found;
-  DetectAndDescribeSift(gray, o, &found, descriptors, threshold_used);
+  DetectAndDescribeSift(gray, o, &found, descriptors, threshold_used, buffers);
   keypoints->reserve(found.size());
   for (const auto& k : found) keypoints->emplace_back(k.point, k.size, k.angle, k.response, k.octave);
 }
 
 }  // namespace
 
-void SiftExtractor::Detect(const cv::Mat& gray, double threshold, std::vector<cv::KeyPoint>* keypoints,
-                           cv::Mat* descriptors) const {
+void SiftExtractor::Detect(const cv::Mat& gray, double threshold, DogSiftBuffers* buffers,
+                           std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors) const {
   const int bands = SiftBands(gray.cols, gray.rows, options_);
   if (bands <= 1) {
-    DetectOnce(gray, options_, options_.max_features, threshold, keypoints, descriptors);
+    DetectOnce(gray, options_, options_.max_features, threshold, buffers, keypoints, descriptors);
     if (keypoints->size() > static_cast<size_t>(options_.max_features)) {
       std::vector<size_t> order(keypoints->size());
       for (size_t i = 0; i < order.size(); ++i) order[i] = i;
@@ -122,7 +140,7 @@ void SiftExtractor::Detect(const cv::Mat& gray, double threshold, std::vector<cv
     const int share = static_cast<int>(1.5 * options_.max_features * (y1 - y0) / gray.rows) + 16;
     std::vector<cv::KeyPoint> kps;
     cv::Mat desc;
-    DetectOnce(gray.rowRange(ry0, ry1), options_, share, threshold, &kps, &desc);
+    DetectOnce(gray.rowRange(ry0, ry1), options_, share, threshold, buffers, &kps, &desc);
     for (size_t i = 0; i < kps.size(); ++i) {
       cv::KeyPoint kp = kps[i];
       kp.pt.y += static_cast<float>(ry0);
@@ -152,14 +170,16 @@ Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
   if (half) cv::resize(gray_in, gray, cv::Size((gray_in.cols + 1) / 2, (gray_in.rows + 1) / 2), 0, 0, cv::INTER_AREA);
   std::vector<cv::KeyPoint> keypoints;
   double threshold = options_.contrast_threshold;
+  std::unique_lock<std::mutex> lock(held_->mutex, std::try_to_lock);
+  DogSiftBuffers* buffers = lock.owns_lock() ? &held_->buffers : nullptr;
   if (!options_.opencv_sift && SiftBands(gray.cols, gray.rows, options_) == 1) {
     // Ours lowers the threshold on one scale space instead of detecting again.
-    DetectOnce(gray, options_, options_.max_features, threshold, &keypoints, &out.descriptors, true,
+    DetectOnce(gray, options_, options_.max_features, threshold, buffers, &keypoints, &out.descriptors, true,
                &out.contrast_threshold_used);
   } else {
     for (;;) {
       keypoints.clear();
-      Detect(gray, threshold, &keypoints, &out.descriptors);
+      Detect(gray, threshold, buffers, &keypoints, &out.descriptors);
       out.contrast_threshold_used = threshold;
       if (static_cast<int>(keypoints.size()) >= options_.target_min_features) break;
       const double next = threshold / 3.0;

@@ -1,4 +1,5 @@
 #pragma once
+#include <memory>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
@@ -58,18 +59,31 @@ struct Features {
   }
 };
 
+class DogSiftBuffers;
+
+// Keeps our detector's scale space (DogSiftBuffers) from one Extract to the next, so that a flight's frames reuse one
+// block (SiftScaleSpaceMiB / bands: the memory plan's detector figure) instead of mapping it anew; a call made while
+// another holds it uses a block of its own. ReleaseBuffers() gives it back (the end of the flight).
 class SiftExtractor {
  public:
   explicit SiftExtractor(const FeatureOptions& options);
-  // `gray` is CV_8UC1. Never throws on valid 8-bit input; an empty image gives no features.
+  ~SiftExtractor();
+  SiftExtractor(const SiftExtractor&) = delete;
+  SiftExtractor& operator=(const SiftExtractor&) = delete;
+  // `gray` is CV_8UC1. Never throws on valid 8-bit input; an empty image gives no features. Thread-safe.
   [[nodiscard]] Features Extract(const cv::Mat& gray) const;
+  void ReleaseBuffers() const;
+  [[nodiscard]] size_t HeldBytes() const;
 
  private:
+  struct Held;
   // One detection at `threshold`, whole image or banded; strongest max_features kept. Positions in pixel-centre
   // coordinates.
-  void Detect(const cv::Mat& gray, double threshold, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors) const;
+  void Detect(const cv::Mat& gray, double threshold, DogSiftBuffers* buffers, std::vector<cv::KeyPoint>* keypoints,
+              cv::Mat* descriptors) const;
 
   FeatureOptions options_;
+  std::unique_ptr<Held> held_;
 };
 
 }  // namespace uavm

@@ -101,6 +101,7 @@ class FlightSession final : public SessionEnd {
   // The source is done, so the journal's names it passed over (seen()) go too.
   void EndFlight() {
     std::unordered_set<std::string>().swap(seen_);
+    preparer_.ReleaseDetectorBuffers();
     resources_.FlightEnd();
   }
   [[nodiscard]] Solution Solve();

@@ -50,6 +50,8 @@ class FramePreparer {
   // Working copies, no features; `flatness` when the caller measured it already (MeasureFlatness on frame.image).
   [[nodiscard]] PreparedFrame PrepareImages(Frame frame, std::optional<Flatness> flatness = std::nullopt) const;
   void DetectFeatures(PreparedFrame* p) const;
+  // The detector's scale space, held from frame to frame (SiftExtractor), goes back: the flight is over.
+  void ReleaseDetectorBuffers() const { extractor_.ReleaseBuffers(); }
   // The working grey image the features' coordinates refer to (undistorted when a lens is corrected).
   [[nodiscard]] cv::Mat IdealGray(const PreparedFrame& p) const;
   [[nodiscard]] const WorkLens& lens() const { return lens_; }
