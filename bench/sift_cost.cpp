@@ -17,6 +17,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "core/buffers/mat_pool.h"
@@ -65,8 +66,10 @@ struct Sample {
   std::vector<double> wall_ms, cpu_ms, keypoints;
 };
 
-void Time(const uavm::SiftExtractor& sift, const cv::Mat& gray, int repeat, Sample* frame) {
+void Time(const uavm::SiftExtractor& sift, const cv::Mat& gray, int repeat, int pause_ms, Sample* frame) {
   for (int r = 0; r < repeat; ++r) {
+    // A camera's cadence: the threads idle between frames, as in flight (their pool's workers asleep).
+    if (pause_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(pause_ms));
     const double cpu0 = CpuMs();
     const auto t0 = std::chrono::steady_clock::now();
     const uavm::Features f = sift.Extract(gray);
@@ -87,6 +90,7 @@ int main(int argc, char** argv) {
   int repeat = 3;
   int work_size = 1000;
   int opencv_bands = 3;
+  int pause_ms = 0;
   app.add_option("--images", images, "folder of the flight's photographs")->required();
   app.add_option("--frames", frames, "at most this many frames, evenly spread (0 = all)");
   app.add_option("--repeat", repeat, "runs of each detector per frame (median)")->check(CLI::PositiveNumber);
@@ -94,6 +98,8 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   app.add_option("--opencv-bands", opencv_bands, "OpenCV's SIFT in this many bands")->check(CLI::Range(1, 16));
   app.add_option("--label", label, "name of the flight in the table");
+  app.add_option("--pause-ms", pause_ms, "idle this long before each detection (a camera's cadence; 0 = none)")
+      ->check(CLI::NonNegativeNumber);
   CLI11_PARSE(app, argc, argv);
 
   std::vector<std::string> paths;
@@ -126,8 +132,8 @@ int main(int argc, char** argv) {
     Sample a;
     Sample b;
     for (int r = 0; r < repeat; ++r) {  // alternately, so that the machine's drift reaches both alike
-      Time(uavm::SiftExtractor(ours), gray, 1, &a);
-      Time(uavm::SiftExtractor(opencv), gray, 1, &b);
+      Time(uavm::SiftExtractor(ours), gray, 1, pause_ms, &a);
+      Time(uavm::SiftExtractor(opencv), gray, 1, pause_ms, &b);
     }
     ours_all.wall_ms.push_back(Median(a.wall_ms));
     ours_all.cpu_ms.push_back(Median(a.cpu_ms));

@@ -10,8 +10,8 @@
 # registration.
 #
 # Environment: FLIGHTS_SIM (default "sim_easy sim_hard sim_tilt1"), FLIGHTS_REAL (default "brighton_beach
-# caliterra"), SIM_DIR (default /tmp/uavm-sim), FRAMES (default 0 = all), REPEAT (default 3), UAVM_BUILD_DIR,
-# UAVM_RESULTS_DIR.
+# caliterra"), SIM_DIR (default /tmp/uavm-sim), FRAMES (default 0 = all), REPEAT (default 3), PAUSE_MS (idle before
+# each detection, a camera's cadence: default 0), UAVM_BUILD_DIR, UAVM_RESULTS_DIR.
 set -euo pipefail
 export LC_ALL=C
 SCRIPT_DIR=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
@@ -46,12 +46,13 @@ for name in $FLIGHTS_SIM; do
       { log "$name: simulation failed ($flight.sim.log)"; continue; }
   fi
   log "$name"
-  ROWS+=("$("$BIN" --images "$flight/images" --frames "${FRAMES:-0}" --repeat "${REPEAT:-3}" --label "$name")")
+  ROWS+=("$("$BIN" --images "$flight/images" --frames "${FRAMES:-0}" --repeat "${REPEAT:-3}" \
+    --pause-ms "${PAUSE_MS:-0}" --label "$name")")
 done
 for name in $FLIGHTS_REAL; do
   log "$name"
   ROWS+=("$("$BIN" --images "$DATA_DIR/$name/images" --frames "${FRAMES:-0}" --repeat "${REPEAT:-3}" \
-    --label "$name (real)")")
+    --pause-ms "${PAUSE_MS:-0}" --label "$name (real)")")
 done
 {
   echo "uavmosaic detection alone, $(date -u '+%Y-%m-%d %H:%M UTC'), $(git -C "$REPO" rev-parse --short HEAD 2>/dev/null || echo '?'), nproc $(nproc), CPU: $(cpu_model)"
