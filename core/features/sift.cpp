@@ -170,7 +170,9 @@ Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
   if (half) cv::resize(gray_in, gray, cv::Size((gray_in.cols + 1) / 2, (gray_in.rows + 1) / 2), 0, 0, cv::INTER_AREA);
   std::vector<cv::KeyPoint> keypoints;
   double threshold = options_.contrast_threshold;
-  std::unique_lock<std::mutex> lock(held_->mutex, std::try_to_lock);
+  // The held scale space, for our detector and while no other call has it; let go once detection is done.
+  std::unique_lock<std::mutex> lock(held_->mutex, std::defer_lock);
+  if (!options_.opencv_sift) (void)lock.try_lock();
   DogSiftBuffers* buffers = lock.owns_lock() ? &held_->buffers : nullptr;
   if (!options_.opencv_sift && SiftBands(gray.cols, gray.rows, options_) == 1) {
     // Ours lowers the threshold on one scale space instead of detecting again.
@@ -187,6 +189,7 @@ Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
       threshold = next;
     }
   }
+  if (lock.owns_lock()) lock.unlock();
   out.points.reserve(keypoints.size());
   for (const auto& kp : keypoints) out.points.push_back(kp.pt);
   // Pixel centres map as (p + 0.5) * s - 0.5 with s the exact size ratio (2 for an even side: 2p + 0.5; an odd side
