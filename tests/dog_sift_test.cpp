@@ -233,6 +233,60 @@ TEST(DogSiftTest, LoweredThresholdIsASecondDetection) {
   EXPECT_GT(same, static_cast<size_t>(0.97 * static_cast<double>(again.size())));
 }
 
+// The first octave searched once at a lower level of the ladder gives the keypoints of searching each level in turn,
+// bit for bit, whichever level the frame needs: a textured frame (the top), softer ones (one and two steps down). So
+// does the level the last frame needed (held buffers), from the softest frame to the textured one.
+TEST(DogSiftTest, FirstOctaveSearchedOnceGivesWhatEachLevelGives) {
+  const cv::Mat textured = WorkingGray(static_cast<int>(480 * test::EmulationImageScale()));
+  std::vector<double> needed;
+  std::vector<std::vector<SiftKeypoint>> each_of;
+  std::vector<cv::Mat> grays;
+  for (const double contrast : {1.0, 0.25, 0.08}) {
+    cv::Mat gray;
+    textured.convertTo(gray, CV_8U, contrast, 128.0 * (1.0 - contrast));
+    DogSiftOptions o;
+    o.target_min_features = 1500;
+    o.min_contrast_threshold = 0.0005;
+    std::vector<SiftKeypoint> each, once;
+    cv::Mat d_each, d_once;
+    double used_each = 0.0;
+    double used_once = 0.0;
+    o.first_octave_search_level = 0;
+    DetectAndDescribeSift(gray, o, &each, &d_each, &used_each);
+    for (const int level : {1, 2}) {
+      o.first_octave_search_level = level;
+      DetectAndDescribeSift(gray, o, &once, &d_once, &used_once);
+      EXPECT_EQ(used_once, used_each);
+      ASSERT_EQ(once.size(), each.size()) << "contrast " << contrast << ", searched once at level " << level;
+      for (size_t i = 0; i < each.size(); ++i) {
+        EXPECT_EQ(once[i].point, each[i].point);
+        EXPECT_EQ(once[i].angle, each[i].angle);
+        EXPECT_EQ(once[i].response, each[i].response);
+      }
+      EXPECT_EQ(cv::norm(d_once, d_each, cv::NORM_INF), 0.0);
+    }
+    needed.push_back(used_each);
+    each_of.push_back(each);
+    grays.push_back(gray);
+  }
+  // The three frames needed three different levels (else the test shows less than it says).
+  EXPECT_DOUBLE_EQ(needed[0], DogSiftOptions{}.contrast_threshold);
+  EXPECT_LT(needed[1], needed[0]);
+  EXPECT_LT(needed[2], needed[1]);
+  DogSiftBuffers held;
+  DogSiftOptions o;
+  o.target_min_features = 1500;
+  o.min_contrast_threshold = 0.0005;
+  for (const size_t frame : {2, 0, 1, 1, 2}) {
+    std::vector<SiftKeypoint> found;
+    cv::Mat d;
+    DetectAndDescribeSift(grays[frame], o, &found, &d, nullptr, &held);
+    ASSERT_EQ(found.size(), each_of[frame].size()) << "frame " << frame;
+    for (size_t i = 0; i < found.size(); ++i) EXPECT_EQ(found[i].point, each_of[frame][i].point);
+  }
+  EXPECT_EQ(held.first_octave_level(), 2);
+}
+
 TEST(DogSiftTest, TinyAndFlatImagesGiveNothing) {
   std::vector<SiftKeypoint> kps;
   cv::Mat desc;

@@ -292,7 +292,14 @@ struct Candidate {
   float layer_offset = 0.f;
   float response = 0.f;
   double contrast = 0.0;  // |DoG| * octave_layers: what the thresholds compare (exactly)
+  int peak = 0;           // |DoG| of the sample the search found, before the fit: what the first rejection compares
 };
+
+// Lowe's first rejection for `contrast_threshold`: |DoG| above half of it, in whole units of the images.
+int PeakThreshold(double contrast_threshold, int octave_layers) {
+  return static_cast<int>(
+      std::min(std::floor(0.5 * contrast_threshold / octave_layers * 255.0 * kFixedScale), 32767.0));
+}
 
 // An octave's difference-of-Gaussian images, computed where they are read: DoG l = Gaussian l + 1 - Gaussian l, the
 // same float subtraction the stored images held. Storing them was L + 2 more images of the octave's size to write and
@@ -523,6 +530,7 @@ void SearchRow(const DogLayers& dog, const DogSiftOptions& o, double contrast_th
     if (!IsExtremum26(dog, layer, r, c)) continue;
     Candidate k;
     k.octave = octave;
+    k.peak = std::abs(int{rows->At(layer, r)[c]});
     if (Interpolate(dog, o, contrast_threshold, layer, r, c, &k)) found->push_back(k);
   }
 }
@@ -534,9 +542,7 @@ void FindExtrema(const DogLayers& dog, const DogSiftOptions& o, double contrast_
                  std::vector<Candidate>* all) {
   const int rows = dog.rows();
   const int cols = dog.cols();
-  // Half the final threshold, in the images' units: Lowe's first rejection (|DoG| > threshold, whole units).
-  const auto threshold =
-      static_cast<int>(std::min(std::floor(0.5 * contrast_threshold / o.octave_layers * 255.0 * kFixedScale), 32767.0));
+  const int threshold = PeakThreshold(contrast_threshold, o.octave_layers);
   const int inner_rows = rows - 2 * kImageBorder;
   if (inner_rows <= 0 || cols <= 2 * kImageBorder) return;
   const int dog_layers = o.octave_layers + 2;
@@ -1278,6 +1284,36 @@ void FirstImage(const cv::Mat& gray, const ScaleSpace& space, int octave, cv::Ma
   }
 }
 
+// The first octave's candidates at the highest level of the ladder at which they promise enough (the first octave gives
+// about two thirds of a frame's), its level in space->searched. The octave is searched once, at
+// first_octave_search_level, and each level above taken from that search: a candidate of a higher level is one whose
+// sample passes that level's first rejection and whose fitted contrast its threshold (the fit does not depend on the
+// threshold), so the same candidates in the same order as a search of its own. Levels below are searched in turn.
+void SearchFirstOctave(const DogLayers& dog, const DogSiftOptions& o, int search_level, ScaleSpace* space) {
+  const std::vector<double>& ladder = space->ladder;
+  auto too_few = [&](size_t n) { return 1.5 * static_cast<double>(n) < o.target_min_features; };
+  const size_t once = std::min(static_cast<size_t>(std::max(search_level, 0)), ladder.size() - 1);
+  std::vector<Candidate> found;
+  FindExtrema(dog, o, ladder[once], 0, &found);
+  for (size_t level = 0; level < once; ++level) {
+    const int peak = PeakThreshold(ladder[level], o.octave_layers);
+    std::vector<Candidate> kept;
+    for (const Candidate& k : found)
+      if (k.peak > peak && k.contrast >= ladder[level]) kept.push_back(k);
+    if (!too_few(kept.size())) {
+      space->searched = level;
+      space->candidates = std::move(kept);
+      return;
+    }
+  }
+  space->searched = once;
+  space->candidates = std::move(found);
+  while (space->searched + 1 < ladder.size() && too_few(space->candidates.size())) {
+    space->candidates.clear();
+    FindExtrema(dog, o, ladder[++space->searched], 0, &space->candidates);
+  }
+}
+
 // Builds the octaves one at a time and searches each for candidates. Every octave's Gaussian layers 1 .. L stay (for
 // the orientations and descriptors); its three others only while it is searched.
 void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, DogSiftBuffers* buffers, ScaleSpace* space) {
@@ -1294,6 +1330,8 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, DogSiftBuffers*
     const double total = o.sigma * portable::Exp2(i / static_cast<double>(layers));
     kernels[static_cast<size_t>(i)] = GaussianKernel(std::sqrt(total * total - prev * prev));
   }
+  int first_level = o.first_octave_search_level;
+  if (first_level < 0) first_level = buffers != nullptr ? buffers->first_octave_level() : 0;
   const int f = o.double_first_octave ? 2 : 1;
   int width = gray.cols * f;
   int height = gray.rows * f;
@@ -1309,13 +1347,11 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, DogSiftBuffers*
     FirstImage(gray, *space, octave, gauss[1], gauss[0]);
     BuildOctave(kernels, gauss);
     const DogLayers dog(gauss);
-    FindExtrema(dog, o, space->ladder[space->searched], octave, &space->candidates);
-    // The first octave gives about two thirds of the candidates: while it promises too few, search it lower.
-    while (octave == 0 && space->searched + 1 < space->ladder.size() &&
-           1.5 * static_cast<double>(space->candidates.size()) < o.target_min_features) {
-      space->candidates.clear();
-      FindExtrema(dog, o, space->ladder[++space->searched], octave, &space->candidates);
-    }
+    if (octave == 0)
+      SearchFirstOctave(dog, o, first_level, space);
+    else
+      FindExtrema(dog, o, space->ladder[space->searched], octave, &space->candidates);
+    if (octave == 0 && buffers != nullptr) buffers->set_first_octave_level(static_cast<int>(space->searched));
     space->gauss.emplace_back(gauss.begin() + 1, gauss.begin() + 1 + layers);
     width /= 2;
     height /= 2;

@@ -37,6 +37,12 @@ struct DogSiftOptions {
   // whose first sample lies between the two levels' first rejections is kept at the higher level too (rare).
   int target_min_features = 0;
   double min_contrast_threshold = 0.0;
+  // The level of that ladder (0 = contrast_threshold) at which the first octave is searched first; the levels above
+  // are taken from that one search, exactly as searches of their own would find them, so this changes the cost, not
+  // the keypoints. -1: the level the last frame needed (held in the caller's DogSiftBuffers; 0 without them): a
+  // low-texture flight's frames then skip the search at the top that promised too few (~2 ms a 640x480 frame), and a
+  // textured one's do not fit the extra candidates of a lower level (~1 ms a 1000x562 frame).
+  int first_octave_search_level = -1;
   double edge_threshold = 10.0;
   double sigma = 1.6;
   int max_features = 3000;  // strongest by |DoG| response; 0 = all
@@ -54,7 +60,8 @@ struct SiftKeypoint {
   int octave = 0;        // 0 = the first (doubled) octave
 };
 
-// The scale space's memory (one block, DogSiftScaleSpaceMiB), kept from one call to the next by a caller that
+// The scale space's memory (one block, DogSiftScaleSpaceMiB), and the ladder's level the last frame needed, kept from
+// one call to the next by a caller that
 // detects frame after frame. Without it each call takes its block from the allocator: between two frames of a flight
 // the image pool gave it back to make room for the matching's buffers, and the kernel zeroed every page of the new
 // one (9 % of a simulated flight's CPU, ~15 ms a frame). The block grows to the largest image seen and is kept until
@@ -65,9 +72,13 @@ class DogSiftBuffers {
   [[nodiscard]] size_t bytes() const { return block_.total() * block_.elemSize(); }
   // A block of at least `needed` bytes: the one held when it is large enough, else a new one that replaces it.
   [[nodiscard]] uchar* Take(size_t needed);
+  // The ladder's level the last frame's first octave needed (DogSiftOptions::first_octave_search_level).
+  [[nodiscard]] int first_octave_level() const { return first_octave_level_; }
+  void set_first_octave_level(int level) { first_octave_level_ = level; }
 
  private:
   cv::Mat block_;
+  int first_octave_level_ = 0;
 };
 
 // Detects and describes `gray` (CV_8UC1). Descriptors: CV_32F, one row of 128 per keypoint, values 0..255 as

@@ -200,12 +200,15 @@ Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
     for (auto& p : out.points) p = cv::Point2f((p.x + 0.5f) * sx - 0.5f, (p.y + 0.5f) * sy - 0.5f);
   }
   if (options_.root_sift && !out.descriptors.empty()) {
-    for (int r = 0; r < out.descriptors.rows; ++r) {
-      cv::Mat row = out.descriptors.row(r);
-      const double l1 = cv::norm(row, cv::NORM_L1);
-      if (l1 > 0) row /= l1;
-      cv::sqrt(row, row);
-    }
+    // Row by row (the same bits on any number of threads); ~1 ms of 3000 rows on one core.
+    cv::parallel_for_(cv::Range(0, out.descriptors.rows), [&](const cv::Range& range) {
+      for (int r = range.start; r < range.end; ++r) {
+        cv::Mat row = out.descriptors.row(r);
+        const double l1 = cv::norm(row, cv::NORM_L1);
+        if (l1 > 0) row /= l1;
+        cv::sqrt(row, row);
+      }
+    });
   }
   return out;
 }
