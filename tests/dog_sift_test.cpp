@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "core/buffers/mat_pool.h"
+#include "core/util/burst_workers.h"
 #include "tests/test_env.h"
 #include "tests/test_frames.h"
 
@@ -184,7 +185,8 @@ TEST(DogSiftTest, SampledDescriptorMatchesAsWellAsEveryPixel) {
             0.97 * static_cast<double>(every_pixel.correct) / every_pixel.matches);
 }
 
-// The result does not depend on the number of threads (each task computes whole rows or whole keypoints).
+// The result does not depend on the number of threads (each task computes whole rows or whole keypoints), nor on
+// whose threads.
 TEST(DogSiftTest, SameBitsWithOneThreadOrMany) {
   const cv::Mat gray = WorkingGray(static_cast<int>(500 * test::EmulationImageScale()));
   std::vector<SiftKeypoint> many, one;
@@ -200,6 +202,16 @@ TEST(DogSiftTest, SameBitsWithOneThreadOrMany) {
     EXPECT_EQ(many[i].angle, one[i].angle);
   }
   EXPECT_EQ(cv::norm(dm, d1, cv::NORM_INF), 0.0);
+  // On workers of our own (SiftExtractor's), 1 and 3 beside the caller.
+  for (const int threads : {1, 3}) {
+    BurstWorkers workers(threads);
+    std::vector<SiftKeypoint> on_workers;
+    cv::Mat dw;
+    DetectAndDescribeSift(gray, DogSiftOptions{}, &on_workers, &dw, nullptr, nullptr, &workers);
+    ASSERT_EQ(on_workers.size(), one.size());
+    for (size_t i = 0; i < one.size(); ++i) EXPECT_EQ(on_workers[i].point, one[i].point);
+    EXPECT_EQ(cv::norm(dw, d1, cv::NORM_INF), 0.0);
+  }
 }
 
 // The threshold lowered on one scale space gives what detecting again at a third of it gives, on a frame too soft

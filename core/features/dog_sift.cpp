@@ -17,6 +17,7 @@
 
 #include "core/features/portable_math.h"
 #include "core/features/q15_blur.h"
+#include "core/util/burst_workers.h"
 
 // The vector loops (convolution, subtraction, doubling, gradients, descriptor votes, extremum mask) are compiled twice
 // on x86-64 (AVX2 and the SSE2 baseline, chosen at load time); each lane does the same float operations in the same
@@ -157,13 +158,51 @@ UAVM_SIMD_CLONES void SubtractRow(const int16_t* a, const int16_t* b, int n, int
   for (; x < n; ++x) out[x] = static_cast<int16_t>(std::clamp(a[x] - b[x], -32768, 32767));
 }
 
+// The workers the loops of the detection running on this thread use (DetectAndDescribeSift's `workers`), or none:
+// cv::parallel_for_. No loop body starts a loop of its own.
+thread_local BurstWorkers* tls_workers = nullptr;
+
+// tls_workers for a scope (then back to what it was).
+class WorkersScope {
+ public:
+  explicit WorkersScope(BurstWorkers* workers) : outer_(tls_workers) { tls_workers = workers; }
+  ~WorkersScope() { tls_workers = outer_; }
+  WorkersScope(const WorkersScope&) = delete;
+  WorkersScope& operator=(const WorkersScope&) = delete;
+
+ private:
+  BurstWorkers* outer_;
+};
+
+// fn(begin, end) over [0, n) in parallel, for ranges of items that may share scratch: on the held workers `pieces`
+// equal ranges (claimed in turn, so the caller never waits on a late worker), else the ranges OpenCV's pool chooses.
+template <typename Fn>
+void ForRanges(int n, int pieces, Fn&& fn) {
+  if (n <= 0) return;
+  if (tls_workers == nullptr) {
+    cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& range) { fn(range.start, range.end); });
+    return;
+  }
+  pieces = std::clamp(pieces, 1, n);
+  tls_workers->ForEach(pieces, [&](int p) {
+    fn(static_cast<int>(static_cast<int64_t>(n) * p / pieces),
+       static_cast<int>(static_cast<int64_t>(n) * (p + 1) / pieces));
+  });
+}
+
+// Pieces of a loop over many small items (keypoints) on the held workers: each a few hundred microseconds.
+int ItemPieces() {
+  return 8 * (tls_workers != nullptr ? tls_workers->threads() + 1 : 1);
+}
+
 // fn(y0, y1) for each task's rows [y0, y1) of [0, rows), in parallel: two tasks a thread, each of at least min_rows
 // rows.
 template <typename Fn>
 void ForRowBlocks(int rows, int min_rows, Fn&& fn) {
-  const int tasks = std::max(1, std::min(2 * cv::getNumThreads(), rows / std::max(1, min_rows)));
-  cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
-    for (int t = range.start; t < range.end; ++t)
+  const int threads = tls_workers != nullptr ? tls_workers->threads() + 1 : cv::getNumThreads();
+  const int tasks = std::max(1, std::min(2 * threads, rows / std::max(1, min_rows)));
+  ForRanges(tasks, tasks, [&](int begin, int end) {
+    for (int t = begin; t < end; ++t)
       fn(static_cast<int>(static_cast<int64_t>(rows) * t / tasks),
          static_cast<int>(static_cast<int64_t>(rows) * (t + 1) / tasks));
   });
@@ -550,12 +589,12 @@ void FindExtrema(const DogLayers& dog, const DogSiftOptions& o, double contrast_
   // found[layer - 1][task]
   std::vector<std::vector<std::vector<Candidate>>> found(
       static_cast<size_t>(o.octave_layers), std::vector<std::vector<Candidate>>(static_cast<size_t>(tasks)));
-  cv::parallel_for_(cv::Range(0, tasks), [&](const cv::Range& range) {
+  ForRanges(tasks, tasks, [&](int begin, int end) {
     SearchRows ring;
     ring.width = static_cast<size_t>(cols);
     ring.data.resize(static_cast<size_t>(dog_layers) * 3 * ring.width);
     ring.mask.resize(ring.width);
-    for (int t = range.start; t < range.end; ++t) {
+    for (int t = begin; t < end; ++t) {
       const int y0 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * t / tasks);
       const int y1 = kImageBorder + static_cast<int>(static_cast<int64_t>(inner_rows) * (t + 1) / tasks);
       for (int l = 0; l < dog_layers; ++l) {
@@ -1399,11 +1438,11 @@ void DescribeKept(const ScaleSpace& space, const std::vector<Oriented>& kept, st
   keypoints->resize(kept.size());
   const std::vector<size_t> order =
       ImageOrder(kept.size(), [&](size_t i) -> const Candidate& { return space.candidates[kept[i].candidate]; });
-  cv::parallel_for_(cv::Range(0, static_cast<int>(kept.size())), [&](const cv::Range& range) {
+  ForRanges(static_cast<int>(kept.size()), ItemPieces(), [&](int begin, int end) {
     GradientScratch scratch;
     std::optional<SampledDescriber> sampled;
     if (grid) sampled.emplace(*grid);
-    for (int at = range.start; at < range.end; ++at) {
+    for (int at = begin; at < end; ++at) {
       const auto i = static_cast<int>(order[static_cast<size_t>(at)]);
       const Oriented& e = kept[static_cast<size_t>(i)];
       const Candidate& k = space.candidates[e.candidate];
@@ -1439,7 +1478,10 @@ double DogSiftScaleSpaceMiB(int width, int height, int octave_layers, bool doubl
 }
 
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::vector<SiftKeypoint>* keypoints,
-                           cv::Mat* descriptors, double* contrast_threshold_used, DogSiftBuffers* buffers) {
+                           cv::Mat* descriptors, double* contrast_threshold_used, DogSiftBuffers* buffers,
+                           BurstWorkers* workers) {
+  const WorkersScope scope(workers);  // this call's loops on `workers`, kept awake through it
+  const BurstWorkers::Burst awake(workers);
   keypoints->clear();
   *descriptors = cv::Mat();
   if (contrast_threshold_used != nullptr) *contrast_threshold_used = o.contrast_threshold;
@@ -1458,9 +1500,9 @@ void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::ve
   std::vector<std::vector<float>> angles(candidates.size());
   const std::vector<size_t> order =
       ImageOrder(candidates.size(), [&](size_t i) -> const Candidate& { return candidates[i]; });
-  cv::parallel_for_(cv::Range(0, static_cast<int>(candidates.size())), [&](const cv::Range& range) {
+  ForRanges(static_cast<int>(candidates.size()), ItemPieces(), [&](int begin, int end) {
     GradientScratch scratch;
-    for (int at = range.start; at < range.end; ++at) {
+    for (int at = begin; at < end; ++at) {
       const auto i = static_cast<int>(order[static_cast<size_t>(at)]);
       const Candidate& k = candidates[static_cast<size_t>(i)];
       Orientations(space.ImageOf(k), k.col, k.row, space.ScaleOf(k), &scratch, &angles[static_cast<size_t>(i)]);
@@ -1473,7 +1515,7 @@ void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& o, std::ve
     lower.contrast_threshold = space.ladder[space.searched + 1];
     space = ScaleSpace{};  // its images go before the next detection makes its own
     angles = {};
-    DetectAndDescribeSift(gray, lower, keypoints, descriptors, contrast_threshold_used, buffers);
+    DetectAndDescribeSift(gray, lower, keypoints, descriptors, contrast_threshold_used, buffers, workers);
     return;
   }
   if (contrast_threshold_used != nullptr) *contrast_threshold_used = space.ladder[level];

@@ -28,6 +28,8 @@
 
 namespace uavm {
 
+class BurstWorkers;
+
 struct DogSiftOptions {
   int octave_layers = 3;
   double contrast_threshold = 0.01;  // on |DoG| * octave_layers, intensities in 0..1 (OpenCV's meaning)
@@ -83,11 +85,12 @@ class DogSiftBuffers {
 
 // Detects and describes `gray` (CV_8UC1). Descriptors: CV_32F, one row of 128 per keypoint, values 0..255 as
 // OpenCV's. Keypoints come strongest first; with max_features > 0 at most that many (OpenCV keeps ties at the cut;
-// this does not). Thread-safe (for calls with different `buffers`, or none); uses cv::parallel_for_. With `buffers`
-// the scale space lives in their block instead of one of its own.
+// this does not). Thread-safe (for calls with different `buffers` and `workers`, or none). With `buffers` the scale
+// space lives in their block instead of one of its own. Its loops run on `workers` (kept awake through the call), or
+// on cv::parallel_for_ without them; the same bits either way, on any number of threads.
 void DetectAndDescribeSift(const cv::Mat& gray, const DogSiftOptions& options, std::vector<SiftKeypoint>* keypoints,
                            cv::Mat* descriptors, double* contrast_threshold_used = nullptr,
-                           DogSiftBuffers* buffers = nullptr);
+                           DogSiftBuffers* buffers = nullptr, BurstWorkers* workers = nullptr);
 
 // The scale space DetectAndDescribeSift holds for a width x height image, in MiB: the L + 3 int16 images of its first
 // octave (up to 8 layers), 6 for the default 3 (the rows of its Gaussian strips and the keypoints are small beside

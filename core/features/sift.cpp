@@ -6,6 +6,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/features/dog_sift.h"
+#include "core/util/burst_workers.h"
 
 namespace uavm {
 
@@ -50,6 +51,7 @@ int SiftBands(int width, int height, const FeatureOptions& options) {
 struct SiftExtractor::Held {
   std::mutex mutex;
   DogSiftBuffers buffers;
+  std::unique_ptr<BurstWorkers> workers;
 };
 
 SiftExtractor::SiftExtractor(const FeatureOptions& options) : options_(options), held_(std::make_unique<Held>()) {}
@@ -59,6 +61,7 @@ SiftExtractor::~SiftExtractor() = default;
 void SiftExtractor::ReleaseBuffers() const {
   const std::lock_guard<std::mutex> lock(held_->mutex);
   held_->buffers.Release();
+  held_->workers.reset();
 }
 
 size_t SiftExtractor::HeldBytes() const {
@@ -72,8 +75,8 @@ namespace {
 // more), positions in pixel-centre coordinates. With `ladder` (ours only), the threshold is lowered within the pass
 // as Extract's loop would (DogSiftOptions::target_min_features); *threshold_used says where it stopped.
 void DetectOnce(const cv::Mat& gray, const FeatureOptions& options, int max_features, double threshold,
-                DogSiftBuffers* buffers, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors,
-                bool ladder = false, double* threshold_used = nullptr) {
+                DogSiftBuffers* buffers, BurstWorkers* workers, std::vector<cv::KeyPoint>* keypoints,
+                cv::Mat* descriptors, bool ladder = false, double* threshold_used = nullptr) {
   keypoints->clear();
   if (threshold_used != nullptr) *threshold_used = threshold;
   if (options.opencv_sift) {
@@ -96,18 +99,18 @@ void DetectOnce(const cv::Mat& gray, const FeatureOptions& options, int max_feat
     o.min_contrast_threshold = options.min_contrast_threshold;
   }
   std::vector<SiftKeypoint> found;
-  DetectAndDescribeSift(gray, o, &found, descriptors, threshold_used, buffers);
+  DetectAndDescribeSift(gray, o, &found, descriptors, threshold_used, buffers, workers);
   keypoints->reserve(found.size());
   for (const auto& k : found) keypoints->emplace_back(k.point, k.size, k.angle, k.response, k.octave);
 }
 
 }  // namespace
 
-void SiftExtractor::Detect(const cv::Mat& gray, double threshold, DogSiftBuffers* buffers,
+void SiftExtractor::Detect(const cv::Mat& gray, double threshold, DogSiftBuffers* buffers, BurstWorkers* workers,
                            std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors) const {
   const int bands = SiftBands(gray.cols, gray.rows, options_);
   if (bands <= 1) {
-    DetectOnce(gray, options_, options_.max_features, threshold, buffers, keypoints, descriptors);
+    DetectOnce(gray, options_, options_.max_features, threshold, buffers, workers, keypoints, descriptors);
     if (keypoints->size() > static_cast<size_t>(options_.max_features)) {
       std::vector<size_t> order(keypoints->size());
       for (size_t i = 0; i < order.size(); ++i) order[i] = i;
@@ -140,7 +143,7 @@ void SiftExtractor::Detect(const cv::Mat& gray, double threshold, DogSiftBuffers
     const int share = static_cast<int>(1.5 * options_.max_features * (y1 - y0) / gray.rows) + 16;
     std::vector<cv::KeyPoint> kps;
     cv::Mat desc;
-    DetectOnce(gray.rowRange(ry0, ry1), options_, share, threshold, buffers, &kps, &desc);
+    DetectOnce(gray.rowRange(ry0, ry1), options_, share, threshold, buffers, workers, &kps, &desc);
     for (size_t i = 0; i < kps.size(); ++i) {
       cv::KeyPoint kp = kps[i];
       kp.pt.y += static_cast<float>(ry0);
@@ -174,14 +177,17 @@ Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
   std::unique_lock<std::mutex> lock(held_->mutex, std::defer_lock);
   if (!options_.opencv_sift) (void)lock.try_lock();
   DogSiftBuffers* buffers = lock.owns_lock() ? &held_->buffers : nullptr;
+  if (lock.owns_lock() && !held_->workers && cv::getNumThreads() > 1)
+    held_->workers = std::make_unique<BurstWorkers>(cv::getNumThreads() - 1);
+  BurstWorkers* workers = lock.owns_lock() ? held_->workers.get() : nullptr;
   if (!options_.opencv_sift && SiftBands(gray.cols, gray.rows, options_) == 1) {
     // Ours lowers the threshold on one scale space instead of detecting again.
-    DetectOnce(gray, options_, options_.max_features, threshold, buffers, &keypoints, &out.descriptors, true,
+    DetectOnce(gray, options_, options_.max_features, threshold, buffers, workers, &keypoints, &out.descriptors, true,
                &out.contrast_threshold_used);
   } else {
     for (;;) {
       keypoints.clear();
-      Detect(gray, threshold, buffers, &keypoints, &out.descriptors);
+      Detect(gray, threshold, buffers, workers, &keypoints, &out.descriptors);
       out.contrast_threshold_used = threshold;
       if (static_cast<int>(keypoints.size()) >= options_.target_min_features) break;
       const double next = threshold / 3.0;

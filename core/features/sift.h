@@ -59,11 +59,14 @@ struct Features {
   }
 };
 
+class BurstWorkers;
 class DogSiftBuffers;
 
 // Keeps our detector's scale space (DogSiftBuffers) from one Extract to the next, so that a flight's frames reuse one
-// block (SiftScaleSpaceMiB / bands: the memory plan's detector figure) instead of mapping it anew; a call made while
-// another holds it uses a block of its own. ReleaseBuffers() gives it back (the end of the flight).
+// block (SiftScaleSpaceMiB / bands: the memory plan's detector figure) instead of mapping it anew, and its worker
+// threads (BurstWorkers: cv::getNumThreads() - 1, started by the first Extract, awake through each detection); a call
+// made while another holds them uses a block of its own and cv::parallel_for_. ReleaseBuffers() gives the block back
+// and joins the workers (the end of the flight).
 class SiftExtractor {
  public:
   explicit SiftExtractor(const FeatureOptions& options);
@@ -79,8 +82,8 @@ class SiftExtractor {
   struct Held;
   // One detection at `threshold`, whole image or banded; strongest max_features kept. Positions in pixel-centre
   // coordinates.
-  void Detect(const cv::Mat& gray, double threshold, DogSiftBuffers* buffers, std::vector<cv::KeyPoint>* keypoints,
-              cv::Mat* descriptors) const;
+  void Detect(const cv::Mat& gray, double threshold, DogSiftBuffers* buffers, BurstWorkers* workers,
+              std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors) const;
 
   FeatureOptions options_;
   std::unique_ptr<Held> held_;
