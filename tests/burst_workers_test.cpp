@@ -82,6 +82,20 @@ TEST(BurstWorkersTest, AnItemsExceptionReachesTheCaller) {
   for (const int runs : r.runs) EXPECT_EQ(runs, 1);
 }
 
+// A loop started inside an item (on the caller or on a worker) runs inline: every inner item once, no wait on itself.
+TEST(BurstWorkersTest, ALoopInsideAnItemRunsInline) {
+  BurstWorkers workers(1);
+  const BurstWorkers::Burst awake(&workers);
+  std::vector<std::atomic<int>> runs(8 * 5);
+  for (int round = 0; round < 50; ++round) {
+    for (auto& r : runs) r.store(0);
+    workers.ForEach(8, [&](int outer) {
+      workers.ForEach(5, [&](int inner) { runs[static_cast<size_t>(outer * 5 + inner)].fetch_add(1); });
+    });
+    for (const auto& r : runs) ASSERT_EQ(r.load(), 1) << "round " << round;
+  }
+}
+
 // The destructor joins workers that sleep and workers that were just kept awake, at once.
 TEST(BurstWorkersTest, StopsAsleepOrAwake) {
   const auto start = std::chrono::steady_clock::now();

@@ -168,6 +168,28 @@ TEST(SiftTest, TheExtractorHoldsItsScaleSpaceUntilReleased) {
   EXPECT_LE(static_cast<double>(banded.HeldBytes()), o.max_scale_space_mib * 1024.0 * 1024.0);
 }
 
+// The detection on the extractor's awake workers or on OpenCV's pool: the same features, frame after frame (the
+// workers and the held first-octave level carry over), and again after the release.
+TEST(SiftTest, AwakeWorkersGiveTheSameFeatures) {
+  const cv::Mat gray = WorkingGray(static_cast<int>(640 * test::EmulationImageScale()));
+  cv::Mat soft;
+  gray.convertTo(soft, CV_8U, 0.25, 96);
+  FeatureOptions o;
+  const SiftExtractor awake(o);
+  o.awake_workers = false;
+  const SiftExtractor pooled(o);
+  for (int round = 0; round < 2; ++round) {
+    for (const cv::Mat* frame : std::initializer_list<const cv::Mat*>{&gray, &soft, &gray}) {
+      const Features a = awake.Extract(*frame);
+      const Features b = pooled.Extract(*frame);
+      ASSERT_GT(a.size(), 100u);
+      EXPECT_EQ(a.points, b.points);
+      EXPECT_EQ(cv::norm(a.descriptors, b.descriptors, cv::NORM_INF), 0.0);
+    }
+    awake.ReleaseBuffers();
+  }
+}
+
 TEST(SiftTest, OptionsAreChecked) {
   FeatureOptions o;
   std::string why;

@@ -175,7 +175,8 @@ class WorkersScope {
 };
 
 // fn(begin, end) over [0, n) in parallel, for ranges of items that may share scratch: on the held workers `pieces`
-// equal ranges (claimed in turn, so the caller never waits on a late worker), else the ranges OpenCV's pool chooses.
+// equal ranges (claimed in turn: the caller takes those a late worker has not), else the ranges OpenCV's pool
+// chooses.
 template <typename Fn>
 void ForRanges(int n, int pieces, Fn&& fn) {
   if (n <= 0) return;
@@ -1370,7 +1371,13 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, DogSiftBuffers*
     kernels[static_cast<size_t>(i)] = GaussianKernel(std::sqrt(total * total - prev * prev));
   }
   int first_level = o.first_octave_search_level;
-  if (first_level < 0) first_level = buffers != nullptr ? buffers->first_octave_level() : 0;
+  if (first_level < 0) {  // the level of the last frame's threshold (the ladders are the same chain of divisions)
+    first_level = 0;
+    const double last = buffers != nullptr ? buffers->first_octave_threshold() : 0.0;
+    while (last > 0.0 && static_cast<size_t>(first_level) + 1 < space->ladder.size() &&
+           space->ladder[static_cast<size_t>(first_level)] > last)
+      ++first_level;
+  }
   const int f = o.double_first_octave ? 2 : 1;
   int width = gray.cols * f;
   int height = gray.rows * f;
@@ -1390,7 +1397,7 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, DogSiftBuffers*
       SearchFirstOctave(dog, o, first_level, space);
     else
       FindExtrema(dog, o, space->ladder[space->searched], octave, &space->candidates);
-    if (octave == 0 && buffers != nullptr) buffers->set_first_octave_level(static_cast<int>(space->searched));
+    if (octave == 0 && buffers != nullptr) buffers->set_first_octave_threshold(space->ladder[space->searched]);
     space->gauss.emplace_back(gauss.begin() + 1, gauss.begin() + 1 + layers);
     width /= 2;
     height /= 2;

@@ -41,7 +41,8 @@ struct DogSiftOptions {
   double min_contrast_threshold = 0.0;
   // The level of that ladder (0 = contrast_threshold) at which the first octave is searched first; the levels above
   // are taken from that one search, exactly as searches of their own would find them, so this changes the cost, not
-  // the keypoints. -1: the level the last frame needed (held in the caller's DogSiftBuffers; 0 without them): a
+  // the keypoints. -1: the level of the threshold the last frame needed (held in the caller's DogSiftBuffers; 0 without
+  // them): a
   // low-texture flight's frames then skip the search at the top that promised too few (~2 ms a 640x480 frame), and a
   // textured one's do not fit the extra candidates of a lower level (~1 ms a 1000x562 frame).
   int first_octave_search_level = -1;
@@ -74,13 +75,14 @@ class DogSiftBuffers {
   [[nodiscard]] size_t bytes() const { return block_.total() * block_.elemSize(); }
   // A block of at least `needed` bytes: the one held when it is large enough, else a new one that replaces it.
   [[nodiscard]] uchar* Take(size_t needed);
-  // The ladder's level the last frame's first octave needed (DogSiftOptions::first_octave_search_level).
-  [[nodiscard]] int first_octave_level() const { return first_octave_level_; }
-  void set_first_octave_level(int level) { first_octave_level_ = level; }
+  // The threshold the last frame's first octave needed (DogSiftOptions::first_octave_search_level; 0 = none yet): a
+  // value, not a level, because a detection done again lower starts its ladder further down.
+  [[nodiscard]] double first_octave_threshold() const { return first_octave_threshold_; }
+  void set_first_octave_threshold(double threshold) { first_octave_threshold_ = threshold; }
 
  private:
   cv::Mat block_;
-  int first_octave_level_ = 0;
+  double first_octave_threshold_ = 0.0;
 };
 
 // Detects and describes `gray` (CV_8UC1). Descriptors: CV_32F, one row of 128 per keypoint, values 0..255 as

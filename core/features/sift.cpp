@@ -177,7 +177,7 @@ Features SiftExtractor::Extract(const cv::Mat& gray_in) const {
   std::unique_lock<std::mutex> lock(held_->mutex, std::defer_lock);
   if (!options_.opencv_sift) (void)lock.try_lock();
   DogSiftBuffers* buffers = lock.owns_lock() ? &held_->buffers : nullptr;
-  if (lock.owns_lock() && !held_->workers && cv::getNumThreads() > 1)
+  if (lock.owns_lock() && options_.awake_workers && !held_->workers && cv::getNumThreads() > 1)
     held_->workers = std::make_unique<BurstWorkers>(cv::getNumThreads() - 1);
   BurstWorkers* workers = lock.owns_lock() ? held_->workers.get() : nullptr;
   if (!options_.opencv_sift && SiftBands(gray.cols, gray.rows, options_) == 1) {

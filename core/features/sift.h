@@ -37,6 +37,10 @@ struct FeatureOptions {
   // keypoint whatever its scale), or from every pixel of its window as OpenCV's (0). What it changes is measured in
   // bench/results/sift-sampled-descriptor-*.md.
   int descriptor_samples_per_cell = 4;
+  // Ours only: the detection's loops on worker threads of the extractor's own that poll for the next loop through a
+  // frame (BurstWorkers), or on OpenCV's pool, whose threads sleep between loops (false). The same keypoints either
+  // way; what it changes is measured in bench/results/sift-burst-workers-*.md.
+  bool awake_workers = true;
 
   [[nodiscard]] bool Check(std::string* why) const;
 };

@@ -124,6 +124,7 @@ std::vector<Field> Fields(PipelineOptions& o) {
       {"features", "half_size", &o.features.half_size},
       {"features", "double_first_octave", &o.features.double_first_octave},
       {"features", "descriptor_samples_per_cell", &o.features.descriptor_samples_per_cell},
+      {"features", "awake_workers", &o.features.awake_workers},
       {"features", "opencv_sift", &o.features.opencv_sift},
       {"features", "max_scale_space_mib", &o.features.max_scale_space_mib},
       {"features", "band_margin", &o.features.band_margin},

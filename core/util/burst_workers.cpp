@@ -22,11 +22,22 @@ inline void CpuRelax() {
 // Polls before a waiting thread starts yielding its core on every poll (a few microseconds).
 constexpr int kPollsBeforeYield = 64;
 
+// The workers whose loop item this thread is running, if any: a loop started inside an item runs inline (a worker
+// would wait for itself to leave the outer loop; the caller would close the outer loop early).
+thread_local const BurstWorkers* tls_running = nullptr;
+
 }  // namespace
 
 BurstWorkers::BurstWorkers(int threads) {
   threads_.reserve(static_cast<size_t>(std::max(threads, 0)));
-  for (int i = 0; i < threads; ++i) threads_.emplace_back([this] { Work(); });
+  try {
+    for (int i = 0; i < threads; ++i) threads_.emplace_back([this] { Work(); });
+  } catch (...) {  // no thread for the rest: stop those started (joinable threads must not be destroyed)
+    stop_.store(true);
+    Wake();
+    for (auto& t : threads_) t.join();
+    throw;
+  }
 }
 
 BurstWorkers::~BurstWorkers() {
@@ -36,11 +47,16 @@ BurstWorkers::~BurstWorkers() {
 }
 
 void BurstWorkers::Wake() {
-  { const std::lock_guard<std::mutex> lock(mutex_); }  // a worker between its check and its wait is then waiting
+  try {
+    const std::lock_guard<std::mutex> lock(mutex_);  // a worker between its check and its wait is then waiting
+  } catch (...) {  // (a mutex that cannot be locked: the workers then find the loop when they poll, or not at all)
+  }
   wake_.notify_all();
 }
 
-void BurstWorkers::RunItems(Loop* loop) {
+void BurstWorkers::RunItems(Loop* loop) const {
+  const BurstWorkers* const outer = tls_running;
+  tls_running = this;
   for (int i = loop->next.fetch_add(1); i < loop->n; i = loop->next.fetch_add(1)) {
     try {
       (*loop->fn)(i);
@@ -49,6 +65,7 @@ void BurstWorkers::RunItems(Loop* loop) {
       if (!loop->error) loop->error = std::current_exception();
     }
   }
+  tls_running = outer;
 }
 
 void BurstWorkers::ForEach(int n, const std::function<void(int)>& fn) {
@@ -56,7 +73,8 @@ void BurstWorkers::ForEach(int n, const std::function<void(int)>& fn) {
   Loop loop;
   loop.fn = &fn;
   loop.n = n;
-  if (n > 1 && !threads_.empty()) {
+  const bool shared = n > 1 && !threads_.empty() && tls_running != this;
+  if (shared) {
     generation_.fetch_add(1);  // before the loop is seen: a worker that sees it sees its generation
     loop_.store(&loop);
     if (bursts_.load() == 0) Wake();
@@ -65,10 +83,12 @@ void BurstWorkers::ForEach(int n, const std::function<void(int)>& fn) {
   // Close the loop, then wait for the workers inside it (they finish the items they claimed). A worker enters by
   // counting itself in and then checking the loop is still open (both sequentially consistent), so after this store
   // and a count of zero none can be inside.
-  loop_.store(nullptr);
-  for (int polls = 0; inside_.load() != 0; ++polls) {
-    CpuRelax();
-    if (polls > kPollsBeforeYield) std::this_thread::yield();
+  if (shared) {
+    loop_.store(nullptr);
+    for (int polls = 0; inside_.load() != 0; ++polls) {
+      CpuRelax();
+      if (polls > kPollsBeforeYield) std::this_thread::yield();
+    }
   }
   if (loop.error) std::rethrow_exception(loop.error);
 }

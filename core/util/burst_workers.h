@@ -4,12 +4,15 @@
 // A loop handed to a sleeping thread starts on it only once the kernel has woken it. On a virtual machine that can
 // take milliseconds (the host schedules the virtual CPU): in a paced flight, cv::parallel_for_'s pool (TBB) left the
 // second core idle, or the caller waiting on a late worker, for ~8 ms of a 31 ms detection (perf sched). While a
-// Burst is open these workers poll for the next loop instead of sleeping (pausing, and yielding to any other thread
-// that wants the core); between bursts they sleep. A loop's items are claimed one at a time from a shared counter, so
-// the caller never waits for a worker that has not started: it runs the items itself.
+// Burst is open these workers poll for the next loop instead of sleeping (pausing, then sched_yield, which under the
+// default scheduler gives the core up only briefly: a Burst costs a core for its whole length, serial stretches
+// included); between bursts they sleep. A loop's items are claimed one at a time from a shared counter, so items no
+// worker has claimed are the caller's: it waits only for items a worker has started (or, rarely, for a worker
+// descheduled between counting itself into the loop and claiming).
 //
 // Ownership: the workers are this object's threads, joined by its destructor. One caller at a time (ForEach and
-// Burst are not for concurrent callers; a second caller needs workers of its own).
+// Burst are not for concurrent callers; a second caller needs workers of its own). A loop started from inside an item
+// runs on the thread that starts it, one item after another.
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
@@ -55,7 +58,7 @@ class BurstWorkers {
     std::mutex error_mutex;
     std::exception_ptr error;
   };
-  static void RunItems(Loop* loop);
+  void RunItems(Loop* loop) const;
   void Work();
   void Wake();
 
