@@ -191,17 +191,22 @@ void ForRanges(int n, int pieces, Fn&& fn) {
   });
 }
 
-// Pieces of a loop over many small items (keypoints) on the held workers: each a few hundred microseconds.
+// Threads a loop of this detection runs on: the held workers and the caller, or OpenCV's pool.
+int LoopThreads() {
+  return tls_workers != nullptr ? tls_workers->threads() + 1 : cv::getNumThreads();
+}
+
+// Pieces of a loop over many small items (keypoints) on the held workers: each a few hundred microseconds. (OpenCV's
+// pool chooses its own ranges: ForRanges ignores this without workers.)
 int ItemPieces() {
-  return 8 * (tls_workers != nullptr ? tls_workers->threads() + 1 : 1);
+  return 8 * LoopThreads();
 }
 
 // fn(y0, y1) for each task's rows [y0, y1) of [0, rows), in parallel: two tasks a thread, each of at least min_rows
 // rows.
 template <typename Fn>
 void ForRowBlocks(int rows, int min_rows, Fn&& fn) {
-  const int threads = tls_workers != nullptr ? tls_workers->threads() + 1 : cv::getNumThreads();
-  const int tasks = std::max(1, std::min(2 * threads, rows / std::max(1, min_rows)));
+  const int tasks = std::max(1, std::min(2 * LoopThreads(), rows / std::max(1, min_rows)));
   ForRanges(tasks, tasks, [&](int begin, int end) {
     for (int t = begin; t < end; ++t)
       fn(static_cast<int>(static_cast<int64_t>(rows) * t / tasks),
@@ -1393,11 +1398,12 @@ void SearchOctaves(const cv::Mat& gray, const DogSiftOptions& o, DogSiftBuffers*
     FirstImage(gray, *space, octave, gauss[1], gauss[0]);
     BuildOctave(kernels, gauss);
     const DogLayers dog(gauss);
-    if (octave == 0)
+    if (octave == 0) {
       SearchFirstOctave(dog, o, first_level, space);
-    else
+      if (buffers != nullptr) buffers->set_first_octave_threshold(space->ladder[space->searched]);
+    } else {
       FindExtrema(dog, o, space->ladder[space->searched], octave, &space->candidates);
-    if (octave == 0 && buffers != nullptr) buffers->set_first_octave_threshold(space->ladder[space->searched]);
+    }
     space->gauss.emplace_back(gauss.begin() + 1, gauss.begin() + 1 + layers);
     width /= 2;
     height /= 2;
